@@ -1,0 +1,49 @@
+"""camplace: optimal placement of a small team of cameras to observe a dynamic event.
+
+The small public API::
+
+    import camplace
+    inst = camplace.builtin("comet-67p-bunker")      # or camplace.load_instance("my.toml")
+    sol = camplace.run(inst, seed=0, outdir="out")   # a Solution (status, objective, bound, gap, cameras)
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("camplace")
+except PackageNotFoundError:  # running from a source tree
+    __version__ = "0.0.0+src"
+
+from camplace.errors import CamplaceError, InstanceError
+
+# The rest is imported on first use, so that e.g. ``import camplace.solver`` pulls in no geometry.
+_LAZY = {
+    "Instance": "camplace.instance",
+    "builtin": "camplace.instance",
+    "load_instance": "camplace.instance",
+    "save_instance": "camplace.instance",
+    "Solution": "camplace.pipeline",
+    "run": "camplace.pipeline",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'camplace' has no attribute {name!r}")
+
+__all__ = [
+    "CamplaceError",
+    "Instance",
+    "InstanceError",
+    "Solution",
+    "__version__",
+    "builtin",
+    "load_instance",
+    "run",
+    "save_instance",
+]

@@ -1,0 +1,145 @@
+"""The ``camplace`` command line.
+
+Exit codes: 0 success; 1 the run finished but no feasible camera system was found; 2 bad input
+(a one-line ``error: ...`` on stderr, no traceback); 130 interrupted (Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from camplace.errors import CamplaceError
+
+EXIT_OK = 0
+EXIT_NO_SOLUTION = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors and exit code 2."""
+
+    def error(self, message: str) -> None:  # pragma: no cover - exercised through main()
+        self.print_usage(sys.stderr)
+        raise SystemExit(f"error: {message}") from None
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("instance", help="a built-in instance name (see 'camplace instances') or an instance .toml file")
+    p.add_argument("-o", "--out", required=True, type=Path, help="output folder (created if missing)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default: the instance's, usually 0)")
+    p.add_argument("--candidates", type=int, default=None, help="number of candidate camera positions")
+    p.add_argument("--points", type=int, default=None, help="number of target surface points")
+    p.add_argument("--sampler", choices=["chaotic", "uniform", "sobol"], default=None, help="candidate sampler")
+    p.add_argument("--k", type=int, default=None, help="number of cameras to place (default: the instance's k)")
+    p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="solver time limit, seconds")
+    p.add_argument(
+        "--engine", choices=["auto", "exact", "mip", "cpsat"], default="auto", help="solver engine (default: auto)"
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every verb."""
+    parser = _Parser(prog="camplace", description="Optimal placement of cameras to observe a dynamic event.")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
+
+    p = sub.add_parser("run", help="sample candidates, compute visibility, choose the proven-best k cameras")
+    _add_run_options(p)
+
+    sub.add_parser("instances", help="list the built-in instances")
+
+    p = sub.add_parser("init", help="write a built-in instance (and its mesh files) to disk for editing")
+    p.add_argument("name", help="built-in instance name")
+    p.add_argument("-o", "--out", required=True, type=Path, help="instance file to write (.toml)")
+    return parser
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from camplace._progress import ConsoleReporter
+    from camplace.instance import resolve_instance
+    from camplace.pipeline import run
+
+    instance = resolve_instance(args.instance)
+    sol = run(
+        instance,
+        seed=args.seed,
+        candidates=args.candidates,
+        points=args.points,
+        sampler=args.sampler,
+        k=args.k,
+        time_limit_s=args.time_limit,
+        engine=args.engine,
+        outdir=args.out,
+        reporter=ConsoleReporter(),
+    )
+    print(
+        f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
+        f"(objective {sol.objective:.6f}, bound {sol.bound:.6f}, gap {100 * sol.gap:.3f}%, engine {sol.engine})"
+    )
+    for cam in sol.cameras:
+        x, y, z = cam["position"]
+        print(f"  camera {cam['candidate']:>6}: position ({x:.3f}, {y:.3f}, {z:.3f}) m")
+    print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.npz, scene.ply")
+    return EXIT_OK if sol.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
+
+
+def _cmd_instances(args: argparse.Namespace) -> int:
+    from camplace.instance import BUILTINS
+
+    for name, desc in BUILTINS.items():
+        print(f"{name:<22} {desc}")
+    return EXIT_OK
+
+
+def _cmd_init(args: argparse.Namespace) -> int:
+    from camplace.instance import write_builtin
+
+    out: Path = args.out
+    if out.suffix != ".toml":
+        raise CamplaceError(f"--out: {out} should end in .toml (for example {out.with_suffix('.toml')})")
+    write_builtin(args.name, out)
+    print(f"wrote {out} (run it with: camplace run {out} -o OUTDIR)")
+    return EXIT_OK
+
+
+COMMANDS = {"run": _cmd_run, "instances": _cmd_instances, "init": _cmd_init}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``camplace`` console script; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        if isinstance(exc.code, str):
+            print(exc.code, file=sys.stderr)
+            return EXIT_BAD_INPUT
+        return int(exc.code or 0)
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(args.verbose, 2), format="%(levelname)s %(name)s: %(message)s"
+    )
+    if args.version:
+        from camplace import __version__
+
+        print(f"camplace {__version__}")
+        return EXIT_OK
+    if args.verb is None:
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    try:
+        return COMMANDS[args.verb](args)
+    except CamplaceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("interrupted: no partial output was written", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""Camera-placement instances: the v1 TOML format, its validation, procedural meshes and built-ins."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from camplace.errors import CamplaceError, InstanceError
+from camplace.instance.builtins import BUILTINS, builtin, builtin_toml, write_builtin
+from camplace.instance.loader import load_instance, parse_instance, save_instance
+from camplace.instance.schema import (
+    SAMPLERS,
+    SCHEMA_VERSION,
+    CameraModel,
+    Frame,
+    Instance,
+    Light,
+    Mesh,
+    Occluder,
+    Pose,
+    RunDefaults,
+    Volume,
+    rotation_from_euler_deg,
+)
+
+__all__ = [
+    "BUILTINS",
+    "SAMPLERS",
+    "SCHEMA_VERSION",
+    "CameraModel",
+    "Frame",
+    "Instance",
+    "InstanceError",
+    "Light",
+    "Mesh",
+    "Occluder",
+    "Pose",
+    "RunDefaults",
+    "Volume",
+    "builtin",
+    "builtin_toml",
+    "load_instance",
+    "parse_instance",
+    "resolve_instance",
+    "rotation_from_euler_deg",
+    "save_instance",
+    "write_builtin",
+]
+
+
+def resolve_instance(name_or_path: str | os.PathLike[str]) -> Instance:
+    """A built-in by name, else the instance file at that path.
+
+    Raises
+    ------
+    CamplaceError
+        If it is neither a built-in name nor an existing path (the message lists the built-ins).
+    InstanceError
+        If the file exists but is not a valid instance.
+    """
+    text = os.fspath(name_or_path)
+    if isinstance(name_or_path, str) and text in BUILTINS:
+        return builtin(text)
+    if not Path(text).exists():
+        raise CamplaceError(f"no built-in or file named {text!r}; built-ins: {', '.join(sorted(BUILTINS))}")
+    return load_instance(text)

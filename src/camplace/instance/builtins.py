@@ -1,0 +1,80 @@
+"""Built-in instances, each defined as TOML data and parsed like a file (source ``builtin:<name>``)."""
+
+from __future__ import annotations
+
+import copy
+import os
+from pathlib import Path
+from typing import Any
+
+from camplace.errors import CamplaceError
+from camplace.instance.loader import parse_instance, save_instance
+from camplace.instance.schema import Instance
+
+__all__ = ["BUILTINS", "builtin", "builtin_toml", "write_builtin"]
+
+_DATA: dict[str, dict[str, Any]] = {
+    # The thesis's Experiment 03: a ~0.6 m model of comet 67P in a 30 x 3 x 3 m lab corridor
+    # (x along the corridor, z up); cameras stand at least 0.3 m from every wall.
+    "comet-67p-bunker": {
+        "schema_version": 1,
+        "name": "comet-67p-bunker",
+        "k": 3,
+        "run": {"candidates": 2000, "points": 10000, "sampler": "chaotic", "seed": 0, "time_limit_s": 60.0},
+        "camera": {
+            "sensor_width_mm": 7.18,
+            "sensor_height_mm": 5.32,
+            "focal_length_mm": 8.0,
+            "width_px": 1280,
+            "height_px": 960,
+            "near_m": 0.1,
+            "far_m": 40.0,
+        },
+        "volume": {"min_m": [0.3, 0.3, 0.3], "max_m": [29.7, 2.7, 2.7]},
+        "light": {"position_m": [10.5, 0.6, 2.8]},
+        "target": {"name": "comet-67p", "shape": "bilobed-comet", "length_m": 0.6, "seed": 7},
+        "occluders": [
+            {
+                "name": "corridor",
+                "shape": "corridor",
+                "size_m": [30.0, 3.0, 3.0],
+                "position_m": [0.0, 0.0, 0.0],
+                "rotation_deg": [0.0, 0.0, 0.0],
+            }
+        ],
+        "frames": [
+            {"weight": 1.0, "time_s": 0.0, "position_m": [12.0, 1.5, 1.5], "rotation_deg": [0.0, 0.0, 0.0]}
+        ],
+    },
+}
+
+BUILTINS: dict[str, str] = {
+    "comet-67p-bunker": "Experiment 03: 3 cameras around a 0.6 m comet 67P model in a 30 x 3 x 3 m lab corridor",
+}
+
+
+def _check(name: str) -> None:
+    if name not in _DATA:
+        raise CamplaceError(f"no built-in instance named {name!r}; built-ins: {', '.join(sorted(BUILTINS))}")
+
+
+def builtin_toml(name: str) -> dict[str, Any]:
+    """A fresh copy of the TOML data that defines built-in ``name``."""
+    _check(name)
+    return copy.deepcopy(_DATA[name])
+
+
+def builtin(name: str) -> Instance:
+    """Built-in instance ``name`` (meshes generated; source ``builtin:<name>``).
+
+    Raises
+    ------
+    CamplaceError
+        If there is no such built-in; the message lists the names.
+    """
+    return parse_instance(builtin_toml(name), f"builtin:{name}", Path.cwd())
+
+
+def write_builtin(name: str, path: str | os.PathLike[str]) -> None:
+    """Write built-in ``name`` to ``path`` with its meshes as PLY files in ``<stem>_meshes/`` (``camplace init``)."""
+    save_instance(builtin(name), path, mesh_files=True)

@@ -1,0 +1,726 @@
+"""Read, validate and write instance files (format v1, TOML, metres).
+
+Every problem is reported as one :class:`~camplace.errors.InstanceError` line naming the file, the
+dotted field (``camera.focal_length_mm``, ``frames[2].weight``, ``occluders[0].file``) and the fix.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+try:  # Python >= 3.11
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+from camplace._io import write_bytes_atomic, write_text_atomic
+from camplace.errors import InstanceError
+from camplace.instance import procedural
+from camplace.instance.schema import (
+    SAMPLERS,
+    SCHEMA_VERSION,
+    CameraModel,
+    Frame,
+    Instance,
+    Light,
+    Mesh,
+    Occluder,
+    Pose,
+    RunDefaults,
+    Volume,
+)
+
+__all__ = ["load_instance", "parse_instance", "save_instance", "mesh_ply_bytes", "read_mesh_file"]
+
+MAX_CANDIDATES = 1_000_000
+MAX_POINTS = 10_000_000
+
+_TOP_KEYS = ("schema_version", "name", "k", "run", "camera", "volume", "light", "target", "occluders", "frames")
+_RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s")
+_CAMERA_KEYS = ("sensor_width_mm", "sensor_height_mm", "focal_length_mm", "width_px", "height_px", "near_m", "far_m")
+_VOLUME_KEYS = ("min_m", "max_m")
+_LIGHT_KEYS = ("position_m",)
+_POSE_KEYS = ("position_m", "rotation_deg")
+_FRAME_KEYS = ("weight", "time_s", "position_m", "rotation_deg")
+_MESH_COMMON_KEYS = ("name", "file", "shape")
+_FILE_KEYS = ("scale",)
+_SHAPE_PARAMS: dict[str, dict[str, Any]] = {name: params for name, (_, params) in procedural.SHAPES.items()}
+_ALL_SHAPE_PARAMS = sorted({p for params in _SHAPE_PARAMS.values() for p in params})
+
+
+# --------------------------------------------------------------------------------------------------
+# small helpers
+
+
+def _one_line(text: str) -> str:
+    return re.sub(r"\s*[\r\n]+\s*", " ", str(text)).strip()
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """Short one-line rendering of a TOML value for messages."""
+    if isinstance(value, bool):
+        s = "true" if value else "false"
+    elif isinstance(value, str):
+        s = repr(value)
+    elif isinstance(value, dict):
+        s = "{" + ", ".join(f"{k} = {_show(v, 20)}" for k, v in value.items()) + "}"
+    else:
+        s = repr(value)
+    s = _one_line(s)
+    return s if len(s) <= limit else s[: limit - 3] + "..."
+
+
+def _type_name(value: Any) -> str:
+    if isinstance(value, bool):
+        return "boolean"
+    if isinstance(value, int):
+        return "integer"
+    if isinstance(value, float):
+        return "float"
+    if isinstance(value, str):
+        return "string"
+    if isinstance(value, (list, tuple)):
+        return "array"
+    if isinstance(value, dict):
+        return "table"
+    return type(value).__name__
+
+
+def _join(prefix: str, key: str | int) -> str:
+    if isinstance(key, int):
+        return f"{prefix}[{key}]"
+    return f"{prefix}.{key}" if prefix else key
+
+
+def _section(prefix: str) -> str:
+    """How the user would spell the table holding ``prefix``'s keys."""
+    if not prefix:
+        return "the top level"
+    m = re.fullmatch(r"(\w+)\[(\d+)\]", prefix)
+    if m:
+        return f"[[{m.group(1)}]] number {int(m.group(2)) + 1}"
+    return f"[{prefix}]"
+
+
+class _Parser:
+    """Validating reader of one instance's data; ``source`` names it in every error."""
+
+    def __init__(self, source: str, base_dir: Path) -> None:
+        self.source = _one_line(source)
+        self.base_dir = Path(base_dir)
+
+    # -- errors ------------------------------------------------------------------------------------
+
+    def error(self, field: str, problem: str, fix: str | None = None) -> InstanceError:
+        return InstanceError(self.source, _one_line(field), _one_line(problem), _one_line(fix) if fix else None)
+
+    # -- structure ---------------------------------------------------------------------------------
+
+    def table(self, parent: dict, key: str, prefix: str, *, required: bool = True) -> dict | None:
+        field = _join(prefix, key)
+        if key not in parent:
+            if required:
+                raise self.error(field, "missing required table", f"add a [{field}] table")
+            return None
+        value = parent[key]
+        if not isinstance(value, dict):
+            raise self.error(
+                field, f"must be a table, got {_type_name(value)} {_show(value)}", f"write it as a [{field}] section"
+            )
+        return value
+
+    def check_keys(self, table: dict, allowed: tuple[str, ...] | list[str], prefix: str, hint: dict | None = None) -> None:
+        """Reject keys not in ``allowed``, suggesting the closest allowed key."""
+        for key in table:
+            if key in allowed:
+                continue
+            field = _join(prefix, str(key))
+            extra = (hint or {}).get(key)
+            close = difflib.get_close_matches(str(key), list(allowed), n=1, cutoff=0.6)
+            problem = "unknown key"
+            if extra:
+                problem += f"; {extra}"
+            if close:
+                problem += f"; did you mean '{close[0]}'?"
+            raise self.error(field, problem, f"allowed keys in {_section(prefix)}: {', '.join(allowed)}")
+
+    def require(self, table: dict, key: str, prefix: str, what: str) -> Any:
+        if key not in table:
+            raise self.error(_join(prefix, key), "missing required key", f"add {key} = <{what}> to {_section(prefix)}")
+        return table[key]
+
+    # -- scalars -----------------------------------------------------------------------------------
+
+    def number(
+        self,
+        table: dict,
+        key: str,
+        prefix: str,
+        *,
+        default: float | None = None,
+        required: bool = False,
+        gt: float | None = None,
+        ge: float | None = None,
+        le: float | None = None,
+        unit: str = "",
+    ) -> float:
+        field = _join(prefix, key)
+        if key not in table:
+            if required or default is None:
+                self.require(table, key, prefix, f"number{unit and ' in ' + unit}")
+            return float(default)  # type: ignore[arg-type]
+        return self._check_number(table[key], field, gt=gt, ge=ge, le=le)
+
+    def _check_number(self, value: Any, field: str, *, gt=None, ge=None, le=None) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(field, f"must be a number, got {_type_name(value)} {_show(value)}", "write a plain number")
+        x = float(value)
+        if not math.isfinite(x):
+            raise self.error(field, f"must be a finite number, got {_show(value)}", "replace nan/inf by a real value")
+        if gt is not None and not x > gt:
+            raise self.error(field, f"must be > {gt:g}, got {_show(value)}", f"use a value greater than {gt:g}")
+        if ge is not None and not x >= ge:
+            raise self.error(field, f"must be >= {ge:g}, got {_show(value)}", f"use a value of at least {ge:g}")
+        if le is not None and not x <= le:
+            raise self.error(field, f"must be <= {le:g}, got {_show(value)}", f"use a value of at most {le:g}")
+        return x
+
+    def integer(
+        self,
+        table: dict,
+        key: str,
+        prefix: str,
+        *,
+        default: int | None = None,
+        required: bool = False,
+        ge: int | None = None,
+        le: int | None = None,
+    ) -> int:
+        field = _join(prefix, key)
+        if key not in table:
+            if required or default is None:
+                self.require(table, key, prefix, "integer")
+            return int(default)  # type: ignore[arg-type]
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            fix = "write a whole number without a decimal point" if isinstance(value, float) else "write a whole number"
+            raise self.error(field, f"must be an integer, got {_type_name(value)} {_show(value)}", fix)
+        n = int(value)
+        if ge is not None and n < ge:
+            raise self.error(field, f"must be >= {ge}, got {n}", f"use an integer of at least {ge}")
+        if le is not None and n > le:
+            raise self.error(field, f"must be <= {le:_}, got {n:_}", f"use an integer of at most {le:_}")
+        return n
+
+    def string(self, table: dict, key: str, prefix: str, *, default: str | None = None) -> str:
+        field = _join(prefix, key)
+        if key not in table:
+            if default is None:
+                self.require(table, key, prefix, '"text"')
+            return default  # type: ignore[return-value]
+        value = table[key]
+        if not isinstance(value, str):
+            raise self.error(field, f"must be a string, got {_type_name(value)} {_show(value)}", 'put the text in quotes, e.g. "name"')
+        if not value.strip():
+            raise self.error(field, "must not be empty", "write a non-empty string")
+        if "\n" in value or "\r" in value:
+            raise self.error(field, "must be a single line", "remove the line breaks")
+        return value
+
+    def vec3(self, table: dict, key: str, prefix: str, *, default: tuple | None = None, positive: bool = False) -> tuple[float, float, float]:
+        field = _join(prefix, key)
+        if key not in table:
+            if default is None:
+                self.require(table, key, prefix, "[x, y, z]")
+            return tuple(float(x) for x in default)  # type: ignore[return-value,union-attr]
+        value = table[key]
+        if not isinstance(value, (list, tuple)) or len(value) != 3:
+            got = f"{_type_name(value)} of length {len(value)}" if isinstance(value, (list, tuple)) else f"{_type_name(value)} {_show(value)}"
+            raise self.error(field, f"must be an array of 3 numbers [x, y, z], got {got}", f"write {key} = [x, y, z]")
+        out = []
+        for i, item in enumerate(value):
+            out.append(self._check_number(item, f"{field}[{i}]", gt=0.0 if positive else None))
+        return tuple(out)  # type: ignore[return-value]
+
+    # -- sections ----------------------------------------------------------------------------------
+
+    def pose(self, table: dict, prefix: str) -> Pose:
+        return Pose(
+            position_m=self.vec3(table, "position_m", prefix, default=(0.0, 0.0, 0.0)),
+            rotation_deg=self.vec3(table, "rotation_deg", prefix, default=(0.0, 0.0, 0.0)),
+        )
+
+    def mesh(self, table: dict, prefix: str, default_name: str, extra_keys: tuple[str, ...] = ()) -> Mesh:
+        """A mesh spec: ``file`` (+ ``scale``) or ``shape`` (+ its parameters); plus ``extra_keys`` (pose)."""
+        has_file, has_shape = "file" in table, "shape" in table
+        if has_file and has_shape:
+            raise self.error(
+                _join(prefix, "file"), "both file and shape are given", f"keep only one of file = ... or shape = ... in {_section(prefix)}"
+            )
+        if not has_file and not has_shape:
+            raise self.error(
+                _join(prefix, "shape"),
+                "missing mesh: neither file nor shape is given",
+                f"add file = \"path/to/mesh.ply\" or shape = one of {', '.join(_SHAPE_PARAMS)} to {_section(prefix)}",
+            )
+        name = self.string(table, "name", prefix, default=default_name)
+        spec = {k: copy.deepcopy(v) for k, v in table.items() if k not in extra_keys}
+
+        if has_file:
+            allowed = _MESH_COMMON_KEYS[:2] + _FILE_KEYS + extra_keys
+            hint = {p: "shape parameters need shape = ..., not file = ..." for p in _ALL_SHAPE_PARAMS}
+            self.check_keys(table, allowed, prefix, hint)
+            scale = self.number(table, "scale", prefix, default=1.0, gt=0.0)
+            vertices, faces, path = self.read_file(table, prefix, scale)
+            return Mesh(name=name, vertices=vertices, faces=faces, source=f"file:{path}", spec=spec)
+
+        shape = table["shape"]
+        field = _join(prefix, "shape")
+        if not isinstance(shape, str):
+            raise self.error(field, f"must be a string, got {_type_name(shape)} {_show(shape)}", f"use one of {', '.join(_SHAPE_PARAMS)}")
+        if shape not in _SHAPE_PARAMS:
+            close = difflib.get_close_matches(shape, list(_SHAPE_PARAMS), n=1, cutoff=0.5)
+            problem = f"unknown shape {_show(shape)}" + (f"; did you mean '{close[0]}'?" if close else "")
+            raise self.error(field, problem, f"use one of {', '.join(_SHAPE_PARAMS)}, or file = \"mesh.ply\"")
+        params = _SHAPE_PARAMS[shape]
+        allowed = ("name", "shape", *params, *extra_keys)
+        hint: dict[str, str] = {"scale": "scale applies only to file meshes; set the shape's size parameters instead"}
+        for p in _ALL_SHAPE_PARAMS:
+            if p not in params:
+                owners = [s for s, ps in _SHAPE_PARAMS.items() if p in ps]
+                hint[p] = f"not a parameter of shape '{shape}' (it is one of {', '.join(owners)})"
+        self.check_keys(table, allowed, prefix, hint)
+        vertices, faces = self.shape(shape, table, prefix)
+        return Mesh(name=name, vertices=vertices, faces=faces, source=f"procedural:{shape}", spec=spec)
+
+    def shape(self, shape: str, table: dict, prefix: str) -> tuple[np.ndarray, np.ndarray]:
+        if shape == "sphere":
+            args = {
+                "radius_m": self.number(table, "radius_m", prefix, default=0.5, gt=0.0),
+                "subdivisions": self.integer(table, "subdivisions", prefix, default=4, ge=1, le=7),
+            }
+        elif shape in ("box", "corridor"):
+            args = {"size_m": self.vec3(table, "size_m", prefix, positive=True)}
+        elif shape == "bilobed-comet":
+            args = {
+                "length_m": self.number(table, "length_m", prefix, default=0.6, gt=0.0),
+                "seed": self.integer(table, "seed", prefix, default=0, ge=0),
+                "subdivisions": self.integer(table, "subdivisions", prefix, default=5, ge=2, le=7),
+                "noise": self.number(table, "noise", prefix, default=0.06, ge=0.0, le=0.3),
+            }
+        else:  # pragma: no cover - guarded by the caller
+            raise AssertionError(shape)
+        func = procedural.SHAPES[shape][0]
+        try:
+            vertices, faces = func(**args)
+        except ValueError as exc:  # pragma: no cover - arguments were validated above
+            raise self.error(_join(prefix, "shape"), str(exc), "check the shape parameters") from None
+        self.check_arrays(vertices, faces, _join(prefix, "shape"))
+        return vertices, faces
+
+    def read_file(self, table: dict, prefix: str, scale: float) -> tuple[np.ndarray, np.ndarray, Path]:
+        field = _join(prefix, "file")
+        raw = table["file"]
+        if not isinstance(raw, str) or not raw.strip():
+            raise self.error(field, f"must be a non-empty path string, got {_type_name(raw)} {_show(raw)}", 'write file = "meshes/model.ply"')
+        path = Path(raw).expanduser()
+        if not path.is_absolute():
+            path = self.base_dir / path
+        path = Path(os.path.abspath(path))
+        if not path.exists():
+            raise self.error(field, f"mesh file not found: {path}", "check the path; relative paths are relative to the instance file's folder")
+        if not path.is_file():
+            raise self.error(field, f"not a file: {path}", "point file at a mesh file (.ply, .obj, .stl, ...)")
+        if not os.access(path, os.R_OK):
+            raise self.error(field, f"mesh file is not readable: {path}", "check the file's permissions")
+        try:
+            vertices, faces = read_mesh_file(path)
+        except InstanceError:
+            raise
+        except Exception as exc:  # trimesh raises many kinds of errors on bad content
+            raise self.error(
+                field, f"cannot read mesh {path.name}: {type(exc).__name__}: {_show(str(exc), 120)}", "use a valid triangle mesh file that trimesh can read (.ply, .obj, .stl, .off, .glb)"
+            ) from None
+        self.check_arrays(vertices, faces, field, path.name)
+        return vertices * scale if scale != 1.0 else vertices, faces, path
+
+    def check_arrays(self, vertices: np.ndarray, faces: np.ndarray, field: str, what: str = "mesh") -> None:
+        fix = "use a non-empty triangle mesh with valid indices and finite coordinates"
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
+            raise self.error(field, f"{what} has no vertices", fix)
+        if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+            raise self.error(field, f"{what} has no triangles", fix)
+        if not np.all(np.isfinite(vertices)):
+            raise self.error(field, f"{what} has NaN or infinite vertex coordinates", fix)
+        if faces.min() < 0 or faces.max() >= len(vertices):
+            raise self.error(field, f"{what} has face indices outside 0..{len(vertices) - 1}", fix)
+
+    # -- the whole instance ------------------------------------------------------------------------
+
+    def instance(self, data: Any) -> Instance:
+        if not isinstance(data, dict):
+            raise self.error("", f"an instance must be a table of keys, got {_type_name(data)}", "see instances/comet-67p-bunker.toml")
+        if "schema_version" not in data:
+            raise self.error("schema_version", "missing required key", f"add schema_version = {SCHEMA_VERSION} at the top of the file")
+        version = data["schema_version"]
+        if isinstance(version, bool) or not isinstance(version, int):
+            raise self.error("schema_version", f"must be an integer, got {_type_name(version)} {_show(version)}", f"write schema_version = {SCHEMA_VERSION}")
+        if version != SCHEMA_VERSION:
+            fix = "upgrade camplace" if version > SCHEMA_VERSION else f"convert the file to schema_version = {SCHEMA_VERSION}"
+            raise self.error("schema_version", f"unknown schema version {version}; this camplace reads version {SCHEMA_VERSION}", fix)
+        self.check_keys(data, _TOP_KEYS, "")
+        name = self.string(data, "name", "")
+        k = self.integer(data, "k", "", required=True, ge=1)
+
+        run_t = self.table(data, "run", "", required=False) or {}
+        self.check_keys(run_t, _RUN_KEYS, "run")
+        d = RunDefaults()
+        sampler = self.string(run_t, "sampler", "run", default=d.sampler)
+        if sampler not in SAMPLERS:
+            close = difflib.get_close_matches(sampler, SAMPLERS, n=1, cutoff=0.5)
+            raise self.error(
+                "run.sampler", f"unknown sampler {_show(sampler)}" + (f"; did you mean '{close[0]}'?" if close else ""), f"use one of {', '.join(SAMPLERS)}"
+            )
+        run = RunDefaults(
+            candidates=self.integer(run_t, "candidates", "run", default=d.candidates, ge=1, le=MAX_CANDIDATES),
+            points=self.integer(run_t, "points", "run", default=d.points, ge=1, le=MAX_POINTS),
+            sampler=sampler,
+            seed=self.integer(run_t, "seed", "run", default=d.seed, ge=0),
+            time_limit_s=self.number(run_t, "time_limit_s", "run", default=d.time_limit_s, gt=0.0),
+        )
+        if k > run.candidates:
+            raise self.error("k", f"{k} cameras cannot be chosen from run.candidates = {run.candidates} candidate positions", "lower k or raise run.candidates")
+
+        cam_t = self.table(data, "camera", "")
+        self.check_keys(cam_t, _CAMERA_KEYS, "camera")
+        near = self.number(cam_t, "near_m", "camera", required=True, gt=0.0, unit="metres")
+        far = self.number(cam_t, "far_m", "camera", required=True, gt=0.0, unit="metres")
+        camera = CameraModel(
+            sensor_width_mm=self.number(cam_t, "sensor_width_mm", "camera", required=True, gt=0.0, unit="mm"),
+            sensor_height_mm=self.number(cam_t, "sensor_height_mm", "camera", required=True, gt=0.0, unit="mm"),
+            focal_length_mm=self.number(cam_t, "focal_length_mm", "camera", required=True, gt=0.0, unit="mm"),
+            width_px=self.integer(cam_t, "width_px", "camera", required=True, ge=1),
+            height_px=self.integer(cam_t, "height_px", "camera", required=True, ge=1),
+            near_m=near,
+            far_m=far,
+        )
+        if not far > near:
+            raise self.error("camera.far_m", f"must be > camera.near_m = {near:g}, got {far:g}", "set far_m beyond near_m")
+
+        vol_t = self.table(data, "volume", "")
+        self.check_keys(vol_t, _VOLUME_KEYS, "volume")
+        vmin = self.vec3(vol_t, "min_m", "volume")
+        vmax = self.vec3(vol_t, "max_m", "volume")
+        bad = [f"{ax}: {lo:g} >= {hi:g}" for ax, lo, hi in zip("xyz", vmin, vmax) if not hi > lo]
+        if bad:
+            raise self.error(
+                "volume.max_m", f"must exceed volume.min_m on every axis ({'; '.join(bad)})", "make the camera volume a non-empty box: min_m < max_m on x, y and z"
+            )
+        volume = Volume(min_m=vmin, max_m=vmax)
+
+        light_t = self.table(data, "light", "")
+        self.check_keys(light_t, _LIGHT_KEYS, "light")
+        light = Light(position_m=self.vec3(light_t, "position_m", "light"))
+
+        target_t = self.table(data, "target", "")
+        target = self.mesh(target_t, "target", "target")
+
+        occluders = []
+        occ_list = data.get("occluders", [])
+        if not isinstance(occ_list, list):
+            raise self.error("occluders", f"must be an array of tables, got {_type_name(occ_list)}", "write each occluder as an [[occluders]] section")
+        for i, occ_t in enumerate(occ_list):
+            prefix = f"occluders[{i}]"
+            if not isinstance(occ_t, dict):
+                raise self.error(prefix, f"must be a table, got {_type_name(occ_t)}", "write each occluder as an [[occluders]] section")
+            mesh = self.mesh(occ_t, prefix, f"occluder{i}", _POSE_KEYS)
+            occluders.append(Occluder(mesh=mesh, pose=self.pose(occ_t, prefix)))
+
+        if "frames" not in data:
+            raise self.error("frames", "missing: at least one frame is required", "add a [[frames]] section with position_m = [x, y, z]")
+        frame_list = data["frames"]
+        if not isinstance(frame_list, list) or not frame_list:
+            raise self.error("frames", "must be a non-empty array of tables", "add at least one [[frames]] section")
+        frames = []
+        for i, fr_t in enumerate(frame_list):
+            prefix = f"frames[{i}]"
+            if not isinstance(fr_t, dict):
+                raise self.error(prefix, f"must be a table, got {_type_name(fr_t)}", "write each frame as a [[frames]] section")
+            self.check_keys(fr_t, _FRAME_KEYS, prefix)
+            frames.append(
+                Frame(
+                    target_pose=self.pose(fr_t, prefix),
+                    weight=self.number(fr_t, "weight", prefix, default=1.0, ge=0.0),
+                    time_s=self.number(fr_t, "time_s", prefix, default=float(i)),
+                )
+            )
+        if not any(f.weight > 0 for f in frames):
+            raise self.error("frames", "every frame has weight 0", "give at least one frame a weight > 0")
+
+        return Instance(
+            name=name,
+            k=k,
+            camera=camera,
+            volume=volume,
+            light=light,
+            target=target,
+            occluders=tuple(occluders),
+            frames=tuple(frames),
+            defaults=run,
+            source=self.source,
+        )
+
+
+# --------------------------------------------------------------------------------------------------
+# mesh files
+
+
+def read_mesh_file(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Read any triangle mesh trimesh understands, unprocessed (vertex order and count kept).
+
+    Faces whose winding is inconsistent are re-oriented consistently (``trimesh.repair.fix_winding``);
+    the overall orientation is kept as the file has it (a room scanned from inside stays inward).
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    """
+    import trimesh
+
+    mesh = trimesh.load(str(path), force="mesh", process=False)
+    vertices = np.ascontiguousarray(np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3))
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+    faces = np.ascontiguousarray(faces.reshape(-1, 3) if faces.size else np.zeros((0, 3), dtype=np.int64))
+    if len(vertices) and len(faces) and np.all(np.isfinite(vertices)) and faces.min() >= 0 and faces.max() < len(vertices):
+        tm = trimesh.Trimesh(vertices, faces, process=False)
+        if not tm.is_winding_consistent:
+            trimesh.repair.fix_winding(tm)
+            faces = np.ascontiguousarray(np.asarray(tm.faces, dtype=np.int64))
+    return vertices, faces
+
+
+def mesh_ply_bytes(vertices: np.ndarray, faces: np.ndarray, comment: str = "") -> bytes:
+    """Binary little-endian PLY with float64 (``double``) vertices, so coordinates round-trip exactly."""
+    v = np.ascontiguousarray(vertices, dtype="<f8").reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= min(len(v), 2**31 - 1)):
+        raise ValueError("face index out of range")
+    comment_line = f"comment {_one_line(comment)}\n" if comment else ""
+    header = (
+        f"ply\nformat binary_little_endian 1.0\n{comment_line}"
+        f"element vertex {len(v)}\nproperty double x\nproperty double y\nproperty double z\n"
+        f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
+    ).encode("ascii")
+    packed = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    packed["n"] = 3
+    packed["i"] = f
+    return header + v.tobytes() + packed.tobytes()
+
+
+# --------------------------------------------------------------------------------------------------
+# public API
+
+
+def parse_instance(data: dict, source: str, base_dir: str | os.PathLike[str] | None = None) -> Instance:
+    """Validate TOML data (already parsed) and build an :class:`Instance` with its meshes resolved.
+
+    Parameters
+    ----------
+    data : dict
+        The instance table, as :mod:`tomllib` returns it.
+    source : str
+        Name for error messages and ``Instance.source`` (a file path, or ``builtin:<name>``).
+    base_dir : path, optional
+        Folder that relative ``file = ...`` mesh paths are resolved against (default: the current folder).
+
+    Raises
+    ------
+    InstanceError
+        On the first problem found, naming ``source`` and the dotted field.
+    """
+    return _Parser(source, Path(base_dir) if base_dir is not None else Path.cwd()).instance(data)
+
+
+def load_instance(path: str | os.PathLike[str]) -> Instance:
+    """Read and validate an instance TOML file; mesh paths in it are relative to its folder.
+
+    Raises
+    ------
+    InstanceError
+        If the file is missing, is not valid TOML or fails validation.
+    """
+    p = Path(path)
+    source = str(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise InstanceError(source, "", "instance file not found", "check the path") from None
+    except IsADirectoryError:
+        raise InstanceError(source, "", "is a folder, not an instance file", "give the path of a .toml file") from None
+    except OSError as exc:
+        raise InstanceError(source, "", f"cannot read: {_one_line(exc.strerror or str(exc))}", "check the file's permissions") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InstanceError(source, "", f"not UTF-8 text (byte {exc.start})", "save the instance file as UTF-8 TOML") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InstanceError(source, "", f"TOML syntax error: {_one_line(str(exc))}", "fix the TOML syntax at that line") from None
+    return parse_instance(data, source, p.resolve().parent)
+
+
+def _slug(name: str) -> str:
+    s = re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-.")
+    return s or "mesh"
+
+
+def _rel(target: Path, start: Path) -> str:
+    try:
+        return Path(os.path.relpath(target, start)).as_posix()
+    except ValueError:  # different drives on Windows
+        return target.as_posix()
+
+
+def _vec(v) -> list[float]:
+    return [float(x) for x in v]
+
+
+def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_files: bool = True) -> None:
+    """Write ``instance`` as a v1 TOML file (atomically) that :func:`load_instance` reads back.
+
+    Parameters
+    ----------
+    instance : Instance
+    path : path
+        The ``.toml`` file to write.
+    mesh_files : bool
+        True: write every mesh (target and occluders) as a binary float64 PLY into ``<stem>_meshes/``
+        beside ``path`` and reference it with a relative ``file = ...`` (exact geometry round trip; the
+        procedural spec that made a mesh, if any, is kept as a comment). False: write each mesh's
+        original spec (``Mesh.spec``): procedural specs as they are, ``file`` specs with the path
+        rewritten relative to the new location; a mesh without a spec is written as a PLY anyway.
+    """
+    out = Path(path)
+    out_dir = Path(os.path.abspath(out.parent))
+    mesh_dir_name = f"{out.stem}_meshes"
+    comments: dict[str, str] = {}
+
+    def mesh_table(mesh: Mesh, key: str, file_stem: str) -> dict:
+        spec = dict(mesh.spec) if mesh.spec else {}
+        is_file_spec = "file" in spec and mesh.source.startswith("file:")
+        if not mesh_files and spec and ("shape" in spec or is_file_spec):
+            table = copy.deepcopy(spec)
+            if is_file_spec:
+                table["file"] = _rel(Path(mesh.source[len("file:") :]), out_dir)
+            table["name"] = mesh.name
+            return {"name": table.pop("name"), **table}
+        rel = f"{mesh_dir_name}/{file_stem}.ply"
+        write_bytes_atomic(out_dir / rel, mesh_ply_bytes(mesh.vertices, mesh.faces, f"camplace mesh {mesh.name} (metres)"))
+        if "shape" in spec:
+            comments[key] = "generated from: " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in spec.items() if k != "name")
+        elif is_file_spec:
+            comments[key] = f"read from: {mesh.source[len('file:'):]}" + (f" (scale {spec['scale']})" if "scale" in spec else "")
+        return {"name": mesh.name, "file": rel}
+
+    cam = instance.camera
+    d = instance.defaults
+    data: dict[str, Any] = {
+        "schema_version": SCHEMA_VERSION,
+        "name": instance.name,
+        "k": int(instance.k),
+        "run": {
+            "candidates": int(d.candidates),
+            "points": int(d.points),
+            "sampler": d.sampler,
+            "seed": int(d.seed),
+            "time_limit_s": float(d.time_limit_s),
+        },
+        "camera": {
+            "sensor_width_mm": float(cam.sensor_width_mm),
+            "sensor_height_mm": float(cam.sensor_height_mm),
+            "focal_length_mm": float(cam.focal_length_mm),
+            "width_px": int(cam.width_px),
+            "height_px": int(cam.height_px),
+            "near_m": float(cam.near_m),
+            "far_m": float(cam.far_m),
+        },
+        "volume": {"min_m": _vec(instance.volume.min_m), "max_m": _vec(instance.volume.max_m)},
+        "light": {"position_m": _vec(instance.light.position_m)},
+        "target": mesh_table(instance.target, "target", "target"),
+    }
+    if instance.occluders:
+        occs = []
+        for i, occ in enumerate(instance.occluders):
+            t = mesh_table(occ.mesh, f"occluders[{i}]", f"occluder{i}_{_slug(occ.mesh.name)}")
+            t["position_m"] = _vec(occ.pose.position_m)
+            t["rotation_deg"] = _vec(occ.pose.rotation_deg)
+            occs.append(t)
+        data["occluders"] = occs
+    data["frames"] = [
+        {
+            "weight": float(f.weight),
+            "time_s": float(f.time_s),
+            "position_m": _vec(f.target_pose.position_m),
+            "rotation_deg": _vec(f.target_pose.rotation_deg),
+        }
+        for f in instance.frames
+    ]
+
+    head = f"# camplace instance, schema v{SCHEMA_VERSION} (metres, degrees). Written by camplace.instance.save_instance."
+    write_text_atomic(out, _dumps_toml(data, comments, head))
+
+
+def _toml_value(value: Any) -> str:
+    """Inline TOML for a scalar or an array of scalars (tomli_w does the escaping)."""
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return tomli_w.dumps({"v": value})[len("v = ") :].strip()
+
+
+def _dumps_toml(data: dict[str, Any], comments: dict[str, str], head: str) -> str:
+    """TOML text of an instance dict: scalars, inline arrays, [tables], [[arrays of tables]]; with comments.
+
+    ``comments`` maps ``"target"`` / ``"occluders[0]"`` to a line written just above that table.
+    """
+
+    def body(table: dict[str, Any]) -> list[str]:
+        return [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in table.items()]
+
+    lines = [head, ""]
+    lines += body({k: v for k, v in data.items() if not isinstance(v, dict) and not _is_table_array(v)})
+    for key, value in data.items():
+        if isinstance(value, dict):
+            lines.append("")
+            if key in comments:
+                lines.append(f"# {_one_line(comments[key])}")
+            lines.append(f"[{_toml_key(key)}]")
+            lines += body(value)
+        elif _is_table_array(value):
+            for i, item in enumerate(value):
+                lines.append("")
+                if f"{key}[{i}]" in comments:
+                    lines.append(f"# {_one_line(comments[f'{key}[{i}]'])}")
+                lines.append(f"[[{_toml_key(key)}]]")
+                lines += body(item)
+    text = "\n".join(lines) + "\n"
+    tomllib.loads(text)  # never write a file we could not read back
+    return text
+
+
+def _is_table_array(value: Any) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_value(key)

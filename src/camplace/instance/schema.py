@@ -1,0 +1,274 @@
+"""Frozen dataclasses of a camplace instance (format v1). Metres, degrees, millimetres as named.
+
+An :class:`Instance` holds resolved geometry (meshes already loaded or generated), so every later
+stage works on plain arrays. Poses map a mesh's local coordinates into the world frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+SAMPLERS = ("chaotic", "uniform", "sobol")
+
+
+def rotation_from_euler_deg(angles_deg: tuple[float, float, float] | np.ndarray) -> np.ndarray:
+    """Rotation matrix from extrinsic X, then Y, then Z rotations (degrees): R = Rz @ Ry @ Rx.
+
+    Parameters
+    ----------
+    angles_deg : (3,) float
+        Rotation about the world x, y and z axes, degrees, applied in that order.
+
+    Returns
+    -------
+    (3, 3) float64
+    """
+    ax, ay, az = np.radians(np.asarray(angles_deg, dtype=np.float64))
+    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A rigid placement of a mesh: world = R @ local * scale + position.
+
+    Attributes
+    ----------
+    position_m : (3,) float
+        Translation, metres.
+    rotation_deg : (3,) float
+        Extrinsic X-Y-Z Euler angles, degrees (see :func:`rotation_from_euler_deg`).
+    """
+
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def rotation(self) -> np.ndarray:
+        """(3, 3) float64 world-from-local rotation."""
+        return rotation_from_euler_deg(self.rotation_deg)
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Map local points to world.
+
+        Parameters
+        ----------
+        points : (n, 3) float64
+
+        Returns
+        -------
+        (n, 3) float64
+        """
+        return np.asarray(points, dtype=np.float64) @ self.rotation().T + np.asarray(self.position_m, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh in its own local frame, metres.
+
+    Attributes
+    ----------
+    name : str
+        Short name used in logs and outputs.
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+        Vertex indices, counter-clockwise seen from outside (outward normals).
+    source : str
+        Where it came from: ``file:<path>`` or ``procedural:<shape>``.
+    spec : dict
+        The instance-file table that produced it (used to write the instance back out).
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    source: str = ""
+    spec: dict = field(default_factory=dict)
+
+    def transformed(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+        """World-space copy of the mesh.
+
+        Returns
+        -------
+        vertices : (n, 3) float64
+        faces : (m, 3) int64
+        """
+        return pose.apply(self.vertices), self.faces
+
+
+@dataclass(frozen=True, eq=False)
+class Occluder:
+    """A static scene mesh (walls, terrain, a rock) placed in the world."""
+
+    mesh: Mesh
+    pose: Pose = Pose()
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One moment of the event.
+
+    Attributes
+    ----------
+    target_pose : Pose
+        Where the target is in this frame.
+    weight : float
+        Likelihood P of this frame (>= 0); weights are normalised to sum 1 when points are made.
+    time_s : float
+        Time stamp, seconds.
+    """
+
+    target_pose: Pose
+    weight: float = 1.0
+    time_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole camera intrinsics shared by every candidate (OpenCV convention: x right, y down, z forward).
+
+    Attributes
+    ----------
+    sensor_width_mm, sensor_height_mm : float
+        Physical sensor size.
+    focal_length_mm : float
+    width_px, height_px : int
+        Image resolution.
+    near_m, far_m : float
+        Observation range along the optical axis (depth), metres.
+    """
+
+    sensor_width_mm: float
+    sensor_height_mm: float
+    focal_length_mm: float
+    width_px: int
+    height_px: int
+    near_m: float = 0.05
+    far_m: float = 100.0
+
+    @property
+    def fx_px(self) -> float:
+        """Focal length in pixels along x."""
+        return self.focal_length_mm * self.width_px / self.sensor_width_mm
+
+    @property
+    def fy_px(self) -> float:
+        """Focal length in pixels along y."""
+        return self.focal_length_mm * self.height_px / self.sensor_height_mm
+
+    @property
+    def fov_x_deg(self) -> float:
+        """Horizontal field of view, 2 * arctan(sensor_width / (2 f)), degrees."""
+        return math.degrees(2.0 * math.atan(self.sensor_width_mm / (2.0 * self.focal_length_mm)))
+
+    @property
+    def fov_y_deg(self) -> float:
+        """Vertical field of view, 2 * arctan(sensor_height / (2 f)), degrees."""
+        return math.degrees(2.0 * math.atan(self.sensor_height_mm / (2.0 * self.focal_length_mm)))
+
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 intrinsic matrix; pixel centres at integer coordinates, principal point at the image centre."""
+        return np.array(
+            [
+                [self.fx_px, 0.0, (self.width_px - 1) / 2.0],
+                [0.0, self.fy_px, (self.height_px - 1) / 2.0],
+                [0.0, 0.0, 1.0],
+            ]
+        )
+
+
+@dataclass(frozen=True)
+class Volume:
+    """Axis-aligned box where cameras may stand: min_m < position < max_m (the thesis's V_xyz < V_obs < V_XYZ)."""
+
+    min_m: tuple[float, float, float]
+    max_m: tuple[float, float, float]
+
+    @property
+    def size_m(self) -> np.ndarray:
+        """(3,) float64 edge lengths."""
+        return np.asarray(self.max_m, dtype=np.float64) - np.asarray(self.min_m, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Light:
+    """A point light source."""
+
+    position_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class RunDefaults:
+    """Defaults for a run of this instance; the CLI and :func:`camplace.run` may override each."""
+
+    candidates: int = 2000
+    points: int = 10000
+    sampler: str = "chaotic"
+    seed: int = 0
+    time_limit_s: float = 60.0
+
+
+@dataclass(frozen=True, eq=False)
+class Instance:
+    """A complete camera-placement problem.
+
+    Attributes
+    ----------
+    name : str
+    k : int
+        Number of cameras to place.
+    camera : CameraModel
+    volume : Volume
+    light : Light
+    target : Mesh
+        The observed object, in its local frame; each frame places it with its ``target_pose``.
+    occluders : tuple of Occluder
+        Static scene geometry. The target also occludes.
+    frames : tuple of Frame
+        At least one.
+    defaults : RunDefaults
+    source : str
+        The file (or ``builtin:<name>``) this instance was read from; used in error messages.
+    """
+
+    name: str
+    k: int
+    camera: CameraModel
+    volume: Volume
+    light: Light
+    target: Mesh
+    occluders: tuple[Occluder, ...]
+    frames: tuple[Frame, ...]
+    defaults: RunDefaults = RunDefaults()
+    source: str = ""
+
+    def frame_weights(self) -> np.ndarray:
+        """(n_frames,) float64 frame likelihoods normalised to sum 1 (uniform if all are 0)."""
+        w = np.array([f.weight for f in self.frames], dtype=np.float64)
+        s = w.sum()
+        return w / s if s > 0 else np.full(len(w), 1.0 / len(w))
+
+    def target_world(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """World-space target mesh in ``frame``.
+
+        Returns
+        -------
+        vertices : (n, 3) float64
+        faces : (m, 3) int64
+        """
+        return self.target.transformed(self.frames[frame].target_pose)
+
+    def occluders_world(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """World-space static occluders as (name, vertices (n, 3) float64, faces (m, 3) int64)."""
+        return [(o.mesh.name, *o.mesh.transformed(o.pose)) for o in self.occluders]
+
+    def target_centre(self, frame: int) -> np.ndarray:
+        """(3,) float64 centre of the target's bounding box in ``frame``."""
+        v, _ = self.target_world(frame)
+        return (v.min(axis=0) + v.max(axis=0)) / 2.0

@@ -1,0 +1,269 @@
+"""The end-to-end pipeline: instance -> candidates -> visibility -> proven k-camera system."""
+
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camplace._io import write_json_atomic
+from camplace._progress import Reporter
+from camplace.errors import CamplaceError
+from camplace.sampling import SAMPLERS, CandidateSet, make_candidates
+from camplace.visibility import VisibilityMatrix, compute_visibility, frame_scene, make_target_points, write_ply
+
+log = logging.getLogger(__name__)
+
+
+def versions() -> dict[str, str]:
+    """Versions of camplace and the libraries that shape its results."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for dist in ("camplace", "numpy", "scipy", "ortools", "embreex", "trimesh"):
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            out[dist] = "unknown"
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """The chosen camera system and how good it provably is (the content of ``solution.json``).
+
+    Attributes
+    ----------
+    status : str
+        "optimal" | "feasible" | "infeasible" | "unknown".
+    objective : float
+        Weight of the points observed by the chosen cameras (points weigh 1 in total).
+    bound : float
+        Proven upper bound on the objective of any k-camera system from these candidates.
+    gap : float
+        (bound - objective) / bound.
+    k, seed, sampler, n_candidates, n_points : as run
+    coverage_fraction : float
+        Observed weight / total point weight.
+    timings_s : dict of str to float
+        Wall time per stage.
+    versions : dict of str to str
+    cameras : list of dict
+        Per chosen camera: candidate (column index), position [x, y, z], rotation (3x3,
+        world-from-camera, OpenCV axes), K (3x3), width, height, near_m, far_m.
+    instance : str
+        Instance name.
+    engine : str
+        Solver engine that produced the answer.
+    candidates, visibility : optional
+        The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
+    """
+
+    status: str
+    objective: float
+    bound: float
+    gap: float
+    k: int
+    seed: int
+    sampler: str
+    n_candidates: int
+    n_points: int
+    coverage_fraction: float
+    timings_s: dict
+    versions: dict
+    cameras: list
+    instance: str = ""
+    engine: str = ""
+    solver_stats: dict = field(default_factory=dict)
+    candidates: CandidateSet | None = field(default=None, repr=False)
+    visibility: VisibilityMatrix | None = field(default=None, repr=False)
+
+    @property
+    def selected(self) -> list[int]:
+        """Column indices of the chosen cameras."""
+        return [int(c["candidate"]) for c in self.cameras]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready content of ``solution.json``."""
+        return {
+            "status": self.status,
+            "objective": self.objective,
+            "bound": self.bound,
+            "gap": self.gap,
+            "k": self.k,
+            "seed": self.seed,
+            "sampler": self.sampler,
+            "n_candidates": self.n_candidates,
+            "n_points": self.n_points,
+            "coverage_fraction": self.coverage_fraction,
+            "timings_s": self.timings_s,
+            "versions": self.versions,
+            "cameras": self.cameras,
+            "instance": self.instance,
+            "engine": self.engine,
+            "solver_stats": self.solver_stats,
+        }
+
+    def save(self, outdir: str | Path) -> None:
+        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.npz) atomically."""
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        if self.candidates is not None:
+            self.candidates.save(outdir / "candidates.csv")
+        if self.visibility is not None:
+            self.visibility.save(outdir)
+        write_json_atomic(outdir / "solution.json", self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Solution":
+        """Read a ``solution.json`` (or the folder holding one)."""
+        path = Path(path)
+        if path.is_dir():
+            path = path / "solution.json"
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise CamplaceError(f"{path}: cannot read solution ({exc})") from None
+        known = {f for f in cls.__dataclass_fields__ if f not in ("candidates", "visibility")}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+
+def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
+    """The ``cameras`` entry of ``solution.json`` for candidate column ``j``."""
+    cam = instance.camera
+    return {
+        "candidate": int(j),
+        "position": [float(x) for x in candidates.positions[j]],
+        "aim": [float(x) for x in candidates.aims[j]],
+        "rotation": [[float(x) for x in row] for row in candidates.rotations[j]],
+        "K": [[float(x) for x in row] for row in cam.K()],
+        "width": int(cam.width_px),
+        "height": int(cam.height_px),
+        "near_m": float(cam.near_m),
+        "far_m": float(cam.far_m),
+    }
+
+
+def event_aim(instance) -> np.ndarray:
+    """(3,) float64 point the candidates look at: the likelihood-weighted mean target centre over frames."""
+    centres = np.array([instance.target_centre(f) for f in range(len(instance.frames))])
+    return instance.frame_weights() @ centres
+
+
+def run(
+    instance,
+    *,
+    seed: int | None = None,
+    candidates: int | None = None,
+    points: int | None = None,
+    sampler: str | None = None,
+    k: int | None = None,
+    time_limit_s: float | None = None,
+    engine: str = "auto",
+    outdir: str | Path | None = None,
+    reporter: Reporter | None = None,
+) -> Solution:
+    """Run the whole pipeline on an instance.
+
+    Parameters
+    ----------
+    instance : Instance or str
+        An :class:`~camplace.instance.Instance`, a built-in name or an instance file path.
+    seed, candidates, points, sampler, k, time_limit_s : optional
+        Override the instance's run defaults.
+    engine : str
+        Solver engine ("auto", "exact", "mip", "cpsat").
+    outdir : path or None
+        When given, write solution.json, candidates.csv, points.csv, visibility.npz and scene.ply there.
+    reporter : Reporter or None
+        Progress display (silent by default).
+
+    Returns
+    -------
+    Solution
+    """
+    from camplace.instance import resolve_instance
+    from camplace.solver import solve_maxcover
+
+    if not hasattr(instance, "frames"):
+        instance = resolve_instance(str(instance))
+    reporter = reporter or Reporter()
+    d = instance.defaults
+    seed = d.seed if seed is None else int(seed)
+    n_cand = d.candidates if candidates is None else int(candidates)
+    n_points = d.points if points is None else int(points)
+    sampler = d.sampler if sampler is None else sampler
+    k = instance.k if k is None else int(k)
+    time_limit_s = d.time_limit_s if time_limit_s is None else float(time_limit_s)
+    if sampler not in SAMPLERS:
+        raise CamplaceError(f"--sampler: unknown sampler {sampler!r} (use one of {', '.join(SAMPLERS)})")
+    if seed < 0:
+        raise CamplaceError(f"--seed: must be >= 0, got {seed}")
+    if k < 1:
+        raise CamplaceError(f"--k: must be >= 1, got {k}")
+    if n_cand < k:
+        raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
+    if n_points < 1:
+        raise CamplaceError(f"--points: must be >= 1, got {n_points}")
+    if time_limit_s <= 0:
+        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
+
+    timings: dict[str, float] = {}
+    cand_seed, point_seed = np.random.SeedSequence(seed).spawn(2)
+
+    t0 = time.perf_counter()
+    with reporter.stage("sampling"):
+        cands = make_candidates(sampler, n_cand, instance.volume.min_m, instance.volume.max_m, event_aim(instance), seed=cand_seed)
+        cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=sampler, seed=seed)
+        pts = make_target_points(instance, n_points, seed=point_seed)
+    timings["sampling"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    with reporter.stage("visibility", total=n_cand) as advance:
+        vis = compute_visibility(instance, cands, pts, progress=advance)
+    timings["visibility"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    with reporter.stage("solve"):
+        res = solve_maxcover(vis.matrix, pts.weight, k, engine=engine, time_limit_s=time_limit_s)
+    timings["solve"] = time.perf_counter() - t0
+
+    total_weight = float(pts.weight.sum())
+    solution = Solution(
+        status=res.status,
+        objective=float(res.objective),
+        bound=float(res.bound),
+        gap=float(res.gap),
+        k=k,
+        seed=seed,
+        sampler=sampler,
+        n_candidates=n_cand,
+        n_points=len(pts),
+        coverage_fraction=float(res.objective) / total_weight if total_weight > 0 else 0.0,
+        timings_s=timings,
+        versions=versions(),
+        cameras=[camera_record(instance, cands, j) for j in res.selected],
+        instance=instance.name,
+        engine=res.engine,
+        solver_stats=dict(res.stats),
+        candidates=cands,
+        visibility=vis,
+    )
+    if outdir is not None:
+        t0 = time.perf_counter()
+        with reporter.stage("write"):
+            outdir = Path(outdir)
+            outdir.mkdir(parents=True, exist_ok=True)
+            write_ply(outdir / "scene.ply", frame_scene(instance, 0).triangles)
+            cands.save(outdir / "candidates.csv")
+            vis.save(outdir)
+            timings["write"] = time.perf_counter() - t0
+            # solution.json last: its presence means the run's outputs are complete
+            write_json_atomic(outdir / "solution.json", solution.to_dict())
+    return solution

@@ -1,0 +1,145 @@
+"""Candidate camera poses: positions from a sampler, each aimed at the event (OpenCV axes)."""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camplace._io import write_text_atomic
+from camplace.errors import CamplaceError
+from camplace.sampling.samplers import sample_positions
+
+WORLD_UP = np.array([0.0, 0.0, 1.0])
+CSV_HEADER = "index,x,y,z,aim_x,aim_y,aim_z," + ",".join(f"r{i}{j}" for i in range(1, 4) for j in range(1, 4))
+
+
+def look_at(positions: np.ndarray, aims: np.ndarray, up: np.ndarray = WORLD_UP) -> np.ndarray:
+    """World-from-camera rotations of cameras at ``positions`` looking at ``aims``.
+
+    OpenCV convention: camera x right, y down, z forward. The columns of each matrix are the
+    camera axes expressed in world coordinates, so ``world = R @ cam + position``. The image's
+    "up" is the projection of ``up`` (world +z by default); a camera looking straight along
+    ``up`` uses world +y instead.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    aims : (n, 3) float64
+    up : (3,) float64
+
+    Returns
+    -------
+    (n, 3, 3) float64
+    """
+    positions = np.atleast_2d(np.asarray(positions, dtype=np.float64))
+    aims = np.atleast_2d(np.asarray(aims, dtype=np.float64))
+    fwd = aims - positions
+    norm = np.linalg.norm(fwd, axis=1, keepdims=True)
+    if np.any(norm[:, 0] <= 0):
+        raise CamplaceError("candidates: a camera position coincides with its aim point (move the volume or the target)")
+    fwd = fwd / norm
+    ups = np.broadcast_to(np.asarray(up, dtype=np.float64), fwd.shape).copy()
+    parallel = np.abs(fwd @ np.asarray(up, dtype=np.float64)) > 1.0 - 1e-9
+    ups[parallel] = np.array([0.0, 1.0, 0.0])
+    right = np.cross(fwd, ups)
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    down = np.cross(fwd, right)
+    return np.stack([right, down, fwd], axis=2)
+
+
+@dataclass(frozen=True, eq=False)
+class CandidateSet:
+    """Candidate camera poses; each is one column of the visibility matrix.
+
+    Attributes
+    ----------
+    positions : (n, 3) float64
+        Camera centres, metres.
+    aims : (n, 3) float64
+        The point each camera looks at.
+    rotations : (n, 3, 3) float64
+        World-from-camera rotations, OpenCV axes (x right, y down, z forward).
+    sampler : str
+    seed : int or None
+    """
+
+    positions: np.ndarray
+    aims: np.ndarray
+    rotations: np.ndarray
+    sampler: str = ""
+    seed: int | None = None
+
+    def __len__(self) -> int:
+        return int(self.positions.shape[0])
+
+    def to_csv(self) -> str:
+        """The ``candidates.csv`` text: ``index,x,y,z,aim_x,aim_y,aim_z,r11,...,r33``."""
+        buf = io.StringIO()
+        buf.write(CSV_HEADER + "\n")
+        n = len(self)
+        table = np.column_stack([self.positions, self.aims, self.rotations.reshape(n, 9)])
+        for i, row in enumerate(table):
+            buf.write(f"{i}," + ",".join(repr(float(v)) for v in row) + "\n")
+        return buf.getvalue()
+
+    def save(self, path: str | Path) -> None:
+        """Write ``candidates.csv`` atomically."""
+        write_text_atomic(path, self.to_csv())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "CandidateSet":
+        """Read a ``candidates.csv`` (as written by :meth:`save`); rotations are re-orthonormalised checks."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise CamplaceError(f"{path}: cannot read candidates file ({exc.strerror}; check the path)") from None
+        lines = [ln for ln in text.splitlines() if ln.strip()]
+        if not lines or lines[0].replace(" ", "") != CSV_HEADER:
+            raise CamplaceError(f"{path}: header must be '{CSV_HEADER}' (write it with 'camplace run' or CandidateSet.save)")
+        try:
+            data = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], dtype=np.float64).reshape(-1, 16)
+        except ValueError as exc:
+            raise CamplaceError(f"{path}: every row needs 16 numbers ({exc})") from None
+        if not np.all(np.isfinite(data)):
+            raise CamplaceError(f"{path}: contains NaN or infinite values")
+        rot = data[:, 7:16].reshape(-1, 3, 3)
+        err = np.abs(np.einsum("nji,njk->nik", rot, rot) - np.eye(3)).max(initial=0.0)
+        if err > 1e-6:
+            raise CamplaceError(f"{path}: rotation columns r11..r33 are not orthonormal (max error {err:.2g})")
+        return cls(positions=data[:, 1:4].copy(), aims=data[:, 4:7].copy(), rotations=rot.copy(), sampler="file")
+
+
+def make_candidates(
+    sampler: str,
+    n: int,
+    min_m: np.ndarray | tuple[float, float, float],
+    max_m: np.ndarray | tuple[float, float, float],
+    aim: np.ndarray,
+    *,
+    seed: int | None = 0,
+) -> CandidateSet:
+    """Sample ``n`` camera positions in the volume, each aimed at ``aim``.
+
+    Parameters
+    ----------
+    sampler : {"chaotic", "uniform", "sobol"}
+    n : int
+    min_m, max_m : (3,) float64
+    aim : (3,) float64
+        Point every camera looks at (the target centre).
+    seed : int or None
+
+    Returns
+    -------
+    CandidateSet
+    """
+    positions = sample_positions(sampler, n, min_m, max_m, seed=seed)
+    aims = np.broadcast_to(np.asarray(aim, dtype=np.float64), positions.shape).copy()
+    # a sample exactly at the aim point cannot be aimed; nudge it (probability ~0)
+    same = np.linalg.norm(positions - aims, axis=1) < 1e-9
+    positions[same] += 1e-6
+    return CandidateSet(positions=positions, aims=aims, rotations=look_at(positions, aims), sampler=sampler, seed=seed)

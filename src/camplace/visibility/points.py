@@ -1,0 +1,170 @@
+"""Observation points: area-weighted samples of the target surface, with normals, per frame."""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camplace._io import write_text_atomic
+from camplace.errors import CamplaceError
+
+POINTS_HEADER = "index,x,y,z,nx,ny,nz,frame,weight"
+
+
+def face_normals_areas(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit face normals (right-hand rule on the winding) and face areas.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+
+    Returns
+    -------
+    normals : (m, 3) float64
+        Zero rows for degenerate faces.
+    areas : (m,) float64
+    """
+    tri = vertices[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(cross, axis=1)
+    normals = np.divide(cross, norm[:, None], out=np.zeros_like(cross), where=norm[:, None] > 0)
+    return normals, 0.5 * norm
+
+
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int, *, seed: int | np.random.SeedSequence | None = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample ``n`` points uniformly by area on a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float64
+    faces : (f, 3) int64
+    n : int
+    seed : int, SeedSequence or None
+
+    Returns
+    -------
+    face_index : (n,) int64
+        The face each point lies on.
+    barycentric : (n, 3) float64
+        Barycentric coordinates of each point in its face.
+    points : (n, 3) float64
+    """
+    rng = np.random.default_rng(seed)
+    _, areas = face_normals_areas(vertices, faces)
+    total = areas.sum()
+    if not np.isfinite(total) or total <= 0:
+        raise CamplaceError("target: mesh has zero surface area (check the target mesh)")
+    cdf = np.cumsum(areas) / total
+    face_index = np.minimum(np.searchsorted(cdf, rng.random(n), side="right"), len(faces) - 1)
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    bary = np.column_stack([1.0 - s, s * (1.0 - r2), s * r2])
+    tri = vertices[faces[face_index]]
+    points = np.einsum("ni,nij->nj", bary, tri)
+    return face_index.astype(np.int64), bary, points
+
+
+@dataclass(frozen=True, eq=False)
+class TargetPoints:
+    """The rows of the visibility matrix: (frame, point) pairs.
+
+    Attributes
+    ----------
+    positions : (m, 3) float64
+        World positions, metres.
+    normals : (m, 3) float64
+        Outward unit normals (the normal of the face the point lies on).
+    frame : (m,) int32
+        Event frame of each row.
+    weight : (m,) float64
+        Row weight: frame likelihood / points per frame (sums to 1 over all rows).
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    frame: np.ndarray
+    weight: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.positions.shape[0])
+
+    def to_csv(self) -> str:
+        """The ``points.csv`` text: ``index,x,y,z,nx,ny,nz,frame,weight``."""
+        buf = io.StringIO()
+        buf.write(POINTS_HEADER + "\n")
+        for i in range(len(self)):
+            p, nrm = self.positions[i], self.normals[i]
+            buf.write(
+                f"{i},{p[0]!r},{p[1]!r},{p[2]!r},{nrm[0]!r},{nrm[1]!r},{nrm[2]!r},{int(self.frame[i])},{self.weight[i]!r}\n"
+            )
+        return buf.getvalue()
+
+    def save(self, path: str | Path) -> None:
+        """Write ``points.csv`` atomically."""
+        write_text_atomic(path, self.to_csv())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TargetPoints":
+        """Read a ``points.csv`` written by :meth:`save`."""
+        path = Path(path)
+        try:
+            lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+        except OSError as exc:
+            raise CamplaceError(f"{path}: cannot read points file ({exc.strerror})") from None
+        if not lines or lines[0].replace(" ", "") != POINTS_HEADER:
+            raise CamplaceError(f"{path}: header must be '{POINTS_HEADER}'")
+        try:
+            data = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], dtype=np.float64).reshape(-1, 9)
+        except ValueError as exc:
+            raise CamplaceError(f"{path}: every row needs 9 numbers ({exc})") from None
+        return cls(
+            positions=data[:, 1:4].copy(),
+            normals=data[:, 4:7].copy(),
+            frame=data[:, 7].astype(np.int32),
+            weight=data[:, 8].copy(),
+        )
+
+
+def make_target_points(instance, n_points: int, *, seed: int | np.random.SeedSequence | None = 0) -> TargetPoints:
+    """Sample ``n_points`` surface points of the target, shared by every frame.
+
+    The same material points (sampled once on the target's local mesh, by area) are carried into
+    each frame by the frame's target pose, so row ``f * per_frame + i`` is point ``i`` in frame ``f``.
+    Each frame gets ``ceil(n_points / n_frames)`` points.
+
+    Parameters
+    ----------
+    instance : camplace.instance.Instance
+    n_points : int
+    seed : int, SeedSequence or None
+
+    Returns
+    -------
+    TargetPoints
+    """
+    if n_points < 1:
+        raise CamplaceError(f"points: need at least 1 point, got {n_points} (raise --points)")
+    n_frames = len(instance.frames)
+    per_frame = -(-n_points // n_frames)
+    local_v = instance.target.vertices
+    faces = instance.target.faces
+    face_index, bary, local_p = sample_surface(local_v, faces, per_frame, seed=seed)
+    local_n, _ = face_normals_areas(local_v, faces)
+    local_n = local_n[face_index]
+    fw = instance.frame_weights()
+    pos, nrm, frm, wts = [], [], [], []
+    for f, frame in enumerate(instance.frames):
+        rot = frame.target_pose.rotation()
+        pos.append(frame.target_pose.apply(local_p))
+        nrm.append(local_n @ rot.T)
+        frm.append(np.full(per_frame, f, dtype=np.int32))
+        wts.append(np.full(per_frame, fw[f] / per_frame))
+    return TargetPoints(
+        positions=np.concatenate(pos), normals=np.concatenate(nrm), frame=np.concatenate(frm), weight=np.concatenate(wts)
+    )

@@ -1,0 +1,87 @@
+"""Embree scenes (embreex) built from world-space triangle meshes, and segment occlusion queries."""
+
+from __future__ import annotations
+
+import numpy as np
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+
+
+class RayScene:
+    """An Embree scene of triangle meshes for occlusion and first-hit queries.
+
+    Embree works in float32; the exact float32 triangles cast against are kept in
+    ``triangles`` (so ``scene.ply`` can be written exactly as ray-cast). Queries on one scene
+    are thread-safe and release the GIL.
+
+    Parameters
+    ----------
+    meshes : list of (vertices (n, 3) float64, faces (m, 3) int64)
+        World-space meshes.
+    """
+
+    def __init__(self, meshes: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        tris = [np.asarray(v, dtype=np.float64)[np.asarray(f, dtype=np.int64)] for v, f in meshes if len(f)]
+        self.triangles: np.ndarray = (
+            np.concatenate(tris).astype(np.float32) if tris else np.empty((0, 3, 3), dtype=np.float32)
+        )
+        self._scene = rtcore_scene.EmbreeScene()
+        self._empty = len(self.triangles) == 0
+        if not self._empty:
+            TriangleMesh(self._scene, self.triangles)
+
+    def __len__(self) -> int:
+        return int(self.triangles.shape[0])
+
+    def occluded(self, origins: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """Whether each segment ``origins[i] -> ends[i]`` is blocked by a triangle.
+
+        Parameters
+        ----------
+        origins : (n, 3) float
+        ends : (n, 3) float
+
+        Returns
+        -------
+        (n,) bool
+            True where some triangle intersects the open segment.
+        """
+        n = len(origins)
+        if n == 0 or self._empty:
+            return np.zeros(n, dtype=bool)
+        o = np.ascontiguousarray(origins, dtype=np.float32)
+        d = np.asarray(ends, dtype=np.float64) - np.asarray(origins, dtype=np.float64)
+        length = np.linalg.norm(d, axis=1)
+        d = np.ascontiguousarray(d / np.maximum(length, 1e-30)[:, None], dtype=np.float32)
+        # embreex OCCLUDED: -1 = nothing hit within [0, tfar], otherwise the geometry id (0)
+        res = self._scene.run(o, d, dists=np.ascontiguousarray(length, dtype=np.float32), query="OCCLUDED")
+        return np.asarray(res) != -1
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest hit along rays.
+
+        Parameters
+        ----------
+        origins : (n, 3) float
+        directions : (n, 3) float
+            Need not be normalised; distances are in units of their length.
+
+        Returns
+        -------
+        triangle : (n,) int64
+            Index into ``triangles`` (-1 for a miss).
+        distance : (n,) float64
+            Ray parameter of the hit (inf for a miss).
+        """
+        n = len(origins)
+        if n == 0 or self._empty:
+            return np.full(n, -1, dtype=np.int64), np.full(n, np.inf)
+        o = np.ascontiguousarray(origins, dtype=np.float32)
+        d = np.ascontiguousarray(directions, dtype=np.float32)
+        out = self._scene.run(o, d, output=1)
+        prim = np.asarray(out["primID"]).astype(np.int64)
+        tfar = np.asarray(out["tfar"]).astype(np.float64)
+        hit = np.asarray(out["geomID"]) != -1
+        prim[~hit] = -1
+        tfar[~hit] = np.inf
+        return prim, tfar
