@@ -1,0 +1,95 @@
+"""Types and helpers shared by the solver engines."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace.errors import CamplaceError
+from camplace.solver.presolve import as_pattern, check_weights
+
+__all__ = ["EngineOutcome", "coverage_weight", "Deadline"]
+
+
+@dataclass(frozen=True)
+class EngineOutcome:
+    """What an engine returns on a presolved instance (indices are REDUCED column indices).
+
+    Attributes
+    ----------
+    selected : tuple of int
+        Reduced column indices (empty if no solution was found).
+    status : str
+        ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
+    bound : float
+        Proven upper bound on the optimum, in original weight units.
+    stats : dict
+        JSON-serialisable engine details.
+    """
+
+    selected: tuple[int, ...]
+    status: str
+    bound: float
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+class Deadline:
+    """Wall-clock deadline helper.
+
+    Parameters
+    ----------
+    time_limit_s : float or None
+        Seconds from now; None means no limit.
+    """
+
+    def __init__(self, time_limit_s: float | None) -> None:
+        self.start = time.perf_counter()
+        self.limit = None if time_limit_s is None else max(0.0, float(time_limit_s))
+
+    def elapsed(self) -> float:
+        """Seconds since creation."""
+        return time.perf_counter() - self.start
+
+    def remaining(self) -> float | None:
+        """Seconds left (>= 0), or None without a limit."""
+        if self.limit is None:
+            return None
+        return max(0.0, self.limit - self.elapsed())
+
+    def expired(self) -> bool:
+        """True once the limit has passed."""
+        return self.limit is not None and self.elapsed() >= self.limit
+
+
+def coverage_weight(matrix: Any, weights: Any, selected: Sequence[int]) -> float:
+    """Total weight of the rows observed by at least one selected column.
+
+    Parameters
+    ----------
+    matrix : (m, n) scipy.sparse matrix or array_like
+        Visibility; values > 0 mean "observes".
+    weights : (m,) array_like of float64
+        Point weights.
+    selected : sequence of int
+        0-based column indices (duplicates are ignored).
+
+    Returns
+    -------
+    float
+        ``sum(weights[i] for rows i covered by selected)`` in float64.
+    """
+    a = sp.csc_matrix(matrix) if sp.issparse(matrix) else sp.csc_matrix(np.asarray(matrix))
+    m, n = a.shape
+    w = check_weights(weights, m)
+    cols = sorted({int(j) for j in selected})
+    if any(j < 0 or j >= n for j in cols):
+        raise CamplaceError(f"selected column index out of range 0..{n - 1}: {cols}")
+    if not cols:
+        return 0.0
+    sub = as_pattern(a[:, cols])
+    covered = np.diff(sub.indptr) > 0
+    return float(np.sum(w[covered], dtype=np.float64))
