@@ -39,6 +39,14 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--engine", choices=["auto", "exact", "mip", "cpsat"], default="auto", help="solver engine (default: auto)"
     )
+    _add_visibility_options(p)
+
+
+def _add_visibility_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--orientations", type=int, default=None, help="poses per candidate position (default: instance)")
+    p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
+    p.add_argument("--dask", default=None, metavar="ADDRESS", help="compute visibility on a Dask cluster: a scheduler address or local:N")
+    p.add_argument("--memory-budget-gb", type=float, default=None, help="stop if the matrix would need more (default: half the RAM)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,12 +59,36 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="sample candidates, compute visibility, choose the proven-best k cameras")
     _add_run_options(p)
 
+    p = sub.add_parser("visibility", help="compute the visibility matrix of given candidates")
+    p.add_argument("instance", help="a built-in instance name or an instance .toml file")
+    p.add_argument("--candidates", required=True, type=Path, help="candidates.csv (as written by 'camplace run')")
+    p.add_argument("-o", "--out", required=True, type=Path, help="output folder")
+    p.add_argument("--points", type=int, default=None, help="number of target surface points")
+    p.add_argument("--seed", type=int, default=None, help="random seed for the points")
+    p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
+    p.add_argument("--dask", default=None, metavar="ADDRESS", help="compute on a Dask cluster: a scheduler address or local:N")
+    p.add_argument("--memory-budget-gb", type=float, default=None, help="stop if the matrix would need more (default: half the RAM)")
+
     sub.add_parser("instances", help="list the built-in instances")
 
     p = sub.add_parser("init", help="write a built-in instance (and its mesh files) to disk for editing")
     p.add_argument("name", help="built-in instance name")
     p.add_argument("-o", "--out", required=True, type=Path, help="instance file to write (.toml)")
+
+    for module in _verb_modules():
+        COMMANDS.update(module.register(sub, _add_run_options))
     return parser
+
+
+# Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
+# and imports nothing heavy at module level.
+VERB_MODULES: tuple[str, ...] = ()
+
+
+def _verb_modules():
+    import importlib
+
+    return [importlib.import_module(name) for name in VERB_MODULES]
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -74,8 +106,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         k=args.k,
         time_limit_s=args.time_limit,
         engine=args.engine,
+        orientations=args.orientations,
         outdir=args.out,
         reporter=ConsoleReporter(),
+        cache=not args.no_cache,
+        dask_address=args.dask,
+        memory_budget_gb=args.memory_budget_gb,
     )
     print(
         f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
@@ -86,6 +122,28 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"  camera {cam['candidate']:>6}: position ({x:.3f}, {y:.3f}, {z:.3f}) m")
     print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.npz, scene.ply")
     return EXIT_OK if sol.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
+
+
+def _cmd_visibility(args: argparse.Namespace) -> int:
+    from camplace._progress import ConsoleReporter
+    from camplace.instance import resolve_instance
+    from camplace.pipeline import compute_points, visibility_stage
+    from camplace.sampling import CandidateSet
+    from camplace.visibility import frame_scene, write_ply
+
+    instance = resolve_instance(args.instance)
+    cands = CandidateSet.load(args.candidates)
+    pts = compute_points(instance, args.points, args.seed)
+    vis = visibility_stage(
+        instance, cands, pts, reporter=ConsoleReporter(), cache=not args.no_cache, dask_address=args.dask,
+        memory_budget_gb=args.memory_budget_gb,
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_ply(args.out / "scene.ply", frame_scene(instance, 0).triangles)
+    vis.save(args.out)
+    print(f"{vis.matrix.shape[0]} points x {vis.matrix.shape[1]} candidates, {vis.matrix.nnz} observed pairs")
+    print(f"wrote {args.out}/visibility.npz, points.csv, scene.ply")
+    return EXIT_OK
 
 
 def _cmd_instances(args: argparse.Namespace) -> int:
@@ -107,7 +165,7 @@ def _cmd_init(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"run": _cmd_run, "instances": _cmd_instances, "init": _cmd_init}
+COMMANDS = {"run": _cmd_run, "visibility": _cmd_visibility, "instances": _cmd_instances, "init": _cmd_init}
 
 
 def main(argv: list[str] | None = None) -> int:

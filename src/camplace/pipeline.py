@@ -150,10 +150,96 @@ def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
     }
 
 
-def event_aim(instance) -> np.ndarray:
-    """(3,) float64 point the candidates look at: the likelihood-weighted mean target centre over frames."""
-    centres = np.array([instance.target_centre(f) for f in range(len(instance.frames))])
-    return instance.frame_weights() @ centres
+def event_centres(instance) -> np.ndarray:
+    """(n_frames, 3) float64 centre of what is observed in each frame.
+
+    The weighted mean of the target's bounding-box centre (weight ``target_weight``) and the
+    frame's emitter points (their weights).
+    """
+    out = []
+    for f, frame in enumerate(instance.frames):
+        c, w = [instance.target_centre(f) * frame.target_weight], frame.target_weight
+        if frame.emitters is not None and len(frame.emitters):
+            c.append(frame.emitters.weights @ frame.emitters.positions_m)
+            w += float(frame.emitters.weights.sum())
+        out.append(np.sum(c, axis=0) / w if w > 0 else instance.target_centre(f))
+    return np.array(out)
+
+
+def event_aims(instance, orientations: int = 1) -> np.ndarray:
+    """Aim points of the candidate poses at each position.
+
+    One orientation aims at the likelihood-weighted mean event centre. ``n > 1`` orientations aim
+    at the event centres of ``n`` key frames, taken at the likelihood quantiles (i + 0.5) / n of
+    the frame sequence (duplicates removed), so a moving target is followed.
+
+    Returns
+    -------
+    (a, 3) float64
+        ``a <= orientations`` distinct aim points.
+    """
+    centres = event_centres(instance)
+    w = instance.frame_weights()
+    if orientations <= 1 or len(centres) == 1:
+        return (w @ centres)[None, :]
+    cdf = np.cumsum(w)
+    keys = np.searchsorted(cdf, (np.arange(orientations) + 0.5) / orientations, side="left")
+    keys = np.unique(np.minimum(keys, len(centres) - 1))
+    return centres[keys]
+
+
+def stage_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
+    """Independent seed streams of a run: (candidates, points)."""
+    cand_seed, _ = stage_seeds(seed)
+    return cand_seed, point_seed
+
+
+def compute_points(instance, n_points: int | None = None, seed: int | None = None):
+    """The matrix rows of a run with this seed (the same points ``run`` makes).
+
+    Parameters
+    ----------
+    instance : Instance
+    n_points : int or None
+        Surface points (default: the instance's ``run.points``).
+    seed : int or None
+        Run seed (default: the instance's ``run.seed``).
+
+    Returns
+    -------
+    TargetPoints
+    """
+    n_points = instance.defaults.points if n_points is None else int(n_points)
+    seed = instance.defaults.seed if seed is None else int(seed)
+    if seed < 0:
+        raise CamplaceError(f"--seed: must be >= 0, got {seed}")
+    if n_points < 1:
+        raise CamplaceError(f"--points: must be >= 1, got {n_points}")
+    return make_target_points(instance, n_points, seed=stage_seeds(seed)[1])
+
+
+def visibility_stage(
+    instance,
+    cands: CandidateSet,
+    pts,
+    *,
+    reporter: Reporter | None = None,
+    cache: bool = True,
+    dask_address: str | None = None,
+    memory_budget_gb: float | None = None,
+) -> VisibilityMatrix:
+    """Compute (or fetch from the cache) the visibility matrix, with a progress bar."""
+    from camplace.visibility.cache import default_cache_dir
+
+    reporter = reporter or Reporter()
+    if memory_budget_gb is not None and not memory_budget_gb > 0:
+        raise CamplaceError(f"--memory-budget-gb: must be > 0, got {memory_budget_gb}")
+    budget = None if memory_budget_gb is None else int(memory_budget_gb * 2**30)
+    with reporter.stage("visibility", total=len(cands)) as advance:
+        return compute_visibility(
+            instance, cands, pts, progress=advance, memory_budget_bytes=budget, dask_address=dask_address,
+            cache_dir=default_cache_dir() if cache else None,
+        )
 
 
 def run(
@@ -166,8 +252,12 @@ def run(
     k: int | None = None,
     time_limit_s: float | None = None,
     engine: str = "auto",
+    orientations: int | None = None,
     outdir: str | Path | None = None,
     reporter: Reporter | None = None,
+    cache: bool = True,
+    dask_address: str | None = None,
+    memory_budget_gb: float | None = None,
 ) -> Solution:
     """Run the whole pipeline on an instance.
 
@@ -179,16 +269,24 @@ def run(
         Override the instance's run defaults.
     engine : str
         Solver engine ("auto", "exact", "mip", "cpsat").
+    orientations : int or None
+        Poses per candidate position (default: the instance's ``run.orientations``).
     outdir : path or None
         When given, write solution.json, candidates.csv, points.csv, visibility.npz and scene.ply there.
     reporter : Reporter or None
         Progress display (silent by default).
+    cache : bool
+        Reuse a cached visibility matrix for identical inputs (see :mod:`camplace.visibility.cache`).
+    dask_address : str or None
+        Compute the visibility matrix on a Dask cluster (scheduler address or ``local:N``).
+    memory_budget_gb : float or None
+        Stop before computing a visibility matrix estimated to need more memory (default: half the RAM).
 
     Returns
     -------
     Solution
     """
-    from camplace.instance import resolve_instance
+    from camplace.instance import resolve_instance, save_instance
     from camplace.solver import solve_maxcover
 
     if not hasattr(instance, "frames"):
@@ -201,6 +299,9 @@ def run(
     sampler = d.sampler if sampler is None else sampler
     k = instance.k if k is None else int(k)
     time_limit_s = d.time_limit_s if time_limit_s is None else float(time_limit_s)
+    orientations = d.orientations if orientations is None else int(orientations)
+    if orientations < 1:
+        raise CamplaceError(f"--orientations: must be >= 1, got {orientations}")
     if sampler not in SAMPLERS:
         raise CamplaceError(f"--sampler: unknown sampler {sampler!r} (use one of {', '.join(SAMPLERS)})")
     if seed < 0:
@@ -215,18 +316,20 @@ def run(
         raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
 
     timings: dict[str, float] = {}
-    cand_seed, point_seed = np.random.SeedSequence(seed).spawn(2)
+    cand_seed, _ = stage_seeds(seed)
 
     t0 = time.perf_counter()
     with reporter.stage("sampling"):
-        cands = make_candidates(sampler, n_cand, instance.volume.min_m, instance.volume.max_m, event_aim(instance), seed=cand_seed)
+        aims = event_aims(instance, orientations)
+        cands = make_candidates(sampler, n_cand, instance.volume.min_m, instance.volume.max_m, aims, seed=cand_seed)
         cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=sampler, seed=seed)
-        pts = make_target_points(instance, n_points, seed=point_seed)
+        pts = compute_points(instance, n_points, seed)
     timings["sampling"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    with reporter.stage("visibility", total=n_cand) as advance:
-        vis = compute_visibility(instance, cands, pts, progress=advance)
+    vis = visibility_stage(
+        instance, cands, pts, reporter=reporter, cache=cache, dask_address=dask_address, memory_budget_gb=memory_budget_gb
+    )
     timings["visibility"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -243,7 +346,7 @@ def run(
         k=k,
         seed=seed,
         sampler=sampler,
-        n_candidates=n_cand,
+        n_candidates=len(cands),
         n_points=len(pts),
         coverage_fraction=float(res.objective) / total_weight if total_weight > 0 else 0.0,
         timings_s=timings,
@@ -261,6 +364,7 @@ def run(
             outdir = Path(outdir)
             outdir.mkdir(parents=True, exist_ok=True)
             write_ply(outdir / "scene.ply", frame_scene(instance, 0).triangles)
+            save_instance(instance, outdir / "instance.toml", mesh_files=True)
             cands.save(outdir / "candidates.csv")
             vis.save(outdir)
             timings["write"] = time.perf_counter() - t0

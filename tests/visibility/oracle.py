@@ -42,8 +42,25 @@ def observed(
     far: float,
     triangles: np.ndarray,
     eps_m: float,
+    max_incidence_deg: float = 90.0,
+    light: np.ndarray | None = None,
 ) -> bool:
-    """The full observation test for one pair, from first principles."""
+    """The full observation test for one pair, from first principles.
+
+    ``light`` given: a surface point must also be lit (n . (L - p) > 0, unblocked shadow segment).
+    A zero normal marks a volumetric emitter: no facing, incidence or light test.
+    """
+    emitter = not np.any(normal)
+    if not emitter:
+        view = cam_pos - point
+        cos_t = float(np.dot(normal, view) / np.linalg.norm(view))
+        if cos_t <= 0 or np.degrees(np.arccos(min(1.0, cos_t))) > max_incidence_deg + 1e-9:
+            return False
+        if light is not None:
+            if np.dot(normal, light - point) <= 0:
+                return False
+            if segment_hits_any(point + eps_m * normal, light, triangles):
+                return False
     # world -> camera: the camera axes are the columns of cam_rot
     x, y, z = (point - cam_pos) @ cam_rot[:, 0], (point - cam_pos) @ cam_rot[:, 1], (point - cam_pos) @ cam_rot[:, 2]
     if not (near <= z <= far):

@@ -28,13 +28,16 @@ from camplace.instance import procedural
 from camplace.instance.schema import (
     SAMPLERS,
     SCHEMA_VERSION,
+    QUALITY_MODES,
     CameraModel,
+    Emitters,
     Frame,
     Instance,
     Light,
     Mesh,
     Occluder,
     Pose,
+    QualitySpec,
     RunDefaults,
     Volume,
 )
@@ -44,13 +47,16 @@ __all__ = ["load_instance", "parse_instance", "save_instance", "mesh_ply_bytes",
 MAX_CANDIDATES = 1_000_000
 MAX_POINTS = 10_000_000
 
-_TOP_KEYS = ("schema_version", "name", "k", "run", "camera", "volume", "light", "target", "occluders", "frames")
-_RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s")
+_TOP_KEYS = ("schema_version", "name", "k", "run", "camera", "volume", "light", "quality", "target", "occluders", "frames")
+_RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s", "orientations")
+_QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light")
+_EMITTER_KEYS = ("positions_m", "weights", "file")
+MAX_EMITTERS = 10_000_000
 _CAMERA_KEYS = ("sensor_width_mm", "sensor_height_mm", "focal_length_mm", "width_px", "height_px", "near_m", "far_m")
 _VOLUME_KEYS = ("min_m", "max_m")
 _LIGHT_KEYS = ("position_m",)
 _POSE_KEYS = ("position_m", "rotation_deg")
-_FRAME_KEYS = ("weight", "time_s", "position_m", "rotation_deg")
+_FRAME_KEYS = ("weight", "time_s", "position_m", "rotation_deg", "target_weight", "emitters", "occluders")
 _MESH_COMMON_KEYS = ("name", "file", "shape")
 _FILE_KEYS = ("scale",)
 _SHAPE_PARAMS: dict[str, dict[str, Any]] = {name: params for name, (_, params) in procedural.SHAPES.items()}
@@ -396,6 +402,7 @@ class _Parser:
             sampler=sampler,
             seed=self.integer(run_t, "seed", "run", default=d.seed, ge=0),
             time_limit_s=self.number(run_t, "time_limit_s", "run", default=d.time_limit_s, gt=0.0),
+            orientations=self.integer(run_t, "orientations", "run", default=d.orientations, ge=1, le=64),
         )
         if k > run.candidates:
             raise self.error("k", f"{k} cameras cannot be chosen from run.candidates = {run.candidates} candidate positions", "lower k or raise run.candidates")
@@ -431,19 +438,12 @@ class _Parser:
         self.check_keys(light_t, _LIGHT_KEYS, "light")
         light = Light(position_m=self.vec3(light_t, "position_m", "light"))
 
+        quality = self.quality(self.table(data, "quality", "", required=False) or {})
+
         target_t = self.table(data, "target", "")
         target = self.mesh(target_t, "target", "target")
 
-        occluders = []
-        occ_list = data.get("occluders", [])
-        if not isinstance(occ_list, list):
-            raise self.error("occluders", f"must be an array of tables, got {_type_name(occ_list)}", "write each occluder as an [[occluders]] section")
-        for i, occ_t in enumerate(occ_list):
-            prefix = f"occluders[{i}]"
-            if not isinstance(occ_t, dict):
-                raise self.error(prefix, f"must be a table, got {_type_name(occ_t)}", "write each occluder as an [[occluders]] section")
-            mesh = self.mesh(occ_t, prefix, f"occluder{i}", _POSE_KEYS)
-            occluders.append(Occluder(mesh=mesh, pose=self.pose(occ_t, prefix)))
+        occluders = self.occluders(data, "")
 
         if "frames" not in data:
             raise self.error("frames", "missing: at least one frame is required", "add a [[frames]] section with position_m = [x, y, z]")
@@ -456,11 +456,23 @@ class _Parser:
             if not isinstance(fr_t, dict):
                 raise self.error(prefix, f"must be a table, got {_type_name(fr_t)}", "write each frame as a [[frames]] section")
             self.check_keys(fr_t, _FRAME_KEYS, prefix)
+            emitters = None
+            if "emitters" in fr_t:
+                emitters = self.emitters(self.table(fr_t, "emitters", prefix), _join(prefix, "emitters"))
+            target_weight = self.number(fr_t, "target_weight", prefix, default=1.0, ge=0.0)
+            if target_weight == 0 and emitters is None:
+                raise self.error(
+                    _join(prefix, "target_weight"), "is 0 and the frame has no emitters, so nothing in it can be observed",
+                    "give the target a weight > 0 or add [frames.emitters]",
+                )
             frames.append(
                 Frame(
                     target_pose=self.pose(fr_t, prefix),
                     weight=self.number(fr_t, "weight", prefix, default=1.0, ge=0.0),
                     time_s=self.number(fr_t, "time_s", prefix, default=float(i)),
+                    target_weight=target_weight,
+                    emitters=emitters,
+                    occluders=tuple(self.occluders(fr_t, prefix)),
                 )
             )
         if not any(f.weight > 0 for f in frames):
@@ -477,7 +489,90 @@ class _Parser:
             frames=tuple(frames),
             defaults=run,
             source=self.source,
+            quality=quality,
         )
+
+    def quality(self, table: dict) -> QualitySpec:
+        self.check_keys(table, _QUALITY_KEYS, "quality")
+        d = QualitySpec()
+        mode = self.string(table, "mode", "quality", default=d.mode)
+        if mode not in QUALITY_MODES:
+            close = difflib.get_close_matches(mode, QUALITY_MODES, n=1, cutoff=0.5)
+            raise self.error(
+                "quality.mode", f"unknown mode {_show(mode)}" + (f"; did you mean '{close[0]}'?" if close else ""),
+                f"use one of {', '.join(QUALITY_MODES)}",
+            )
+        light = table.get("require_light", d.require_light)
+        if not isinstance(light, bool):
+            raise self.error("quality.require_light", f"must be true or false, got {_type_name(light)} {_show(light)}", "write true or false")
+        return QualitySpec(
+            mode=mode,
+            required_px_per_m=self.number(table, "required_px_per_m", "quality", default=d.required_px_per_m, gt=0.0),
+            max_incidence_deg=self.number(table, "max_incidence_deg", "quality", default=d.max_incidence_deg, gt=0.0, le=90.0),
+            require_light=light,
+        )
+
+    def occluders(self, parent: dict, prefix: str) -> list[Occluder]:
+        """The ``occluders`` array of tables of ``parent`` (top level or a frame)."""
+        field = _join(prefix, "occluders")
+        occ_list = parent.get("occluders", [])
+        section = f"[[{field.split('[')[0] if not prefix else 'frames.occluders'}]]"
+        if not isinstance(occ_list, list):
+            raise self.error(field, f"must be an array of tables, got {_type_name(occ_list)}", f"write each occluder as an {section} section")
+        out = []
+        for i, occ_t in enumerate(occ_list):
+            p = f"{field}[{i}]"
+            if not isinstance(occ_t, dict):
+                raise self.error(p, f"must be a table, got {_type_name(occ_t)}", f"write each occluder as an {section} section")
+            mesh = self.mesh(occ_t, p, f"occluder{i}", _POSE_KEYS)
+            out.append(Occluder(mesh=mesh, pose=self.pose(occ_t, p)))
+        return out
+
+    def emitters(self, table: dict, prefix: str) -> Emitters:
+        """Volumetric emitters: inline ``positions_m`` + ``weights``, or a CSV ``file`` with x,y,z,weight columns."""
+        self.check_keys(table, _EMITTER_KEYS, prefix)
+        if "file" in table:
+            if "positions_m" in table or "weights" in table:
+                raise self.error(_join(prefix, "file"), "both file and positions_m/weights are given", "keep only one")
+            rel = self.string(table, "file", prefix)
+            path = Path(rel) if Path(rel).is_absolute() else self.base_dir / rel
+            try:
+                data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
+            except OSError as exc:
+                raise self.error(_join(prefix, "file"), f"cannot read {rel!r} ({getattr(exc, 'strerror', None) or exc})", "check the path (relative to the instance file)") from None
+            except ValueError as exc:
+                raise self.error(_join(prefix, "file"), f"{rel!r} is not a CSV of x,y,z,weight rows ({_one_line(str(exc))})", "write a header line, then x,y,z,weight per row") from None
+            if data.shape[1] != 4:
+                raise self.error(_join(prefix, "file"), f"{rel!r} has {data.shape[1]} columns, expected 4 (x,y,z,weight)", "write x,y,z,weight per row")
+            pos, w, source = data[:, :3].copy(), data[:, 3].copy(), f"file:{path}"
+            field_pos = field_w = _join(prefix, "file")
+        else:
+            field_pos, field_w = _join(prefix, "positions_m"), _join(prefix, "weights")
+            raw_p = self.require(table, "positions_m", prefix, "[[x, y, z], ...]")
+            raw_w = self.require(table, "weights", prefix, "[w, ...]")
+            if not isinstance(raw_p, list) or not all(isinstance(r, list) and len(r) == 3 for r in raw_p):
+                raise self.error(field_pos, "must be an array of [x, y, z] arrays", "write positions_m = [[x, y, z], ...]")
+            if not isinstance(raw_w, list):
+                raise self.error(field_w, f"must be an array of numbers, got {_type_name(raw_w)}", "write weights = [w, ...]")
+            for i, row in enumerate(raw_p):
+                for j, x in enumerate(row):
+                    self._check_number(x, f"{field_pos}[{i}][{j}]")
+            for i, x in enumerate(raw_w):
+                self._check_number(x, f"{field_w}[{i}]", ge=0.0)
+            pos = np.array(raw_p, dtype=np.float64).reshape(-1, 3)
+            w = np.array(raw_w, dtype=np.float64)
+            source = "inline"
+        if len(pos) == 0:
+            raise self.error(field_pos, "has no emitter points", "give at least one point or remove the emitters table")
+        if len(pos) > MAX_EMITTERS:
+            raise self.error(field_pos, f"has {len(pos):_} points, more than {MAX_EMITTERS:_}", "subsample the emitters")
+        if len(w) != len(pos):
+            raise self.error(field_w, f"has {len(w)} weights for {len(pos)} positions", "give one weight per position")
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(w))):
+            raise self.error(field_pos, "contains NaN or infinite values", "replace them by real numbers")
+        if np.any(w < 0):
+            raise self.error(field_w, "contains negative weights", "weights must be >= 0")
+        return Emitters(positions_m=pos, weights=w, source=source)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -700,6 +795,7 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             "sampler": d.sampler,
             "seed": int(d.seed),
             "time_limit_s": float(d.time_limit_s),
+            "orientations": int(d.orientations),
         },
         "camera": {
             "sensor_width_mm": float(cam.sensor_width_mm),
@@ -722,15 +818,44 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             t["rotation_deg"] = _vec(occ.pose.rotation_deg)
             occs.append(t)
         data["occluders"] = occs
-    data["frames"] = [
-        {
+    q = instance.quality
+    if q != QualitySpec():
+        data["quality"] = {
+            "mode": q.mode,
+            "required_px_per_m": float(q.required_px_per_m),
+            "max_incidence_deg": float(q.max_incidence_deg),
+            "require_light": bool(q.require_light),
+        }
+    frames = []
+    for i, f in enumerate(instance.frames):
+        ft: dict[str, Any] = {
             "weight": float(f.weight),
             "time_s": float(f.time_s),
             "position_m": _vec(f.target_pose.position_m),
             "rotation_deg": _vec(f.target_pose.rotation_deg),
         }
-        for f in instance.frames
-    ]
+        if f.target_weight != 1.0:
+            ft["target_weight"] = float(f.target_weight)
+        if f.emitters is not None:
+            src = f.emitters.source
+            if not mesh_files and src.startswith("file:"):
+                ft["emitters"] = {"file": _rel(Path(src[len("file:"):]), out_dir)}
+            else:
+                rel = f"{mesh_dir_name}/frame{i}_emitters.csv"
+                table = np.column_stack([f.emitters.positions_m, f.emitters.weights])
+                text = "x,y,z,weight\n" + "".join(",".join(repr(float(v)) for v in row) + "\n" for row in table)
+                write_text_atomic(out_dir / rel, text)
+                ft["emitters"] = {"file": rel}
+        if f.occluders:
+            occs = []
+            for j, occ in enumerate(f.occluders):
+                t = mesh_table(occ.mesh, f"frames[{i}].occluders[{j}]", f"frame{i}_occluder{j}_{_slug(occ.mesh.name)}")
+                t["position_m"] = _vec(occ.pose.position_m)
+                t["rotation_deg"] = _vec(occ.pose.rotation_deg)
+                occs.append(t)
+            ft["occluders"] = occs
+        frames.append(ft)
+    data["frames"] = frames
 
     head = f"# camplace instance, schema v{SCHEMA_VERSION} (metres, degrees). Written by camplace.instance.save_instance."
     write_text_atomic(out, _dumps_toml(data, comments, head))
@@ -740,6 +865,8 @@ def _toml_value(value: Any) -> str:
     """Inline TOML for a scalar or an array of scalars (tomli_w does the escaping)."""
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):  # inline table (frame emitters and occluders)
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + " }"
     return tomli_w.dumps({"v": value})[len("v = ") :].strip()
 
 

@@ -110,6 +110,35 @@ class Occluder:
     pose: Pose = Pose()
 
 
+@dataclass(frozen=True, eq=False)
+class Emitters:
+    """Volumetric emitter points of one frame (a coma, a plume): observed without normal or light tests.
+
+    Attributes
+    ----------
+    positions_m : (e, 3) float64
+        World positions, metres.
+    weights : (e,) float64
+        Relative weights (brightness x density), >= 0, in the same unit as ``Frame.target_weight``.
+    source : str
+        ``file:<path>`` when read from a CSV file, else ``inline`` or ``procedural``.
+    """
+
+    positions_m: np.ndarray
+    weights: np.ndarray
+    source: str = "inline"
+
+    def __len__(self) -> int:
+        return int(self.positions_m.shape[0])
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Emitters):
+            return NotImplemented
+        return bool(np.array_equal(self.positions_m, other.positions_m) and np.array_equal(self.weights, other.weights))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
 @dataclass(frozen=True)
 class Frame:
     """One moment of the event.
@@ -122,11 +151,21 @@ class Frame:
         Likelihood P of this frame (>= 0); weights are normalised to sum 1 when points are made.
     time_s : float
         Time stamp, seconds.
+    target_weight : float
+        Relative weight of the whole target surface in this frame (>= 0), against the emitters'
+        weights; a frame's rows sum to its normalised likelihood.
+    emitters : Emitters or None
+        Volumetric emitter points in this frame.
+    occluders : tuple of Occluder
+        Occluders present in this frame only (besides the instance's static ones).
     """
 
     target_pose: Pose
     weight: float = 1.0
     time_s: float = 0.0
+    target_weight: float = 1.0
+    emitters: Emitters | None = None
+    occluders: tuple[Occluder, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -203,6 +242,34 @@ class Light:
     position_m: tuple[float, float, float]
 
 
+QUALITY_MODES = ("binary", "graded")
+
+
+@dataclass(frozen=True)
+class QualitySpec:
+    """How the observation quality of a (point, camera) pair is computed.
+
+    Attributes
+    ----------
+    mode : {"binary", "graded"}
+        ``binary``: every observed pair has quality 1. ``graded``: quality = resolution factor x
+        incidence factor, in (0, 1].
+    required_px_per_m : float
+        Resolution (pixels per metre on the target, f_px / distance) at which the resolution factor
+        min(1, f_px / distance / required_px_per_m) reaches 1.
+    max_incidence_deg : float
+        Pairs whose view ray makes a larger angle with the surface normal are not observed; in
+        graded mode the incidence factor is cos(angle).
+    require_light : bool
+        Only lit surface points count: the segment to the light is unblocked and n . l > 0.
+    """
+
+    mode: str = "binary"
+    required_px_per_m: float = 1000.0
+    max_incidence_deg: float = 90.0
+    require_light: bool = False
+
+
 @dataclass(frozen=True)
 class RunDefaults:
     """Defaults for a run of this instance; the CLI and :func:`camplace.run` may override each."""
@@ -212,6 +279,7 @@ class RunDefaults:
     sampler: str = "chaotic"
     seed: int = 0
     time_limit_s: float = 60.0
+    orientations: int = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,6 +301,7 @@ class Instance:
     frames : tuple of Frame
         At least one.
     defaults : RunDefaults
+    quality : QualitySpec
     source : str
         The file (or ``builtin:<name>``) this instance was read from; used in error messages.
     """
@@ -247,6 +316,7 @@ class Instance:
     frames: tuple[Frame, ...]
     defaults: RunDefaults = RunDefaults()
     source: str = ""
+    quality: QualitySpec = QualitySpec()
 
     def frame_weights(self) -> np.ndarray:
         """(n_frames,) float64 frame likelihoods normalised to sum 1 (uniform if all are 0)."""
@@ -264,9 +334,15 @@ class Instance:
         """
         return self.target.transformed(self.frames[frame].target_pose)
 
-    def occluders_world(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
-        """World-space static occluders as (name, vertices (n, 3) float64, faces (m, 3) int64)."""
-        return [(o.mesh.name, *o.mesh.transformed(o.pose)) for o in self.occluders]
+    def occluders_world(self, frame: int | None = None) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """World-space occluders as (name, vertices (n, 3) float64, faces (m, 3) int64).
+
+        The static ones, plus those of ``frame`` when a frame is given (the target excluded).
+        """
+        occ = list(self.occluders)
+        if frame is not None:
+            occ += list(self.frames[frame].occluders)
+        return [(o.mesh.name, *o.mesh.transformed(o.pose)) for o in occ]
 
     def target_centre(self, frame: int) -> np.ndarray:
         """(3,) float64 centre of the target's bounding box in ``frame``."""

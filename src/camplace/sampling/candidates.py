@@ -118,28 +118,35 @@ def make_candidates(
     n: int,
     min_m: np.ndarray | tuple[float, float, float],
     max_m: np.ndarray | tuple[float, float, float],
-    aim: np.ndarray,
+    aims: np.ndarray,
     *,
-    seed: int | None = 0,
+    seed: int | np.random.SeedSequence | None = 0,
 ) -> CandidateSet:
-    """Sample ``n`` camera positions in the volume, each aimed at ``aim``.
+    """Sample ``n`` camera positions in the volume; each becomes one pose per aim point.
 
     Parameters
     ----------
     sampler : {"chaotic", "uniform", "sobol"}
     n : int
+        Positions.
     min_m, max_m : (3,) float64
-    aim : (3,) float64
-        Point every camera looks at (the target centre).
-    seed : int or None
+    aims : (3,) or (a, 3) float64
+        Point(s) each camera position looks at (e.g. the event centre, or key-frame target centres).
+        Column ``i * a + j`` is position ``i`` aimed at ``aims[j]``.
+    seed : int, SeedSequence or None
 
     Returns
     -------
     CandidateSet
+        ``n * a`` poses.
     """
-    positions = sample_positions(sampler, n, min_m, max_m, seed=seed)
-    aims = np.broadcast_to(np.asarray(aim, dtype=np.float64), positions.shape).copy()
-    # a sample exactly at the aim point cannot be aimed; nudge it (probability ~0)
-    same = np.linalg.norm(positions - aims, axis=1) < 1e-9
+    aims = np.atleast_2d(np.asarray(aims, dtype=np.float64))
+    positions = np.repeat(sample_positions(sampler, n, min_m, max_m, seed=seed), len(aims), axis=0)
+    aim_cols = np.tile(aims, (n, 1))
+    # a sample exactly at its aim point cannot be aimed; nudge it (probability ~0)
+    same = np.linalg.norm(positions - aim_cols, axis=1) < 1e-9
     positions[same] += 1e-6
-    return CandidateSet(positions=positions, aims=aims, rotations=look_at(positions, aims), sampler=sampler, seed=seed)
+    return CandidateSet(
+        positions=positions, aims=aim_cols, rotations=look_at(positions, aim_cols), sampler=sampler,
+        seed=seed if isinstance(seed, int) else None,
+    )

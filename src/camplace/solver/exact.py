@@ -132,6 +132,8 @@ class _Search:
             "pair_leaves": 0,
             "pair_leaf_cols_before": 0,
             "pair_leaf_cols_after": 0,
+            "cluster_blocks": 0,
+            "triple_members": 0,
         }
         self.n_clusters = n_clusters
         self.top_bounds: np.ndarray | None = None
@@ -302,6 +304,49 @@ class _Search:
         self.seg_of = np.repeat(np.arange(self.seg_start.size), self.seg_end - self.seg_start)
         self.u = np.ascontiguousarray(np.maximum.reduceat(self.do, self.seg_start, axis=1))  # (m, q)
 
+    def _screen_pairs(self, wm: np.ndarray, q0: int, g: np.ndarray, thr: float) -> np.ndarray:
+        """Columns that can be in a pair of value ``> thr`` on the residual weights ``wm``.
+
+        Parameters
+        ----------
+        wm : (m,) residual weights
+        q0 : int
+            First allowed search position.
+        g : (n - q0,) float64
+            Residual gains of the allowed columns.
+        thr : float
+
+        Returns
+        -------
+        (c,) int64
+            Surviving offsets (relative to ``q0``), ascending.
+        """
+        nl = g.size
+        if nl < 2:
+            return np.zeros(0, dtype=np.int64)
+        # Member filter: b can only be in an improving pair if g_b + max_{c != b} g_c > thr.
+        top = np.argpartition(-g, 1)[:2] if nl > 2 else np.arange(nl)
+        top = top[np.argsort(-g[top], kind="stable")]
+        best_other = np.full(nl, g[top[0]])
+        best_other[top[0]] = g[top[1]]
+        alive = g + best_other > thr
+        if nl > _SCREEN_MIN and int(alive.sum()) > _SCREEN_MIN:
+            s0 = int(self.seg_of[q0])
+            rows = np.flatnonzero(wm)
+            ur = self.u[rows, s0:]
+            wr = wm[rows]
+            hu = (ur.T @ wr).astype(np.float64)
+            pu = hu[:, None] + hu[None, :] - self._gram(ur, wr)
+            starts = np.maximum(self.seg_start[s0:], q0) - q0
+            sizes = np.diff(np.r_[starts, nl])
+            gmax = np.maximum.reduceat(g, starts)
+            pb = np.minimum(pu, gmax[:, None] + gmax[None, :])
+            same = np.where(sizes >= 2, np.minimum(hu, 2.0 * gmax), -np.inf)
+            np.fill_diagonal(pb, same)
+            partner = np.where(pb > thr, gmax[None, :], -np.inf).max(axis=1)
+            alive &= g + np.repeat(partner, sizes) > thr
+        return np.flatnonzero(alive)
+
     def _pair_leaf(self, wm: np.ndarray, p: int, g: np.ndarray, base: float, prefix: tuple[int, ...]) -> None:
         """Exact best pair among search positions ``p..n-1`` on the residual weights ``wm``.
 
@@ -317,44 +362,16 @@ class _Search:
         prefix : tuple of int
             Search positions chosen so far.
         """
-        nl = self.n - p
-        if nl < 2:
-            return
         thr = self._thr(base)
-        if _top_sum(g, 2) <= thr:
+        if g.size < 2 or _top_sum(g, 2) <= thr:
             return
         self.stats["pair_leaves"] += 1
-        self.stats["pair_leaf_cols_before"] += int(nl)
-        # Member filter: b can only be in an improving pair if g_b + max_{c != b} g_c > thr.
-        top = np.argpartition(-g, 1)[:2] if nl > 2 else np.argsort(-g)
-        top = top[np.argsort(-g[top], kind="stable")]
-        best_other = np.full(nl, g[top[0]])
-        best_other[top[0]] = g[top[1]]
-        alive = g + best_other > thr
-        rows = None
-        if nl > _SCREEN_MIN and int(alive.sum()) > _SCREEN_MIN:
-            s0 = int(self.seg_of[p])
-            u = self.u[:, s0:]
-            rows = np.flatnonzero(wm)
-            ur = u[rows]
-            wr = wm[rows]
-            hu = (ur.T @ wr).astype(np.float64)
-            pu = hu[:, None] + hu[None, :] - self._gram(ur, wr)
-            starts = np.maximum(self.seg_start[s0:], p) - p
-            sizes = np.diff(np.r_[starts, nl])
-            gmax = np.maximum.reduceat(g, starts)
-            pb = np.minimum(pu, gmax[:, None] + gmax[None, :])
-            same = np.where(sizes >= 2, np.minimum(hu, 2.0 * gmax), -np.inf)
-            np.fill_diagonal(pb, same)
-            pair_ok = pb > thr
-            partner = np.where(pair_ok, gmax[None, :], -np.inf).max(axis=1)
-            alive &= g + np.repeat(partner, sizes) > thr
-        idx = np.flatnonzero(alive)
+        idx = self._screen_pairs(wm, p, g, thr)
+        self.stats["pair_leaf_cols_before"] += int(g.size)
         self.stats["pair_leaf_cols_after"] += int(idx.size)
         if idx.size < 2:
             return
-        if rows is None:
-            rows = np.flatnonzero(wm)
+        rows = np.flatnonzero(wm)
         x = self.do[np.ix_(rows, idx + p)]
         gi = g[idx]
         pv = gi[:, None] + gi[None, :] - self._gram(x, wm[rows])
@@ -364,6 +381,78 @@ class _Search:
         val = float(pv[i, j])
         if val > thr - self.margin:
             self._offer_pos(base + val, prefix + (int(idx[i]) + p, int(idx[j]) + p))
+
+    def _cluster_triples(
+        self, wm: np.ndarray, p: int, g: np.ndarray, lo: int, hi: int, base: float, prefix: tuple[int, ...]
+    ) -> None:
+        """All triples whose first column is a search position in ``lo..hi-1`` (one cluster).
+
+        With ``N`` the residual rows every cluster member covers and ``R'`` the other residual rows,
+        ``value(a, b, c) = f_a + w_R'(b | c) - w_(R' & a)(b | c)``: one GEMM gives the exact pair
+        values on ``R'`` for the whole cluster, and each member only needs a correction on the
+        (few) rows ``R' & a``.
+
+        Parameters
+        ----------
+        wm : (m,) residual weights
+        p : int
+            First allowed search position of the level (``g`` is indexed from ``p``).
+        g : (n - p,) float64
+            Residual gains.
+        lo, hi : int
+            Search positions of the cluster members.
+        base : float
+            Weight covered by the prefix.
+        prefix : tuple of int
+            Search positions chosen so far.
+        """
+        q0 = lo + 1
+        if self.n - q0 < 2:
+            return
+        rows = np.flatnonzero(wm)
+        in_all = self.do[rows, lo:hi].min(axis=1) > 0
+        wprime = wm.copy()
+        wprime[rows[in_all]] = 0
+        rp = rows[~in_all]
+        fa = g[lo - p : hi - p]
+        thr = self._thr(base)
+        gp = (self.do[:, q0:].T @ wprime).astype(np.float64)
+        idx = self._screen_pairs(wprime, q0, gp, thr - float(fa.max()))
+        self.stats["cluster_blocks"] += 1
+        self.stats["pair_leaf_cols_before"] += int(gp.size)
+        self.stats["pair_leaf_cols_after"] += int(idx.size)
+        if idx.size < 2:
+            return
+        pos_idx = idx + q0  # search positions of the surviving pair columns
+        x = self.do[np.ix_(rp, pos_idx)]
+        gi = gp[idx]
+        pv = gi[:, None] + gi[None, :] - self._gram(x, wm[rp])
+        pv[np.tril_indices(idx.size)] = -np.inf
+        for a in range(lo, hi):
+            self._check_time()
+            self.stats["triple_members"] += 1
+            ta = self._thr(base) - float(fa[a - lo])
+            j0 = int(np.searchsorted(pos_idx, a + 1))
+            if idx.size - j0 < 2:
+                break
+            sub = pv[j0:, j0:]
+            cand = sub > ta
+            if not cand.any():
+                continue
+            mi = np.flatnonzero(cand.any(axis=0) | cand.any(axis=1))
+            da = rp[self.do[rp, a] > 0]
+            xd = self.do[np.ix_(da, pos_idx[j0:][mi])]
+            wd = wm[da]
+            gd = (xd.T @ wd).astype(np.float64)
+            val = sub[np.ix_(mi, mi)] - (gd[:, None] + gd[None, :] - self._gram(xd, wd))
+            val[~cand[np.ix_(mi, mi)]] = -np.inf
+            flat = int(np.argmax(val))
+            i, j = divmod(flat, mi.size)
+            v = float(val[i, j])
+            if v > ta - self.margin:
+                bpos = int(pos_idx[j0 + mi[i]])
+                cpos = int(pos_idx[j0 + mi[j]])
+                self._offer_pos(base + float(fa[a - lo]) + v, prefix + (a, bpos, cpos))
 
     def search(
         self,
@@ -424,6 +513,9 @@ class _Search:
                 continue
             lo = max(p, int(self.seg_start[s0 + s]))
             hi = int(self.seg_end[s0 + s])
+            if r == 3:
+                self._cluster_triples(wm, p, g, lo, hi, base, prefix)
+                continue
             for pos in range(lo, hi):
                 if self.n - pos - 1 < r - 1:
                     break

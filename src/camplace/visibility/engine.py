@@ -1,22 +1,31 @@
 """The points x candidates visibility matrix, by culling then Embree segment casting.
 
-A (point, candidate) pair is observed when, in the candidate's camera (OpenCV axes, pinhole):
+A (row, candidate) pair is observed when, in the candidate's camera (OpenCV axes, pinhole):
 
 1. the point lies between ``near_m`` and ``far_m`` in depth (camera z);
 2. it projects inside the image: ``-0.5 <= u < width - 0.5`` and ``-0.5 <= v < height - 0.5``
    (pixel centres at integer coordinates, principal point at the image centre);
-3. it faces the camera: ``n . (c - p) > 0``;
-4. the segment from the camera centre to ``p + eps * n`` crosses no triangle of the scene
+3. for a surface point: it faces the camera, ``cos(theta) = n . (c - p) / |c - p| > 0``, and
+   ``theta <= max_incidence_deg``; (volumetric emitter points, with zero normal, skip this test);
+4. with ``require_light``, a surface point must be lit: ``n . (L - p) > 0`` and the segment from
+   ``p + eps * n`` to the light ``L`` is unblocked (emitters glow and skip this test);
+5. the segment from the camera centre to ``p + eps * n`` crosses no triangle of the scene
    (every occluder of the point's frame, the target itself included). ``eps`` is 1e-4 of the
    target's bounding-box diagonal and keeps the point's own face from occluding it.
 
-Pairs failing 1-3 are culled in numpy before any ray is cast; the remaining segments are cast
-with Embree, chunk by chunk over candidates, on a pool of threads (Embree and numpy release the GIL).
+Its value, the observation quality, is 1 in ``binary`` mode; in ``graded`` mode it is
+``min(1, f_px / (distance * required_px_per_m)) * cos(theta)`` for surface points (resolution
+times foreshortening) and the resolution factor alone for emitters.
+
+Pairs failing 1-4 are culled in numpy before any ray is cast; the remaining segments are cast
+with Embree, chunk by chunk over candidates, on a pool of threads (Embree and numpy release the
+GIL) or on a Dask cluster (:mod:`camplace.visibility.distributed`).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -34,6 +43,9 @@ from camplace.visibility.raycast import RayScene
 log = logging.getLogger(__name__)
 
 EPS_REL = 1e-4
+#: Bumped whenever the meaning of the matrix changes, so cached matrices are not reused.
+ENGINE_VERSION = "3"
+COUNT_KEYS = ("pairs", "in_range", "in_frustum", "facing", "cast", "observed")
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,11 +55,11 @@ class VisibilityMatrix:
     Attributes
     ----------
     matrix : (m, n) scipy.sparse.csr_matrix of float32
-        Value > 0 means observed; the value is the observation quality (1.0 for a binary test).
+        Value > 0 means observed; the value is the observation quality in (0, 1].
     points : TargetPoints
         The m rows.
     stats : dict
-        Pair counts after each culling step and timings.
+        Pair counts after each culling step.
     """
 
     matrix: sp.csr_matrix
@@ -81,10 +93,63 @@ class VisibilityMatrix:
 
 
 def frame_scene(instance, frame: int) -> RayScene:
-    """Embree scene of everything that occludes in ``frame``: static occluders and the posed target."""
-    meshes = [(v, f) for _, v, f in instance.occluders_world()]
+    """Embree scene of everything that occludes in ``frame``: occluders and the posed target."""
+    meshes = [(v, f) for _, v, f in instance.occluders_world(frame)]
     meshes.append(instance.target_world(frame))
     return RayScene(meshes)
+
+
+@dataclass(frozen=True, eq=False)
+class VisibilityTask:
+    """Everything a worker needs to compute columns of the matrix: plain, picklable arrays.
+
+    Attributes
+    ----------
+    positions : (m, 3) float64
+        Row points.
+    normals : (m, 3) float64
+        Row normals (zero for emitters).
+    frame : (m,) int32
+    active : (m,) bool
+        Rows that can be observed at all (False for unlit surface points when light is required).
+    eps_m : (n_frames,) float64
+        Per-frame offset along the normal for the segment end.
+    cam_positions : (n, 3) float64
+    cam_rotations : (n, 3, 3) float64
+    K : (3, 3) float64
+    width_px, height_px : int
+    near_m, far_m : float
+    graded : bool
+    required_px_per_m : float
+    cos_max_incidence : float
+    scene_triangles : dict of int to (t, 3, 3) float32
+        The triangles of each frame's scene, exactly as cast.
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    frame: np.ndarray
+    active: np.ndarray
+    eps_m: np.ndarray
+    cam_positions: np.ndarray
+    cam_rotations: np.ndarray
+    K: np.ndarray
+    width_px: int
+    height_px: int
+    near_m: float
+    far_m: float
+    graded: bool
+    required_px_per_m: float
+    cos_max_incidence: float
+    scene_triangles: dict
+
+    @property
+    def n_candidates(self) -> int:
+        return int(self.cam_positions.shape[0])
+
+    def build_scenes(self) -> dict[int, RayScene]:
+        """One Embree scene per frame (build once per process)."""
+        return {f: RayScene.from_triangles(t) for f, t in self.scene_triangles.items()}
 
 
 def cull_chunk(
@@ -97,19 +162,23 @@ def cull_chunk(
     height_px: int,
     near_m: float,
     far_m: float,
-) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Frustum, range and facing tests for a chunk of cameras against all points.
+    cos_max_incidence: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Range, frustum and facing/incidence tests for a chunk of cameras against points.
 
     Parameters
     ----------
     points : (m, 3) float64
     normals : (m, 3) float64
+        Zero rows (emitters) skip the facing test.
     cam_pos : (c, 3) float64
     cam_rot : (c, 3, 3) float64
         World-from-camera rotations (OpenCV axes).
     K : (3, 3) float64
     width_px, height_px : int
     near_m, far_m : float
+    cos_max_incidence : float
+        cos of the largest accepted angle between normal and view ray.
 
     Returns
     -------
@@ -117,6 +186,10 @@ def cull_chunk(
         Chunk-local camera index of each surviving pair.
     point_idx : (q,) int64
         Point index of each surviving pair.
+    distance : (q,) float64
+        Camera-to-point distance.
+    cos_theta : (q,) float64
+        Cosine of the incidence angle (1 for emitters).
     counts : dict
         Pairs surviving each test.
     """
@@ -130,9 +203,148 @@ def cull_chunk(
         v = K[1, 1] * cam[:, :, 1] / z + K[1, 2]
     ok &= (u >= -0.5) & (u < width_px - 0.5) & (v >= -0.5) & (v < height_px - 0.5)
     n_frustum = int(ok.sum())
-    ok &= np.einsum("cmk,mk->cm", diff, normals) < 0.0  # n . (c - p) > 0
     cam_idx, point_idx = np.nonzero(ok)
-    return cam_idx, point_idx, {"in_range": n_range, "in_frustum": n_frustum, "facing": int(len(cam_idx))}
+    d = diff[cam_idx, point_idx]
+    dist = np.linalg.norm(d, axis=1)
+    nrm = normals[point_idx]
+    emitter = ~np.any(nrm != 0.0, axis=1)
+    cos_theta = np.where(emitter, 1.0, -np.einsum("qk,qk->q", d, nrm) / np.maximum(dist, 1e-300))
+    keep = emitter | ((cos_theta > 0.0) & (cos_theta >= cos_max_incidence))
+    counts = {"in_range": n_range, "in_frustum": n_frustum, "facing": int(keep.sum())}
+    return cam_idx[keep], point_idx[keep], dist[keep], cos_theta[keep], counts
+
+
+def compute_chunk(
+    task: VisibilityTask, scenes: dict[int, RayScene], start: int, stop: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Observed pairs of candidates ``start:stop``.
+
+    Returns
+    -------
+    rows : (q,) int32
+    cols : (q,) int32
+        Global candidate indices.
+    values : (q,) float32
+        Observation quality.
+    counts : dict
+    """
+    pos = task.cam_positions[start:stop]
+    rot = task.cam_rotations[start:stop]
+    counts = dict.fromkeys(COUNT_KEYS, 0)
+    out_r, out_c, out_v = [], [], []
+    fx = float(task.K[0, 0])
+    for f in sorted(task.scene_triangles):
+        rows = np.nonzero((task.frame == f) & task.active)[0]
+        counts["pairs"] += int(np.count_nonzero(task.frame == f)) * (stop - start)
+        if len(rows) == 0:
+            continue
+        p = task.positions[rows]
+        nrm = task.normals[rows]
+        ci, pi, dist, cos_t, cnt = cull_chunk(
+            p, nrm, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m, task.cos_max_incidence
+        )
+        for key in ("in_range", "in_frustum", "facing"):
+            counts[key] += cnt[key]
+        ends = p[pi] + float(task.eps_m[f]) * nrm[pi]
+        blocked = scenes[f].occluded(pos[ci], ends)
+        counts["cast"] += len(ci)
+        keep = ~blocked
+        counts["observed"] += int(keep.sum())
+        if task.graded:
+            q = np.minimum(1.0, fx / (dist[keep] * task.required_px_per_m)) * cos_t[keep]
+            q = np.maximum(q, np.finfo(np.float32).tiny).astype(np.float32)
+        else:
+            q = np.ones(int(keep.sum()), dtype=np.float32)
+        out_r.append(rows[pi[keep]].astype(np.int32))
+        out_c.append((ci[keep] + start).astype(np.int32))
+        out_v.append(q)
+    if not out_r:
+        return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, np.float32), counts
+    return np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_v), counts
+
+
+def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m: np.ndarray) -> np.ndarray:
+    """(m,) bool: surface points lit by the instance's light (emitters count as lit).
+
+    A surface point is lit when ``n . (L - p) > 0`` and the segment from ``p + eps * n`` to the
+    light is unblocked in its frame's scene.
+    """
+    light = np.asarray(instance.light.position_m, dtype=np.float64)
+    lit = points.is_emitter.copy()
+    for f, scene in scenes.items():
+        rows = np.nonzero((points.frame == f) & ~points.is_emitter)[0]
+        p, n = points.positions[rows], points.normals[rows]
+        facing = np.einsum("qk,qk->q", light - p, n) > 0
+        r = rows[facing]
+        start = points.positions[r] + float(eps_m[f]) * points.normals[r]
+        ok = ~scene.occluded(start, np.broadcast_to(light, start.shape))
+        lit[r[ok]] = True
+    return lit
+
+
+def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTask, dict[int, RayScene]]:
+    """The picklable task for (instance, candidates, points) and the frame scenes built for it."""
+    cam = instance.camera
+    q = instance.quality
+    frames = [int(f) for f in np.unique(points.frame)]
+    scenes = {f: frame_scene(instance, f) for f in frames}
+    eps = np.zeros(len(instance.frames))
+    for f in frames:
+        eps[f] = EPS_REL * float(np.linalg.norm(np.ptp(instance.target_world(f)[0], axis=0)))
+    active = lit_mask(instance, points, scenes, eps) if q.require_light else np.ones(len(points), dtype=bool)
+    cos_max = math.cos(math.radians(q.max_incidence_deg)) if q.max_incidence_deg < 90.0 else 0.0
+    task = VisibilityTask(
+        positions=points.positions,
+        normals=points.normals,
+        frame=points.frame,
+        active=active,
+        eps_m=eps,
+        cam_positions=np.asarray(candidates.positions, dtype=np.float64),
+        cam_rotations=np.asarray(candidates.rotations, dtype=np.float64),
+        K=cam.K(),
+        width_px=int(cam.width_px),
+        height_px=int(cam.height_px),
+        near_m=float(cam.near_m),
+        far_m=float(cam.far_m),
+        graded=q.mode == "graded",
+        required_px_per_m=float(q.required_px_per_m),
+        cos_max_incidence=cos_max,
+        scene_triangles={f: s.triangles for f, s in scenes.items()},
+    )
+    return task, scenes
+
+
+def assemble(task: VisibilityTask, parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, dict]]) -> tuple[sp.csr_matrix, dict]:
+    """CSR float32 matrix (rows x candidates) and summed counts from chunk results in column order."""
+    total = dict.fromkeys(COUNT_KEYS, 0)
+    for _, _, _, cnt in parts:
+        for key in COUNT_KEYS:
+            total[key] += cnt[key]
+    rows = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int32)
+    cols = np.concatenate([p[1] for p in parts]) if parts else np.empty(0, np.int32)
+    vals = np.concatenate([p[2] for p in parts]) if parts else np.empty(0, np.float32)
+    m = len(task.positions)
+    matrix = sp.csr_matrix((vals, (rows, cols)), shape=(m, task.n_candidates), dtype=np.float32)
+    matrix.sort_indices()
+    return matrix, total
+
+
+def available_memory_bytes() -> int:
+    """Physical memory of this machine (bytes), or 8 GiB when unknown."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return 8 << 30
+
+
+def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float) -> int:
+    """Peak bytes to build a float32 CSR matrix of this density.
+
+    Chunk results (int32 row, int32 column, float32 value = 12 bytes a pair), their concatenation
+    and the CSR (8 bytes a pair plus row pointers) coexist at the peak: about 32 bytes per pair.
+    """
+    nnz = density * n_rows * n_cols
+    return int(32 * nnz + 8 * (n_rows + 1))
 
 
 def compute_visibility(
@@ -143,6 +355,9 @@ def compute_visibility(
     chunk_size: int = 32,
     workers: int | None = None,
     progress: Callable[[int], None] | None = None,
+    memory_budget_bytes: int | None = None,
+    dask_address: str | None = None,
+    cache_dir: str | Path | None = None,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -157,61 +372,70 @@ def compute_visibility(
         Threads (default: number of CPUs, at most 8).
     progress : callable or None
         Called with the number of candidates finished after each chunk.
+    memory_budget_bytes : int or None
+        Stop with a clear error, before the bulk of the work, when the matrix is estimated to
+        need more (default: half the machine's memory).
+    dask_address : str or None
+        Compute the chunks on a Dask cluster: a scheduler address or ``local:N``.
+    cache_dir : path or None
+        Reuse / store the matrix in this cache folder (see :mod:`camplace.visibility.cache`);
+        None disables the cache.
 
     Returns
     -------
     VisibilityMatrix
     """
-    cam = instance.camera
-    K = cam.K()
     n_cand = len(candidates)
-    m = len(points)
-    frames = np.unique(points.frame)
-    scenes = {int(f): frame_scene(instance, int(f)) for f in frames}
-    rows_by_frame = {int(f): np.nonzero(points.frame == f)[0] for f in frames}
-    diag = {
-        int(f): float(np.linalg.norm(np.ptp(instance.target_world(int(f))[0], axis=0))) for f in frames
-    }
-    workers = workers or min(8, os.cpu_count() or 1)
+    task, scenes = make_task(instance, candidates, points)
+    key = None
+    if cache_dir is not None:
+        from camplace.visibility import cache
+
+        key = cache.task_key(task)
+        hit = cache.load(Path(cache_dir), key, (len(points), n_cand))
+        if hit is not None:
+            if progress is not None:
+                progress(n_cand)
+            return VisibilityMatrix(matrix=hit[0], points=points, stats={**hit[1], "cache": "hit"})
+    budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
     starts = list(range(0, n_cand, chunk_size))
 
-    def work(start: int) -> tuple[np.ndarray, np.ndarray, dict]:
-        stop = min(start + chunk_size, n_cand)
-        pos = candidates.positions[start:stop]
-        rot = candidates.rotations[start:stop]
-        out_r, out_c = [], []
-        counts = {"pairs": 0, "in_range": 0, "in_frustum": 0, "facing": 0, "cast": 0, "observed": 0}
-        for f, rows in rows_by_frame.items():
-            p = points.positions[rows]
-            nrm = points.normals[rows]
-            ci, pi, cnt = cull_chunk(p, nrm, pos, rot, K, cam.width_px, cam.height_px, cam.near_m, cam.far_m)
-            for key in ("in_range", "in_frustum", "facing"):
-                counts[key] += cnt[key]
-            counts["pairs"] += len(rows) * (stop - start)
-            ends = p[pi] + (EPS_REL * diag[f]) * nrm[pi]
-            blocked = scenes[f].occluded(pos[ci], ends)
-            counts["cast"] += len(ci)
-            keep = ~blocked
-            counts["observed"] += int(keep.sum())
-            out_r.append(rows[pi[keep]])
-            out_c.append(ci[keep] + start)
-        return np.concatenate(out_r), np.concatenate(out_c), counts
+    # A pilot chunk measures the density before the bulk of the work, to check the memory budget.
+    parts = []
+    if starts:
+        first = compute_chunk(task, scenes, 0, min(chunk_size, n_cand))
+        parts.append(first)
+        pilot_cols = min(chunk_size, n_cand)
+        density = len(first[0]) / max(1, len(points) * pilot_cols)
+        need = estimate_matrix_bytes(len(points), n_cand, density)
+        if need > budget:
+            raise CamplaceError(
+                f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
+                f"candidates, {100 * density:.1f}% observed in a pilot of {pilot_cols} candidates), over the memory "
+                f"budget of {budget / 2**30:.1f} GiB (lower --points or --candidates, or raise --memory-budget-gb)"
+            )
+        if progress is not None:
+            progress(pilot_cols)
+    rest = starts[1:]
+    if dask_address is not None:
+        from camplace.visibility.distributed import compute_chunks_dask
 
-    total = {"pairs": 0, "in_range": 0, "in_frustum": 0, "facing": 0, "cast": 0, "observed": 0}
-    rows_all, cols_all = [], []
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        for start, (r, c, cnt) in zip(starts, pool.map(work, starts)):
-            rows_all.append(r)
-            cols_all.append(c)
-            for key in total:
-                total[key] += cnt[key]
-            if progress is not None:
-                progress(min(chunk_size, n_cand - start))
-    rows = np.concatenate(rows_all) if rows_all else np.empty(0, dtype=np.int64)
-    cols = np.concatenate(cols_all) if cols_all else np.empty(0, dtype=np.int64)
-    matrix = sp.csr_matrix((np.ones(len(rows), dtype=np.float32), (rows, cols)), shape=(m, n_cand), dtype=np.float32)
-    matrix.sum_duplicates()
-    matrix.sort_indices()
+        parts += compute_chunks_dask(task, rest, chunk_size, dask_address, progress=progress)
+    else:
+        workers = workers or min(8, os.cpu_count() or 1)
+
+        def work(start: int):
+            return compute_chunk(task, scenes, start, min(start + chunk_size, n_cand))
+
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            for start, part in zip(rest, pool.map(work, rest)):
+                parts.append(part)
+                if progress is not None:
+                    progress(min(chunk_size, n_cand - start))
+    matrix, total = assemble(task, parts)
+    if key is not None:
+        cache.store(Path(cache_dir), key, matrix, total)
+        total = {**total, "cache": "miss"}
     log.info(
         "visibility: %d pairs, %d in range, %d in frustum, %d facing, %d observed",
         total["pairs"], total["in_range"], total["in_frustum"], total["facing"], total["observed"],

@@ -79,7 +79,8 @@ class TargetPoints:
     positions : (m, 3) float64
         World positions, metres.
     normals : (m, 3) float64
-        Outward unit normals (the normal of the face the point lies on).
+        Outward unit normals (the normal of the face the point lies on); all zero for a
+        volumetric emitter point (a coma or plume particle), which has no surface.
     frame : (m,) int32
         Event frame of each row.
     weight : (m,) float64
@@ -93,6 +94,11 @@ class TargetPoints:
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
+
+    @property
+    def is_emitter(self) -> np.ndarray:
+        """(m,) bool: rows that are volumetric emitter points (zero normal)."""
+        return ~np.any(self.normals != 0.0, axis=1)
 
     def to_csv(self) -> str:
         """The ``points.csv`` text: ``index,x,y,z,nx,ny,nz,frame,weight``."""
@@ -132,16 +138,19 @@ class TargetPoints:
 
 
 def make_target_points(instance, n_points: int, *, seed: int | np.random.SeedSequence | None = 0) -> TargetPoints:
-    """Sample ``n_points`` surface points of the target, shared by every frame.
+    """The matrix rows: target surface points in every frame, then that frame's emitter points.
 
     The same material points (sampled once on the target's local mesh, by area) are carried into
-    each frame by the frame's target pose, so row ``f * per_frame + i`` is point ``i`` in frame ``f``.
-    Each frame gets ``ceil(n_points / n_frames)`` points.
+    each frame by the frame's target pose; each frame gets ``ceil(n_points / n_frames)`` of them.
+    A frame's rows sum to its normalised likelihood P: the surface points share
+    ``P * target_weight / T`` equally and each emitter gets ``P * w / T``, where ``T`` is
+    ``target_weight`` plus the frame's emitter weights.
 
     Parameters
     ----------
     instance : camplace.instance.Instance
     n_points : int
+        Surface points in all (split over frames).
     seed : int, SeedSequence or None
 
     Returns
@@ -160,11 +169,22 @@ def make_target_points(instance, n_points: int, *, seed: int | np.random.SeedSeq
     fw = instance.frame_weights()
     pos, nrm, frm, wts = [], [], [], []
     for f, frame in enumerate(instance.frames):
-        rot = frame.target_pose.rotation()
-        pos.append(frame.target_pose.apply(local_p))
-        nrm.append(local_n @ rot.T)
-        frm.append(np.full(per_frame, f, dtype=np.int32))
-        wts.append(np.full(per_frame, fw[f] / per_frame))
+        em = frame.emitters
+        em_w = em.weights if em is not None else np.empty(0)
+        total = frame.target_weight + float(em_w.sum())
+        if total <= 0:
+            total = 1.0
+        if frame.target_weight > 0:
+            rot = frame.target_pose.rotation()
+            pos.append(frame.target_pose.apply(local_p))
+            nrm.append(local_n @ rot.T)
+            frm.append(np.full(per_frame, f, dtype=np.int32))
+            wts.append(np.full(per_frame, fw[f] * frame.target_weight / (total * per_frame)))
+        if em is not None:
+            pos.append(np.asarray(em.positions_m, dtype=np.float64))
+            nrm.append(np.zeros((len(em), 3)))
+            frm.append(np.full(len(em), f, dtype=np.int32))
+            wts.append(fw[f] * em_w / total)
     return TargetPoints(
         positions=np.concatenate(pos), normals=np.concatenate(nrm), frame=np.concatenate(frm), weight=np.concatenate(wts)
     )

@@ -30,6 +30,13 @@ class RayScene:
         if not self._empty:
             TriangleMesh(self._scene, self.triangles)
 
+    @classmethod
+    def from_triangles(cls, triangles: np.ndarray) -> "RayScene":
+        """Scene of a float32 triangle soup (t, 3, 3), e.g. ``RayScene.triangles`` of another scene."""
+        tri = np.asarray(triangles, dtype=np.float32).reshape(-1, 3, 3)
+        n = len(tri)
+        return cls([(tri.reshape(-1, 3).astype(np.float64), np.arange(3 * n, dtype=np.int64).reshape(n, 3))])
+
     def __len__(self) -> int:
         return int(self.triangles.shape[0])
 

@@ -1,0 +1,280 @@
+"""An emulated physical camera: photographs of the chosen placement as a real camera would take them.
+
+With no real photographs, ``camplace validate`` takes "photographs" with :class:`PhysicalCamera`:
+
+1. placement error: the camera stands at ``C + N(0, sigma_position_m^2 I)`` and is turned by a
+   small rotation whose rotation vector (in the camera frame) has independent
+   ``N(0, sigma_rotation_deg^2)`` components: ``R_actual = R @ Exp(w)``;
+2. lens: radial distortion ``k1``, ``k2`` (OpenCV model; the rays of the render follow it exactly);
+3. the scene: rendered from the actual pose with ``ambient_light`` added to the ambient term;
+4. optics: defocus blur (a uniform disc of radius ``defocus_radius_px``), then vignetting
+   ``gain(r) = max(0, 1 - vignetting * (r / r_corner)^2)`` with r the distance to the principal point;
+5. exposure: times ``2 ** exposure_ev * 10 ** (gain_db / 20)``;
+6. sensor noise, Poisson-Gaussian (Foi et al. 2008): ``z = a * Poisson(y / a) + N(0, noise_sigma^2)``
+   with ``a = noise_poisson_a`` (variance ``a * y + noise_sigma^2``; ``a = 0`` disables the Poisson part);
+7. clipping to [0, 1] (and quantisation when written to PNG).
+
+Every field zero (the default) is the identity: the photograph equals the render bit for bit.
+The same actual pose is used for a camera's photo and its background photo (the camera does not
+move between the two shots); their noise is drawn independently.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from camplace.errors import CamplaceError
+from camplace.validation.cameras import CameraView
+
+log = logging.getLogger(__name__)
+
+__all__ = ["PhysicalCamera", "parse_physical", "perturb_camera", "apply_optics_and_sensor", "EmulatedShot", "emulate_shots", "rotation_from_vector"]
+
+
+@dataclass(frozen=True)
+class PhysicalCamera:
+    """Imperfections of the physical cameras (all zero: a perfect camera, photo == render).
+
+    Attributes
+    ----------
+    sigma_position_m : float
+        Standard deviation of the placement error per axis, metres.
+    sigma_rotation_deg : float
+        Standard deviation of each component of the orientation error's rotation vector, degrees.
+    exposure_ev : float
+        Exposure change in stops (x 2 ** exposure_ev).
+    gain_db : float
+        Sensor gain in decibels (x 10 ** (gain_db / 20)).
+    noise_poisson_a : float
+        Poisson (shot) noise scale a of the Poisson-Gaussian model, image units (1.0 = white).
+    noise_sigma : float
+        Gaussian (read) noise standard deviation, image units.
+    defocus_radius_px : float
+        Radius of the defocus disc (circle of confusion), pixels.
+    k1, k2 : float
+        Radial distortion coefficients (OpenCV).
+    vignetting : float
+        Relative brightness loss in the image corners (0..1).
+    ambient_light : float
+        Extra ambient light in the room, added to the renderer's ambient term on every surface.
+    """
+
+    sigma_position_m: float = 0.0
+    sigma_rotation_deg: float = 0.0
+    exposure_ev: float = 0.0
+    gain_db: float = 0.0
+    noise_poisson_a: float = 0.0
+    noise_sigma: float = 0.0
+    defocus_radius_px: float = 0.0
+    k1: float = 0.0
+    k2: float = 0.0
+    vignetting: float = 0.0
+    ambient_light: float = 0.0
+
+    @property
+    def exposure_factor(self) -> float:
+        """Total brightness factor of exposure and gain."""
+        return 2.0**self.exposure_ev * 10.0 ** (self.gain_db / 20.0)
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+_NONNEG = ("sigma_position_m", "sigma_rotation_deg", "noise_poisson_a", "noise_sigma", "defocus_radius_px", "ambient_light")
+
+
+def parse_physical(table: dict[str, Any] | None, where: str = "[physical]") -> PhysicalCamera:
+    """Build a :class:`PhysicalCamera` from a TOML/JSON table (e.g. an instance's ``[physical]``).
+
+    Parameters
+    ----------
+    table : dict or None
+        Keys are the field names; missing keys keep their default (0).
+    where : str
+        Prefix for error messages, e.g. ``"run.toml: [physical]"``.
+
+    Raises
+    ------
+    CamplaceError
+        Unknown key, non-number, negative standard deviation or vignetting outside [0, 1].
+    """
+    if table is None:
+        return PhysicalCamera()
+    if not isinstance(table, dict):
+        raise CamplaceError(f"{where}: must be a table of numbers")
+    names = [f.name for f in fields(PhysicalCamera)]
+    vals: dict[str, float] = {}
+    for key, value in table.items():
+        if key not in names:
+            import difflib
+
+            close = difflib.get_close_matches(key, names, n=1)
+            hint = f"did you mean {close[0]!r}?" if close else f"known keys: {', '.join(names)}"
+            raise CamplaceError(f"{where}.{key}: unknown key ({hint})")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise CamplaceError(f"{where}.{key}: must be a finite number, got {value!r}")
+        if key in _NONNEG and value < 0:
+            raise CamplaceError(f"{where}.{key}: must be >= 0, got {value}")
+        if key == "vignetting" and not 0.0 <= value <= 1.0:
+            raise CamplaceError(f"{where}.vignetting: must be between 0 and 1, got {value}")
+        vals[key] = float(value)
+    return PhysicalCamera(**vals)
+
+
+def rotation_from_vector(w: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation ``Exp(w)`` of a rotation vector (axis * angle, radians), Rodrigues' formula."""
+    w = np.asarray(w, dtype=np.float64).reshape(3)
+    theta = float(np.linalg.norm(w))
+    if theta < 1e-15:
+        return np.eye(3)
+    k = w / theta
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(theta) * Kx + (1 - math.cos(theta)) * (Kx @ Kx)
+
+
+def perturb_camera(camera: CameraView, physical: PhysicalCamera, rng: np.random.Generator) -> CameraView:
+    """The camera as actually placed: placement error and the lens's radial distortion.
+
+    Draws 6 normal numbers from ``rng`` (always, so streams stay aligned whatever the sigmas).
+    """
+    dp = rng.normal(0.0, 1.0, 3) * physical.sigma_position_m
+    w = rng.normal(0.0, 1.0, 3) * math.radians(physical.sigma_rotation_deg)
+    pos = camera.position + dp
+    rot = camera.rotation @ rotation_from_vector(w) if np.any(w != 0) else camera.rotation
+    out = camera.with_pose(pos, rot)
+    if physical.k1 != 0.0 or physical.k2 != 0.0:
+        out = out.with_dist([physical.k1, physical.k2, 0.0, 0.0, 0.0])
+    return out
+
+
+def _disc_kernel(radius_px: float) -> np.ndarray:
+    r = int(math.ceil(radius_px))
+    y, x = np.mgrid[-r : r + 1, -r : r + 1]
+    # area-weighted disc by 4x4 supersampling of each kernel pixel
+    s = (np.arange(4) + 0.5) / 4 - 0.5
+    acc = np.zeros(x.shape)
+    for sy in s:
+        for sx in s:
+            acc += ((x + sx) ** 2 + (y + sy) ** 2) <= radius_px**2
+    k = acc / acc.sum()
+    return k.astype(np.float32)
+
+
+def apply_optics_and_sensor(
+    image: np.ndarray, camera: CameraView, physical: PhysicalCamera, rng: np.random.Generator
+) -> np.ndarray:
+    """Steps 4-7 of the module docstring on a linear float image.
+
+    Parameters
+    ----------
+    image : (h, w) float32
+        Rendered radiance.
+    camera : CameraView
+        For the principal point (vignetting).
+    physical : PhysicalCamera
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    (h, w) float32 in [0, 1]
+    """
+    out = np.asarray(image, dtype=np.float32).copy()
+    if physical.defocus_radius_px > 0:
+        import cv2
+
+        out = cv2.filter2D(out, cv2.CV_32F, _disc_kernel(physical.defocus_radius_px), borderType=cv2.BORDER_REFLECT)
+    if physical.vignetting > 0:
+        h, w = out.shape
+        cx, cy = camera.K[0, 2], camera.K[1, 2]
+        yy, xx = np.mgrid[0:h, 0:w]
+        r2 = (xx - cx) ** 2 + (yy - cy) ** 2
+        corner2 = max((cx - x) ** 2 + (cy - y) ** 2 for x in (-0.5, w - 0.5) for y in (-0.5, h - 0.5))
+        out *= np.maximum(0.0, 1.0 - physical.vignetting * r2 / corner2).astype(np.float32)
+    if physical.exposure_factor != 1.0:
+        out *= np.float32(physical.exposure_factor)
+    if physical.noise_poisson_a > 0:
+        a = physical.noise_poisson_a
+        out = (a * rng.poisson(np.maximum(out, 0.0) / a)).astype(np.float32)
+    if physical.noise_sigma > 0:
+        out += rng.normal(0.0, physical.noise_sigma, out.shape).astype(np.float32)
+    return np.clip(out, 0.0, 1.0)
+
+
+@dataclass(frozen=True, eq=False)
+class EmulatedShot:
+    """An emulated photograph and background photograph of one camera.
+
+    Attributes
+    ----------
+    photo : (h, w) float32
+        With the target, in [0, 1].
+    background : (h, w) float32
+        Without the target, in [0, 1].
+    camera : CameraView
+        The nominal camera.
+    actual : CameraView
+        Where the physical camera actually stood (and its distortion).
+    target_mask : (h, w) bool
+        The target's pixels in the actual photo (ground truth of the emulation).
+    """
+
+    photo: np.ndarray
+    background: np.ndarray
+    camera: CameraView
+    actual: CameraView
+    target_mask: np.ndarray
+
+
+def emulate_shots(
+    cameras,
+    scene,
+    background_scene,
+    physical: PhysicalCamera,
+    *,
+    settings=None,
+    emitters: Any = None,
+    seed: int | np.random.Generator | None = 0,
+    workers: int | None = None,
+) -> list[EmulatedShot]:
+    """Photograph the scene with every camera as a :class:`PhysicalCamera` would.
+
+    Parameters
+    ----------
+    cameras : sequence of CameraView
+        The nominal (planned) cameras.
+    scene, background_scene : camplace.validation.render.RenderScene
+        The frame with and without the target.
+    physical : PhysicalCamera
+    settings : camplace.validation.render.RenderSettings or None
+    emitters : optional
+        Emitters of the frame (glow in the photo, not in the background).
+    seed : int, Generator or None
+        ``numpy.random.default_rng`` is called once with it.
+    workers : int or None
+        Render threads.
+
+    Returns
+    -------
+    list of EmulatedShot
+    """
+    from camplace.validation.render import RenderSettings, render_view
+
+    rng = np.random.default_rng(seed)
+    settings = settings or RenderSettings()
+    if physical.ambient_light:
+        settings = settings.with_ambient(settings.ambient + physical.ambient_light)
+    shots = []
+    for cam in cameras:
+        actual = perturb_camera(cam, physical, rng)
+        fg = render_view(actual, scene, settings=settings, emitters=emitters, workers=workers)
+        bg = render_view(actual, background_scene, settings=settings, workers=workers)
+        photo = apply_optics_and_sensor(fg.image, actual, physical, rng)
+        background = apply_optics_and_sensor(bg.image, actual, physical, rng)
+        shots.append(EmulatedShot(photo=photo, background=background, camera=cam, actual=actual, target_mask=fg.target_mask))
+        log.debug("emulated %s: moved %.4f m", cam.name, float(np.linalg.norm(actual.position - cam.position)))
+    return shots

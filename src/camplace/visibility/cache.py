@@ -1,0 +1,94 @@
+"""On-disk cache of visibility matrices, keyed by a content hash of everything that determines them.
+
+The key hashes the engine version and the task's arrays (row points, normals, frames, lit mask,
+candidate poses, intrinsics, quality settings and every frame's triangles exactly as cast), so
+any change of instance, candidates or settings gives a new key. Entries are written atomically
+(temp file + rename): an interrupted run leaves no corrupt entry, and an unreadable entry is
+treated as a miss and rewritten.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace._io import write_with_atomic
+
+log = logging.getLogger(__name__)
+
+
+def default_cache_dir() -> Path:
+    """``$CAMPLACE_CACHE_DIR``, else ``$XDG_CACHE_HOME/camplace``, else ``~/.cache/camplace``."""
+    env = os.environ.get("CAMPLACE_CACHE_DIR")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "camplace"
+
+
+def task_key(task) -> str:
+    """Hex SHA-256 of a :class:`~camplace.visibility.engine.VisibilityTask`'s content."""
+    from camplace.visibility.engine import ENGINE_VERSION
+
+    h = hashlib.sha256()
+    h.update(f"camplace-visibility-{ENGINE_VERSION}".encode())
+    scalars = {
+        "width_px": task.width_px, "height_px": task.height_px, "near_m": task.near_m, "far_m": task.far_m,
+        "graded": task.graded, "required_px_per_m": task.required_px_per_m, "cos_max": task.cos_max_incidence,
+    }
+    h.update(json.dumps(scalars, sort_keys=True).encode())
+    for name in ("positions", "normals", "frame", "active", "eps_m", "cam_positions", "cam_rotations", "K"):
+        a = np.ascontiguousarray(getattr(task, name))
+        h.update(f"{name}{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    for f in sorted(task.scene_triangles):
+        a = np.ascontiguousarray(task.scene_triangles[f], dtype=np.float32)
+        h.update(f"frame{f}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def entry_path(cache_dir: Path, key: str) -> Path:
+    return Path(cache_dir) / "visibility" / f"{key}.npz"
+
+
+def load(cache_dir: Path, key: str, shape: tuple[int, int]) -> tuple[sp.csr_matrix, dict] | None:
+    """The cached matrix and stats, or None on a miss or an unreadable entry."""
+    path = entry_path(cache_dir, key)
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            matrix = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=tuple(z["shape"]))
+            stats = json.loads(str(z["stats"]))
+        if matrix.shape != shape or matrix.dtype != np.float32:
+            raise ValueError(f"shape {matrix.shape} dtype {matrix.dtype}, expected {shape} float32")
+        matrix.check_format(full_check=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable entry is a miss
+        log.warning("visibility cache: ignoring unreadable entry %s (%s)", path, exc)
+        return None
+    log.info("visibility cache: hit %s", path)
+    return matrix, stats
+
+
+def store(cache_dir: Path, key: str, matrix: sp.csr_matrix, stats: dict) -> None:
+    """Write an entry atomically; a failure to write the cache is logged, never fatal."""
+    path = entry_path(cache_dir, key)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez(
+                fh, data=matrix.data, indices=matrix.indices, indptr=matrix.indptr,
+                shape=np.array(matrix.shape), stats=np.array(json.dumps(stats)),
+            )
+
+    try:
+        write_with_atomic(path, write)
+    except OSError as exc:
+        log.warning("visibility cache: could not write %s (%s)", path, exc)

@@ -1,0 +1,118 @@
+"""Visibility chunks on a Dask distributed cluster (optional extra: ``pip install 'camplace[dask]'``).
+
+The task (plain arrays) is scattered once to every worker; each worker process builds its Embree
+scenes once per task and computes candidate chunks. Chunk results are put back in column order,
+so the matrix is identical to the in-process one. Dask re-runs the chunks of a worker that dies.
+"""
+
+from __future__ import annotations
+
+import logging
+import weakref
+from typing import Any, Callable
+
+from camplace.errors import CamplaceError
+
+log = logging.getLogger(__name__)
+
+# Worker-side: Embree scenes built for each scattered task object, built once per process.
+_SCENES: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
+
+INSTALL_HINT = "--dask needs the optional Dask extra (install it with: pip install 'camplace[dask]')"
+
+
+def _import_distributed():
+    try:
+        import distributed
+    except ImportError:
+        raise CamplaceError(INSTALL_HINT) from None
+    return distributed
+
+
+def run_chunk(task, start: int, stop: int):
+    """Worker entry point: compute candidates ``start:stop`` of ``task``."""
+    from camplace.visibility.engine import compute_chunk
+
+    scenes = _SCENES.get(task)
+    if scenes is None:
+        scenes = task.build_scenes()
+        _SCENES[task] = scenes
+    return compute_chunk(task, scenes, start, stop)
+
+
+def connect(address: str):
+    """A Dask client for ``address``: a scheduler address (``tcp://host:8786``) or ``local:N``.
+
+    Returns
+    -------
+    client : distributed.Client
+    cluster : distributed.LocalCluster or None
+        The local cluster started for ``local:N`` (close it after the client).
+    """
+    distributed = _import_distributed()
+    if address.startswith("local:"):
+        try:
+            n = int(address.split(":", 1)[1])
+            if n < 1:
+                raise ValueError
+        except ValueError:
+            raise CamplaceError(f"--dask: {address!r}: write local:N with N >= 1 worker processes") from None
+        cluster = distributed.LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=logging.ERROR
+        )
+        return distributed.Client(cluster), cluster
+    try:
+        return distributed.Client(address, timeout="20s"), None
+    except (OSError, TimeoutError) as exc:
+        raise CamplaceError(f"--dask: cannot reach a Dask scheduler at {address!r} ({exc}; check the address)") from None
+
+
+def compute_chunks_dask(
+    task,
+    starts: list[int],
+    chunk_size: int,
+    address: str | None = None,
+    *,
+    client=None,
+    progress: Callable[[int], None] | None = None,
+) -> list:
+    """Compute the chunks starting at ``starts`` on a Dask cluster; results in the order of ``starts``.
+
+    Parameters
+    ----------
+    task : VisibilityTask
+    starts : list of int
+    chunk_size : int
+    address : str or None
+        Scheduler address or ``local:N`` (ignored when ``client`` is given).
+    client : distributed.Client or None
+        An existing client to use.
+    progress : callable or None
+        Called with the number of candidates finished as chunks complete.
+    """
+    if not starts:
+        return []
+    distributed = _import_distributed()
+    own = client is None
+    cluster = None
+    if own:
+        client, cluster = connect(address or "local:2")
+    try:
+        n = task.n_candidates
+        remote_task = client.scatter(task, broadcast=True, hash=False)
+        futures = {}
+        for s in starts:
+            fut = client.submit(run_chunk, remote_task, s, min(s + chunk_size, n), pure=False, retries=5)
+            futures[fut] = s
+        results = {}
+        for fut in distributed.as_completed(list(futures)):
+            s = futures[fut]
+            results[s] = fut.result()
+            if progress is not None:
+                progress(min(chunk_size, n - s))
+        return [results[s] for s in starts]
+    finally:
+        if own:
+            client.close()
+            if cluster is not None:
+                cluster.close()

@@ -1,0 +1,92 @@
+"""A Dask cluster computes the identical matrix, even when a worker dies mid-computation."""
+
+import os
+import signal
+import sys
+
+import numpy as np
+import pytest
+
+from camplace.errors import CamplaceError
+from camplace.instance import builtin
+from camplace.pipeline import event_aims
+from camplace.sampling import make_candidates
+from camplace.visibility import compute_visibility, make_target_points
+from camplace.visibility.distributed import compute_chunks_dask
+from camplace.visibility.engine import assemble, compute_chunk, make_task
+
+
+@pytest.fixture(scope="module")
+def problem():
+    inst = builtin("comet-67p-bunker")
+    pts = make_target_points(inst, 3000, seed=1)
+    cands = make_candidates("sobol", 240, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=2)
+    local = compute_visibility(inst, cands, pts, chunk_size=16).matrix
+    return inst, pts, cands, local
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed", reason="the test extra installs dask[distributed]")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        with distributed.Client(c) as client:
+            yield client
+
+
+def same(a, b) -> bool:
+    return a.shape == b.shape and (a != b).nnz == 0 and np.array_equal(a.indptr, b.indptr)
+
+
+@pytest.mark.slow
+def test_local_cluster_matrix_is_identical(problem, cluster) -> None:
+    inst, pts, cands, local = problem
+    task, _ = make_task(inst, cands, pts)
+    starts = list(range(0, len(cands), 16))
+    parts = compute_chunks_dask(task, starts, 16, client=cluster)
+    matrix, _ = assemble(task, parts)
+    assert same(matrix, local)
+
+
+@pytest.mark.slow
+def test_worker_killed_midway_still_identical(problem, cluster) -> None:
+    inst, pts, cands, local = problem
+    task, _ = make_task(inst, cands, pts)
+    starts = list(range(0, len(cands), 4))
+    victim = sorted(cluster.scheduler_info()["workers"])[0]
+    pid = cluster.run(os.getpid, workers=[victim])[victim]
+    killed = []
+
+    def kill_once(_n: int) -> None:
+        if not killed:  # after the first finished chunk: SIGKILL one worker process
+            killed.append(pid)
+            os.kill(pid, signal.SIGKILL)
+
+    parts = compute_chunks_dask(task, starts, 4, client=cluster, progress=kill_once)
+    assert killed
+    with pytest.raises(ProcessLookupError):  # that worker process is really gone
+        os.kill(pid, 0)
+    matrix, _ = assemble(task, parts)
+    assert same(matrix, local)
+    # the chunks were computed for real on the cluster: the victim is gone or was restarted
+    cluster.wait_for_workers(2, timeout=60)
+
+
+@pytest.mark.slow
+def test_cli_dask_local_matches_in_process(problem) -> None:
+    inst, pts, cands, local = problem
+    m = compute_visibility(inst, cands, pts, chunk_size=16, dask_address="local:2").matrix
+    assert same(m, local)
+
+
+def test_missing_dask_gives_install_hint(problem, monkeypatch) -> None:
+    inst, pts, cands, _ = problem
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(CamplaceError, match=r"pip install 'camplace\[dask\]'"):
+        compute_visibility(inst, cands, pts, chunk_size=16, dask_address="local:2")
+
+
+def test_chunks_are_independent_of_chunking(problem) -> None:
+    inst, pts, cands, local = problem
+    task, scenes = make_task(inst, cands, pts)
+    parts = [compute_chunk(task, scenes, s, min(s + 7, len(cands))) for s in range(0, len(cands), 7)]
+    assert same(assemble(task, parts)[0], local)
