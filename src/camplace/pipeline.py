@@ -190,7 +190,7 @@ def event_aims(instance, orientations: int = 1) -> np.ndarray:
 
 def stage_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
     """Independent seed streams of a run: (candidates, points)."""
-    cand_seed, _ = stage_seeds(seed)
+    cand_seed, point_seed = np.random.SeedSequence(seed).spawn(2)
     return cand_seed, point_seed
 
 

@@ -5,30 +5,29 @@ naive submodular bound ``f(S) + sum of top marginal gains`` is far above the opt
 
 * Everything runs on the presolved instance as a dense 0/1 matrix ``D`` (merged rows x kept
   columns) with BLAS products. When every original weight is equal, the merged-row multiplicities
-  are integers and ``D``/weights are float32 integers: every GEMM/GEMV result is an integer below
-  2**24, hence exact, and pruning is exact. Otherwise float64 is used and pruning keeps an absolute
-  margin of ``1e-9 * total weight`` (far above float64 rounding), so "optimal" means optimal to
-  within that margin.
-* Incumbent: greedy from several starts (best pair, top singles) plus swap local search.
-* Columns are grouped into clusters of near-identical columns (k-center on the weighted symmetric
-  difference ``f_a + f_b - 2 |a & b|_w``). The global column order is cluster-contiguous.
-  For a cluster tuple, the weight of the union of the clusters' unions bounds every member tuple.
-* Search: each k-subset is enumerated once, from its first column in the global order. At a level
-  with ``r`` columns still to choose, residual rows ``R`` (not covered by the prefix) and allowed
-  columns ``L`` (after the prefix's last column):
-
-  - ``r == 1``: the best residual gain (one GEMV);
-  - ``r == 2``: cluster-pair bounds ``min(w(U_i | U_j), max g_i + max g_j)`` on ``R`` screen out
-    clusters; the surviving members' exact pair values ``g_b + g_c - |b & c|_w`` come from one
-    GEMM, i.e. the best pair on the residual is computed exactly;
-  - ``r >= 3``: per first cluster ``i``, a bound on every cluster multiset starting at ``i``
-    (recursively, one small GEMM per cluster) prunes whole clusters; each surviving member ``a``
-    recurses on ``R \\ a`` with the columns after ``a``.
-
-* Time limit: the engine stops between first-level columns and returns the incumbent, status
-  "feasible" and a valid bound: the maximum of the incumbent and the cluster bounds of all
-  first-level clusters not yet finished (or the cheap bound ``max_a f_a + top-(k-1) residual gains``
-  if the limit hits before those are known).
+  are integers and ``D``/weights are float32 integers: every GEMM/GEMV result and pair value is an
+  integer below 2**24, hence exact, and pruning is exact. Otherwise float64 is used and pruning keeps an absolute
+  margin of ``1e-9 * total weight`` (far above float64 rounding), so "optimal" then means optimal
+  to within that margin.
+* Incumbent: greedy from several starts (best pair, top singles) plus 1-swap local search.
+* Column order: recursive balanced bisection on the weighted symmetric-difference distance
+  ``f_a + f_b - 2 w(a & b)``, so that every contiguous range of the order (a node of the implicit
+  bisection tree) holds similar columns. Every k-subset is enumerated once, from its first column.
+* ``k = 1, 2``: exact from ``f = D^T w`` and the Gram matrix ``G = D^T diag(w) D``.
+* ``k = 3`` (and every level with 3 columns left): a tree search over the first column ``a``.
+  A node (a range of first columns) keeps ``N`` = rows covered by ALL its columns and the exact
+  pair values ``P(b, c) = w_{R \ N}(b | c)`` of the still-relevant later columns; since
+  ``value(a, b, c) = f_a + w_{R \ a}(b | c) <= f_a + P(b, c)``, the node is pruned when
+  ``max f_a + max P <= incumbent``, and columns with no promising partner are dropped. A child
+  range only subtracts a correction computed by one small GEMM over the rows that became common
+  (``N_child \ N``); at a single column ``N = a`` and ``f_a + P`` is the exact triple value. Rows
+  shared by many similar columns are thus processed once per group instead of once per column.
+* ``k >= 4``: columns are cut into segments (bisection-tree nodes); for each first segment a
+  bound on all segment multisets (union of member columns, a recursion of small GEMMs) prunes whole
+  segments; each surviving column ``a`` recurses on the rows it does not cover.
+* Time limit: the search stops at the next node and returns the incumbent, status "feasible" and
+  a valid bound (the maximum of the incumbent and the bounds of all open tree nodes / segments,
+  or the cheap bound ``max_a f_a + top-(k-1) residual gains`` before the search has started).
 """
 
 from __future__ import annotations
@@ -46,10 +45,10 @@ __all__ = ["solve_exact", "EXACT_MAX_K"]
 
 log = logging.getLogger(__name__)
 
-EXACT_MAX_K = 4  # auto engine uses the exact engine up to this k (it works for any k, slowly)
-_INT_EXACT_LIMIT = 1 << 24  # float32 integer arithmetic is exact below this
+EXACT_MAX_K = 4  # the auto engine uses the exact engine up to this k (it works for any k, slowly)
+_INT_EXACT_LIMIT = 1 << 23  # total count limit: pair sums stay below 2**24 (exact in float32)
 _FLOAT_MARGIN = 1e-9  # relative pruning margin for float64 weights
-_SCREEN_MIN = 48  # pair leaf: screen with clusters only above this many columns
+_SCREEN_MIN = 48  # pair screening by segments only above this many columns
 _SWAP_ROUNDS = 50
 
 
@@ -66,8 +65,11 @@ def _top_sum(values: np.ndarray, r: int) -> float:
     return float(np.partition(values, values.size - r)[values.size - r :].sum(dtype=np.float64))
 
 
-def _kcenter(f: np.ndarray, gram: np.ndarray, q: int) -> np.ndarray:
-    """Cluster labels by farthest-point (k-center) clustering.
+def _bisection_order(f: np.ndarray, gram: np.ndarray) -> np.ndarray:
+    """Column order from recursive balanced bisection (similar columns end up adjacent).
+
+    A range of size ``s`` is split into its first ``s // 2`` and last ``s - s // 2`` columns, the
+    same rule :func:`_segment_starts` and the tree search use.
 
     Parameters
     ----------
@@ -75,50 +77,58 @@ def _kcenter(f: np.ndarray, gram: np.ndarray, q: int) -> np.ndarray:
         Column weights ``w(a)``.
     gram : (n, n) float64
         Weighted intersections ``w(a & b)``.
-    q : int
-        Number of centres.
 
     Returns
     -------
     (n,) int64
-        Index of the nearest centre for each column.
+        Permutation of ``0..n-1``.
     """
-    n = f.size
-    q = max(1, min(q, n))
-    centres = [int(np.argmax(f))]
-    dist = f + f[centres[0]] - 2.0 * gram[centres[0]]
-    label = np.zeros(n, dtype=np.int64)
-    for c in range(1, q):
-        j = int(np.argmax(dist))
-        if dist[j] <= 0.0:
-            break
-        centres.append(j)
-        dj = f + f[j] - 2.0 * gram[j]
-        closer = dj < dist
-        label[closer] = c
-        dist = np.minimum(dist, dj)
-    return label
+    out: list[np.ndarray] = []
+    stack = [np.arange(f.size, dtype=np.int64)]
+    while stack:
+        s = stack.pop()
+        if s.size <= 2:
+            out.append(s[np.argsort(-f[s], kind="stable")])
+            continue
+        a0 = s[int(np.argmax(f[s]))]
+        d0 = f[a0] + f[s] - 2.0 * gram[a0, s]
+        s1 = s[int(np.argmax(d0))]
+        d1 = f[s1] + f[s] - 2.0 * gram[s1, s]
+        s2 = s[int(np.argmax(d1))]
+        d2 = f[s2] + f[s] - 2.0 * gram[s2, s]
+        idx = np.argsort(d1 - d2, kind="stable")
+        half = s.size // 2
+        stack.append(s[idx[half:]])  # popped second
+        stack.append(s[idx[:half]])  # popped first
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+
+
+def _segment_starts(n: int, depth: int) -> np.ndarray:
+    """Start offsets of the bisection-tree nodes at ``depth`` (leaves above it stay whole)."""
+    starts: list[int] = []
+    stack = [(0, n, 0)]
+    while stack:
+        lo, hi, d = stack.pop()
+        if d >= depth or hi - lo <= 1:
+            starts.append(lo)
+            continue
+        mid = lo + (hi - lo) // 2
+        stack.append((mid, hi, d + 1))
+        stack.append((lo, mid, d + 1))
+    return np.asarray(sorted(starts), dtype=np.int64)
 
 
 class _Search:
     """Depth-first exact search state (see the module docstring)."""
 
-    def __init__(
-        self,
-        dense: np.ndarray,
-        weights: np.ndarray,
-        k: int,
-        margin: float,
-        deadline: Deadline,
-        n_clusters: int | None,
-    ) -> None:
+    def __init__(self, dense: np.ndarray, weights: np.ndarray, k: int, margin: float, deadline: Deadline) -> None:
         self.d = dense  # (m, n) 0/1, float32 (integer mode) or float64
         self.w = weights  # (m,) same dtype
+        self.dt = dense.dtype
         self.k = k
         self.margin = margin
         self.deadline = deadline
-        m, n = dense.shape
-        self.m, self.n = m, n
+        self.m, self.n = dense.shape
         self.f = (dense.T @ weights).astype(np.float64)  # (n,)
         self.total = float(weights.sum(dtype=np.float64))
         self.best_value = -math.inf
@@ -126,23 +136,22 @@ class _Search:
         self.stats: dict[str, Any] = {
             "gemms": 0,
             "gemm_madds": 0.0,
-            "first_level_columns": 0,
-            "first_level_pruned": 0,
             "nodes": 0,
+            "tree_nodes": 0,
+            "tree_leaves": 0,
+            "first_level_columns": 0,
             "pair_leaves": 0,
-            "pair_leaf_cols_before": 0,
-            "pair_leaf_cols_after": 0,
-            "cluster_blocks": 0,
-            "triple_members": 0,
         }
-        self.n_clusters = n_clusters
+        self.ub0 = math.inf
+        self.started = False
         self.top_bounds: np.ndarray | None = None
         self.top_segment = 0
-        self.ub0 = math.inf
+        self.open_nodes: dict[int, float] = {}
+        self._node_key = 0
 
     # -- helpers -------------------------------------------------------------------------------
     def _gram(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """``x^T diag(w) x`` as float64.
+        """``x^T diag(w) x`` in the working dtype (exact integers in float32 integer mode).
 
         Parameters
         ----------
@@ -151,11 +160,11 @@ class _Search:
 
         Returns
         -------
-        (c, c) float64
+        (c, c) float32 or float64
         """
         self.stats["gemms"] += 1
         self.stats["gemm_madds"] += float(x.shape[0]) * x.shape[1] * x.shape[1]
-        return (x.T @ (x * w[:, None])).astype(np.float64)
+        return x.T @ (x * w[:, None])
 
     def _check_time(self) -> None:
         if self.deadline.expired():
@@ -282,24 +291,24 @@ class _Search:
         return out
 
     # -- search --------------------------------------------------------------------------------
-    def prepare(self, order: np.ndarray, labels: np.ndarray, gram: np.ndarray) -> None:
-        """Fix the cluster-contiguous search order and the cluster unions.
+    def prepare(self, order: np.ndarray, gram: np.ndarray, n_segments: int) -> None:
+        """Fix the search order, the segments and their column unions.
 
         Parameters
         ----------
         order : (n,) int64
-            Search order of the dense columns (cluster-contiguous).
-        labels : (n,) int64
-            Cluster rank of each dense column (ascending along ``order``).
+            Search order of the dense columns (from :func:`_bisection_order`).
         gram : (n, n) float64
             Weighted intersections of the dense columns.
+        n_segments : int
+            Approximate number of segments (bisection-tree nodes) for segment bounds.
         """
         self.order = order
         self.do = np.ascontiguousarray(self.d[:, order])  # (m, n) columns in search order
         self.fo = self.f[order]
         self.go = gram[np.ix_(order, order)]
-        lab = labels[order]
-        self.seg_start = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]]).astype(np.int64)
+        depth = max(0, int(math.ceil(math.log2(max(1, n_segments)))))
+        self.seg_start = _segment_starts(self.n, depth)
         self.seg_end = np.r_[self.seg_start[1:], self.n].astype(np.int64)
         self.seg_of = np.repeat(np.arange(self.seg_start.size), self.seg_end - self.seg_start)
         self.u = np.ascontiguousarray(np.maximum.reduceat(self.do, self.seg_start, axis=1))  # (m, q)
@@ -324,13 +333,14 @@ class _Search:
         nl = g.size
         if nl < 2:
             return np.zeros(0, dtype=np.int64)
-        # Member filter: b can only be in an improving pair if g_b + max_{c != b} g_c > thr.
+        # b can only be in an improving pair if g_b + max_{c != b} g_c > thr.
         top = np.argpartition(-g, 1)[:2] if nl > 2 else np.arange(nl)
         top = top[np.argsort(-g[top], kind="stable")]
         best_other = np.full(nl, g[top[0]])
         best_other[top[0]] = g[top[1]]
         alive = g + best_other > thr
         if nl > _SCREEN_MIN and int(alive.sum()) > _SCREEN_MIN:
+            # Segment pairs: w(b | c) <= min(w(U_i | U_j), max g_i + max g_j) for b in i, c in j.
             s0 = int(self.seg_of[q0])
             rows = np.flatnonzero(wm)
             ur = self.u[rows, s0:]
@@ -347,113 +357,217 @@ class _Search:
             alive &= g + np.repeat(partner, sizes) > thr
         return np.flatnonzero(alive)
 
-    def _pair_leaf(self, wm: np.ndarray, p: int, g: np.ndarray, base: float, prefix: tuple[int, ...]) -> None:
-        """Exact best pair among search positions ``p..n-1`` on the residual weights ``wm``.
+    def _pair_values(self, wm: np.ndarray, pos: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """Exact pair values ``g_b + g_c - w(b & c)`` on the residual weights, -inf diagonal.
 
         Parameters
         ----------
-        wm : (m,) residual weights (0 on covered rows)
-        p : int
-            First allowed search position.
-        g : (n - p,) float64
-            Residual gains of the allowed columns.
-        base : float
-            Weight covered by the prefix.
-        prefix : tuple of int
-            Search positions chosen so far.
+        wm : (m,) residual weights
+        pos : (c,) int64
+            Search positions.
+        g : (c,) float64
+            Their residual gains.
+
+        Returns
+        -------
+        (c, c) float32 or float64 (working dtype)
         """
+        rows = np.flatnonzero(wm)
+        x = self.do[np.ix_(rows, pos)]
+        pv = self._gram(x, wm[rows])
+        pv -= g[:, None].astype(self.dt)
+        pv -= g[None, :].astype(self.dt)
+        np.negative(pv, out=pv)
+        np.fill_diagonal(pv, -np.inf)
+        return pv
+
+    def _best_pair(self, pv: np.ndarray) -> tuple[float, int, int]:
+        """Maximum of a symmetric pair-value matrix (diagonal -inf) and its indices."""
+        flat = int(np.argmax(pv))
+        i, j = divmod(flat, pv.shape[1])
+        return float(pv[i, j]), int(i), int(j)
+
+    def _pair_leaf(self, wm: np.ndarray, p: int, g: np.ndarray, base: float, prefix: tuple[int, ...]) -> None:
+        """Exact best pair among search positions ``p..n-1`` on the residual weights ``wm``."""
         thr = self._thr(base)
         if g.size < 2 or _top_sum(g, 2) <= thr:
             return
         self.stats["pair_leaves"] += 1
         idx = self._screen_pairs(wm, p, g, thr)
-        self.stats["pair_leaf_cols_before"] += int(g.size)
-        self.stats["pair_leaf_cols_after"] += int(idx.size)
         if idx.size < 2:
             return
-        rows = np.flatnonzero(wm)
-        x = self.do[np.ix_(rows, idx + p)]
-        gi = g[idx]
-        pv = gi[:, None] + gi[None, :] - self._gram(x, wm[rows])
-        pv[np.tril_indices(idx.size)] = -np.inf
-        flat = int(np.argmax(pv))
-        i, j = divmod(flat, idx.size)
-        val = float(pv[i, j])
+        pv = self._pair_values(wm, idx + p, g[idx])
+        val, i, j = self._best_pair(pv)
         if val > thr - self.margin:
             self._offer_pos(base + val, prefix + (int(idx[i]) + p, int(idx[j]) + p))
 
-    def _cluster_triples(
-        self, wm: np.ndarray, p: int, g: np.ndarray, lo: int, hi: int, base: float, prefix: tuple[int, ...]
+    # -- tree search for three columns ---------------------------------------------------------
+    def _triples(
+        self,
+        wm: np.ndarray,
+        p: int,
+        g: np.ndarray,
+        base: float,
+        prefix: tuple[int, ...],
+        pv: np.ndarray | None = None,
+        track: bool = False,
     ) -> None:
-        """All triples whose first column is a search position in ``lo..hi-1`` (one cluster).
-
-        With ``N`` the residual rows every cluster member covers and ``R'`` the other residual rows,
-        ``value(a, b, c) = f_a + w_R'(b | c) - w_(R' & a)(b | c)``: one GEMM gives the exact pair
-        values on ``R'`` for the whole cluster, and each member only needs a correction on the
-        (few) rows ``R' & a``.
+        """Best triple among search positions ``p..n-1`` on residual weights ``wm``.
 
         Parameters
         ----------
-        wm : (m,) residual weights
+        wm : (m,) residual weights (0 on rows covered by the prefix)
         p : int
-            First allowed search position of the level (``g`` is indexed from ``p``).
+            First allowed search position.
         g : (n - p,) float64
-            Residual gains.
-        lo, hi : int
-            Search positions of the cluster members.
+            Residual gains of positions ``p..n-1``.
         base : float
             Weight covered by the prefix.
         prefix : tuple of int
             Search positions chosen so far.
+        pv : (n-p-1, n-p-1) float64, optional
+            Exact pair values of positions ``p+1..n-1`` on ``wm`` (diagonal -inf), if known.
+        track : bool
+            Record open-node bounds for the time-limit report.
         """
-        q0 = lo + 1
-        if self.n - q0 < 2:
+        if self.n - p < 3:
             return
-        rows = np.flatnonzero(wm)
-        in_all = self.do[rows, lo:hi].min(axis=1) > 0
-        wprime = wm.copy()
-        wprime[rows[in_all]] = 0
-        rp = rows[~in_all]
-        fa = g[lo - p : hi - p]
         thr = self._thr(base)
-        gp = (self.do[:, q0:].T @ wprime).astype(np.float64)
-        idx = self._screen_pairs(wprime, q0, gp, thr - float(fa.max()))
-        self.stats["cluster_blocks"] += 1
-        self.stats["pair_leaf_cols_before"] += int(gp.size)
-        self.stats["pair_leaf_cols_after"] += int(idx.size)
-        if idx.size < 2:
-            return
-        pos_idx = idx + q0  # search positions of the surviving pair columns
-        x = self.do[np.ix_(rp, pos_idx)]
-        gi = gp[idx]
-        pv = gi[:, None] + gi[None, :] - self._gram(x, wm[rp])
-        pv[np.tril_indices(idx.size)] = -np.inf
-        for a in range(lo, hi):
-            self._check_time()
-            self.stats["triple_members"] += 1
-            ta = self._thr(base) - float(fa[a - lo])
-            j0 = int(np.searchsorted(pos_idx, a + 1))
-            if idx.size - j0 < 2:
-                break
-            sub = pv[j0:, j0:]
-            cand = sub > ta
-            if not cand.any():
-                continue
-            mi = np.flatnonzero(cand.any(axis=0) | cand.any(axis=1))
-            da = rp[self.do[rp, a] > 0]
-            xd = self.do[np.ix_(da, pos_idx[j0:][mi])]
-            wd = wm[da]
-            gd = (xd.T @ wd).astype(np.float64)
-            val = sub[np.ix_(mi, mi)] - (gd[:, None] + gd[None, :] - self._gram(xd, wd))
-            val[~cand[np.ix_(mi, mi)]] = -np.inf
-            flat = int(np.argmax(val))
-            i, j = divmod(flat, mi.size)
-            v = float(val[i, j])
-            if v > ta - self.margin:
-                bpos = int(pos_idx[j0 + mi[i]])
-                cpos = int(pos_idx[j0 + mi[j]])
-                self._offer_pos(base + float(fa[a - lo]) + v, prefix + (a, bpos, cpos))
+        fmax = float(g[: g.size - 2].max())
+        if pv is None:
+            idx = self._screen_pairs(wm, p + 1, g[1:], thr - fmax)
+            if idx.size < 2:
+                return
+            cols = idx + p + 1
+            pv = self._pair_values(wm, cols, g[idx + 1])
+        else:
+            cols = np.arange(p + 1, self.n, dtype=np.int64)
+        rows = np.flatnonzero(wm)
+        in_n = np.zeros(rows.size, dtype=bool)
+        self._node(wm, rows, in_n, p, self.n, cols, pv, np.zeros(0, dtype=np.int64), g, p, base, prefix, track, None)
 
+    def _node(
+        self,
+        wm: np.ndarray,
+        rows: np.ndarray,
+        in_n: np.ndarray,
+        lo: int,
+        hi: int,
+        cols: np.ndarray,
+        pv: np.ndarray,
+        delta: np.ndarray,
+        g: np.ndarray,
+        p: int,
+        base: float,
+        prefix: tuple[int, ...],
+        track: bool,
+        key: int | None,
+    ) -> None:
+        """One node of the three-column tree search: first columns ``lo..hi-1``.
+
+        Parameters
+        ----------
+        wm : (m,) residual weights
+        rows : (r,) int64
+            Residual rows (``wm > 0``).
+        in_n : (r,) bool
+            Rows of ``rows`` covered by every column of the PARENT node (its ``N``).
+        lo, hi : int
+            Search positions of the node's first columns.
+        cols : (c,) int64
+            Candidate later columns (search positions, ascending).
+        pv : (c, c) float64
+            Parent's exact pair values of ``cols`` on ``R \ N_parent`` (not modified).
+        delta : (d,) int64
+            Indices into ``rows`` of the rows in ``N_node \ N_parent``.
+        g : (n - p,) float64
+            Residual gains (indexed from ``p``).
+        p : int
+        base : float
+        prefix : tuple of int
+        track : bool
+        key : int or None
+            Key of this node's provisional bound in ``open_nodes``.
+        """
+        try:
+            self._check_time()
+            self.stats["tree_nodes"] += 1
+            thr = self._thr(base)
+            fl = g[lo - p : hi - p]
+            fmax = float(fl.max())
+            j0 = int(np.searchsorted(cols, lo, side="right"))  # later columns only
+            if cols.size - j0 < 2:
+                return
+            cols = cols[j0:]
+            sub = pv[j0:, j0:]  # view of the parent's values (upper bounds here)
+            keep = sub.max(axis=1) > thr - fmax
+            nk = int(keep.sum())
+            if nk < 2:
+                return
+            owned = False
+            if nk < keep.size:
+                kidx = np.flatnonzero(keep)
+                cols = cols[kidx]
+                sub = sub[np.ix_(kidx, kidx)]
+                owned = True
+            if delta.size:
+                # P_node = P_parent - (gd_b + gd_c - w_delta(b & c)) on the newly common rows.
+                dr = rows[delta]
+                xd = self.do[np.ix_(dr, cols)]
+                wd = wm[dr]
+                gd = xd.T @ wd
+                corr = self._gram(xd, wd)
+                corr -= gd[:, None]
+                corr -= gd[None, :]
+                corr += sub
+                sub = corr
+                np.fill_diagonal(sub, -np.inf)
+                in_n = in_n.copy()
+                in_n[delta] = True
+            elif not owned:
+                sub = sub.copy()
+            pv = sub
+            rmax = pv.max(axis=1)
+            bound = fmax + float(rmax.max())
+            if bound <= thr:
+                return
+            if hi - lo == 1:
+                self.stats["tree_leaves"] += 1
+                val, i, j = self._best_pair(pv)
+                if val > thr - fl[0] - self.margin:
+                    self._offer_pos(base + float(fl[0]) + val, prefix + (lo, int(cols[i]), int(cols[j])))
+                return
+            keep = rmax > thr - fmax
+            if not keep.all():
+                cols = cols[keep]
+                pv = pv[np.ix_(keep, keep)]
+                rmax = rmax[keep]
+            mid = lo + (hi - lo) // 2
+            children = [(lo, mid), (mid, hi)]
+            keys: list[int | None] = [None, None]
+            if track:
+                for t, (cl, ch) in enumerate(children):
+                    self._node_key += 1
+                    keys[t] = self._node_key
+                    ok = cols > cl
+                    cb = float(g[cl - p : ch - p].max()) + (float(rmax[ok].max()) if ok.sum() >= 2 else -math.inf)
+                    self.open_nodes[self._node_key] = base + cb
+                if key is not None:
+                    self.open_nodes.pop(key, None)
+                    key = None
+            free = np.flatnonzero(~in_n)
+            for t, (cl, ch) in enumerate(children):
+                if free.size:
+                    cov = self.do[rows[free], cl:ch].min(axis=1) > 0
+                    dchild = free[cov]
+                else:
+                    dchild = free
+                self._node(wm, rows, in_n, cl, ch, cols, pv, dchild, g, p, base, prefix, track, keys[t])
+        finally:
+            if key is not None:
+                self.open_nodes.pop(key, None)
+
+    # -- general search ------------------------------------------------------------------------
     def search(
         self,
         wm: np.ndarray,
@@ -499,13 +613,15 @@ class _Search:
         if r == 2:
             self._pair_leaf(wm, p, g, base, prefix)
             return
+        if r == 3:
+            self._triples(wm, p, g, base, prefix, track=top)
+            return
         s0 = int(self.seg_of[p])
         rows = np.flatnonzero(wm)
         cb = self._coarse(self.u[rows, s0:], wm[rows], r, thr)
         if top:
             self.top_bounds = cb + base
             self.top_segment = 0
-            self.stats["clusters_first_level_open"] = int(np.sum(cb > thr))
         for s in range(cb.size):
             if top:
                 self.top_segment = s
@@ -513,9 +629,6 @@ class _Search:
                 continue
             lo = max(p, int(self.seg_start[s0 + s]))
             hi = int(self.seg_end[s0 + s])
-            if r == 3:
-                self._cluster_triples(wm, p, g, lo, hi, base, prefix)
-                continue
             for pos in range(lo, hi):
                 if self.n - pos - 1 < r - 1:
                     break
@@ -527,13 +640,11 @@ class _Search:
                     self.stats["first_level_columns"] += 1
                 ga = float(g[pos - p])
                 if ga + _top_sum(g[pos - p + 1 :], r - 1) <= thr:
-                    if top:
-                        self.stats["first_level_pruned"] += 1
                     continue
                 col = self.do[:, pos]
                 wsub = np.where(col > 0, 0, wm).astype(wm.dtype)
                 gsub = None
-                if top and base == 0.0:
+                if top and base == 0.0 and p == 0:
                     # On all rows the residual gains come free from the global Gram matrix.
                     gsub = self.fo[pos + 1 :] - self.go[pos, pos + 1 :]
                 self.search(wsub, pos + 1, r - 1, base + ga, prefix + (pos,), gsub)
@@ -541,13 +652,16 @@ class _Search:
             self.top_segment = cb.size
 
     def open_bound(self) -> float:
-        """Valid upper bound on the optimum given the progress so far."""
+        """Valid upper bound on the optimum given the progress so far (after a timeout)."""
         b = self.best_value + self.margin
-        if self.top_bounds is None:
+        if not self.started:
             return max(b, self.ub0)
-        rest = self.top_bounds[self.top_segment :]
-        if rest.size:
-            b = max(b, float(rest.max()))
+        if self.top_bounds is not None:
+            rest = self.top_bounds[self.top_segment :]
+            if rest.size:
+                b = max(b, float(rest.max()))
+        if self.open_nodes:
+            b = max(b, max(self.open_nodes.values()))
         return b
 
 
@@ -555,7 +669,7 @@ def solve_exact(
     pre: Presolved,
     *,
     time_limit_s: float | None = None,
-    n_clusters: int | None = None,
+    n_segments: int | None = None,
 ) -> EngineOutcome:
     """Solve a presolved max-coverage instance exactly.
 
@@ -566,8 +680,8 @@ def solve_exact(
     time_limit_s : float, optional
         Wall-clock limit; on expiry the incumbent is returned with status "feasible" and a valid
         bound.
-    n_clusters : int, optional
-        Number of column clusters (default ``~2 sqrt(n')``).
+    n_segments : int, optional
+        Number of column segments used by segment bounds (default ``~2 sqrt(n')``).
 
     Returns
     -------
@@ -577,7 +691,6 @@ def solve_exact(
     deadline = Deadline(time_limit_s)
     k = pre.k
     m, n = pre.shape
-    stats: dict[str, Any] = {}
     if m == 0 or n <= k:
         sel = tuple(range(min(k, n)))
         value = float(pre.weights.sum()) if n <= k else 0.0
@@ -594,57 +707,59 @@ def solve_exact(
         w = pre.weights.astype(np.float64)
         scale = 1.0
         margin = _FLOAT_MARGIN * float(w.sum())
-    stats["arithmetic"] = "float32-integer" if integer else "float64"
+    stats: dict[str, Any] = {"arithmetic": "float32-integer" if integer else "float64"}
 
-    srch = _Search(dense, w, k, margin, deadline, n_clusters)
-    gram = srch._gram(dense, w)
-    srch.ub0 = srch.cheap_bound(gram)
-    srch.initial_incumbent(gram)
-    q = n_clusters if n_clusters is not None else int(max(1, min(n, round(2.0 * math.sqrt(n)))))
-    labels = _kcenter(srch.f, gram, q)
-    nq = int(labels.max()) + 1
-    union_w = np.zeros(nq)
-    for c in range(nq):
-        members = np.flatnonzero(labels == c)
-        union_w[c] = float(w[dense[:, members].max(axis=1) > 0].sum(dtype=np.float64))
-    corder = np.argsort(-union_w, kind="stable")
-    rank = np.empty(nq, dtype=np.int64)
-    rank[corder] = np.arange(nq)
-    order = np.lexsort((np.arange(n), -srch.f, rank[labels]))
-    stats["clusters"] = nq
-    srch.prepare(order.astype(np.int64), rank[labels], gram)
-    stats["time_setup_s"] = deadline.elapsed()
-
+    srch = _Search(dense, w, k, margin, deadline)
     status = "optimal"
     try:
+        gram = srch._gram(dense, w)
+        srch.ub0 = srch.cheap_bound(gram)
+        srch.initial_incumbent(gram)
+        q = n_segments if n_segments is not None else int(max(1, min(n, round(2.0 * math.sqrt(n)))))
+        order = _bisection_order(srch.f, gram)
+        srch.prepare(order, gram, q)
+        stats["segments"] = int(srch.seg_start.size)
+        stats["time_setup_s"] = deadline.elapsed()
+        srch._check_time()
+        srch.started = True
         if k == 1:
             j = int(np.argmax(srch.f))
             srch._offer(float(srch.f[j]), (j,))
+        elif k == 2:
+            pv = srch.fo[:, None] + srch.fo[None, :] - srch.go
+            np.fill_diagonal(pv, -np.inf)
+            val, i, j = srch._best_pair(pv)
+            srch._offer_pos(val, (i, j))
+        elif k == 3:
+            pv = (srch.fo[1:, None] + srch.fo[None, 1:] - srch.go[1:, 1:]).astype(srch.dt)
+            np.fill_diagonal(pv, -np.inf)
+            srch._triples(w.copy(), 0, srch.fo.copy(), 0.0, (), pv=pv, track=True)
         else:
-            srch._check_time()
             srch.search(w.copy(), 0, k, 0.0, (), g=srch.fo.copy(), top=True)
         bound = srch.best_value
     except _Timeout:
         status = "feasible"
         bound = srch.open_bound()
     bound = min(bound, srch.ub0 + margin, srch.total)
+    if not srch.best_set:  # timed out before any incumbent: take the best single columns
+        srch._offer(srch._value(list(np.argsort(-srch.f, kind="stable")[:k])), tuple(np.argsort(-srch.f, kind="stable")[:k]))
     if bound <= srch.best_value + margin:
         status = "optimal"
         bound = srch.best_value
     stats.update(srch.stats)
-    stats["time_search_s"] = deadline.elapsed() - stats["time_setup_s"]
+    stats["time_search_s"] = deadline.elapsed() - stats.get("time_setup_s", 0.0)
     stats["cheap_bound"] = srch.ub0 * scale
-    stats["initial_incumbent"] = float(stats["initial_incumbent"]) * scale
+    stats["initial_incumbent"] = float(stats.get("initial_incumbent", -math.inf)) * scale
     log.info(
-        "exact: k=%d on %dx%d, %s value %.9g bound %.9g, %d first-level columns, %d GEMMs, %.3f s",
+        "exact: k=%d on %dx%d, %s value %.9g bound %.9g, %d tree nodes, %d GEMMs, %.3f s",
         k,
         m,
         n,
         status,
         srch.best_value * scale,
         bound * scale,
-        stats["first_level_columns"],
+        stats["tree_nodes"],
         stats["gemms"],
         deadline.elapsed(),
     )
-    return EngineOutcome(selected=srch.best_set, status=status, bound=float(bound) * scale, stats=stats)
+    return EngineOutcome(selected=tuple(int(j) for j in srch.best_set), status=status, bound=float(bound) * scale, stats=stats)

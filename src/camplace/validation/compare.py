@@ -270,10 +270,11 @@ class ValidationReport:
 # figures (OpenCV drawing; no matplotlib)
 
 
-def _text(img: np.ndarray, s: str, org: tuple[int, int], scale: float = 0.45, color=(255, 255, 255), thickness: int = 1) -> None:
+def _text(img: np.ndarray, s: str, org: tuple[int, int], scale: float = 0.45, color=(255, 255, 255), thickness: int = 1, outline: bool = False) -> None:
     import cv2
 
-    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thickness + 2, cv2.LINE_AA)
+    if outline:
+        cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thickness + 2, cv2.LINE_AA)
     cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, color, thickness, cv2.LINE_AA)
 
 
@@ -375,5 +376,5 @@ def overlay_image(photo: np.ndarray, predicted: np.ndarray, detected: np.ndarray
         x, y, w, h = bbox_xywh
         cv2.rectangle(img, (x, y), (x + w - 1, y + h - 1), (0, 0, 255), 1)
     if label:
-        _text(img, label, (6, 18), 0.45)
+        _text(img, label, (6, 18), 0.45, outline=True)
     return img

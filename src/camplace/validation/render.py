@@ -49,6 +49,8 @@ __all__ = [
     "write_mask_png",
     "read_image",
     "as_glow",
+    "add_glow",
+    "quantise",
 ]
 
 LABEL_NONE = -1
@@ -367,6 +369,13 @@ def _splat(image: np.ndarray, depth: np.ndarray, camera: CameraView, glow: GlowE
         g = peak * np.exp(-0.5 * (ys[:, None] ** 2 + xs[None, :] ** 2) / sigma**2)
         visible = depth[y0:y1, x0:x1] > z[i]
         image[y0:y1, x0:x1] += np.where(visible, g, 0.0).astype(np.float32)
+
+
+def add_glow(result: RenderResult, emitters: Any, settings: RenderSettings = RenderSettings()) -> None:
+    """Add emitters' glow to an existing render's image in place (depth-tested against its depth)."""
+    glow = as_glow(emitters, settings)
+    if glow is not None:
+        _splat(result.image, result.depth, result.camera, glow, settings.min_sigma_px)
 
 
 def render_view(

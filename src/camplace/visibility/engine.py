@@ -214,10 +214,50 @@ def cull_chunk(
     return cam_idx[keep], point_idx[keep], dist[keep], cos_theta[keep], counts
 
 
+def sphere_inside_view(
+    centre: np.ndarray, radius: float, cam_pos: np.ndarray, cam_rot: np.ndarray, K: np.ndarray,
+    width_px: int, height_px: int, near_m: float, far_m: float,
+) -> np.ndarray:
+    """Which cameras hold a whole sphere inside their frustum and depth range.
+
+    Parameters
+    ----------
+    centre : (3,) float64
+    radius : float
+    cam_pos : (c, 3) float64
+    cam_rot : (c, 3, 3) float64
+    K : (3, 3) float64
+    width_px, height_px : int
+    near_m, far_m : float
+
+    Returns
+    -------
+    (c,) bool
+        True when every point of the sphere passes the range and frustum tests (conservative:
+        False may still hold it).
+    """
+    cam = np.einsum("ck,ckl->cl", centre[None, :] - cam_pos, cam_rot)
+    x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
+    ok = (z - radius >= near_m) & (z + radius <= far_m)
+    # image bounds -0.5 .. W-0.5 as tangent slopes of the four side planes, shrunk a hair
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    bounds = ((-0.5 - cx) / fx, (width_px - 0.5 - cx) / fx, (-0.5 - cy) / fy, (height_px - 0.5 - cy) / fy)
+    for coord, slope, sign in ((x, bounds[0], -1), (x, bounds[1], 1), (y, bounds[2], -1), (y, bounds[3], 1)):
+        # plane through the origin containing the axis direction (slope, 1); outward normal ~ sign*(1, -slope)
+        nrm = np.array([1.0, -slope]) / np.hypot(1.0, slope)
+        signed = sign * (coord * nrm[0] + z * nrm[1])  # > 0 outside
+        ok &= signed <= -radius * (1 + 1e-9) - 1e-12
+    return ok
+
+
 def compute_chunk(
     task: VisibilityTask, scenes: dict[int, RayScene], start: int, stop: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Observed pairs of candidates ``start:stop``.
+
+    Facing tests are one matrix product per frame (``N @ C^T`` against ``n . p``); cameras that
+    hold the frame's whole active point set inside their frustum and range skip the per-pair
+    frustum test; the rest go through :func:`cull_chunk`.
 
     Returns
     -------
@@ -230,37 +270,83 @@ def compute_chunk(
     """
     pos = task.cam_positions[start:stop]
     rot = task.cam_rotations[start:stop]
+    nc = stop - start
     counts = dict.fromkeys(COUNT_KEYS, 0)
     out_r, out_c, out_v = [], [], []
     fx = float(task.K[0, 0])
     for f in sorted(task.scene_triangles):
-        rows = np.nonzero((task.frame == f) & task.active)[0]
-        counts["pairs"] += int(np.count_nonzero(task.frame == f)) * (stop - start)
+        in_frame = task.frame == f
+        rows = np.nonzero(in_frame & task.active)[0]
+        counts["pairs"] += int(np.count_nonzero(in_frame)) * nc
         if len(rows) == 0:
             continue
         p = task.positions[rows]
         nrm = task.normals[rows]
-        ci, pi, dist, cos_t, cnt = cull_chunk(
-            p, nrm, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m, task.cos_max_incidence
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        centre = (lo + hi) / 2
+        radius = float(np.linalg.norm(hi - lo) / 2)
+        whole = sphere_inside_view(
+            centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
         )
-        for key in ("in_range", "in_frustum", "facing"):
-            counts[key] += cnt[key]
-        ends = p[pi] + float(task.eps_m[f]) * nrm[pi]
-        blocked = scenes[f].occluded(pos[ci], ends)
+        ci_parts, pi_parts = [], []
+        n_in = 0
+        if whole.any():
+            wc = np.nonzero(whole)[0]
+            emitter = ~np.any(nrm != 0.0, axis=1)
+            # n . (c - p) > 0  <=>  n . c > n . p : one matrix product for all pairs
+            facing = (pos[wc] @ nrm.T) > np.einsum("ij,ij->i", nrm, p)[None, :]
+            facing |= emitter[None, :]
+            a, b = np.nonzero(facing)
+            ci_parts.append(wc[a])
+            pi_parts.append(b)
+            n_in += len(wc) * len(rows)
+        part = np.nonzero(~whole)[0]
+        if len(part):
+            ci, pi, _, _, cnt = cull_chunk(
+                p, nrm, pos[part], rot[part], task.K, task.width_px, task.height_px, task.near_m, task.far_m
+            )
+            counts["in_range"] += cnt["in_range"]
+            counts["in_frustum"] += cnt["in_frustum"]
+            ci_parts.append(part[ci])
+            pi_parts.append(pi)
+        counts["in_range"] += n_in
+        counts["in_frustum"] += n_in
+        ci = np.concatenate(ci_parts)
+        pi = np.concatenate(pi_parts)
+        need_geometry = task.graded or task.cos_max_incidence > 0.0
+        if need_geometry:
+            # incidence limit and quality need distance and cos(theta) of the facing pairs
+            d = p[pi] - pos[ci]
+            dist = np.sqrt(np.einsum("qk,qk->q", d, d))
+            nn = nrm[pi]
+            emit = ~np.any(nn != 0.0, axis=1)
+            cos_t = np.where(emit, 1.0, -np.einsum("qk,qk->q", d, nn) / np.maximum(dist, 1e-300))
+            keep = emit | ((cos_t > 0.0) & (cos_t >= task.cos_max_incidence))
+            ci, pi, dist, cos_t = ci[keep], pi[keep], dist[keep], cos_t[keep]
+        counts["facing"] += len(ci)
+        # segments camera -> p + eps * n, as float32 origin + unnormalised direction (tfar = 1)
+        ends32 = (p + float(task.eps_m[f]) * nrm).astype(np.float32)
+        pos32 = pos.astype(np.float32)
+        origins = pos32[ci]
+        blocked = scenes[f].occluded_dir(origins, ends32[pi] - origins)
         counts["cast"] += len(ci)
-        keep = ~blocked
-        counts["observed"] += int(keep.sum())
+        ok = ~blocked
+        counts["observed"] += int(ok.sum())
         if task.graded:
-            q = np.minimum(1.0, fx / (dist[keep] * task.required_px_per_m)) * cos_t[keep]
+            q = np.minimum(1.0, fx / (dist[ok] * task.required_px_per_m)) * cos_t[ok]
             q = np.maximum(q, np.finfo(np.float32).tiny).astype(np.float32)
         else:
-            q = np.ones(int(keep.sum()), dtype=np.float32)
-        out_r.append(rows[pi[keep]].astype(np.int32))
-        out_c.append((ci[keep] + start).astype(np.int32))
+            q = np.ones(int(ok.sum()), dtype=np.float32)
+        out_r.append(rows[pi[ok]].astype(np.int32))
+        out_c.append((ci[ok] + start).astype(np.int32))
         out_v.append(q)
     if not out_r:
         return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, np.float32), counts
-    return np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_v), counts
+    rows_o, cols_o, vals_o = np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_v)
+    # column-major order with rows ascending within each column (frames, hence rows, were visited
+    # in increasing order), so the matrix can be assembled in linear time
+    order = np.lexsort((rows_o, cols_o))
+    return rows_o[order], cols_o[order], vals_o[order], counts
 
 
 def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m: np.ndarray) -> np.ndarray:
@@ -320,12 +406,18 @@ def assemble(task: VisibilityTask, parts: list[tuple[np.ndarray, np.ndarray, np.
     for _, _, _, cnt in parts:
         for key in COUNT_KEYS:
             total[key] += cnt[key]
+    m, n = len(task.positions), task.n_candidates
     rows = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int32)
     cols = np.concatenate([p[1] for p in parts]) if parts else np.empty(0, np.int32)
     vals = np.concatenate([p[2] for p in parts]) if parts else np.empty(0, np.float32)
-    m = len(task.positions)
-    matrix = sp.csr_matrix((vals, (rows, cols)), shape=(m, task.n_candidates), dtype=np.float32)
-    matrix.sort_indices()
+    # parts are in column order and each is column-major with sorted rows: a CSC matrix as it is,
+    # whose conversion to CSR is linear (no sort)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cols, minlength=n), out=indptr[1:])
+    del cols
+    csc = sp.csc_matrix((vals, rows, indptr), shape=(m, n))
+    matrix = csc.tocsr()
+    matrix.has_sorted_indices = True
     return matrix, total
 
 

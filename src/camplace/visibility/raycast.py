@@ -64,6 +64,30 @@ class RayScene:
         res = self._scene.run(o, d, dists=np.ascontiguousarray(length, dtype=np.float32), query="OCCLUDED")
         return np.asarray(res) != -1
 
+    def occluded_dir(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Whether each segment ``origins[i] + t * directions[i]``, t in [0, 1], is blocked.
+
+        The fast path: float32 inputs are passed to Embree as they are (unnormalised directions,
+        tfar = 1), with no per-ray normalisation.
+
+        Parameters
+        ----------
+        origins : (n, 3) float32
+        directions : (n, 3) float32
+            Segment end minus origin.
+
+        Returns
+        -------
+        (n,) bool
+        """
+        n = len(origins)
+        if n == 0 or self._empty:
+            return np.zeros(n, dtype=bool)
+        o = np.ascontiguousarray(origins, dtype=np.float32)
+        d = np.ascontiguousarray(directions, dtype=np.float32)
+        res = self._scene.run(o, d, dists=np.ones(n, dtype=np.float32), query="OCCLUDED")
+        return np.asarray(res) != -1
+
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest hit along rays.
 

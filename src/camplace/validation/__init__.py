@@ -1,0 +1,67 @@
+"""Validation: render what the chosen cameras should see, photograph it (real or emulated), detect the
+target, compare, import calibrated cameras, and export placements in lab coordinates.
+
+Everything is imported lazily (``import camplace.validation`` loads neither OpenCV nor Embree)::
+
+    from camplace.validation import render_view, detect_target, PhysicalCamera, umeyama
+"""
+
+from __future__ import annotations
+
+_LAZY = {
+    # cameras
+    "CameraView": "camplace.validation.cameras",
+    "CameraSet": "camplace.validation.cameras",
+    "import_cameras": "camplace.validation.cameras",
+    "read_middlebury": "camplace.validation.cameras",
+    "read_colmap": "camplace.validation.cameras",
+    "read_opencv_cameras": "camplace.validation.cameras",
+    "write_opencv_cameras": "camplace.validation.cameras",
+    # render
+    "RenderSettings": "camplace.validation.render",
+    "RenderScene": "camplace.validation.render",
+    "RenderResult": "camplace.validation.render",
+    "GlowEmitters": "camplace.validation.render",
+    "render_view": "camplace.validation.render",
+    "scene_for_frame": "camplace.validation.render",
+    "target_scene": "camplace.validation.render",
+    "write_png": "camplace.validation.render",
+    "read_image": "camplace.validation.render",
+    # physical camera
+    "PhysicalCamera": "camplace.validation.physical",
+    "parse_physical": "camplace.validation.physical",
+    "emulate_shots": "camplace.validation.physical",
+    "EmulatedShot": "camplace.validation.physical",
+    # detection
+    "Detection": "camplace.validation.detect",
+    "DetectionSettings": "camplace.validation.detect",
+    "detect_target": "camplace.validation.detect",
+    # comparison
+    "ValidationReport": "camplace.validation.compare",
+    "mask_metrics": "camplace.validation.compare",
+    "kde_overlap": "camplace.validation.compare",
+    "rank_correlation": "camplace.validation.compare",
+    # transform
+    "TransformConfig": "camplace.validation.transform",
+    "PlacementTransform": "camplace.validation.transform",
+    "parse_transform": "camplace.validation.transform",
+    "build_transform": "camplace.validation.transform",
+    "umeyama": "camplace.validation.transform",
+    # workflow
+    "render_run": "camplace.validation.workflow",
+    "validate_runs": "camplace.validation.workflow",
+    "validate_cameras": "camplace.validation.workflow",
+    "export_run": "camplace.validation.workflow",
+    "parse_target": "camplace.validation.workflow",
+    "read_manifest": "camplace.validation.workflow",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'camplace.validation' has no attribute {name!r}")

@@ -1,0 +1,676 @@
+"""The validation stage end to end: render a run, photograph it (real or emulated), compare, export.
+
+These functions back the ``render``, ``validate``, ``import-cameras`` and ``export`` verbs; each
+writes its outputs atomically and returns what it wrote.
+
+File names follow the thesis's convention ``e{experiment}.{system}.camera_{n}`` (section 6.1):
+experiment = the instance name unless given, system = 1 unless given (systems and cameras count
+from 1, as in the thesis), and ``.frame_{f}`` is appended when the instance has more than one frame.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from camplace._io import write_json_atomic, write_text_atomic
+from camplace.errors import CamplaceError
+from camplace.validation.cameras import CameraSet, CameraView, camera_stem
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "load_run",
+    "parse_frames",
+    "frame_stem",
+    "render_run",
+    "read_table_file",
+    "run_table",
+    "Photo",
+    "read_manifest",
+    "find_photos",
+    "parse_target",
+    "validate_cameras",
+    "validate_runs",
+    "export_run",
+]
+
+PHOTO_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+
+# --------------------------------------------------------------------------------------------------
+# runs and config tables
+
+
+def load_run(outdir: str | Path):
+    """The instance and solution of a ``camplace run`` output folder.
+
+    Returns
+    -------
+    instance : camplace.instance.Instance
+    solution : camplace.pipeline.Solution
+    """
+    from camplace.instance import load_instance
+    from camplace.pipeline import Solution
+
+    outdir = Path(outdir)
+    if not (outdir / "solution.json").exists():
+        raise CamplaceError(f"{outdir}: no solution.json here (give the -o folder of 'camplace run')")
+    if not (outdir / "instance.toml").exists():
+        raise CamplaceError(f"{outdir}: no instance.toml here (re-run 'camplace run ... -o {outdir}')")
+    solution = Solution.load(outdir)
+    instance = load_instance(outdir / "instance.toml")
+    if not solution.cameras:
+        raise CamplaceError(f"{outdir / 'solution.json'}: the solution has no cameras (the run found no camera system)")
+    return instance, solution
+
+
+def parse_frames(spec: str, n_frames: int) -> list[int]:
+    """``"all"`` or a comma list such as ``"0,3"`` -> frame indices (checked against ``n_frames``)."""
+    if spec.strip().lower() == "all":
+        return list(range(n_frames))
+    try:
+        frames = [int(x) for x in spec.split(",") if x.strip()]
+    except ValueError:
+        raise CamplaceError(f"--frames: use 'all' or frame numbers such as 0,3; got {spec!r}") from None
+    if not frames:
+        raise CamplaceError("--frames: no frame given (use 'all' or numbers such as 0,3)")
+    for f in frames:
+        if not 0 <= f < n_frames:
+            raise CamplaceError(f"--frames: frame {f} does not exist (the instance has frames 0..{n_frames - 1})")
+    return sorted(set(frames))
+
+
+def frame_stem(experiment: str, system: int, camera: int, frame: int, n_frames: int) -> str:
+    """``e{experiment}.{system}.camera_{n}`` plus ``.frame_{f}`` when the instance has several frames."""
+    stem = camera_stem(experiment, system, camera)
+    return f"{stem}.frame_{frame}" if n_frames > 1 else stem
+
+
+def read_table_file(path: str | Path, table: str) -> dict[str, Any]:
+    """A config table from a TOML or JSON file: the file's ``[table]`` if it has one, else the whole file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise CamplaceError(f"{path}: cannot read ({exc.strerror}; check the path)") from None
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise CamplaceError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    else:
+        data = _toml_loads(text, path)
+    if not isinstance(data, dict):
+        raise CamplaceError(f"{path}: must hold a table of settings")
+    inner = data.get(table)
+    return inner if isinstance(inner, dict) else data
+
+
+def _toml_loads(text: str, path: Path) -> dict[str, Any]:
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib  # type: ignore[no-redef]
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CamplaceError(f"{path}: not valid TOML ({exc})") from None
+
+
+def run_table(outdir: str | Path, table: str) -> dict[str, Any] | None:
+    """The raw ``[table]`` of a run's ``instance.toml`` (e.g. ``physical``, ``transform``), or None."""
+    path = Path(outdir) / "instance.toml"
+    if not path.exists():
+        return None
+    data = _toml_loads(path.read_text(), path)
+    inner = data.get(table)
+    return inner if isinstance(inner, dict) else None
+
+
+# --------------------------------------------------------------------------------------------------
+# render
+
+
+def _frame_emitters(instance, frame: int):
+    return getattr(instance.frames[frame], "emitters", None)
+
+
+def render_run(
+    outdir: str | Path,
+    *,
+    frames: str = "all",
+    bit_depth: int = 8,
+    experiment: str | None = None,
+    system: int = 1,
+    out: str | Path | None = None,
+    settings=None,
+    emitters: Any = None,
+    workers: int | None = None,
+) -> dict[str, Any]:
+    """Render every chosen camera of a run in the chosen frames.
+
+    Writes into ``out`` (default ``OUTDIR/render``), per camera n (1-based) and frame f:
+    ``e{exp}.{sys}.camera_{n}[.frame_{f}].png`` (with the target), ``....background.png`` (occluders
+    only), ``....mask.png`` (predicted target mask, 0/255), and ``render.json`` listing them.
+
+    Parameters
+    ----------
+    outdir : path
+        A ``camplace run`` output folder.
+    frames : str
+        "all" or a comma list of frame indices.
+    bit_depth : {8, 16}
+    experiment : str or None
+        Default: the instance name.
+    system : int
+        System number in the file names.
+    out : path or None
+    settings : RenderSettings or None
+    emitters : optional
+        Extra emitters for every frame (GlowEmitters); the frames' own emitters are always drawn.
+    workers : int or None
+
+    Returns
+    -------
+    dict
+        The content of ``render.json``.
+    """
+    from camplace.validation.render import RenderSettings, add_glow, as_glow, render_view, scene_for_frame, write_mask_png, write_png
+
+    instance, solution = load_run(outdir)
+    settings = settings or RenderSettings()
+    exp = experiment or instance.name
+    out = Path(out) if out is not None else Path(outdir) / "render"
+    n_frames = len(instance.frames)
+    chosen = parse_frames(frames, n_frames)
+    cams = CameraSet.from_solution(solution, experiment=exp, system=system).cameras
+    records = []
+    for f in chosen:
+        fg_scene = scene_for_frame(instance, f, with_target=True, settings=settings)
+        bg_scene = scene_for_frame(instance, f, with_target=False, settings=settings)
+        own = _frame_emitters(instance, f)
+        for n, cam in enumerate(cams, start=1):
+            stem = frame_stem(exp, system, n, f, n_frames)
+            t0 = time.perf_counter()
+            fg = render_view(cam, fg_scene, settings=settings, emitters=own, workers=workers)
+            if emitters is not None:
+                add_glow(fg, as_glow(emitters, settings), settings)
+            bg = render_view(cam, bg_scene, settings=settings, workers=workers)
+            dt = time.perf_counter() - t0
+            write_png(out / f"{stem}.png", fg.image, bit_depth)
+            write_png(out / f"{stem}.background.png", bg.image, bit_depth)
+            write_mask_png(out / f"{stem}.mask.png", fg.target_mask)
+            records.append(
+                {
+                    "camera": n,
+                    "candidate": solution.cameras[n - 1].get("candidate"),
+                    "frame": f,
+                    "image": f"{stem}.png",
+                    "background": f"{stem}.background.png",
+                    "mask": f"{stem}.mask.png",
+                    "target_px": fg.target_px,
+                    "width": cam.width,
+                    "height": cam.height,
+                    "render_s": dt,
+                }
+            )
+            log.info("rendered %s (%d target px, %.3f s for both images)", stem, fg.target_px, dt)
+    manifest = {
+        "experiment": exp,
+        "system": system,
+        "instance": instance.name,
+        "bit_depth": bit_depth,
+        "frames": chosen,
+        "settings": settings.__dict__,
+        "images": records,
+    }
+    write_json_atomic(out / "render.json", manifest)
+    return manifest
+
+
+# --------------------------------------------------------------------------------------------------
+# photographs
+
+
+@dataclass(frozen=True)
+class Photo:
+    """A photograph of one camera and, optionally, its background photograph (paths)."""
+
+    camera: str
+    photo: Path
+    background: Path | None = None
+
+
+def read_manifest(path: str | Path, photos_dir: str | Path | None = None) -> dict[str, Photo]:
+    """Read a manifest CSV with header ``camera,photo,background`` (background optional/empty).
+
+    Relative photo paths are resolved against ``photos_dir`` (default: the manifest's folder).
+
+    Returns
+    -------
+    dict of camera name -> Photo
+    """
+    path = Path(path)
+    base = Path(photos_dir) if photos_dir is not None else path.parent
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise CamplaceError(f"{path}: cannot read the manifest ({exc.strerror}; check the path)") from None
+    reader = csv.DictReader(text.splitlines())
+    cols = [c.strip() for c in (reader.fieldnames or [])]
+    if "camera" not in cols or "photo" not in cols:
+        raise CamplaceError(f"{path}: the header must be 'camera,photo,background' (background optional), got {','.join(cols) or 'nothing'}")
+    out: dict[str, Photo] = {}
+    for i, row in enumerate(reader, start=2):
+        row = {(k or "").strip(): (v or "").strip() for k, v in row.items()}
+        cam, photo = row.get("camera", ""), row.get("photo", "")
+        if not cam or not photo:
+            raise CamplaceError(f"{path}:{i}: every row needs a camera name and a photo file")
+        if cam in out:
+            raise CamplaceError(f"{path}:{i}: camera {cam!r} is listed twice")
+        p = Path(photo) if Path(photo).is_absolute() else base / photo
+        if not p.exists():
+            raise CamplaceError(f"{path}:{i}: photo {photo} not found in {base}")
+        bg = row.get("background", "")
+        b = None
+        if bg:
+            b = Path(bg) if Path(bg).is_absolute() else base / bg
+            if not b.exists():
+                raise CamplaceError(f"{path}:{i}: background {bg} not found in {base}")
+        out[cam] = Photo(cam, p, b)
+    if not out:
+        raise CamplaceError(f"{path}: the manifest lists no photos")
+    return out
+
+
+def find_photos(cameras: Sequence[CameraView], photos_dir: str | Path, manifest: str | Path | None = None) -> dict[str, Photo]:
+    """Photos of the cameras: from the manifest (default ``photos_dir/manifest.csv`` when present),
+    else by each camera's ``image`` file name or ``{name}.png|.jpg|...`` in ``photos_dir``.
+
+    Cameras without a photo are left out (and logged); an error if none has one, or if the
+    manifest names a camera that does not exist.
+    """
+    photos_dir = Path(photos_dir)
+    if not photos_dir.is_dir():
+        raise CamplaceError(f"--photos: {photos_dir} is not a folder")
+    names = {c.name for c in cameras}
+    if manifest is None and (photos_dir / "manifest.csv").exists():
+        manifest = photos_dir / "manifest.csv"
+    if manifest is not None:
+        found = read_manifest(manifest, photos_dir)
+        unknown = sorted(set(found) - names)
+        if unknown:
+            raise CamplaceError(f"{manifest}: camera {unknown[0]!r} is not one of the cameras ({', '.join(sorted(names)[:6])}{', ...' if len(names) > 6 else ''})")
+    else:
+        found = {}
+        for c in cameras:
+            cands = ([c.image] if c.image else []) + [c.name + ext for ext in PHOTO_EXTENSIONS]
+            for cand in cands:
+                if (photos_dir / cand).exists():
+                    bg = None
+                    stem = Path(cand).stem
+                    for ext in PHOTO_EXTENSIONS:
+                        if (photos_dir / f"{stem}.background{ext}").exists():
+                            bg = photos_dir / f"{stem}.background{ext}"
+                            break
+                    found[c.name] = Photo(c.name, photos_dir / cand, bg)
+                    break
+    missing = [c.name for c in cameras if c.name not in found]
+    if missing:
+        log.warning("%d camera(s) have no photo: %s", len(missing), ", ".join(missing[:5]))
+    if not found:
+        raise CamplaceError(f"--photos: no photo in {photos_dir} matches a camera (name photos '{cameras[0].name}.png' or write a manifest.csv with camera,photo,background)")
+    return found
+
+
+# --------------------------------------------------------------------------------------------------
+# targets
+
+
+def parse_target(spec: str) -> tuple[np.ndarray, np.ndarray]:
+    """``box:x0,y0,z0,x1,y1,z1`` (an axis-aligned box, metres) or a mesh file -> (vertices (n, 3), faces (m, 3))."""
+    if spec.startswith("box:"):
+        try:
+            vals = [float(x) for x in spec[4:].split(",")]
+        except ValueError:
+            raise CamplaceError(f"--target: a box is box:x0,y0,z0,x1,y1,z1 (6 numbers), got {spec!r}") from None
+        if len(vals) != 6:
+            raise CamplaceError(f"--target: a box is box:x0,y0,z0,x1,y1,z1 (6 numbers), got {len(vals)}")
+        lo, hi = np.minimum(vals[:3], vals[3:]), np.maximum(vals[:3], vals[3:])
+        if np.any(hi <= lo):
+            raise CamplaceError(f"--target: the box {spec!r} has zero thickness along an axis")
+        return box_mesh(lo, hi)
+    path = Path(spec)
+    if not path.exists():
+        raise CamplaceError(f"--target: {spec} is neither box:x0,y0,z0,x1,y1,z1 nor an existing mesh file")
+    from camplace.instance.loader import read_mesh_file
+
+    try:
+        v, f = read_mesh_file(path)
+    except Exception as exc:  # trimesh raises many kinds
+        raise CamplaceError(f"--target: cannot read mesh {path} ({exc})") from None
+    if len(f) == 0:
+        raise CamplaceError(f"--target: {path} has no triangles")
+    return v, f
+
+
+def box_mesh(lo: Sequence[float], hi: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle mesh of an axis-aligned box (8 vertices, 12 outward-facing triangles)."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    v = np.array([[hi[0] if i & 1 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 4 else lo[2]] for i in range(8)])
+    f = np.array(
+        [[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]],
+        dtype=np.int64,
+    )
+    return v, f
+
+
+# --------------------------------------------------------------------------------------------------
+# comparison
+
+
+def _compare_one(name: str, system: int, cam: CameraView, predicted_mask: np.ndarray, predicted_image: np.ndarray | None,
+                 photo: np.ndarray, background: np.ndarray | None, detection_settings, extra: dict) -> tuple[dict, Any]:
+    from camplace.validation.compare import mask_metrics
+    from camplace.validation.detect import detect_target
+
+    if photo.shape[:2] != (cam.height, cam.width):
+        raise CamplaceError(f"camera {name}: photo is {photo.shape[1]}x{photo.shape[0]} but the camera is {cam.width}x{cam.height} (check the calibration or the manifest)")
+    det = detect_target(photo, background, detection_settings)
+    rec: dict[str, Any] = {"name": name, "system": system, "width": cam.width, "height": cam.height}
+    rec.update(mask_metrics(predicted_mask, det.mask))
+    pred_i = None
+    if predicted_image is not None and predicted_mask.any():
+        pred_i = float(np.clip(predicted_image[predicted_mask], 0.0, 1.0).mean())
+    rec["predicted_intensity"] = pred_i
+    rec["detected_intensity"] = det.mean_intensity if det.area_px else None
+    rec["intensity_difference"] = None if pred_i is None or not det.area_px else det.mean_intensity - pred_i
+    rec["bbox_xywh"] = None if det.bbox_xywh is None else list(det.bbox_xywh)
+    rec["threshold"] = det.threshold
+    rec["n_contours"] = det.n_contours
+    rec.update(extra)
+    return rec, det
+
+
+def _finish_report(records: list[dict], out: Path, overlays: list[tuple[str, np.ndarray]], settings: dict):
+    from camplace.validation.compare import (
+        ValidationReport,
+        across_systems,
+        difference_matrix,
+        heatmap_image,
+        kde_image,
+        system_scores,
+    )
+    from camplace.validation.render import write_png
+
+    figures = []
+    for fname, img in overlays:
+        write_png(out / fname, img)
+        figures.append(fname)
+    systems = system_scores(records)
+    across = across_systems(systems)
+    heat: dict[str, Any] = {"labels": [r["name"] for r in records]}
+    cov_p = [r["predicted_px"] / (r["width"] * r["height"]) for r in records]
+    cov_d = [r["detected_px"] / (r["width"] * r["height"]) for r in records]
+    heat["coverage_difference"] = difference_matrix(cov_p, cov_d).tolist()
+    write_png(out / "heatmap_coverage.png", heatmap_image(np.array(heat["coverage_difference"]), "|coverage difference| (fraction of image)"))
+    figures.append("heatmap_coverage.png")
+    if all(r["predicted_intensity"] is not None and r["detected_intensity"] is not None for r in records):
+        heat["intensity_difference"] = difference_matrix([r["predicted_intensity"] for r in records], [r["detected_intensity"] for r in records]).tolist()
+        write_png(out / "heatmap_intensity.png", heatmap_image(np.array(heat["intensity_difference"]), "|mean target intensity difference|"))
+        figures.append("heatmap_intensity.png")
+    else:
+        heat["intensity_difference"] = None
+        across["notes"].append("no intensity heatmap: a predicted intensity needs a rendered scene, or a camera detected nothing")
+    if len(systems) >= 2:
+        write_png(out / "kde_scores.png", kde_image([s["normalised_predicted"] for s in systems], [s["normalised_photo"] for s in systems]))
+        figures.append("kde_scores.png")
+    report = ValidationReport(cameras=records, systems=systems, across=across, heatmaps=heat, settings=settings, figures=figures)
+    report.save(out)
+    return report
+
+
+def validate_cameras(
+    cameras: CameraSet,
+    target: tuple[np.ndarray, np.ndarray],
+    photos_dir: str | Path,
+    out: str | Path,
+    *,
+    manifest: str | Path | None = None,
+    detection=None,
+    target_spec: str = "",
+    workers: int | None = None,
+) -> Any:
+    """Compare photographs of a target with the masks predicted from calibrated cameras (no instance).
+
+    The predicted mask of each camera is the target mesh ray cast alone (no other geometry).
+    Writes ``validation.json`` and ``overlay.{camera}.png`` figures into ``out``.
+
+    Returns
+    -------
+    ValidationReport
+    """
+    from camplace.validation.compare import overlay_image
+    from camplace.validation.detect import DetectionSettings
+    from camplace.validation.render import read_image, render_view, target_scene
+
+    detection = detection or DetectionSettings()
+    out = Path(out)
+    photos = find_photos(cameras.cameras, photos_dir, manifest)
+    scene = target_scene(*target)
+    records, overlays = [], []
+    for cam in cameras.cameras:
+        if cam.name not in photos:
+            continue
+        ph = photos[cam.name]
+        pred = render_view(cam, scene, workers=workers)
+        photo = read_image(ph.photo)
+        bg = read_image(ph.background) if ph.background is not None else None
+        rec, det = _compare_one(cam.name, 1, cam, pred.target_mask, None, photo, bg, detection,
+                                {"photo": str(ph.photo), "background": None if ph.background is None else str(ph.background)})
+        records.append(rec)
+        overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, pred.target_mask, det.mask, det.bbox_xywh, cam.name)))
+    settings = {
+        "mode": "cameras",
+        "cameras": cameras.source,
+        "target": target_spec,
+        "photos": str(photos_dir),
+        "manifest": None if manifest is None else str(manifest),
+        "detection": detection.to_dict(),
+    }
+    return _finish_report(records, out, overlays, settings)
+
+
+def _random_systems(outdir: Path, instance, solution, n: int, rng: np.random.Generator, experiment: str, first_system: int) -> list[list[CameraView]]:
+    from camplace.sampling import CandidateSet
+
+    cands = CandidateSet.load(outdir / "candidates.csv")
+    k = len(solution.cameras)
+    if len(cands) < k:
+        raise CamplaceError(f"--random-systems: {outdir / 'candidates.csv'} has fewer than k = {k} candidates")
+    K = np.asarray(solution.cameras[0]["K"], dtype=np.float64)
+    w, h = int(solution.cameras[0]["width"]), int(solution.cameras[0]["height"])
+    systems = []
+    for s in range(n):
+        idx = rng.choice(len(cands), size=k, replace=False)
+        systems.append(
+            [CameraView(camera_stem(experiment, first_system + s, j + 1), cands.positions[i], cands.rotations[i], K, w, h)
+             for j, i in enumerate(idx)]
+        )
+    return systems
+
+
+def validate_runs(
+    outdirs: Sequence[str | Path],
+    out: str | Path,
+    *,
+    photos_dir: str | Path | None = None,
+    manifest: str | Path | None = None,
+    physical=None,
+    frame: int = 0,
+    seed: int = 0,
+    random_systems: int = 0,
+    experiment: str | None = None,
+    detection=None,
+    settings=None,
+    workers: int | None = None,
+) -> Any:
+    """Validate one or more runs: each run's chosen cameras form a system (numbered 1, 2, ... in order).
+
+    Photographs come from ``photos_dir`` (manifest or file names ``e{exp}.{sys}.camera_{n}.png``)
+    or, when it is None, are emulated with ``physical`` (default: the first run's ``[physical]``
+    table, else a perfect camera) and written to ``out/photos`` with a ``manifest.csv``.
+    ``random_systems`` adds that many systems of k candidates drawn at random (seeded) from the
+    first run's ``candidates.csv``, as a baseline for the across-system statistics.
+
+    Returns
+    -------
+    ValidationReport
+    """
+    from camplace.validation.compare import overlay_image
+    from camplace.validation.detect import DetectionSettings
+    from camplace.validation.physical import PhysicalCamera, emulate_shots, parse_physical
+    from camplace.validation.render import RenderSettings, quantise, read_image, render_view, scene_for_frame, write_png
+
+    if not outdirs:
+        raise CamplaceError("validate: give at least one OUTDIR of 'camplace run' (or --cameras with --target)")
+    detection = detection or DetectionSettings()
+    settings = settings or RenderSettings()
+    out = Path(out)
+    sys_rng, shot_rng = np.random.default_rng(seed).spawn(2)
+    runs = [load_run(d) for d in outdirs]
+    instance0 = runs[0][0]
+    exp = experiment or instance0.name
+    systems: list[tuple[Any, list[CameraView]]] = []
+    for s, (inst, sol) in enumerate(runs, start=1):
+        if not 0 <= frame < len(inst.frames):
+            raise CamplaceError(f"--frame: frame {frame} does not exist in {outdirs[s - 1]} (frames 0..{len(inst.frames) - 1})")
+        systems.append((inst, list(CameraSet.from_solution(sol, experiment=exp, system=s).cameras)))
+    if random_systems:
+        for cams in _random_systems(Path(outdirs[0]), instance0, runs[0][1], random_systems, sys_rng, exp, len(runs) + 1):
+            systems.append((instance0, cams))
+    all_cams = [c for _, cams in systems for c in cams]
+    photos = None
+    if photos_dir is not None:
+        photos = find_photos(all_cams, photos_dir, manifest)
+    else:
+        if physical is None:
+            table = run_table(outdirs[0], "physical")
+            physical = parse_physical(table, f"{Path(outdirs[0]) / 'instance.toml'}: [physical]") if table else PhysicalCamera()
+            if table is None:
+                log.warning("no photos and no [physical] table: emulating a perfect camera (photos equal the renders)")
+    scenes: dict[int, tuple[Any, Any]] = {}
+    records, overlays, manifest_rows = [], [], []
+    for s, (inst, cams) in enumerate(systems, start=1):
+        key = id(inst)
+        if key not in scenes:
+            scenes[key] = (
+                scene_for_frame(inst, frame, with_target=True, settings=settings),
+                scene_for_frame(inst, frame, with_target=False, settings=settings),
+            )
+        fg_scene, bg_scene = scenes[key]
+        emit = _frame_emitters(inst, frame)
+        for cam in cams:
+            pred = render_view(cam, fg_scene, settings=settings, emitters=emit, workers=workers)
+            extra: dict[str, Any] = {}
+            if photos is not None:
+                if cam.name not in photos:
+                    continue
+                ph = photos[cam.name]
+                photo = read_image(ph.photo)
+                bg = read_image(ph.background) if ph.background is not None else None
+                extra = {"photo": str(ph.photo), "background": None if ph.background is None else str(ph.background)}
+            else:
+                shot = emulate_shots([cam], fg_scene, bg_scene, physical, settings=settings, emitters=emit, seed=shot_rng, workers=workers)[0]
+                photo, bg = quantise(shot.photo, 8), quantise(shot.background, 8)
+                pdir = out / "photos"
+                write_png(pdir / f"{cam.name}.png", photo)
+                write_png(pdir / f"{cam.name}.background.png", bg)
+                manifest_rows.append(f"{cam.name},{cam.name}.png,{cam.name}.background.png")
+                dR = cam.rotation.T @ shot.actual.rotation
+                extra = {
+                    "photo": str(pdir / f"{cam.name}.png"),
+                    "background": str(pdir / f"{cam.name}.background.png"),
+                    "pose_error_m": float(np.linalg.norm(shot.actual.position - cam.position)),
+                    "pose_error_deg": float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))),
+                }
+            rec, det = _compare_one(cam.name, s, cam, pred.target_mask, pred.image, photo, bg, detection, extra)
+            records.append(rec)
+            overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, pred.target_mask, det.mask, det.bbox_xywh, cam.name)))
+    if manifest_rows:
+        write_text_atomic(out / "photos" / "manifest.csv", "camera,photo,background\n" + "\n".join(manifest_rows) + "\n")
+    if not records:
+        raise CamplaceError("validate: no camera had a photo to compare")
+    report_settings = {
+        "mode": "runs",
+        "runs": [str(d) for d in outdirs],
+        "experiment": exp,
+        "frame": frame,
+        "seed": seed,
+        "random_systems": random_systems,
+        "photos": None if photos_dir is None else str(photos_dir),
+        "manifest": None if manifest is None else str(manifest),
+        "physical": None if photos is not None else physical.to_dict(),
+        "detection": detection.to_dict(),
+        "render": settings.__dict__,
+    }
+    return _finish_report(records, out, overlays, report_settings)
+
+
+# --------------------------------------------------------------------------------------------------
+# export
+
+
+def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[str, Any] | None = None,
+               transform_source: str = "", out: str | Path | None = None) -> tuple[Path, Path]:
+    """Write the chosen cameras' placement in the simulation or physical frame.
+
+    Parameters
+    ----------
+    outdir : path
+        A ``camplace run`` output folder.
+    frame : {"physical", "simulation"}
+    transform : dict or None
+        The ``[transform]`` table (physical frame); default: the run's ``instance.toml`` ``[transform]``.
+    transform_source : str
+        Where ``transform`` came from (for error messages).
+    out : path or None
+        Output folder (default ``outdir``).
+
+    Returns
+    -------
+    (csv path, json path) of ``placement.{frame}.csv`` / ``.json``
+    """
+    from camplace.pipeline import Solution
+    from camplace.validation.transform import build_transform, parse_transform, placement_rows, write_placement
+
+    outdir = Path(outdir)
+    if not (outdir / "solution.json").exists():
+        raise CamplaceError(f"{outdir}: no solution.json here (give the -o folder of 'camplace run')")
+    solution = Solution.load(outdir)
+    if frame == "simulation":
+        tr = build_transform(parse_transform(None))
+    elif frame == "physical":
+        if transform is None:
+            transform = run_table(outdir, "transform")
+            transform_source = f"{outdir / 'instance.toml'}: [transform]"
+            if transform is None:
+                raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table (add one or pass --transform FILE; see the README)")
+        tr = build_transform(parse_transform(transform, transform_source or "[transform]"))
+    else:
+        raise CamplaceError(f"--frame: must be physical or simulation, got {frame!r}")
+    exp = solution.instance or "camplace"
+    cams = [
+        {"name": camera_stem(exp, 1, n), "position": c["position"], "rotation": c["rotation"], "aim": c.get("aim")}
+        for n, c in enumerate(solution.cameras, start=1)
+    ]
+    rows = placement_rows(cams, tr)
+    return write_placement(Path(out) if out is not None else outdir, rows, tr, frame)
