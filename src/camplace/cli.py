@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
 # and imports nothing heavy at module level.
-VERB_MODULES: tuple[str, ...] = ()
+VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli",)
 
 
 def _verb_modules():

@@ -12,17 +12,18 @@ from camplace.errors import CamplaceError
 from camplace.sampling import look_at
 from camplace.validation.cameras import CameraView
 from camplace.validation.compare import mask_metrics
-from camplace.validation.detect import detect_target
+from camplace.validation.detect import DetectionSettings, detect_target
 from camplace.validation.physical import PhysicalCamera, apply_optics_and_sensor, emulate_shots, parse_physical, rotation_from_vector
 from camplace.validation.render import RenderScene, encode_png, quantise, render_view
 
 
-def small_scene():
+def small_scene(ground: bool = True):
+    """A sphere on (or, without ground, floating above) a ground plane, lit from above."""
     ico = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     target = (np.asarray(ico.vertices) + [0.0, 0.0, 0.3], np.asarray(ico.faces, dtype=np.int64))
-    ground = (np.array([[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+    occ = [(np.array([[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))] if ground else []
     light = [1.0, -2.0, 4.0]
-    return RenderScene.build(target, [ground], light), RenderScene.build(None, [ground], light)
+    return RenderScene.build(target, occ, light), RenderScene.build(None, occ, light)
 
 
 def cameras(n: int = 4, width: int = 160, height: int = 120) -> list[CameraView]:
@@ -49,7 +50,8 @@ def test_perfect_camera_reproduces_the_render_exactly() -> None:
 
 
 def test_iou_falls_as_placement_error_grows() -> None:
-    fg, bg = small_scene()
+    # no ground: background subtraction would also detect the sphere's cast shadow (see the shadow test)
+    fg, bg = small_scene(ground=False)
     cams = cameras(4)
     predicted = [render_view(c, fg).target_mask for c in cams]
     levels = [(0.0, 0.0), (0.03, 0.5), (0.08, 1.5), (0.15, 3.0), (0.3, 6.0)]
@@ -59,11 +61,12 @@ def test_iou_falls_as_placement_error_grows() -> None:
         for seed in range(4):
             shots = emulate_shots(cams, fg, bg, PhysicalCamera(sigma_position_m=sp, sigma_rotation_deg=sr), seed=seed)
             for pred, shot in zip(predicted, shots):
-                det = detect_target(quantise(shot.photo), quantise(shot.background))
+                # triangle threshold: Otsu would split the sphere's lit and shaded halves (three-mode histogram)
+                det = detect_target(quantise(shot.photo), quantise(shot.background), DetectionSettings(threshold="triangle"))
                 ious.append(mask_metrics(pred, det.mask)["iou"] or 0.0)
         means.append(float(np.mean(ious)))
     assert all(a > b for a, b in zip(means, means[1:])), means
-    assert means[0] > 0.8 and means[-1] < 0.5 * means[0], means
+    assert means[0] > 0.95 and means[-1] < 0.5 * means[0], means
 
 
 def test_placement_error_statistics() -> None:

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 import camplace.cli
-from camplace.validation.cameras import CameraSet
 from camplace.validation.render import render_view, target_scene
 from camplace.validation.workflow import parse_target
 

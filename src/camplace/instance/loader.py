@@ -47,7 +47,10 @@ __all__ = ["load_instance", "parse_instance", "save_instance", "mesh_ply_bytes",
 MAX_CANDIDATES = 1_000_000
 MAX_POINTS = 10_000_000
 
-_TOP_KEYS = ("schema_version", "name", "k", "run", "camera", "volume", "light", "quality", "target", "occluders", "frames")
+_TOP_KEYS = (
+    "schema_version", "name", "k", "run", "camera", "volume", "light", "quality", "target", "occluders", "frames",
+    "physical", "transform",
+)
 _RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s", "orientations")
 _QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light")
 _EMITTER_KEYS = ("positions_m", "weights", "file")
@@ -490,7 +493,26 @@ class _Parser:
             defaults=run,
             source=self.source,
             quality=quality,
+            physical=self.passthrough(data, "physical"),
+            transform=self.passthrough(data, "transform"),
         )
+
+    def passthrough(self, data: dict, key: str) -> dict | None:
+        """A ``[physical]`` or ``[transform]`` table, validated by the validation stage's parser."""
+        table = self.table(data, key, "", required=False)
+        if table is None:
+            return None
+        from camplace.errors import CamplaceError
+
+        if key == "physical":
+            from camplace.validation.physical import parse_physical as parse
+        else:
+            from camplace.validation.transform import parse_transform as parse
+        try:
+            parse(table, key)
+        except CamplaceError as exc:
+            raise InstanceError(self.source, "", _one_line(str(exc))) from None
+        return copy.deepcopy(table)
 
     def quality(self, table: dict) -> QualitySpec:
         self.check_keys(table, _QUALITY_KEYS, "quality")
@@ -826,6 +848,10 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             "max_incidence_deg": float(q.max_incidence_deg),
             "require_light": bool(q.require_light),
         }
+    for key in ("physical", "transform"):
+        table = getattr(instance, key)
+        if table is not None:
+            data[key] = copy.deepcopy(table)
     frames = []
     for i, f in enumerate(instance.frames):
         ft: dict[str, Any] = {

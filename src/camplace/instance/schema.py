@@ -302,6 +302,12 @@ class Instance:
         At least one.
     defaults : RunDefaults
     quality : QualitySpec
+    physical : dict or None
+        The validated ``[physical]`` table: the emulated physical camera used by validation when
+        there are no photographs (see :mod:`camplace.validation.physical`).
+    transform : dict or None
+        The validated ``[transform]`` table: simulation-to-lab coordinate transform used by
+        ``camplace export`` (see :mod:`camplace.validation.transform`).
     source : str
         The file (or ``builtin:<name>``) this instance was read from; used in error messages.
     """
@@ -317,6 +323,8 @@ class Instance:
     defaults: RunDefaults = RunDefaults()
     source: str = ""
     quality: QualitySpec = QualitySpec()
+    physical: dict | None = None
+    transform: dict | None = None
 
     def frame_weights(self) -> np.ndarray:
         """(n_frames,) float64 frame likelihoods normalised to sum 1 (uniform if all are 0)."""

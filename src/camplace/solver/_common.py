@@ -93,3 +93,58 @@ def coverage_weight(matrix: Any, weights: Any, selected: Sequence[int]) -> float
     sub = as_pattern(a[:, cols])
     covered = np.diff(sub.indptr) > 0
     return float(np.sum(w[covered], dtype=np.float64))
+
+
+def greedy_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, rounds: int = 20) -> tuple[int, ...]:
+    """Greedy max coverage followed by first-improvement 1-swap local search (sparse).
+
+    Parameters
+    ----------
+    matrix : (m, n) scipy.sparse matrix
+        0/1 pattern.
+    weights : (m,) float64
+        Row weights.
+    k : int
+        Number of columns (``<= n``).
+    rounds : int
+        Maximum swap passes.
+
+    Returns
+    -------
+    tuple of int
+        ``k`` distinct column indices, sorted.
+    """
+    a = sp.csc_matrix(matrix)
+    at = a.T.tocsr()
+    m, n = a.shape
+    w = np.asarray(weights, dtype=np.float64)
+    sel: list[int] = []
+    resid = w.copy()
+    for _ in range(k):
+        g = at @ resid
+        if sel:
+            g[sel] = -1.0
+        j = int(np.argmax(g))
+        sel.append(j)
+        resid[a.indices[a.indptr[j] : a.indptr[j + 1]]] = 0.0
+    cnt = np.asarray(a[:, sel].sum(axis=1)).ravel()
+    for _ in range(rounds):
+        improved = False
+        for p in range(k):
+            s = sel[p]
+            col = np.zeros(m)
+            col[a.indices[a.indptr[s] : a.indptr[s + 1]]] = 1.0
+            others = cnt - col
+            g = at @ np.where(others > 0, 0.0, w)
+            cur = g[s]
+            g[sel] = -1.0
+            j = int(np.argmax(g))
+            if g[j] > cur * (1.0 + 1e-12) + 1e-300:
+                newcol = np.zeros(m)
+                newcol[a.indices[a.indptr[j] : a.indptr[j + 1]]] = 1.0
+                cnt = others + newcol
+                sel[p] = j
+                improved = True
+        if not improved:
+            break
+    return tuple(sorted(sel))

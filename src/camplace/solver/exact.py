@@ -37,6 +37,7 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy.linalg import blas
 
 from camplace.solver._common import Deadline, EngineOutcome
 from camplace.solver.presolve import Presolved
@@ -46,7 +47,7 @@ __all__ = ["solve_exact", "EXACT_MAX_K"]
 log = logging.getLogger(__name__)
 
 EXACT_MAX_K = 4  # the auto engine uses the exact engine up to this k (it works for any k, slowly)
-_INT_EXACT_LIMIT = 1 << 23  # total count limit: pair sums stay below 2**24 (exact in float32)
+_INT_EXACT_LIMIT = 1 << 22  # total count limit: stored pair values stay below 2**24 (exact in float32)
 _FLOAT_MARGIN = 1e-9  # relative pruning margin for float64 weights
 _SCREEN_MIN = 48  # pair screening by segments only above this many columns
 _SWAP_ROUNDS = 50
@@ -101,6 +102,17 @@ def _bisection_order(f: np.ndarray, gram: np.ndarray) -> np.ndarray:
         stack.append(s[idx[half:]])  # popped second
         stack.append(s[idx[:half]])  # popped first
     return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+
+
+def _lower(pv: np.ndarray) -> np.ndarray:
+    """Keep the strict lower triangle of a square matrix, -inf elsewhere (in place)."""
+    pv[np.triu_indices(pv.shape[0])] = -np.inf
+    return pv
+
+
+def _rowcol_max(pv: np.ndarray) -> np.ndarray:
+    """Best partner value of each column of a strict-lower-triangular pair matrix."""
+    return np.maximum(pv.max(axis=1), pv.max(axis=0))
 
 
 def _segment_starts(n: int, depth: int) -> np.ndarray:
@@ -306,7 +318,7 @@ class _Search:
         self.order = order
         self.do = np.ascontiguousarray(self.d[:, order])  # (m, n) columns in search order
         self.fo = self.f[order]
-        self.go = gram[np.ix_(order, order)]
+        self.go = gram[order][:, order]
         depth = max(0, int(math.ceil(math.log2(max(1, n_segments)))))
         self.seg_start = _segment_starts(self.n, depth)
         self.seg_end = np.r_[self.seg_start[1:], self.n].astype(np.int64)
@@ -358,7 +370,7 @@ class _Search:
         return np.flatnonzero(alive)
 
     def _pair_values(self, wm: np.ndarray, pos: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """Exact pair values ``g_b + g_c - w(b & c)`` on the residual weights, -inf diagonal.
+        """Exact pair values ``g_b + g_c - w(b & c)`` on the residual weights.
 
         Parameters
         ----------
@@ -370,16 +382,16 @@ class _Search:
 
         Returns
         -------
-        (c, c) float32 or float64 (working dtype)
+        (c, c) working dtype
+            Values in the strict lower triangle (``[i, j]`` with ``i > j``), -inf elsewhere.
         """
         rows = np.flatnonzero(wm)
-        x = self.do[np.ix_(rows, pos)]
+        x = self.do[rows][:, pos]
         pv = self._gram(x, wm[rows])
         pv -= g[:, None].astype(self.dt)
         pv -= g[None, :].astype(self.dt)
         np.negative(pv, out=pv)
-        np.fill_diagonal(pv, -np.inf)
-        return pv
+        return _lower(pv)
 
     def _best_pair(self, pv: np.ndarray) -> tuple[float, int, int]:
         """Maximum of a symmetric pair-value matrix (diagonal -inf) and its indices."""
@@ -425,8 +437,9 @@ class _Search:
             Weight covered by the prefix.
         prefix : tuple of int
             Search positions chosen so far.
-        pv : (n-p-1, n-p-1) float64, optional
-            Exact pair values of positions ``p+1..n-1`` on ``wm`` (diagonal -inf), if known.
+        pv : (n-p-1, n-p-1) working dtype, optional
+            Exact pair values of positions ``p+1..n-1`` on ``wm`` (strict lower triangle, -inf
+            elsewhere), if known.
         track : bool
             Record open-node bounds for the time-limit report.
         """
@@ -444,7 +457,39 @@ class _Search:
             cols = np.arange(p + 1, self.n, dtype=np.int64)
         rows = np.flatnonzero(wm)
         in_n = np.zeros(rows.size, dtype=bool)
-        self._node(wm, rows, in_n, p, self.n, cols, pv, np.zeros(0, dtype=np.int64), g, p, base, prefix, track, None)
+        self._node(wm, rows, in_n, p, self.n, cols, pv, 0.0, np.zeros(0, dtype=np.int64), g, p, base, prefix, track, None)
+
+    def _accumulate(self, c: np.ndarray, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Add ``x^T diag(w) x`` to the strict lower triangle of ``c`` (in place if possible).
+
+        Parameters
+        ----------
+        c : (s, s) C-contiguous working dtype
+            Lower-triangular pair matrix (-inf above and on the diagonal stays -inf).
+        x : (r, s) 0/1 working dtype
+        w : (r,) weights
+
+        Returns
+        -------
+        (s, s)
+            The updated matrix (``c`` itself unless BLAS had to copy).
+        """
+        self.stats["gemms"] += 1
+        self.stats["gemm_madds"] += 0.5 * float(x.shape[0]) * x.shape[1] * x.shape[1]
+        ct = c.T  # Fortran view: its upper triangle is c's lower triangle
+        if self.dt == np.float32:
+            one = w == 1
+            if one.all():
+                ct = blas.ssyrk(1.0, x, beta=1.0, c=ct, trans=1, lower=0, overwrite_c=1)
+            else:
+                if one.any():
+                    ct = blas.ssyrk(1.0, x[one], beta=1.0, c=ct, trans=1, lower=0, overwrite_c=1)
+                x2 = x[~one]
+                ct = blas.sgemm(1.0, x2 * w[~one][:, None], x2, beta=1.0, c=ct, trans_a=1, overwrite_c=1)
+        else:
+            xs = x * np.sqrt(w)[:, None]
+            ct = blas.dsyrk(1.0, xs, beta=1.0, c=ct, trans=1, lower=0, overwrite_c=1)
+        return ct.T
 
     def _node(
         self,
@@ -455,6 +500,7 @@ class _Search:
         hi: int,
         cols: np.ndarray,
         pv: np.ndarray,
+        off: float,
         delta: np.ndarray,
         g: np.ndarray,
         p: int,
@@ -464,6 +510,12 @@ class _Search:
         key: int | None,
     ) -> None:
         """One node of the three-column tree search: first columns ``lo..hi-1``.
+
+        Pair values are stored lower-triangular with a scalar offset: the value of the pair
+        ``(cols[i], cols[j])``, ``i > j``, is ``pv[i, j] + off``. Moving to a child whose common rows
+        grew by ``delta`` subtracts ``w_delta(b | c) = W_delta - xbar^T diag(w) xbar`` with
+        ``xbar = 1 - x`` the complement of the columns on those rows: one SYRK into the child's copy
+        plus ``off -= W_delta``.
 
         Parameters
         ----------
@@ -476,8 +528,10 @@ class _Search:
             Search positions of the node's first columns.
         cols : (c,) int64
             Candidate later columns (search positions, ascending).
-        pv : (c, c) float64
-            Parent's exact pair values of ``cols`` on ``R \ N_parent`` (not modified).
+        pv : (c, c)
+            Parent's stored pair values on ``R \ N_parent`` (not modified).
+        off : float
+            Parent's offset.
         delta : (d,) int64
             Indices into ``rows`` of the rows in ``N_node \ N_parent``.
         g : (n - p,) float64
@@ -500,7 +554,7 @@ class _Search:
                 return
             cols = cols[j0:]
             sub = pv[j0:, j0:]  # view of the parent's values (upper bounds here)
-            keep = sub.max(axis=1) > thr - fmax
+            keep = _rowcol_max(sub) + off > thr - fmax
             nk = int(keep.sum())
             if nk < 2:
                 return
@@ -508,40 +562,36 @@ class _Search:
             if nk < keep.size:
                 kidx = np.flatnonzero(keep)
                 cols = cols[kidx]
-                sub = sub[np.ix_(kidx, kidx)]
+                sub = sub[kidx][:, kidx]
                 owned = True
             if delta.size:
-                # P_node = P_parent - (gd_b + gd_c - w_delta(b & c)) on the newly common rows.
                 dr = rows[delta]
-                xd = self.do[np.ix_(dr, cols)]
                 wd = wm[dr]
-                gd = xd.T @ wd
-                corr = self._gram(xd, wd)
-                corr -= gd[:, None]
-                corr -= gd[None, :]
-                corr += sub
-                sub = corr
-                np.fill_diagonal(sub, -np.inf)
+                xbar = 1 - self.do[dr][:, cols]
+                if not owned:
+                    sub = sub.copy()
+                sub = self._accumulate(sub, xbar, wd)
+                off -= float(wd.sum(dtype=np.float64))
                 in_n = in_n.copy()
                 in_n[delta] = True
-            elif not owned:
-                sub = sub.copy()
             pv = sub
-            rmax = pv.max(axis=1)
+            rmax = _rowcol_max(pv) + off
             bound = fmax + float(rmax.max())
             if bound <= thr:
                 return
             if hi - lo == 1:
                 self.stats["tree_leaves"] += 1
                 val, i, j = self._best_pair(pv)
+                val += off
                 if val > thr - fl[0] - self.margin:
                     self._offer_pos(base + float(fl[0]) + val, prefix + (lo, int(cols[i]), int(cols[j])))
                 return
             keep = rmax > thr - fmax
             if not keep.all():
-                cols = cols[keep]
-                pv = pv[np.ix_(keep, keep)]
-                rmax = rmax[keep]
+                kidx = np.flatnonzero(keep)
+                cols = cols[kidx]
+                pv = pv[kidx][:, kidx]
+                rmax = rmax[kidx]
             mid = lo + (hi - lo) // 2
             children = [(lo, mid), (mid, hi)]
             keys: list[int | None] = [None, None]
@@ -562,7 +612,7 @@ class _Search:
                     dchild = free[cov]
                 else:
                     dchild = free
-                self._node(wm, rows, in_n, cl, ch, cols, pv, dchild, g, p, base, prefix, track, keys[t])
+                self._node(wm, rows, in_n, cl, ch, cols, pv, off, dchild, g, p, base, prefix, track, keys[t])
         finally:
             if key is not None:
                 self.open_nodes.pop(key, None)
@@ -731,8 +781,7 @@ def solve_exact(
             val, i, j = srch._best_pair(pv)
             srch._offer_pos(val, (i, j))
         elif k == 3:
-            pv = (srch.fo[1:, None] + srch.fo[None, 1:] - srch.go[1:, 1:]).astype(srch.dt)
-            np.fill_diagonal(pv, -np.inf)
+            pv = _lower((srch.fo[1:, None] + srch.fo[None, 1:] - srch.go[1:, 1:]).astype(srch.dt))
             srch._triples(w.copy(), 0, srch.fo.copy(), 0.0, (), pv=pv, track=True)
         else:
             srch.search(w.copy(), 0, k, 0.0, (), g=srch.fo.copy(), top=True)

@@ -251,7 +251,7 @@ def distort_normalized(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
 
 
 def undistort_normalized(xd: np.ndarray, dist: np.ndarray, iterations: int = 30) -> np.ndarray:
-    """Invert :func:`distort_normalized` by Newton iterations (numeric Jacobian-free fixed point + Newton).
+    """Invert :func:`distort_normalized` by Newton iterations with the analytic Jacobian.
 
     Parameters
     ----------

@@ -37,7 +37,7 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--seed", type=int, default=0, help="seed of the emulation and random systems (default 0)")
     p.add_argument("--random-systems", type=int, default=0, dest="random_systems", help="add N random k-camera systems from candidates.csv as a baseline")
     p.add_argument("--experiment", default=None, help="experiment name in camera names (default: the instance name)")
-    p.add_argument("--threshold", default="otsu", help="otsu (default), triangle, or a fixed level 0..255")
+    p.add_argument("--threshold", default="otsu", help="otsu (default), triangle (better for background-subtracted or flat-shaded images), or a fixed level 0..255")
     p.add_argument("--morph-px", type=int, default=5, dest="morph_px", help="morphology kernel diameter, pixels (default 5; 0 = none)")
     p.add_argument("--largest-component", action="store_true", dest="largest", help="keep only the largest detected blob")
     p.add_argument("--workers", type=int, default=None, help="render threads (default: all cores)")
@@ -59,7 +59,13 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     return {"render": _cmd_render, "validate": _cmd_validate, "import-cameras": _cmd_import, "export": _cmd_export}
 
 
+def _check_workers(args: argparse.Namespace) -> None:
+    if args.workers is not None and args.workers < 1:
+        raise CamplaceError(f"--workers: must be >= 1, got {args.workers}")
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
+    _check_workers(args)
     from camplace.validation.render import GlowEmitters
     from camplace.validation.workflow import render_run
 
@@ -94,6 +100,7 @@ def _detection_settings(args: argparse.Namespace):
 def _cmd_validate(args: argparse.Namespace) -> int:
     from camplace.validation.workflow import read_table_file, validate_cameras, validate_runs
 
+    _check_workers(args)
     det = _detection_settings(args)
     if args.cameras is not None:
         from camplace.validation.cameras import CameraSet

@@ -489,6 +489,22 @@ def validate_cameras(
     return _finish_report(records, out, overlays, settings)
 
 
+def _run_physical(outdir: str | Path, instance):
+    """The physical camera of a run: the instance's ``physical`` attribute (once the loader knows the
+    table), else the raw ``[physical]`` table of its instance.toml, else a perfect camera."""
+    from camplace.validation.physical import PhysicalCamera, parse_physical
+
+    where = f"{Path(outdir) / 'instance.toml'}: [physical]"
+    attr = getattr(instance, "physical", None)
+    if isinstance(attr, PhysicalCamera):
+        return attr
+    table = attr if isinstance(attr, dict) else run_table(outdir, "physical")
+    if table is None:
+        log.warning("no photos and no [physical] table: emulating a perfect camera (photos equal the renders)")
+        return PhysicalCamera()
+    return parse_physical(table, where)
+
+
 def _random_systems(outdir: Path, instance, solution, n: int, rng: np.random.Generator, experiment: str, first_system: int) -> list[list[CameraView]]:
     from camplace.sampling import CandidateSet
 
@@ -537,7 +553,7 @@ def validate_runs(
     """
     from camplace.validation.compare import overlay_image
     from camplace.validation.detect import DetectionSettings
-    from camplace.validation.physical import PhysicalCamera, emulate_shots, parse_physical
+    from camplace.validation.physical import emulate_shots
     from camplace.validation.render import RenderSettings, quantise, read_image, render_view, scene_for_frame, write_png
 
     if not outdirs:
@@ -563,10 +579,7 @@ def validate_runs(
         photos = find_photos(all_cams, photos_dir, manifest)
     else:
         if physical is None:
-            table = run_table(outdirs[0], "physical")
-            physical = parse_physical(table, f"{Path(outdirs[0]) / 'instance.toml'}: [physical]") if table else PhysicalCamera()
-            if table is None:
-                log.warning("no photos and no [physical] table: emulating a perfect camera (photos equal the renders)")
+            physical = _run_physical(outdirs[0], instance0)
     scenes: dict[int, tuple[Any, Any]] = {}
     records, overlays, manifest_rows = [], [], []
     for s, (inst, cams) in enumerate(systems, start=1):
