@@ -39,6 +39,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--engine", choices=["auto", "exact", "mip", "cpsat"], default="auto", help="solver engine (default: auto)"
     )
+    p.add_argument("--event-mode", choices=["all", "peak"], default="all", dest="event_mode",
+                   help="all: expected coverage over all frames (default); peak: the maximum-likelihood frame")
     _add_visibility_options(p)
 
 
@@ -74,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("init", help="write a built-in instance (and its mesh files) to disk for editing")
     p.add_argument("name", help="built-in instance name")
     p.add_argument("-o", "--out", required=True, type=Path, help="instance file to write (.toml)")
+    p.add_argument("--seed", type=int, default=None, help="seed that draws a generated event (comet-flyby, volcanic-eruption)")
 
     for module in _verb_modules():
         COMMANDS.update(module.register(sub, _add_run_options))
@@ -96,7 +99,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from camplace.instance import resolve_instance
     from camplace.pipeline import run
 
-    instance = resolve_instance(args.instance)
+    instance = resolve_instance(args.instance, seed=args.seed)
     sol = run(
         instance,
         seed=args.seed,
@@ -112,6 +115,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         cache=not args.no_cache,
         dask_address=args.dask,
         memory_budget_gb=args.memory_budget_gb,
+        event_mode=args.event_mode,
     )
     print(
         f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
@@ -120,7 +124,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for cam in sol.cameras:
         x, y, z = cam["position"]
         print(f"  camera {cam['candidate']:>6}: position ({x:.3f}, {y:.3f}, {z:.3f}) m")
-    print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.npz, scene.ply")
+    if len(instance.frames) > 1:
+        print(f"  event mode {sol.event_mode}: expected coverage {100 * sol.expected_coverage:.2f}%, "
+              f"peak frame {sol.peak_frame} coverage {100 * sol.peak_coverage:.2f}%")
+    print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.npz, light_curves.csv, scene.ply")
     return EXIT_OK if sol.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
 
 
@@ -131,7 +138,7 @@ def _cmd_visibility(args: argparse.Namespace) -> int:
     from camplace.sampling import CandidateSet
     from camplace.visibility import frame_scene, write_ply
 
-    instance = resolve_instance(args.instance)
+    instance = resolve_instance(args.instance, seed=args.seed)
     cands = CandidateSet.load(args.candidates)
     pts = compute_points(instance, args.points, args.seed)
     vis = visibility_stage(
@@ -160,7 +167,9 @@ def _cmd_init(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.suffix != ".toml":
         raise CamplaceError(f"--out: {out} should end in .toml (for example {out.with_suffix('.toml')})")
-    write_builtin(args.name, out)
+    if args.seed is not None and args.seed < 0:
+        raise CamplaceError(f"--seed: must be >= 0, got {args.seed}")
+    write_builtin(args.name, out, seed=args.seed)
     print(f"wrote {out} (run it with: camplace run {out} -o OUTDIR)")
     return EXIT_OK
 

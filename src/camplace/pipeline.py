@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from camplace._io import write_json_atomic
+from camplace._io import write_json_atomic, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
 from camplace.sampling import SAMPLERS, CandidateSet, make_candidates
@@ -61,6 +61,15 @@ class Solution:
         Instance name.
     engine : str
         Solver engine that produced the answer.
+    event_mode : str
+        ``all``: the objective is the expected coverage over all frames (weights P(t));
+        ``peak``: the coverage of the maximum-likelihood frame alone.
+    peak_frame : int
+        The maximum-likelihood frame (for the volcano, the plume's peak step).
+    expected_coverage : float
+        Share of the whole event (all frames, weighted by P) the chosen cameras observe.
+    peak_coverage : float
+        Share of the peak frame's weight the chosen cameras observe.
     candidates, visibility : optional
         The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
     """
@@ -81,6 +90,10 @@ class Solution:
     instance: str = ""
     engine: str = ""
     solver_stats: dict = field(default_factory=dict)
+    event_mode: str = "all"
+    peak_frame: int = 0
+    expected_coverage: float = 0.0
+    peak_coverage: float = 0.0
     candidates: CandidateSet | None = field(default=None, repr=False)
     visibility: VisibilityMatrix | None = field(default=None, repr=False)
 
@@ -108,6 +121,10 @@ class Solution:
             "instance": self.instance,
             "engine": self.engine,
             "solver_stats": self.solver_stats,
+            "event_mode": self.event_mode,
+            "peak_frame": self.peak_frame,
+            "expected_coverage": self.expected_coverage,
+            "peak_coverage": self.peak_coverage,
         }
 
     def save(self, outdir: str | Path) -> None:
@@ -188,6 +205,92 @@ def event_aims(instance, orientations: int = 1) -> np.ndarray:
     return centres[keys]
 
 
+EVENT_MODES = ("all", "peak")
+
+
+def peak_frame(instance) -> int:
+    """Index of the maximum-likelihood frame (the first one on ties)."""
+    return int(np.argmax([f.weight for f in instance.frames]))
+
+
+def event_weights(pts, instance, event_mode: str) -> np.ndarray:
+    """Row weights the solver maximises: all frames (P-weighted), or the peak frame alone (summing to 1)."""
+    if event_mode == "all":
+        return pts.weight
+    in_peak = pts.frame == peak_frame(instance)
+    w = np.where(in_peak, pts.weight, 0.0)
+    s = w.sum()
+    return w / s if s > 0 else w
+
+
+def covered_rows(matrix, selected) -> np.ndarray:
+    """(m,) bool: rows observed by at least one of the ``selected`` columns."""
+    sel = list(selected)
+    if not sel:
+        return np.zeros(matrix.shape[0], dtype=bool)
+    return np.asarray((matrix[:, sel] > 0).sum(axis=1)).ravel() > 0
+
+
+def light_curves_csv(instance, vis: VisibilityMatrix, selected) -> str:
+    """``light_curves.csv``: per chosen camera and frame, the event weight it observes.
+
+    Columns: camera (0-based position in ``solution.json`` cameras), frame, observed_weight (sum of
+    the row weights it observes in that frame; a frame's rows sum to its normalised likelihood),
+    observed_fraction (observed_weight / the frame's weight), candidate (column index), time_s.
+    """
+    pts = vis.points
+    n_frames = len(instance.frames)
+    frame_total = np.bincount(pts.frame, weights=pts.weight, minlength=n_frames)
+    lines = ["camera,frame,observed_weight,observed_fraction,candidate,time_s"]
+    csc = vis.matrix.tocsc()
+    for cam, j in enumerate(selected):
+        rows = csc.indices[csc.indptr[j]:csc.indptr[j + 1]]
+        seen = np.bincount(pts.frame[rows], weights=pts.weight[rows], minlength=n_frames)
+        for f in range(n_frames):
+            frac = seen[f] / frame_total[f] if frame_total[f] > 0 else 0.0
+            lines.append(f"{cam},{f},{seen[f]!r},{frac!r},{int(j)},{instance.frames[f].time_s!r}")
+    return "\n".join(lines) + "\n"
+
+
+def under_ground(instance, positions: np.ndarray) -> np.ndarray:
+    """(n,) bool: positions under (or inside) a ``ground = true`` occluder: a ray straight up hits it."""
+    from camplace.visibility import RayScene
+
+    ground = [o.mesh.transformed(o.pose) for o in instance.occluders if o.ground]
+    if not ground or len(positions) == 0:
+        return np.zeros(len(positions), dtype=bool)
+    scene = RayScene(ground)
+    up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), positions.shape)
+    tri, _ = scene.first_hit(positions, up)
+    return tri >= 0
+
+
+def make_run_candidates(instance, sampler: str, n: int, orientations: int, seed) -> CandidateSet:
+    """The candidate poses of a run: ``n`` sampled positions above any ground, each aimed ``orientations`` ways.
+
+    Positions under the terrain are rejected; since every sampler's sequence for a larger count
+    starts with the sequence for a smaller one, oversampling keeps the result independent of how
+    many draws were needed.
+    """
+    from camplace.sampling import candidates_from_positions, sample_positions
+
+    lo, hi = instance.volume.min_m, instance.volume.max_m
+    factor = 1
+    while True:
+        pos = sample_positions(sampler, n * factor, lo, hi, seed=seed)
+        ok = ~under_ground(instance, pos)
+        if ok.sum() >= n or factor >= 256:
+            break
+        factor *= 4
+    pos = pos[ok][:n]
+    if len(pos) < n:
+        raise CamplaceError(
+            f"{instance.source}: volume: only {len(pos)} of {n * factor} sampled positions are above the ground "
+            "(raise volume.max_m above the terrain)"
+        )
+    return candidates_from_positions(pos, event_aims(instance, orientations), sampler=sampler)
+
+
 def stage_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
     """Independent seed streams of a run: (candidates, points)."""
     cand_seed, point_seed = np.random.SeedSequence(seed).spawn(2)
@@ -258,6 +361,7 @@ def run(
     cache: bool = True,
     dask_address: str | None = None,
     memory_budget_gb: float | None = None,
+    event_mode: str = "all",
 ) -> Solution:
     """Run the whole pipeline on an instance.
 
@@ -281,6 +385,9 @@ def run(
         Compute the visibility matrix on a Dask cluster (scheduler address or ``local:N``).
     memory_budget_gb : float or None
         Stop before computing a visibility matrix estimated to need more memory (default: half the RAM).
+    event_mode : {"all", "peak"}
+        ``all`` maximises the expected coverage over all frames (weights P(t)); ``peak`` places the
+        cameras for the maximum-likelihood frame alone (the thesis's PS01).
 
     Returns
     -------
@@ -290,7 +397,9 @@ def run(
     from camplace.solver import solve_maxcover
 
     if not hasattr(instance, "frames"):
-        instance = resolve_instance(str(instance))
+        instance = resolve_instance(str(instance), seed=seed)
+    if event_mode not in EVENT_MODES:
+        raise CamplaceError(f"--event-mode: unknown mode {event_mode!r} (use one of {', '.join(EVENT_MODES)})")
     reporter = reporter or Reporter()
     d = instance.defaults
     seed = d.seed if seed is None else int(seed)
@@ -320,8 +429,7 @@ def run(
 
     t0 = time.perf_counter()
     with reporter.stage("sampling"):
-        aims = event_aims(instance, orientations)
-        cands = make_candidates(sampler, n_cand, instance.volume.min_m, instance.volume.max_m, aims, seed=cand_seed)
+        cands = make_run_candidates(instance, sampler, n_cand, orientations, cand_seed)
         cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=sampler, seed=seed)
         pts = compute_points(instance, n_points, seed)
     timings["sampling"] = time.perf_counter() - t0
@@ -332,12 +440,16 @@ def run(
     )
     timings["visibility"] = time.perf_counter() - t0
 
+    peak = peak_frame(instance)
+    solve_w = event_weights(pts, instance, event_mode)
     t0 = time.perf_counter()
     with reporter.stage("solve"):
-        res = solve_maxcover(vis.matrix, pts.weight, k, engine=engine, time_limit_s=time_limit_s)
+        res = solve_maxcover(vis.matrix, solve_w, k, engine=engine, time_limit_s=time_limit_s)
     timings["solve"] = time.perf_counter() - t0
 
-    total_weight = float(pts.weight.sum())
+    total_weight = float(solve_w.sum())
+    observed = covered_rows(vis.matrix, res.selected)
+    in_peak = pts.frame == peak
     solution = Solution(
         status=res.status,
         objective=float(res.objective),
@@ -355,6 +467,10 @@ def run(
         instance=instance.name,
         engine=res.engine,
         solver_stats=dict(res.stats),
+        event_mode=event_mode,
+        peak_frame=peak,
+        expected_coverage=float(pts.weight[observed].sum() / pts.weight.sum()),
+        peak_coverage=float(pts.weight[observed & in_peak].sum() / max(pts.weight[in_peak].sum(), 1e-300)),
         candidates=cands,
         visibility=vis,
     )
@@ -367,6 +483,7 @@ def run(
             save_instance(instance, outdir / "instance.toml", mesh_files=True)
             cands.save(outdir / "candidates.csv")
             vis.save(outdir)
+            write_text_atomic(outdir / "light_curves.csv", light_curves_csv(instance, vis, res.selected))
             timings["write"] = time.perf_counter() - t0
             # solution.json last: its presence means the run's outputs are complete
             write_json_atomic(outdir / "solution.json", solution.to_dict())

@@ -48,8 +48,10 @@ __all__ = [
 ]
 
 
-def resolve_instance(name_or_path: str | os.PathLike[str]) -> Instance:
+def resolve_instance(name_or_path: str | os.PathLike[str], seed: int | None = None) -> Instance:
     """A built-in by name, else the instance file at that path.
+
+    ``seed`` draws the event of a built-in with a generated event (ignored for files).
 
     Raises
     ------
@@ -60,7 +62,7 @@ def resolve_instance(name_or_path: str | os.PathLike[str]) -> Instance:
     """
     text = os.fspath(name_or_path)
     if isinstance(name_or_path, str) and text in BUILTINS:
-        return builtin(text)
+        return builtin(text, seed)
     if not Path(text).exists():
         raise CamplaceError(f"no built-in or file named {text!r}; built-ins: {', '.join(sorted(BUILTINS))}")
     return load_instance(text)

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from camplace.errors import CamplaceError
+from camplace.instance.events import comet_flyby_toml, volcanic_eruption_toml
 from camplace.instance.loader import parse_instance, save_instance
 from camplace.instance.schema import Instance
 
@@ -48,23 +49,38 @@ _DATA: dict[str, dict[str, Any]] = {
     },
 }
 
+# Built-ins whose event is generated from a seed (the run seed, unless given).
+_FACTORIES = {"comet-flyby": comet_flyby_toml, "volcanic-eruption": volcanic_eruption_toml}
+
 BUILTINS: dict[str, str] = {
     "comet-67p-bunker": "Experiment 03: 3 cameras around a 0.6 m comet 67P model in a 30 x 3 x 3 m lab corridor",
+    "comet-flyby": "Experiment 01: a comet nucleus with coma and tail crossing the field on a hyperbola, 36 frames",
+    "volcanic-eruption": "Experiment 02: a plume rising and drifting over a procedural volcano, peak drawn from the seed",
 }
 
 
 def _check(name: str) -> None:
-    if name not in _DATA:
+    if name not in _DATA and name not in _FACTORIES:
         raise CamplaceError(f"no built-in instance named {name!r}; built-ins: {', '.join(sorted(BUILTINS))}")
 
 
-def builtin_toml(name: str) -> dict[str, Any]:
-    """A fresh copy of the TOML data that defines built-in ``name``."""
+def builtin_toml(name: str, seed: int | None = None) -> dict[str, Any]:
+    """A fresh copy of the TOML data that defines built-in ``name``.
+
+    Parameters
+    ----------
+    name : str
+    seed : int or None
+        For built-ins with a generated event (``comet-flyby``, ``volcanic-eruption``): the seed that
+        draws it, also written as the instance's ``run.seed`` (default 0). Ignored by the others.
+    """
     _check(name)
+    if name in _FACTORIES:
+        return _FACTORIES[name](0 if seed is None else int(seed))
     return copy.deepcopy(_DATA[name])
 
 
-def builtin(name: str) -> Instance:
+def builtin(name: str, seed: int | None = None) -> Instance:
     """Built-in instance ``name`` (meshes generated; source ``builtin:<name>``).
 
     Raises
@@ -72,9 +88,9 @@ def builtin(name: str) -> Instance:
     CamplaceError
         If there is no such built-in; the message lists the names.
     """
-    return parse_instance(builtin_toml(name), f"builtin:{name}", Path.cwd())
+    return parse_instance(builtin_toml(name, seed), f"builtin:{name}", Path.cwd())
 
 
-def write_builtin(name: str, path: str | os.PathLike[str]) -> None:
+def write_builtin(name: str, path: str | os.PathLike[str], seed: int | None = None) -> None:
     """Write built-in ``name`` to ``path`` with its meshes as PLY files in ``<stem>_meshes/`` (``camplace init``)."""
-    save_instance(builtin(name), path, mesh_files=True)
+    save_instance(builtin(name, seed), path, mesh_files=True)

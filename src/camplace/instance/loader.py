@@ -260,6 +260,15 @@ class _Parser:
             out.append(self._check_number(item, f"{field}[{i}]", gt=0.0 if positive else None))
         return tuple(out)  # type: ignore[return-value]
 
+    def vec2(self, table: dict, key: str, prefix: str, *, default: tuple) -> tuple[float, float]:
+        field = _join(prefix, key)
+        if key not in table:
+            return (float(default[0]), float(default[1]))
+        value = table[key]
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise self.error(field, f"must be an array of 2 numbers [x, y], got {_type_name(value)} {_show(value)}", f"write {key} = [x, y]")
+        return tuple(self._check_number(v, f"{field}[{i}]", gt=0.0) for i, v in enumerate(value))  # type: ignore[return-value]
+
     # -- sections ----------------------------------------------------------------------------------
 
     def pose(self, table: dict, prefix: str) -> Pose:
@@ -326,6 +335,18 @@ class _Parser:
                 "subdivisions": self.integer(table, "subdivisions", prefix, default=5, ge=2, le=7),
                 "noise": self.number(table, "noise", prefix, default=0.06, ge=0.0, le=0.3),
             }
+        elif shape == "volcano":
+            size = self.vec2(table, "size_m", prefix, default=(400.0, 400.0))
+            args = {
+                "size_m": size,
+                "height_m": self.number(table, "height_m", prefix, default=80.0, gt=0.0),
+                "base_radius_m": self.number(table, "base_radius_m", prefix, default=150.0, gt=0.0),
+                "crater_radius_m": self.number(table, "crater_radius_m", prefix, default=25.0, gt=0.0),
+                "crater_depth_m": self.number(table, "crater_depth_m", prefix, default=20.0, ge=0.0),
+                "cells": self.integer(table, "cells", prefix, default=100, ge=2, le=2000),
+            }
+            if not args["crater_radius_m"] < args["base_radius_m"]:
+                raise self.error(_join(prefix, "crater_radius_m"), "must be smaller than base_radius_m", "shrink the crater or widen the base")
         else:  # pragma: no cover - guarded by the caller
             raise AssertionError(shape)
         func = procedural.SHAPES[shape][0]
@@ -546,8 +567,12 @@ class _Parser:
             p = f"{field}[{i}]"
             if not isinstance(occ_t, dict):
                 raise self.error(p, f"must be a table, got {_type_name(occ_t)}", f"write each occluder as an {section} section")
-            mesh = self.mesh(occ_t, p, f"occluder{i}", _POSE_KEYS)
-            out.append(Occluder(mesh=mesh, pose=self.pose(occ_t, p)))
+            keys = _POSE_KEYS + ("ground",) if not prefix else _POSE_KEYS
+            mesh = self.mesh(occ_t, p, f"occluder{i}", keys)
+            ground = occ_t.get("ground", False)
+            if not isinstance(ground, bool):
+                raise self.error(_join(p, "ground"), f"must be true or false, got {_type_name(ground)} {_show(ground)}", "write ground = true for terrain cameras must stay above")
+            out.append(Occluder(mesh=mesh, pose=self.pose(occ_t, p), ground=ground))
         return out
 
     def emitters(self, table: dict, prefix: str) -> Emitters:
@@ -838,6 +863,8 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             t = mesh_table(occ.mesh, f"occluders[{i}]", f"occluder{i}_{_slug(occ.mesh.name)}")
             t["position_m"] = _vec(occ.pose.position_m)
             t["rotation_deg"] = _vec(occ.pose.rotation_deg)
+            if occ.ground:
+                t["ground"] = True
             occs.append(t)
         data["occluders"] = occs
     q = instance.quality

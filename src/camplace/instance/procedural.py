@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-__all__ = ["SHAPES", "icosphere", "sphere", "box", "corridor", "bilobed_comet"]
+__all__ = ["SHAPES", "icosphere", "sphere", "box", "corridor", "bilobed_comet", "volcano", "volcano_height"]
 
 # Icosahedron: 12 vertices (cyclic permutations of (0, +-1, +-phi)) and 20 faces.
 _PHI = (1.0 + math.sqrt(5.0)) / 2.0
@@ -237,9 +237,81 @@ def bilobed_comet(
 
 
 # Shape name -> (function, {parameter: default}); a default of None means required.
+def volcano_height(
+    x: np.ndarray,
+    y: np.ndarray,
+    height_m: float,
+    base_radius_m: float,
+    crater_radius_m: float,
+    crater_depth_m: float,
+) -> np.ndarray:
+    """Height of the volcano surface at (x, y): a cone with a crater, flat ground outside.
+
+    z = height * (1 - r / base_radius) for crater_radius <= r <= base_radius (0 beyond); inside the
+    crater, z = rim - crater_depth * (1 - r / crater_radius) with rim = height * (1 - crater_radius /
+    base_radius): a funnel whose floor lies crater_depth below the rim.
+
+    Parameters
+    ----------
+    x, y : (...) float64
+
+    Returns
+    -------
+    (...) float64
+    """
+    r = np.hypot(x, y)
+    cone = height_m * np.clip(1.0 - r / base_radius_m, 0.0, None)
+    rim = height_m * (1.0 - crater_radius_m / base_radius_m)
+    crater = rim - crater_depth_m * (1.0 - r / crater_radius_m)
+    return np.where(r < crater_radius_m, crater, cone)
+
+
+def volcano(
+    size_m=(400.0, 400.0),
+    height_m: float = 80.0,
+    base_radius_m: float = 150.0,
+    crater_radius_m: float = 25.0,
+    crater_depth_m: float = 20.0,
+    cells: int = 100,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Heightfield terrain: a cone with a crater on flat ground, centred at the origin, z up.
+
+    A regular grid of ``cells x cells`` squares over ``size_m`` (x, y), two triangles each,
+    normals up; heights from :func:`volcano_height`. An open surface: pair it with
+    ``ground = true`` so that no camera is placed under it.
+    """
+    sx, sy = float(size_m[0]), float(size_m[1])
+    for name, v in (("size_m", min(sx, sy)), ("height_m", height_m), ("base_radius_m", base_radius_m),
+                    ("crater_radius_m", crater_radius_m)):
+        if not v > 0:
+            raise ValueError(f"{name} must be > 0")
+    if not crater_radius_m < base_radius_m:
+        raise ValueError("crater_radius_m must be smaller than base_radius_m")
+    if crater_depth_m < 0:
+        raise ValueError("crater_depth_m must be >= 0")
+    if cells < 2:
+        raise ValueError("cells must be >= 2")
+    xs = np.linspace(-sx / 2, sx / 2, cells + 1)
+    ys = np.linspace(-sy / 2, sy / 2, cells + 1)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    gz = volcano_height(gx, gy, height_m, base_radius_m, crater_radius_m, crater_depth_m)
+    vertices = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
+    idx = np.arange((cells + 1) ** 2).reshape(cells + 1, cells + 1)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    # counter-clockwise seen from above (+z): (a, b, c) and (a, c, d) with x = first index
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])]).astype(np.int64)
+    return vertices, faces
+
+
 SHAPES: dict[str, tuple] = {
     "sphere": (sphere, {"radius_m": 0.5, "subdivisions": 4}),
     "box": (box, {"size_m": None}),
     "corridor": (corridor, {"size_m": None}),
     "bilobed-comet": (bilobed_comet, {"length_m": 0.6, "seed": 0, "subdivisions": 5, "noise": 0.06}),
+    "volcano": (
+        volcano,
+        {"size_m": (400.0, 400.0), "height_m": 80.0, "base_radius_m": 150.0, "crater_radius_m": 25.0,
+         "crater_depth_m": 20.0, "cells": 100},
+    ),
 }

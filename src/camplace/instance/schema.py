@@ -104,10 +104,20 @@ class Mesh:
 
 @dataclass(frozen=True, eq=False)
 class Occluder:
-    """A static scene mesh (walls, terrain, a rock) placed in the world."""
+    """A static scene mesh (walls, terrain, a rock) placed in the world.
+
+    Attributes
+    ----------
+    mesh : Mesh
+    pose : Pose
+    ground : bool
+        Terrain: candidate cameras under it (a vertical ray up from the camera hits it) are
+        rejected during sampling.
+    """
 
     mesh: Mesh
     pose: Pose = Pose()
+    ground: bool = False
 
 
 @dataclass(frozen=True, eq=False)

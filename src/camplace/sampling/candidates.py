@@ -140,13 +140,30 @@ def make_candidates(
     CandidateSet
         ``n * a`` poses.
     """
+    positions = sample_positions(sampler, n, min_m, max_m, seed=seed)
+    return candidates_from_positions(positions, aims, sampler=sampler, seed=seed if isinstance(seed, int) else None)
+
+
+def candidates_from_positions(
+    positions: np.ndarray, aims: np.ndarray, *, sampler: str = "", seed: int | None = None
+) -> CandidateSet:
+    """One pose per (position, aim): column ``i * a + j`` is position ``i`` aimed at ``aims[j]``.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    aims : (3,) or (a, 3) float64
+
+    Returns
+    -------
+    CandidateSet
+        ``n * a`` poses.
+    """
     aims = np.atleast_2d(np.asarray(aims, dtype=np.float64))
-    positions = np.repeat(sample_positions(sampler, n, min_m, max_m, seed=seed), len(aims), axis=0)
+    n = len(positions)
+    positions = np.repeat(np.asarray(positions, dtype=np.float64), len(aims), axis=0)
     aim_cols = np.tile(aims, (n, 1))
     # a sample exactly at its aim point cannot be aimed; nudge it (probability ~0)
     same = np.linalg.norm(positions - aim_cols, axis=1) < 1e-9
     positions[same] += 1e-6
-    return CandidateSet(
-        positions=positions, aims=aim_cols, rotations=look_at(positions, aim_cols), sampler=sampler,
-        seed=seed if isinstance(seed, int) else None,
-    )
+    return CandidateSet(positions=positions, aims=aim_cols, rotations=look_at(positions, aim_cols), sampler=sampler, seed=seed)

@@ -16,11 +16,11 @@ naive submodular bound ``f(S) + sum of top marginal gains`` is far above the opt
 * ``k = 1, 2``: exact from ``f = D^T w`` and the Gram matrix ``G = D^T diag(w) D``.
 * ``k = 3`` (and every level with 3 columns left): a tree search over the first column ``a``.
   A node (a range of first columns) keeps ``N`` = rows covered by ALL its columns and the exact
-  pair values ``P(b, c) = w_{R \ N}(b | c)`` of the still-relevant later columns; since
-  ``value(a, b, c) = f_a + w_{R \ a}(b | c) <= f_a + P(b, c)``, the node is pruned when
+  pair values ``P(b, c) = w_{R - N}(b | c)`` of the still-relevant later columns; since
+  ``value(a, b, c) = f_a + w_{R - a}(b | c) <= f_a + P(b, c)``, the node is pruned when
   ``max f_a + max P <= incumbent``, and columns with no promising partner are dropped. A child
   range only subtracts a correction computed by one small GEMM over the rows that became common
-  (``N_child \ N``); at a single column ``N = a`` and ``f_a + P`` is the exact triple value. Rows
+  (``N_child - N``); at a single column ``N = a`` and ``f_a + P`` is the exact triple value. Rows
   shared by many similar columns are thus processed once per group instead of once per column.
 * ``k >= 4``: columns are cut into segments (bisection-tree nodes); for each first segment a
   bound on all segment multisets (union of member columns, a recursion of small GEMMs) prunes whole
@@ -457,7 +457,12 @@ class _Search:
             cols = np.arange(p + 1, self.n, dtype=np.int64)
         rows = np.flatnonzero(wm)
         in_n = np.zeros(rows.size, dtype=bool)
-        self._node(wm, rows, in_n, p, self.n, cols, pv, 0.0, np.zeros(0, dtype=np.int64), g, p, base, prefix, track, None)
+        key = None
+        if track:
+            self._node_key += 1
+            key = self._node_key
+            self.open_nodes[key] = base + fmax + float(pv.max())
+        self._node(wm, rows, in_n, p, self.n, cols, pv, 0.0, np.zeros(0, dtype=np.int64), g, p, base, prefix, track, key)
 
     def _accumulate(self, c: np.ndarray, x: np.ndarray, w: np.ndarray) -> np.ndarray:
         """Add ``x^T diag(w) x`` to the strict lower triangle of ``c`` (in place if possible).
@@ -529,11 +534,11 @@ class _Search:
         cols : (c,) int64
             Candidate later columns (search positions, ascending).
         pv : (c, c)
-            Parent's stored pair values on ``R \ N_parent`` (not modified).
+            Parent's stored pair values on ``R - N_parent`` (not modified).
         off : float
             Parent's offset.
         delta : (d,) int64
-            Indices into ``rows`` of the rows in ``N_node \ N_parent``.
+            Indices into ``rows`` of the rows in ``N_node - N_parent``.
         g : (n - p,) float64
             Residual gains (indexed from ``p``).
         p : int
@@ -543,79 +548,99 @@ class _Search:
         key : int or None
             Key of this node's provisional bound in ``open_nodes``.
         """
-        try:
-            self._check_time()
-            self.stats["tree_nodes"] += 1
-            thr = self._thr(base)
-            fl = g[lo - p : hi - p]
-            fmax = float(fl.max())
-            j0 = int(np.searchsorted(cols, lo, side="right"))  # later columns only
-            if cols.size - j0 < 2:
-                return
-            cols = cols[j0:]
-            sub = pv[j0:, j0:]  # view of the parent's values (upper bounds here)
-            keep = _rowcol_max(sub) + off > thr - fmax
-            nk = int(keep.sum())
-            if nk < 2:
-                return
-            owned = False
-            if nk < keep.size:
-                kidx = np.flatnonzero(keep)
-                cols = cols[kidx]
-                sub = sub[kidx][:, kidx]
-                owned = True
-            if delta.size:
-                dr = rows[delta]
-                wd = wm[dr]
-                xbar = 1 - self.do[dr][:, cols]
-                if not owned:
-                    sub = sub.copy()
-                sub = self._accumulate(sub, xbar, wd)
-                off -= float(wd.sum(dtype=np.float64))
-                in_n = in_n.copy()
-                in_n[delta] = True
-            pv = sub
-            rmax = _rowcol_max(pv) + off
-            bound = fmax + float(rmax.max())
-            if bound <= thr:
-                return
-            if hi - lo == 1:
-                self.stats["tree_leaves"] += 1
-                val, i, j = self._best_pair(pv)
-                val += off
-                if val > thr - fl[0] - self.margin:
-                    self._offer_pos(base + float(fl[0]) + val, prefix + (lo, int(cols[i]), int(cols[j])))
-                return
-            keep = rmax > thr - fmax
-            if not keep.all():
-                kidx = np.flatnonzero(keep)
-                cols = cols[kidx]
-                pv = pv[kidx][:, kidx]
-                rmax = rmax[kidx]
-            mid = lo + (hi - lo) // 2
-            children = [(lo, mid), (mid, hi)]
-            keys: list[int | None] = [None, None]
-            if track:
-                for t, (cl, ch) in enumerate(children):
-                    self._node_key += 1
-                    keys[t] = self._node_key
-                    ok = cols > cl
-                    cb = float(g[cl - p : ch - p].max()) + (float(rmax[ok].max()) if ok.sum() >= 2 else -math.inf)
-                    self.open_nodes[self._node_key] = base + cb
-                if key is not None:
-                    self.open_nodes.pop(key, None)
-                    key = None
-            free = np.flatnonzero(~in_n)
+        # A node's provisional bound stays in ``open_nodes`` if the deadline interrupts it; it is
+        # removed only when the node is finished (or replaced by its children's bounds).
+        self._node_body(wm, rows, in_n, lo, hi, cols, pv, off, delta, g, p, base, prefix, track, key)
+        if key is not None:
+            self.open_nodes.pop(key, None)
+
+    def _node_body(
+        self,
+        wm: np.ndarray,
+        rows: np.ndarray,
+        in_n: np.ndarray,
+        lo: int,
+        hi: int,
+        cols: np.ndarray,
+        pv: np.ndarray,
+        off: float,
+        delta: np.ndarray,
+        g: np.ndarray,
+        p: int,
+        base: float,
+        prefix: tuple[int, ...],
+        track: bool,
+        key: int | None,
+    ) -> None:
+        """Body of :meth:`_node` (same parameters)."""
+        self._check_time()
+        self.stats["tree_nodes"] += 1
+        thr = self._thr(base)
+        fl = g[lo - p : hi - p]
+        fmax = float(fl.max())
+        j0 = int(np.searchsorted(cols, lo, side="right"))  # later columns only
+        if cols.size - j0 < 2:
+            return
+        cols = cols[j0:]
+        sub = pv[j0:, j0:]  # view of the parent's values (upper bounds here)
+        keep = _rowcol_max(sub) + off > thr - fmax
+        nk = int(keep.sum())
+        if nk < 2:
+            return
+        owned = False
+        if nk < keep.size:
+            kidx = np.flatnonzero(keep)
+            cols = cols[kidx]
+            sub = sub[kidx][:, kidx]
+            owned = True
+        if delta.size:
+            dr = rows[delta]
+            wd = wm[dr]
+            xbar = 1 - self.do[dr][:, cols]
+            if not owned:
+                sub = sub.copy()
+            sub = self._accumulate(sub, xbar, wd)
+            off -= float(wd.sum(dtype=np.float64))
+            in_n = in_n.copy()
+            in_n[delta] = True
+        pv = sub
+        rmax = _rowcol_max(pv) + off
+        bound = fmax + float(rmax.max())
+        if bound <= thr:
+            return
+        if hi - lo == 1:
+            self.stats["tree_leaves"] += 1
+            val, i, j = self._best_pair(pv)
+            val += off
+            if val > thr - fl[0] - self.margin:
+                self._offer_pos(base + float(fl[0]) + val, prefix + (lo, int(cols[i]), int(cols[j])))
+            return
+        keep = rmax > thr - fmax
+        if not keep.all():
+            kidx = np.flatnonzero(keep)
+            cols = cols[kidx]
+            pv = pv[kidx][:, kidx]
+            rmax = rmax[kidx]
+        mid = lo + (hi - lo) // 2
+        children = [(lo, mid), (mid, hi)]
+        keys: list[int | None] = [None, None]
+        if track:
             for t, (cl, ch) in enumerate(children):
-                if free.size:
-                    cov = self.do[rows[free], cl:ch].min(axis=1) > 0
-                    dchild = free[cov]
-                else:
-                    dchild = free
-                self._node(wm, rows, in_n, cl, ch, cols, pv, off, dchild, g, p, base, prefix, track, keys[t])
-        finally:
+                self._node_key += 1
+                keys[t] = self._node_key
+                ok = cols > cl
+                cb = float(g[cl - p : ch - p].max()) + (float(rmax[ok].max()) if ok.sum() >= 2 else -math.inf)
+                self.open_nodes[self._node_key] = base + cb
             if key is not None:
                 self.open_nodes.pop(key, None)
+        free = np.flatnonzero(~in_n)
+        for t, (cl, ch) in enumerate(children):
+            if free.size:
+                cov = self.do[rows[free], cl:ch].min(axis=1) > 0
+                dchild = free[cov]
+            else:
+                dchild = free
+            self._node(wm, rows, in_n, cl, ch, cols, pv, off, dchild, g, p, base, prefix, track, keys[t])
 
     # -- general search ------------------------------------------------------------------------
     def search(
@@ -704,7 +729,7 @@ class _Search:
     def open_bound(self) -> float:
         """Valid upper bound on the optimum given the progress so far (after a timeout)."""
         b = self.best_value + self.margin
-        if not self.started:
+        if not self.started or (self.top_bounds is None and not self.open_nodes):
             return max(b, self.ub0)
         if self.top_bounds is not None:
             rest = self.top_bounds[self.top_segment :]
