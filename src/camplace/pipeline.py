@@ -223,6 +223,27 @@ def event_weights(pts, instance, event_mode: str) -> np.ndarray:
     return w / s if s > 0 else w
 
 
+def split_timings(stats: dict, prefix: str = "solver") -> tuple[dict, dict[str, float]]:
+    """Separate wall-clock fields (keys starting with ``time``) from solver statistics.
+
+    Returns the statistics without them (deterministic for a given input) and the timings as flat
+    ``solver.<path>`` keys, so that ``solution.json`` is identical between runs but for ``timings_s``.
+    """
+    clean: dict = {}
+    times: dict[str, float] = {}
+    for key, value in stats.items():
+        path = f"{prefix}.{key}"
+        if isinstance(value, dict):
+            sub, sub_t = split_timings(value, path)
+            clean[key] = sub
+            times.update(sub_t)
+        elif str(key).startswith("time") and isinstance(value, (int, float)):
+            times[path] = float(value)
+        else:
+            clean[key] = value
+    return clean, times
+
+
 def covered_rows(matrix, selected) -> np.ndarray:
     """(m,) bool: rows observed by at least one of the ``selected`` columns."""
     sel = list(selected)
@@ -248,7 +269,7 @@ def light_curves_csv(instance, vis: VisibilityMatrix, selected) -> str:
         seen = np.bincount(pts.frame[rows], weights=pts.weight[rows], minlength=n_frames)
         for f in range(n_frames):
             frac = seen[f] / frame_total[f] if frame_total[f] > 0 else 0.0
-            lines.append(f"{cam},{f},{seen[f]!r},{frac!r},{int(j)},{instance.frames[f].time_s!r}")
+            lines.append(f"{cam},{f},{float(seen[f])!r},{float(frac)!r},{int(j)},{float(instance.frames[f].time_s)!r}")
     return "\n".join(lines) + "\n"
 
 
@@ -447,6 +468,8 @@ def run(
         res = solve_maxcover(vis.matrix, solve_w, k, engine=engine, time_limit_s=time_limit_s)
     timings["solve"] = time.perf_counter() - t0
 
+    solver_stats, solver_times = split_timings(dict(res.stats))
+    timings.update(solver_times)
     total_weight = float(solve_w.sum())
     observed = covered_rows(vis.matrix, res.selected)
     in_peak = pts.frame == peak
@@ -466,7 +489,7 @@ def run(
         cameras=[camera_record(instance, cands, j) for j in res.selected],
         instance=instance.name,
         engine=res.engine,
-        solver_stats=dict(res.stats),
+        solver_stats=solver_stats,
         event_mode=event_mode,
         peak_frame=peak,
         expected_coverage=float(pts.weight[observed].sum() / pts.weight.sum()),

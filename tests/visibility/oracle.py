@@ -69,6 +69,6 @@ def observed(
     v = K[1, 1] * y / z + K[1, 2]
     if not (-0.5 <= u < width - 0.5 and -0.5 <= v < height - 0.5):
         return False
-    if np.dot(normal, cam_pos - point) <= 0:
+    if not emitter and np.dot(normal, cam_pos - point) <= 0:
         return False
     return not segment_hits_any(cam_pos, point + eps_m * normal, triangles)

@@ -104,11 +104,11 @@ class TargetPoints:
         """The ``points.csv`` text: ``index,x,y,z,nx,ny,nz,frame,weight``."""
         buf = io.StringIO()
         buf.write(POINTS_HEADER + "\n")
-        for i in range(len(self)):
-            p, nrm = self.positions[i], self.normals[i]
-            buf.write(
-                f"{i},{p[0]!r},{p[1]!r},{p[2]!r},{nrm[0]!r},{nrm[1]!r},{nrm[2]!r},{int(self.frame[i])},{self.weight[i]!r}\n"
-            )
+        table = np.column_stack([self.positions, self.normals]).tolist()  # plain Python floats
+        frames = self.frame.tolist()
+        weights = self.weight.tolist()
+        for i, row in enumerate(table):
+            buf.write(f"{i}," + ",".join(repr(v) for v in row) + f",{frames[i]},{weights[i]!r}\n")
         return buf.getvalue()
 
     def save(self, path: str | Path) -> None:
