@@ -9,3 +9,14 @@ def _private_cache(tmp_path_factory):
     mp.setenv("CAMPLACE_CACHE_DIR", str(tmp_path_factory.mktemp("camplace-cache")))
     yield
     mp.undo()
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Print the reliability suite's counts when it ran."""
+    import sys
+
+    mod = sys.modules.get("tests.reliability.counts")
+    if mod is None or not any(mod.COUNTS.values()):
+        return
+    terminalreporter.write_sep("-", "reliability suite")
+    terminalreporter.write_line(", ".join(f"{k}: {v:,}" for k, v in mod.COUNTS.items()))

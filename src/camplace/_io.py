@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -63,3 +64,24 @@ def write_with_atomic(path: str | os.PathLike[str], writer: Callable[[Path], Non
     """Call ``writer(tmp_path)`` and rename the result onto ``path`` atomically."""
     with atomic_path(path) as tmp:
         writer(tmp)
+
+
+_TEMP = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
+
+
+def remove_stale_temps(directory: str | os.PathLike[str]) -> int:
+    """Delete temporary files that :func:`atomic_path` left behind when a process was killed.
+
+    Only names of its own pattern (``.<name>.<8 random chars>.tmp[.suffix]``) are touched.
+    Returns how many were removed.
+    """
+    d = Path(directory)
+    if not d.is_dir():
+        return 0
+    n = 0
+    for p in d.iterdir():
+        if p.is_file() and _TEMP.match(p.name):
+            with contextlib.suppress(OSError):
+                p.unlink()
+                n += 1
+    return n

@@ -1,7 +1,8 @@
 """The ``camplace`` command line.
 
 Exit codes: 0 success; 1 the run finished but no feasible camera system was found; 2 bad input
-(a one-line ``error: ...`` on stderr, no traceback); 130 interrupted (Ctrl-C).
+(a one-line ``error: ...`` on stderr, no traceback); 3 an input could not be read or an output
+could not be written (disk full, permissions); 130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from camplace.errors import CamplaceError
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 1
 EXIT_BAD_INPUT = 2
+EXIT_IO = 3
 EXIT_INTERRUPTED = 130
 
 
@@ -121,6 +123,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
         f"(objective {sol.objective:.6f}, bound {sol.bound:.6f}, gap {100 * sol.gap:.3f}%, engine {sol.engine})"
     )
+    for note in sol.warnings:
+        print(f"warning: {note}", file=sys.stderr)
     for cam in sol.cameras:
         x, y, z = cam["position"]
         print(f"  camera {cam['candidate']:>6}: position ({x:.3f}, {y:.3f}, {z:.3f}) m")
@@ -203,6 +207,13 @@ def main(argv: list[str] | None = None) -> int:
     except CamplaceError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except MemoryError:
+        print("error: out of memory (lower --points or --candidates, or set --memory-budget-gb)", file=sys.stderr)
+        return EXIT_IO
+    except OSError as exc:
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"error: {where}{exc.strerror or exc} (free disk space or fix permissions; no partial output was kept)", file=sys.stderr)
+        return EXIT_IO
     except KeyboardInterrupt:
         print("interrupted: no partial output was written", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from camplace._io import write_json_atomic, write_text_atomic
+from camplace._io import remove_stale_temps, write_json_atomic, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
 from camplace.sampling import SAMPLERS, CandidateSet, make_candidates
@@ -70,6 +70,9 @@ class Solution:
         Share of the whole event (all frames, weighted by P) the chosen cameras observe.
     peak_coverage : float
         Share of the peak frame's weight the chosen cameras observe.
+    warnings : list of str
+        Degenerate situations worth a look: nothing observable, fewer useful candidates than k,
+        all weights zero.
     candidates, visibility : optional
         The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
     """
@@ -90,6 +93,7 @@ class Solution:
     instance: str = ""
     engine: str = ""
     solver_stats: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
     event_mode: str = "all"
     peak_frame: int = 0
     expected_coverage: float = 0.0
@@ -121,6 +125,7 @@ class Solution:
             "instance": self.instance,
             "engine": self.engine,
             "solver_stats": self.solver_stats,
+            "warnings": self.warnings,
             "event_mode": self.event_mode,
             "peak_frame": self.peak_frame,
             "expected_coverage": self.expected_coverage,
@@ -221,6 +226,28 @@ def event_weights(pts, instance, event_mode: str) -> np.ndarray:
     w = np.where(in_peak, pts.weight, 0.0)
     s = w.sum()
     return w / s if s > 0 else w
+
+
+def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
+    """Plain-language warnings for problems the solver answers trivially."""
+    out = []
+    live_rows = weights > 0
+    if not live_rows.any():
+        out.append("every point weighs 0: nothing can be gained (check the frame weights and target_weight)")
+        return out
+    if matrix.nnz == 0:
+        out.append(
+            "no candidate observes any point of the event: check the volume, camera.near_m/far_m, "
+            "the occluders and [quality] (incidence limit, light)"
+        )
+        return out
+    useful = int(np.count_nonzero(np.diff(matrix[live_rows].tocsc().indptr)))
+    if useful < k:
+        out.append(
+            f"only {useful} candidate(s) observe anything, fewer than k = {k}: the other chosen cameras add "
+            "nothing (raise --candidates or widen the volume)"
+        )
+    return out
 
 
 def split_timings(stats: dict, prefix: str = "solver") -> tuple[dict, dict[str, float]]:
@@ -468,6 +495,9 @@ def run(
         res = solve_maxcover(vis.matrix, solve_w, k, engine=engine, time_limit_s=time_limit_s)
     timings["solve"] = time.perf_counter() - t0
 
+    notes = degenerate_warnings(vis.matrix, solve_w, k)
+    for note in notes:
+        log.info("%s", note)
     solver_stats, solver_times = split_timings(dict(res.stats))
     timings.update(solver_times)
     total_weight = float(solve_w.sum())
@@ -490,6 +520,7 @@ def run(
         instance=instance.name,
         engine=res.engine,
         solver_stats=solver_stats,
+        warnings=notes,
         event_mode=event_mode,
         peak_frame=peak,
         expected_coverage=float(pts.weight[observed].sum() / pts.weight.sum()),
@@ -502,6 +533,7 @@ def run(
         with reporter.stage("write"):
             outdir = Path(outdir)
             outdir.mkdir(parents=True, exist_ok=True)
+            remove_stale_temps(outdir)
             write_ply(outdir / "scene.ply", frame_scene(instance, 0).triangles)
             save_instance(instance, outdir / "instance.toml", mesh_files=True)
             cands.save(outdir / "candidates.csv")

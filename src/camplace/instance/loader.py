@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import logging
 import math
 import os
 import re
@@ -44,7 +45,12 @@ from camplace.instance.schema import (
 
 __all__ = ["load_instance", "parse_instance", "save_instance", "mesh_ply_bytes", "read_mesh_file"]
 
+log = logging.getLogger(__name__)
+
 MAX_CANDIDATES = 1_000_000
+#: Largest mesh accepted (triangles). Embree would cope with more, but the per-pixel renderer and
+#: the instance files would not; decimate bigger models first.
+MAX_FACES = 2_000_000
 MAX_POINTS = 10_000_000
 
 _TOP_KEYS = (
@@ -299,6 +305,7 @@ class _Parser:
             self.check_keys(table, allowed, prefix, hint)
             scale = self.number(table, "scale", prefix, default=1.0, gt=0.0)
             vertices, faces, path = self.read_file(table, prefix, scale)
+            faces = self.drop_degenerate(vertices, faces, _join(prefix, "file"))
             return Mesh(name=name, vertices=vertices, faces=faces, source=f"file:{path}", spec=spec)
 
         shape = table["shape"]
@@ -393,6 +400,23 @@ class _Parser:
             raise self.error(field, f"{what} has NaN or infinite vertex coordinates", fix)
         if faces.min() < 0 or faces.max() >= len(vertices):
             raise self.error(field, f"{what} has face indices outside 0..{len(vertices) - 1}", fix)
+        if len(faces) > MAX_FACES:
+            raise self.error(
+                field, f"{what} has {len(faces):_} triangles, over the budget of {MAX_FACES:_}",
+                "decimate it first (e.g. trimesh's simplify_quadric_decimation or MeshLab's quadric edge collapse)",
+            )
+
+    def drop_degenerate(self, vertices: np.ndarray, faces: np.ndarray, field: str) -> np.ndarray:
+        """Faces without the degenerate ones (a repeated vertex or zero area), with a warning."""
+        tri = vertices[faces]
+        area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+        bad = repeated | ~(area2 > 0)
+        if bad.all():
+            raise self.error(field, "every triangle of the mesh is degenerate (zero area)", "check the mesh file and its scale")
+        if bad.any():
+            log.warning("%s: %s: dropped %d degenerate (zero-area) triangles of %d", self.source, field, int(bad.sum()), len(faces))
+        return faces[~bad]
 
     # -- the whole instance ------------------------------------------------------------------------
 
@@ -466,6 +490,17 @@ class _Parser:
 
         target_t = self.table(data, "target", "")
         target = self.mesh(target_t, "target", "target")
+        if not _is_closed(target.faces):
+            log.warning(
+                "%s: target: the mesh is not watertight (open edges): surface points are still sampled, but "
+                "its inside is visible through the holes", self.source,
+            )
+        extent = float(np.linalg.norm(np.ptp(target.vertices, axis=0)))
+        if extent > float(np.linalg.norm(volume.size_m)):
+            log.warning(
+                "%s: target: the target (%.3g m across) is larger than the camera volume (%.3g m across): "
+                "check the units (metres) and target.scale", self.source, extent, float(np.linalg.norm(volume.size_m)),
+            )
 
         occluders = self.occluders(data, "")
 
@@ -624,6 +659,13 @@ class _Parser:
 
 # --------------------------------------------------------------------------------------------------
 # mesh files
+
+
+def _is_closed(faces: np.ndarray) -> bool:
+    """True when every edge is shared by exactly two triangles (a watertight surface)."""
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return bool(np.all(counts == 2))
 
 
 def read_mesh_file(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:

@@ -7,11 +7,13 @@ each system
 
 * with the **objective** the solver maximises: the weight of the matrix rows observed by at least one
   of its cameras (:func:`camplace.solver.coverage_weight`), on exactly the rows a ``camplace run``
-  with the same ``seed`` and ``points`` uses (:func:`camplace.pipeline.compute_points`); the
+  with the same ``seed`` and ``points`` uses (:func:`camplace.pipeline.compute_points`), weighted
+  as the run's ``--event-mode`` weights them (:func:`camplace.pipeline.event_weights`); the
   cameras' visibility columns come from the same ray caster (and cache) as a run's;
 * with the thesis's **legacy** score (Algorithm 2, :mod:`camplace.report.legacy`, literal).
 
-The positions come from their own seed stream, independent of a run's candidates and points:
+Positions are drawn like a run's candidates (above any ground, :func:`camplace.pipeline.make_run_candidates`)
+but from their own seed stream, independent of a run's candidates and points:
 ``SeedSequence(seed).spawn(3)[2]`` (a run uses children 0 and 1), split into positions and aims.
 
 Output folder (:meth:`Campaign.save`):
@@ -167,6 +169,8 @@ class Campaign:
         The constants of Algorithm 2.
     total_weight : float
         Weight of all rows (1 for an instance's points).
+    event_mode : {"all", "peak"}
+        Row weights of the objective (as ``camplace run --event-mode``).
     fingerprint : str
         :func:`problem_fingerprint` of the scoring problem.
     timings_s : dict
@@ -192,6 +196,7 @@ class Campaign:
     legacy_camera_score: np.ndarray
     legacy: LegacyTarget
     total_weight: float = 1.0
+    event_mode: str = "all"
     fingerprint: str = ""
     timings_s: dict = field(default_factory=dict)
     name: str = ""
@@ -261,6 +266,7 @@ class Campaign:
             "n_systems": self.n_systems,
             "n_points": self.n_points,
             "total_weight": self.total_weight,
+            "event_mode": self.event_mode,
             "fingerprint": self.fingerprint,
             "objective": "weight of the rows observed by at least one camera (camplace.solver.coverage_weight), "
                          "on the rows of a run with the same seed and points",
@@ -338,18 +344,20 @@ class Campaign:
             objective=sk(t["objective"])[:, 0].copy(), camera_objective=sk(t["camera_objective"]),
             legacy_score=sk(t["legacy_score"])[:, 0].copy(), legacy_distance_m=sk(t["legacy_distance_m"]),
             legacy_area=sk(t["legacy_area"]), legacy_camera_score=sk(t["legacy_camera_score"]),
-            legacy=LegacyTarget.from_dict(meta["legacy"]), total_weight=float(meta.get("total_weight", 1.0)),
+            legacy=LegacyTarget.from_dict(meta["legacy"]), total_weight=float(meta.get("total_weight", 1.0)), event_mode=str(meta.get("event_mode", "all")),
             fingerprint=str(meta.get("fingerprint", "")), timings_s=dict(meta.get("timings_s", {})),
             name=outdir.name, matrix=mat,
         )
 
 
 def _camera_poses(instance, sampler: str, n_cams: int, aims: np.ndarray, seed: int):
-    from camplace.sampling import look_at, sample_positions
+    """Positions of a run's sampler (above any ground, :func:`~camplace.pipeline.make_run_candidates`), each aimed at one of ``aims``."""
+    from camplace.pipeline import make_run_candidates
+    from camplace.sampling import look_at
 
     pos_seed, aim_seed = campaign_seed(seed).spawn(2)
     rng = np.random.default_rng(aim_seed)
-    positions = sample_positions(sampler, n_cams, instance.volume.min_m, instance.volume.max_m, seed=pos_seed)
+    positions = make_run_candidates(instance, sampler, n_cams, 1, pos_seed).positions.copy()
     which = rng.integers(len(aims), size=n_cams) if len(aims) > 1 else np.zeros(n_cams, dtype=np.int64)
     aim_rows = aims[which]
     same = np.linalg.norm(positions - aim_rows, axis=1) < 1e-9  # probability ~0 (as make_candidates)
@@ -368,6 +376,7 @@ def run_campaign(
     orientations: int | None = None,
     aims: np.ndarray | None = None,
     legacy_omega: float = 0.0,
+    event_mode: str = "all",
     outdir: str | Path | None = None,
     cache: bool = True,
     reporter=None,
@@ -395,6 +404,9 @@ def run_campaign(
         Explicit aim points (overrides ``orientations``), e.g. those of a run's candidates.
     legacy_omega : float
         Algorithm 2's camera angle (added to its FoV as given).
+    event_mode : {"all", "peak"}
+        Row weights of the objective, as ``camplace run --event-mode``: every frame (likelihood
+        weighted) or the maximum-likelihood frame alone.
     outdir : path or None
         When given, :meth:`Campaign.save` there.
     cache : bool
@@ -408,14 +420,16 @@ def run_campaign(
     """
     from camplace._progress import Reporter
     from camplace.instance import resolve_instance
-    from camplace.pipeline import compute_points, event_aims, visibility_stage
+    from camplace.pipeline import EVENT_MODES, compute_points, event_aims, event_weights, visibility_stage
     from camplace.sampling import SAMPLERS, CandidateSet
 
     if not hasattr(instance, "frames"):
-        instance = resolve_instance(str(instance))
+        instance = resolve_instance(str(instance), seed=seed)
     reporter = reporter or Reporter()
     d = instance.defaults
     seed = d.seed if seed is None else int(seed)
+    if event_mode not in EVENT_MODES:
+        raise CamplaceError(f"--event-mode: unknown mode {event_mode!r} (use one of {', '.join(EVENT_MODES)})")
     k = instance.k if k is None else int(k)
     n_points = d.points if points is None else int(points)
     if sampler not in SAMPLERS:
@@ -449,10 +463,11 @@ def run_campaign(
 
     t0 = time.perf_counter()
     with reporter.stage("score"):
+        weights = event_weights(pts, instance, event_mode)
         cols = np.arange(systems * k).reshape(systems, k)
-        objective = score_systems(vis.matrix, pts.weight, cols)
+        objective = score_systems(vis.matrix, weights, cols)
         pattern = (vis.matrix > 0).astype(np.float64)
-        cam_obj = np.asarray(pattern.T @ pts.weight, dtype=np.float64).reshape(systems, k)
+        cam_obj = np.asarray(pattern.T @ weights, dtype=np.float64).reshape(systems, k)
         target = legacy_target(instance, legacy_omega)
         leg = legacy_camera_scores(positions.reshape(systems, k, 3), target)
     timings["score"] = time.perf_counter() - t0
@@ -462,16 +477,13 @@ def run_campaign(
         positions=positions.reshape(systems, k, 3), aims=aim_rows.reshape(systems, k, 3),
         rotations=rotations.reshape(systems, k, 3, 3), objective=objective, camera_objective=cam_obj,
         legacy_score=leg["delta"].sum(axis=1), legacy_distance_m=leg["distance"], legacy_area=leg["area"],
-        legacy_camera_score=leg["delta"], legacy=target, total_weight=float(pts.weight.sum()),
+        legacy_camera_score=leg["delta"], legacy=target, total_weight=float(weights.sum()), event_mode=event_mode,
         fingerprint=fingerprint, timings_s=timings, name=Path(outdir).name if outdir is not None else f"campaign-{sampler}",
         matrix=vis.matrix,
     )
     if outdir is not None:
-        t0 = time.perf_counter()
         with reporter.stage("write"):
-            timings["write"] = 0.0
             camp.save(outdir)
-        timings["write"] = time.perf_counter() - t0
     log.info("campaign %s: %d systems, objective median %.4f max %.4f", sampler, systems, float(np.median(objective)), float(objective.max()))
     return camp
 

@@ -5,7 +5,7 @@ system on the same matrix.** Campaign cameras stand at fresh positions (not amon
 candidates), so :func:`compare_with_campaigns` works on the *union* matrix: the run's columns
 (``visibility.npz``) side by side with every campaign's columns, all on the run's rows (a campaign is
 accepted only when its :func:`~camplace.report.campaign.problem_fingerprint` equals the run's:
-same instance, seed and points). Every system is scored there with the solver's objective
+same instance, seed and points, and when it used the run's event mode, i.e. the same row weights). Every system is scored there with the solver's objective
 (:func:`camplace.solver.coverage_weight`).
 
 * When the run's chosen system already scores at least as well as every campaign system (within
@@ -47,6 +47,8 @@ class RunData:
     solution : camplace.pipeline.Solution
     points : camplace.visibility.TargetPoints
         The rows (recomputed with :func:`camplace.pipeline.compute_points` from the run's seed/points).
+    weights : (n_points,) float64
+        The row weights the run's solver maximised (:func:`camplace.pipeline.event_weights` of its event mode).
     matrix : (n_points, n_candidates) scipy.sparse.csr_matrix
     candidates : camplace.sampling.CandidateSet
     fingerprint : str
@@ -57,6 +59,7 @@ class RunData:
     instance: Any
     solution: Any
     points: Any
+    weights: Any
     matrix: Any
     candidates: Any
     fingerprint: str
@@ -81,7 +84,7 @@ def load_run_data(outdir: str | Path) -> RunData:
     """
     import scipy.sparse as sp
 
-    from camplace.pipeline import compute_points
+    from camplace.pipeline import compute_points, event_weights
     from camplace.report.campaign import problem_fingerprint
     from camplace.sampling import CandidateSet
     from camplace.validation.workflow import load_run
@@ -99,7 +102,8 @@ def load_run_data(outdir: str | Path) -> RunData:
     if len(cands) != solution.n_candidates:
         raise CamplaceError(f"{outdir / 'candidates.csv'}: {len(cands)} candidates but solution.json says {solution.n_candidates} (re-run)")
     points = compute_points(instance, solution.n_points, solution.seed)
-    return RunData(outdir, instance, solution, points, matrix, cands, problem_fingerprint(instance, points))
+    weights = event_weights(points, instance, getattr(solution, "event_mode", "all") or "all")
+    return RunData(outdir, instance, solution, points, weights, matrix, cands, problem_fingerprint(instance, points))
 
 
 @dataclass(frozen=True)
@@ -153,6 +157,9 @@ def check_campaign(run: RunData, campaign) -> None:
     sol = run.solution
     if campaign.k != len(sol.cameras):
         raise CamplaceError(f"{where}: campaign systems have k = {campaign.k} cameras but the run chose {len(sol.cameras)} (re-run 'camplace campaign ... --k {len(sol.cameras)}')")
+    mode = getattr(sol, "event_mode", "all") or "all"
+    if campaign.event_mode != mode:
+        raise CamplaceError(f"{where}: scored with --event-mode {campaign.event_mode} but the run used {mode} (re-run 'camplace campaign ... --event-mode {mode}')")
     if campaign.fingerprint != run.fingerprint:
         raise CamplaceError(
             f"{where}: scored on other rows than the run in {run.outdir} (campaign: {campaign.instance}, seed {campaign.seed}, "
@@ -195,7 +202,7 @@ def compare_with_campaigns(
         raise CamplaceError(f"--union: use auto or always, got {union!r}")
     t0 = time.perf_counter()
     sol = run.solution
-    w = run.points.weight
+    w = run.weights
     for c in campaigns:
         check_campaign(run, c)
         if c.matrix is None:

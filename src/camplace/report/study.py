@@ -1,11 +1,12 @@
 """Samplers compared: the best k-camera objective against the number of candidates, and discrepancy.
 
 For each sampler (chaotic, sobol, uniform) the study samples as many candidate positions as the
-run, with the run's candidate seed stream (:func:`camplace.pipeline.stage_seeds`), so the run's own
-sampler reproduces exactly the run's candidates (its matrix and solution are reused). Each
+run, as the run does (:func:`camplace.pipeline.make_run_candidates`, the run's candidate seed stream
+:func:`camplace.pipeline.stage_seeds` and aim points), so the run's own sampler reproduces exactly
+the run's candidates (its matrix and solution are reused). Each
 sampler's sequence is nested (the first n positions of a longer sequence are the n-position
 sequence), so one visibility matrix per sampler serves every rung of the ladder: the solver is run
-on its first ``n`` positions' columns for each ``n`` of the ladder, on the run's rows.
+on its first ``n`` positions' columns for each ``n`` of the ladder, on the run's rows and row weights.
 
 The discrepancy of the first ``n`` positions, mapped back to the unit cube, is
 ``scipy.stats.qmc.discrepancy`` with the centred L2 method ("CD"; lower is more uniform).
@@ -132,8 +133,8 @@ def sampler_study(
     from scipy.stats import qmc
 
     from camplace._progress import Reporter
-    from camplace.pipeline import stage_seeds, visibility_stage
-    from camplace.sampling import SAMPLERS, CandidateSet, make_candidates
+    from camplace.pipeline import make_run_candidates, stage_seeds, visibility_stage
+    from camplace.sampling import SAMPLERS, CandidateSet
     from camplace.solver import solve_maxcover
 
     reporter = reporter or Reporter()
@@ -157,7 +158,7 @@ def sampler_study(
     top = max(ladder)
     for s in samplers:
         t0 = time.perf_counter()
-        cands = make_candidates(s, top, lo, hi, aims, seed=cand_seed)
+        cands = make_run_candidates(inst, s, top, a, cand_seed)
         same_as_run = (s == sol.sampler and len(cands) <= len(run.candidates)
                        and np.array_equal(cands.positions, run.candidates.positions[: len(cands)]))
         if same_as_run:
@@ -175,7 +176,7 @@ def sampler_study(
                                  "bound": sol.bound, "gap": sol.gap, "status": sol.status, "engine": sol.engine,
                                  "time_s": float(sol.timings_s.get("solve", 0.0)), "discrepancy": disc, "source": "run"})
                 else:
-                    res = solve_maxcover(matrix[:, : n * a], run.points.weight, k, time_limit_s=limit)
+                    res = solve_maxcover(matrix[:, : n * a], run.weights, k, time_limit_s=limit)
                     rows.append({"sampler": s, "n_positions": n, "n_candidates": n * a, "objective": res.objective,
                                  "bound": res.bound if np.isfinite(res.bound) else None,
                                  "gap": res.gap if np.isfinite(res.gap) else None, "status": res.status,

@@ -5,10 +5,10 @@ naive submodular bound ``f(S) + sum of top marginal gains`` is far above the opt
 
 * Everything runs on the presolved instance as a dense 0/1 matrix ``D`` (merged rows x kept
   columns) with BLAS products. When every original weight is equal, the merged-row multiplicities
-  are integers and ``D``/weights are float32 integers: every GEMM/GEMV result and pair value is an
-  integer below 2**24, hence exact, and pruning is exact. Otherwise float64 is used and pruning keeps an absolute
-  margin of ``1e-9 * total weight`` (far above float64 rounding), so "optimal" then means optimal
-  to within that margin.
+  are integers and ``D``/weights are float32 integers: every GEMM/GEMV result and stored pair
+  value is an integer below 2**24, hence exact, and pruning is exact. Otherwise float64 is used
+  and pruning keeps an absolute margin of ``1e-9 * total weight`` (far above float64 rounding),
+  so "optimal" then means optimal to within that margin.
 * Incumbent: greedy from several starts (best pair, top singles) plus 1-swap local search.
 * Column order: recursive balanced bisection on the weighted symmetric-difference distance
   ``f_a + f_b - 2 w(a & b)``, so that every contiguous range of the order (a node of the implicit
@@ -28,6 +28,9 @@ naive submodular bound ``f(S) + sum of top marginal gains`` is far above the opt
 * Time limit: the search stops at the next node and returns the incumbent, status "feasible" and
   a valid bound (the maximum of the incumbent and the bounds of all open tree nodes / segments,
   or the cheap bound ``max_a f_a + top-(k-1) residual gains`` before the search has started).
+  The setup (one Gram GEMM ``n'^2 m'``, greedy incumbent, ordering) is not interruptible.
+* Memory: a dense ``m' x n'`` copy (4 bytes per entry in integer mode, 8 otherwise; two copies
+  briefly during setup) plus a few ``n' x n'`` matrices.
 """
 
 from __future__ import annotations
@@ -134,7 +137,7 @@ class _Search:
     """Depth-first exact search state (see the module docstring)."""
 
     def __init__(self, dense: np.ndarray, weights: np.ndarray, k: int, margin: float, deadline: Deadline) -> None:
-        self.d = dense  # (m, n) 0/1, float32 (integer mode) or float64
+        self.d: Any = dense  # (m, n) 0/1, float32 (integer mode) or float64; None after prepare()
         self.w = weights  # (m,) same dtype
         self.dt = dense.dtype
         self.k = k
@@ -196,7 +199,7 @@ class _Search:
         """Bounds at or below this (for a prefix of value ``base``) cannot improve the incumbent."""
         return self.best_value - base + self.margin
 
-    # -- incumbent -----------------------------------------------------------------------------
+    # -- incumbent (before :meth:`prepare`, on dense column ids) --------------------------------
     def _value(self, cols: list[int]) -> float:
         covered = self.d[:, cols].max(axis=1) > 0
         return float(self.w[covered].sum(dtype=np.float64))
@@ -317,6 +320,7 @@ class _Search:
         """
         self.order = order
         self.do = np.ascontiguousarray(self.d[:, order])  # (m, n) columns in search order
+        self.d = None  # the unordered copy is only needed by the incumbent heuristics
         self.fo = self.f[order]
         self.go = gram[order][:, order]
         depth = max(0, int(math.ceil(math.log2(max(1, n_segments)))))
@@ -773,7 +777,7 @@ def solve_exact(
 
     integer = pre.weight_unit is not None and int(pre.counts.sum()) < _INT_EXACT_LIMIT
     if integer:
-        dense = pre.matrix.toarray().astype(np.float32)
+        dense = pre.matrix.astype(np.float32).toarray()
         w = pre.counts.astype(np.float32)
         scale = float(pre.weight_unit)  # type: ignore[arg-type]
         margin = 0.0
@@ -785,14 +789,17 @@ def solve_exact(
     stats: dict[str, Any] = {"arithmetic": "float32-integer" if integer else "float64"}
 
     srch = _Search(dense, w, k, margin, deadline)
+    del dense
     status = "optimal"
     try:
-        gram = srch._gram(dense, w)
+        # Setup (one Gram GEMM, incumbent, ordering) is not interruptible.
+        gram = srch._gram(srch.d, w)
         srch.ub0 = srch.cheap_bound(gram)
         srch.initial_incumbent(gram)
         q = n_segments if n_segments is not None else int(max(1, min(n, round(2.0 * math.sqrt(n)))))
         order = _bisection_order(srch.f, gram)
         srch.prepare(order, gram, q)
+        del gram
         stats["segments"] = int(srch.seg_start.size)
         stats["time_setup_s"] = deadline.elapsed()
         srch._check_time()
@@ -815,8 +822,6 @@ def solve_exact(
         status = "feasible"
         bound = srch.open_bound()
     bound = min(bound, srch.ub0 + margin, srch.total)
-    if not srch.best_set:  # timed out before any incumbent: take the best single columns
-        srch._offer(srch._value(list(np.argsort(-srch.f, kind="stable")[:k])), tuple(np.argsort(-srch.f, kind="stable")[:k]))
     if bound <= srch.best_value + margin:
         status = "optimal"
         bound = srch.best_value

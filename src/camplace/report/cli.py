@@ -1,0 +1,108 @@
+"""Verbs of the report stage: ``campaign``, ``report``, ``export-cameras``.
+
+Imports nothing heavy at module level (matplotlib, OpenCV and Embree load when a verb runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Callable
+
+from camplace.errors import CamplaceError
+
+EXIT_OK = 0
+
+
+def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
+    """Add the report verbs to ``subparsers``; returns {verb: handler}."""
+    p = subparsers.add_parser("campaign", help="score N random k-camera systems with the solver's objective and the thesis's legacy score")
+    p.add_argument("instance", help="a built-in instance name or an instance .toml file (a run's OUTDIR/instance.toml)")
+    p.add_argument("--systems", type=int, required=True, help="number of random systems N")
+    p.add_argument("--sampler", choices=["chaotic", "uniform", "sobol"], default="uniform", help="sampler of the camera positions (default uniform)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the positions and of the rows (default: the instance's); use the run's to compare")
+    p.add_argument("--points", type=int, default=None, help="rows = target points (default: the instance's); use the run's to compare")
+    p.add_argument("--k", type=int, default=None, help="cameras per system (default: the instance's k)")
+    p.add_argument("--orientations", type=int, default=None, help="aim points; each camera aims at one at random (default: the instance's)")
+    p.add_argument("--event-mode", choices=["all", "peak"], default="all", dest="event_mode",
+                   help="row weights of the objective, as 'camplace run --event-mode' (default all); use the run's to compare")
+    p.add_argument("--legacy-omega", type=float, default=0.0, dest="legacy_omega", help="Algorithm 2's camera angle, added to its FoV as given (default 0)")
+    p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
+    p.add_argument("-o", "--out", type=Path, required=True, help="campaign folder (e.g. OUTDIR/campaign-uniform to appear in OUTDIR's report)")
+
+    p = subparsers.add_parser("report", help="write OUTDIR/report.html: optimised system, campaigns, samplers, vision cones, validation")
+    p.add_argument("outdir", type=Path, help="output folder of 'camplace run' (campaign folders inside it are included)")
+    p.add_argument("--union", choices=["auto", "always"], default="auto",
+                   help="re-solve over the run's candidates plus the campaign cameras only when a campaign system beats the run's (auto, default) or always")
+    p.add_argument("--no-sampler-study", action="store_false", dest="sampler_study", help="skip the samplers' best objective against candidates")
+    p.add_argument("--samplers", default="chaotic,sobol,uniform", help="samplers of that study (default chaotic,sobol,uniform)")
+    p.add_argument("--ladder", default=None, help="candidate-position counts of that study, e.g. 50,200,1000 (default 25,50,100,200,500,1000,... up to the run's)")
+    p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="seconds per solve (default: the instance's, at most 20 s in the study)")
+    p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
+    p.add_argument("-o", "--out", type=Path, default=None, help="HTML file to write (default OUTDIR/report.html)")
+
+    p = subparsers.add_parser("export-cameras", help="write the chosen cameras as JSON, CSV, a COLMAP text model and/or a GLB scene")
+    p.add_argument("outdir", type=Path, help="output folder of 'camplace run'")
+    p.add_argument("--format", default="all", dest="formats", help="json, csv, colmap, glb, or all (default); comma-separated for several")
+    p.add_argument("--experiment", default=None, help="experiment name in camera names (default: the instance name)")
+    p.add_argument("--frustum-depth", type=float, default=None, dest="frustum_depth", help="GLB frustum depth, metres (default: distance to the aim point)")
+    p.add_argument("-o", "--out", type=Path, default=None, help="output folder (default OUTDIR/export)")
+
+    return {"campaign": _cmd_campaign, "report": _cmd_report, "export-cameras": _cmd_export_cameras}
+
+
+def _csv_list(text: str, what: str) -> list[str]:
+    items = [s.strip() for s in text.split(",") if s.strip()]
+    if not items:
+        raise CamplaceError(f"{what}: give at least one value (comma-separated)")
+    return items
+
+
+def _cmd_campaign(args: argparse.Namespace) -> int:
+    from camplace._progress import ConsoleReporter
+    from camplace.report.campaign import run_campaign
+
+    camp = run_campaign(
+        args.instance, systems=args.systems, sampler=args.sampler, seed=args.seed, points=args.points, k=args.k,
+        orientations=args.orientations, legacy_omega=args.legacy_omega, event_mode=args.event_mode, outdir=args.out, cache=not args.no_cache,
+        reporter=ConsoleReporter(),
+    )
+    s = camp.summary()
+    o = s["objective"]
+    print(f"{camp.n_systems} random {camp.k}-camera systems ({camp.sampler}, seed {camp.seed}): objective min {o['min']:.4f}, "
+          f"median {o['median']:.4f}, max {o['max']:.4f} (system {s['best_system']})")
+    rho = s["spearman_legacy_vs_objective"]
+    print(f"legacy score: best system {s['best_legacy_system']} (objective {camp.objective[s['best_legacy_system'] - 1]:.4f}); "
+          f"Spearman rho vs objective {'-' if rho is None else f'{rho:.3f}'}")
+    print(f"wrote {args.out}/campaign.csv, campaign.json, cameras.csv, visibility.npz")
+    return EXIT_OK
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from camplace._progress import ConsoleReporter
+    from camplace.report.build import write_report
+
+    ladder = None
+    if args.ladder is not None:
+        try:
+            ladder = [int(x) for x in _csv_list(args.ladder, "--ladder")]
+        except ValueError:
+            raise CamplaceError(f"--ladder: use whole numbers such as 50,200,1000, got {args.ladder!r}") from None
+    if args.time_limit is not None and not args.time_limit > 0:
+        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {args.time_limit}")
+    path = write_report(
+        args.outdir, out=args.out, union=args.union, sampler_study=args.sampler_study,
+        samplers=_csv_list(args.samplers, "--samplers"), ladder=ladder, time_limit_s=args.time_limit,
+        cache=not args.no_cache, reporter=ConsoleReporter(),
+    )
+    print(f"wrote {path}")
+    return EXIT_OK
+
+
+def _cmd_export_cameras(args: argparse.Namespace) -> int:
+    from camplace.report.export import export_cameras
+
+    paths = export_cameras(args.outdir, formats=args.formats, out=args.out, experiment=args.experiment, frustum_depth_m=args.frustum_depth)
+    for p in paths:
+        print(f"wrote {p}")
+    return EXIT_OK
