@@ -131,3 +131,39 @@ def test_real_67p_instance_beats_random_systems() -> None:
     w = sol.visibility.points.weight
     random_scores = [w[covered_rows(vis.matrix, [3 * s, 3 * s + 1, 3 * s + 2])].sum() for s in range(100)]
     assert sol.objective > max(random_scores)
+
+
+def test_rendered_light_curves_follow_the_ray_cast_ones(tmp_path: Path) -> None:
+    """`camplace render` writes rendered light curves; they rise and fall with the observed weight."""
+    import dataclasses
+
+    from scipy.stats import spearmanr
+
+    from camplace.validation.workflow import render_run
+
+    inst = builtin("comet-flyby", seed=0)
+    small_cam = dataclasses.replace(inst.camera, width_px=160, height_px=120)
+    inst = dataclasses.replace(inst, camera=small_cam)
+    sol = run(inst, candidates=60, points=720, seed=1, outdir=tmp_path)
+    render_run(tmp_path)
+    ray = np.genfromtxt(tmp_path / "light_curves.csv", delimiter=",", names=True)
+    ren = np.genfromtxt(tmp_path / "render" / "light_curves.csv", delimiter=",", names=True)
+    assert len(ren) == len(ray) == 3 * 36
+    key = lambda a: np.lexsort((a["frame"], a["camera"]))  # noqa: E731
+    ray, ren = ray[key(ray)], ren[key(ren)]
+    assert np.array_equal(ray["frame"], ren["frame"]) and np.array_equal(ray["camera"], ren["camera"])
+    rho = spearmanr(ray["observed_weight"], ren["rendered_intensity"]).statistic
+    assert rho > 0.6, rho
+    # frames where nothing of the event is in view render no event light at all
+    empty = 0
+    for row in ren:
+        cam = sol.cameras[int(row["camera"])]
+        f = int(row["frame"])
+        em = inst.frames[f].emitters.positions_m
+        R, c, K = np.array(cam["rotation"]), np.array(cam["position"]), np.array(cam["K"])
+        pc = (em - c) @ R
+        in_view = (pc[:, 2] > 0) & (np.abs(K[0, 0] * pc[:, 0] / pc[:, 2]) < 80 + 40) & (np.abs(K[1, 1] * pc[:, 1] / pc[:, 2]) < 60 + 40)
+        if nucleus_outside_frustum(inst, cam, f) and not in_view.any():
+            assert row["rendered_intensity"] == 0.0
+            empty += 1
+    assert empty > 0  # the cameras do lose the event in some frames

@@ -217,6 +217,8 @@ def render_run(
                     "background": f"{stem}.background.png",
                     "mask": f"{stem}.mask.png",
                     "target_px": fg.target_px,
+                    # light the event adds to the view: target + emitters, over the background
+                    "event_intensity": float(np.clip(fg.image - bg.image, 0.0, None).sum(dtype=np.float64)),
                     "width": cam.width,
                     "height": cam.height,
                     "render_s": dt,
@@ -233,6 +235,11 @@ def render_run(
         "images": records,
     }
     write_json_atomic(out / "render.json", manifest)
+    # rendered light curves: per camera (0-based, as in the run's light_curves.csv) and frame
+    lines = ["camera,frame,rendered_intensity,target_px,candidate"]
+    for r in sorted(records, key=lambda r: (r["camera"], r["frame"])):
+        lines.append(f"{r['camera'] - 1},{r['frame']},{r['event_intensity']!r},{int(r['target_px'])},{r['candidate']}")
+    write_text_atomic(out / "light_curves.csv", "\n".join(lines) + "\n")
     return manifest
 
 
