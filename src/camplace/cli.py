@@ -62,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="sample candidates, compute visibility, choose the proven-best k cameras")
     _add_run_options(p)
+    p.add_argument("--report", action="store_true",
+                   help="then run a uniform and a chaotic campaign of random systems and write OUTDIR/report.html")
+    p.add_argument("--report-systems", type=int, default=200, dest="report_systems", help="systems per campaign (default 200)")
 
     p = sub.add_parser("visibility", help="compute the visibility matrix of given candidates")
     p.add_argument("instance", help="a built-in instance name or an instance .toml file")
@@ -87,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
 # and imports nothing heavy at module level.
-VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli",)
+VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli")
 
 
 def _verb_modules():
@@ -132,7 +135,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"  event mode {sol.event_mode}: expected coverage {100 * sol.expected_coverage:.2f}%, "
               f"peak frame {sol.peak_frame} coverage {100 * sol.peak_coverage:.2f}%")
     print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.npz, light_curves.csv, scene.ply")
-    return EXIT_OK if sol.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
+    ok = sol.status in ("optimal", "feasible")
+    if args.report and ok:
+        from camplace.report import run_report_bundle
+
+        path = run_report_bundle(args.out, systems=args.report_systems, cache=not args.no_cache, reporter=ConsoleReporter())
+        print(f"wrote {path} (campaigns in {args.out}/campaign-uniform, campaign-chaotic)")
+    return EXIT_OK if ok else EXIT_NO_SOLUTION
 
 
 def _cmd_visibility(args: argparse.Namespace) -> int:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import base64
 import copy
+import fcntl
 import inspect
 import json
 import os
@@ -22,7 +23,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 import camplace.cli
@@ -56,15 +56,21 @@ class DevTools:
     def __init__(self, exe: str, profile: str) -> None:
         to_r, self.to_w = os.pipe()
         self.from_r, from_w = os.pipe()
-
-        def child() -> None:  # Chromium reads commands on fd 3 and answers on fd 4
-            os.dup2(to_r, 3)
-            os.dup2(from_w, 4)
-
-        self.proc = subprocess.Popen([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "about:blank"],
-                                     preexec_fn=child, pass_fds=(3, 4), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        # move the child's ends above 10 so that placing them on 3 and 4 cannot clobber one another
+        hi_r, hi_w = fcntl.fcntl(to_r, fcntl.F_DUPFD, 10), fcntl.fcntl(from_w, fcntl.F_DUPFD, 10)
         os.close(to_r)
         os.close(from_w)
+
+        def child() -> None:  # Chromium reads commands on fd 3 and answers on fd 4
+            os.dup2(hi_r, 3)
+            os.dup2(hi_w, 4)
+
+        try:
+            self.proc = subprocess.Popen([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "about:blank"],
+                                         preexec_fn=child, pass_fds=(3, 4), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        finally:
+            os.close(hi_r)
+            os.close(hi_w)
         self.buf = b""
         self.next_id = 0
         self.events: list[dict] = []
@@ -189,7 +195,7 @@ def outdir(tmp_path_factory) -> Path:
 def test_bundle_defaults() -> None:
     sig = inspect.signature(run_report_bundle)
     assert sig.parameters["systems"].default == BUNDLE_SYSTEMS == 200
-    assert tuple(sig.parameters["samplers"].default) == BUNDLE_SAMPLERS == ("uniform", "chaotic")
+    assert tuple(sig.parameters["campaign_samplers"].default) == BUNDLE_SAMPLERS == ("uniform", "chaotic")
 
 
 def test_bundle_wrote_two_campaigns_on_the_run_rows(outdir) -> None:

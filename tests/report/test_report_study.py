@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,3 +101,19 @@ def test_percentile_of() -> None:
     assert percentile_of(v, 0.4) == 100.0
     assert percentile_of(v, 0.25) == 50.0
     assert percentile_of(v, 0.0) == 0.0
+
+
+def test_report_reuses_a_matching_study(rd, study, monkeypatch) -> None:
+    import camplace.report.study as study_mod
+    from camplace.report.build import _load_or_run_study
+
+    study.save(rd.outdir / "samplers.json")
+    kw = dict(samplers=("chaotic", "sobol", "uniform"), ladder=(5, 10, 20, 40, 80), time_limit_s=None, cache=True, reporter=None)
+
+    def boom(*a, **k):
+        raise AssertionError("the study was recomputed")
+
+    monkeypatch.setattr(study_mod, "sampler_study", boom)
+    assert _load_or_run_study(rd, **kw) == study
+    with pytest.raises(AssertionError, match="recomputed"):
+        _load_or_run_study(rd, **{**kw, "ladder": (5, 80)})

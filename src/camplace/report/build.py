@@ -308,16 +308,19 @@ def _legacy_section(run, comp, campaigns) -> str:
     from scipy.stats import spearmanr
 
     from camplace.report.figures import legacy_scatter_png
-    from camplace.report.legacy import legacy_system_score, legacy_target
+    from camplace.report.legacy import corrected_fov_rad, legacy_system_score, legacy_target, printed_fov
 
     head = "<h2 id='legacy'>The thesis's legacy score against the ray-cast objective</h2>"
+    cam = run.instance.camera
+    fov_printed = math.degrees(printed_fov(cam.sensor_width_mm, cam.focal_length_mm))
+    fov_meant = math.degrees(corrected_fov_rad(cam.sensor_width_mm, cam.focal_length_mm))
     quirks = (
         "<p class='note'>The legacy score is the thesis's Algorithm 2 (section 5.4.2) implemented literally, summed over a "
         "system's cameras: <code>d = |target − camera|</code> (2D), <code>fov = 2·arctan(sensorsize/2·focallength) + ω</code> "
         "as printed, a square coverage box <code>x_c ± fov·2</code>, its overlap area <code>a</code> with the target box "
         "<code>[x_t, x_t+W] × [y_t, y_t+H]</code>, and <code>δ = d + a</code>. Quirks: it is 2D only (no height, "
         "orientation or occlusion); the printed FoV formula is garbled (<code>2·arctan(sensor/(2f))</code> was meant: "
-        "176° instead of 48° here); radians and degrees are mixed (ω); an angle is used as a length; metres are added to "
+        f"{fov_printed:.0f}° instead of {fov_meant:.0f}° here); radians and degrees are mixed (ω); an angle is used as a length; metres are added to "
         "square metres; and, once the box holds the target, the score grows with the distance to the target.</p>"
     )
     if not campaigns:
@@ -337,7 +340,8 @@ def _legacy_section(run, comp, campaigns) -> str:
     rows.append(("all campaigns", len(L), _num(rho_all, 3), _num(p_all, 4), "", "", ""))
     pos = np.array([c["position"] for c in comp.cameras])
     opt_leg = float(legacy_system_score(pos[None], legacy_target(run.instance))[0])
-    png = legacy_scatter_png(groups, (opt_leg, comp.objective), f"legacy score vs objective (Spearman rho = {_num(rho_all, 3)})")
+    png = legacy_scatter_png(groups, (opt_leg, comp.objective), f"legacy score vs objective (Spearman rho = {_num(rho_all, 3)})",
+                             samplers=[c.sampler for c in campaigns])
     return (
         head + quirks
         + _table(["campaign", "systems", "Spearman rho", "p-value", "legacy's best system", "its objective", "its objective percentile"], rows)
@@ -368,6 +372,11 @@ def _find_validation(outdir: Path) -> list[Path]:
 
 
 def _read_light_curves(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Curves of a ``light_curves.csv`` (camera, frame, observed_weight[, candidate, ...]) keyed by a label.
+
+    Cameras are labelled by their candidate column when the file has one (as ``camplace run``
+    writes it), else by the ``camera`` value as written.
+    """
     try:
         rows = list(csv.DictReader(path.read_text().splitlines()))
     except OSError as exc:
@@ -375,7 +384,8 @@ def _read_light_curves(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     curves: dict[str, list[tuple[float, float]]] = {}
     for i, r in enumerate(rows, start=2):
         try:
-            curves.setdefault(str(r["camera"]), []).append((float(r["frame"]), float(r["observed_weight"])))
+            label = f"candidate {int(float(r['candidate']))}" if r.get("candidate") not in (None, "") else f"camera {r['camera']}"
+            curves.setdefault(label, []).append((float(r["frame"]), float(r["observed_weight"])))
         except (KeyError, TypeError, ValueError):
             raise CamplaceError(f"{path}:{i}: the header must be camera,frame,observed_weight with numbers below") from None
     out = {}
@@ -393,7 +403,7 @@ def _matrix_light_curves(run, comp) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     out = {}
     for n, c in enumerate(run.solution.cameras, start=1):
         col = np.asarray((run.matrix[:, int(c["candidate"])] > 0).toarray()).ravel()
-        out[f"camera {n}"] = (np.arange(nf), np.bincount(frames[col], weights=w[col], minlength=nf))
+        out[f"candidate {int(c['candidate'])}"] = (np.arange(nf), np.bincount(frames[col], weights=w[col], minlength=nf))
     return out
 
 
@@ -515,7 +525,8 @@ def _load_or_run_study(run, *, samplers, ladder, time_limit_s, cache, reporter):
             old = SamplerStudy.load(path)
         except CamplaceError:
             old = None
-        if old is not None and old.matches(run.fingerprint, run.solution.seed, len(run.solution.cameras), lad, samplers) and (
+        mode = getattr(run.solution, "event_mode", "all") or "all"
+        if old is not None and old.matches(run.fingerprint, run.solution.seed, len(run.solution.cameras), lad, samplers, mode, run.aims) and (
             time_limit_s is None or old.time_limit_s == float(time_limit_s)
         ):
             log.info("report: reusing %s", path)
@@ -536,6 +547,7 @@ def write_report(
     time_limit_s: float | None = None,
     cache: bool = True,
     reporter=None,
+    run_data=None,
 ) -> Path:
     """Write ``OUTDIR/report.html`` for a run folder and every campaign folder inside it.
 
@@ -559,6 +571,8 @@ def write_report(
     cache : bool
         Use the visibility cache.
     reporter : Reporter or None
+    run_data : RunData or None
+        The run folder already read (:func:`~camplace.report.compare.load_run_data`).
 
     Returns
     -------
@@ -575,7 +589,7 @@ def write_report(
     reporter = reporter or Reporter()
     t0 = time.perf_counter()
     outdir = Path(outdir)
-    run = load_run_data(outdir)
+    run = run_data if run_data is not None else load_run_data(outdir)
     campaigns = [Campaign.load(p, matrix=True) for p in find_campaigns(outdir)]
     with reporter.stage("compare"):
         comp = compare_with_campaigns(run, campaigns, union=union, time_limit_s=time_limit_s)
@@ -620,7 +634,7 @@ def run_report_bundle(
     outdir: str | Path,
     *,
     systems: int = BUNDLE_SYSTEMS,
-    samplers: Sequence[str] = BUNDLE_SAMPLERS,
+    campaign_samplers: Sequence[str] = BUNDLE_SAMPLERS,
     legacy_omega: float = 0.0,
     cache: bool = True,
     reporter=None,
@@ -638,8 +652,8 @@ def run_report_bundle(
         The run's output folder.
     systems : int
         Systems per campaign.
-    samplers : sequence of str
-        One campaign per sampler.
+    campaign_samplers : sequence of str
+        One campaign per sampler, into ``OUTDIR/campaign-{sampler}``.
     legacy_omega : float
         Algorithm 2's camera angle.
     cache : bool
@@ -660,7 +674,7 @@ def run_report_bundle(
     outdir = Path(outdir)
     run = load_run_data(outdir)
     sol = run.solution
-    for s in samplers:
+    for s in campaign_samplers:
         run_campaign(run.instance, systems=systems, sampler=s, seed=sol.seed, points=sol.n_points, k=len(sol.cameras),
                      aims=run.aims, legacy_omega=legacy_omega, event_mode=getattr(sol, "event_mode", "all") or "all", outdir=outdir / f"campaign-{s}", cache=cache, reporter=reporter)
-    return write_report(outdir, cache=cache, reporter=reporter, **report_options)
+    return write_report(outdir, cache=cache, reporter=reporter, run_data=run, **report_options)

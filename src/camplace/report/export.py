@@ -27,10 +27,9 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import logging
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 

@@ -49,6 +49,11 @@ def _figure(width_in: float, height_in: float):
     return fig
 
 
+def plain(text: str) -> str:
+    """A user string shown as is by matplotlib (no mathtext: ``$`` is escaped)."""
+    return str(text).replace("$", r"\$")
+
+
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
@@ -80,7 +85,7 @@ def histogram_png(values: np.ndarray, optimised: float, title: str, *, run_objec
         ax.axvline(run_objective, color="#ff7f0e", lw=1.6, ls=":", label=f"run's system {run_objective:.4f}")
     ax.set_xlabel(xlabel)
     ax.set_ylabel("systems")
-    ax.set_title(title, fontsize=10)
+    ax.set_title(plain(title), fontsize=10)
     ax.legend(fontsize=8, loc="upper left")
     return _png(fig)
 
@@ -148,7 +153,7 @@ def cones_png(panels: Sequence[tuple[str, np.ndarray, np.ndarray]], extent: tupl
         if target_box is not None:
             tx0, tx1, ty0, ty1 = target_box
             ax.plot([tx0, tx1, tx1, tx0, tx0], [ty0, ty0, ty1, ty1, ty0], color="white", lw=1.2)
-        ax.set_title(title, fontsize=9, loc="left")
+        ax.set_title(plain(title), fontsize=9, loc="left")
         ax.set_ylabel("y (m)", fontsize=8)
         ax.tick_params(labelsize=7)
     axes[-1].set_xlabel("x (m)", fontsize=8)
@@ -158,24 +163,32 @@ def cones_png(panels: Sequence[tuple[str, np.ndarray, np.ndarray]], extent: tupl
     return _png(fig)
 
 
-def legacy_scatter_png(groups: Sequence[tuple[str, np.ndarray, np.ndarray]], optimised: tuple[float, float] | None, title: str) -> bytes:
+def legacy_scatter_png(groups: Sequence[tuple[str, np.ndarray, np.ndarray]], optimised: tuple[float, float] | None, title: str,
+                       samplers: Sequence[str] | None = None) -> bytes:
     """Legacy score (x) against the ray-cast objective (y), one colour per campaign.
 
     Parameters
     ----------
     groups : sequence of (label, legacy scores (n,), objectives (n,))
     optimised : (legacy score, objective) of the optimised system, or None
+    samplers : sequence of str or None
+        Each group's sampler: its colour, as in the sampler figure (first use only; repeats get others).
     """
     fig = _figure(6.4, 4.2)
     ax = fig.add_subplot()
-    palette = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2"]
+    palette = ["#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"]
+    used: set[str] = set()
     for i, (label, leg, obj) in enumerate(groups):
-        ax.scatter(leg, obj, s=12, alpha=0.6, color=palette[i % len(palette)], label=label)
+        s = samplers[i] if samplers is not None and i < len(samplers) else None
+        colour = SAMPLER_COLOURS.get(s) if s is not None and s not in used else None
+        if s is not None:
+            used.add(s)
+        ax.scatter(leg, obj, s=12, alpha=0.6, color=colour or palette[i % len(palette)], label=plain(label))
     if optimised is not None:
         ax.plot([optimised[0]], [optimised[1]], "*", ms=16, color="black", label="optimised system")
     ax.set_xlabel("legacy score (thesis Algorithm 2, literal)")
     ax.set_ylabel("objective (ray-cast observed weight)")
-    ax.set_title(title, fontsize=10)
+    ax.set_title(plain(title), fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return _png(fig)
@@ -190,11 +203,14 @@ def light_curves_png(curves: dict[str, tuple[np.ndarray, np.ndarray]], title: st
     """
     fig = _figure(6.4, 3.4)
     ax = fig.add_subplot()
+    from matplotlib.ticker import MaxNLocator
+
     for name, (f, w) in curves.items():
-        ax.plot(f, w, "o-", ms=4, label=name)
+        ax.plot(f, w, "o-", ms=4, label=plain(name))
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("frame")
     ax.set_ylabel("observed weight")
-    ax.set_title(title, fontsize=10)
+    ax.set_title(plain(title), fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     return _png(fig)

@@ -58,6 +58,10 @@ class SamplerStudy:
         time_s, discrepancy, source ("solve" or "run": taken from the run's solution).
     time_limit_s : float
         Per solve.
+    event_mode : str
+        The run's event mode (row weights).
+    aims : list of (3,) lists
+        Aim points of the candidates.
     """
 
     fingerprint: str
@@ -68,6 +72,8 @@ class SamplerStudy:
     rows: list = field(default_factory=list)
     time_limit_s: float = 0.0
     discrepancy_method: str = DISCREPANCY_METHOD
+    event_mode: str = "all"
+    aims: list = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, **{k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}}
@@ -89,12 +95,17 @@ class SamplerStudy:
             fingerprint=data["fingerprint"], seed=int(data["seed"]), k=int(data["k"]), ladder=tuple(data["ladder"]),
             samplers=tuple(data["samplers"]), rows=list(data["rows"]), time_limit_s=float(data["time_limit_s"]),
             discrepancy_method=str(data.get("discrepancy_method", DISCREPANCY_METHOD)),
+            event_mode=str(data.get("event_mode", "all")), aims=[list(map(float, a)) for a in data.get("aims", [])],
         )
 
-    def matches(self, fingerprint: str, seed: int, k: int, ladder: Sequence[int], samplers: Sequence[str]) -> bool:
+    def matches(self, fingerprint: str, seed: int, k: int, ladder: Sequence[int], samplers: Sequence[str],
+                event_mode: str = "all", aims: Sequence[Sequence[float]] | None = None) -> bool:
         """True when this study was made with these settings."""
-        return (self.fingerprint == fingerprint and self.seed == seed and self.k == k
-                and tuple(self.ladder) == tuple(ladder) and tuple(self.samplers) == tuple(samplers))
+        same_aims = aims is None or np.array_equal(np.asarray(self.aims, dtype=np.float64).reshape(-1, 3),
+                                                   np.asarray(aims, dtype=np.float64).reshape(-1, 3))
+        return (self.fingerprint == fingerprint and self.seed == seed and self.k == k and same_aims
+                and tuple(self.ladder) == tuple(ladder) and tuple(self.samplers) == tuple(samplers)
+                and self.event_mode == event_mode)
 
     def series(self, sampler: str, key: str) -> tuple[np.ndarray, np.ndarray]:
         """(n_positions, values of ``key``) of one sampler, in ladder order."""
@@ -182,4 +193,6 @@ def sampler_study(
                                  "gap": res.gap if np.isfinite(res.gap) else None, "status": res.status,
                                  "engine": res.engine, "time_s": res.time_s, "discrepancy": disc, "source": "solve"})
                 advance(1)
-    return SamplerStudy(run.fingerprint, int(sol.seed), k, ladder, tuple(samplers), rows, limit)
+    mode = getattr(sol, "event_mode", "all") or "all"
+    return SamplerStudy(run.fingerprint, int(sol.seed), k, ladder, tuple(samplers), rows, limit,
+                        event_mode=mode, aims=[[float(x) for x in a] for a in aims])
