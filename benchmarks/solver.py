@@ -10,20 +10,28 @@ Usage::
 
     PYTHONPATH=src python benchmarks/solver.py                     # all configurations
     PYTHONPATH=src python benchmarks/solver.py --mip-time-limit 60 --configs sphere bilobed
-    PYTHONPATH=src python benchmarks/solver.py --skip-mip --repeat 3
+    PYTHONPATH=src python benchmarks/solver.py --skip-mip --repeat 3 --blas-threads 1
+
+OpenBLAS threading degrades badly when the cores are oversubscribed (other processes running);
+``--blas-threads`` sets ``OPENBLAS_NUM_THREADS`` before numpy is imported. The load average is
+printed so that figures can be judged.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import statistics
 import sys
 import time
 from typing import Any
 
-from camplace.solver import SolverResult, solve_maxcover
-from camplace.solver._synthetic import structured_instance
+if "--blas-threads" in sys.argv:  # must happen before numpy is imported
+    os.environ["OPENBLAS_NUM_THREADS"] = sys.argv[sys.argv.index("--blas-threads") + 1]
+
+from camplace.solver import SolverResult, solve_maxcover  # noqa: E402
+from camplace.solver._synthetic import structured_instance  # noqa: E402
 
 CONFIGS: dict[str, dict[str, Any]] = {
     "sphere": {},  # cameras 1.5..15 around a unit sphere: optimum ~99.8 %, many near-ties
@@ -48,9 +56,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mip-time-limit", type=float, default=120.0, help="seconds for SCIP (default 120)")
     ap.add_argument("--skip-mip", action="store_true")
     ap.add_argument("--repeat", type=int, default=1, help="exact-engine repetitions (median reported)")
+    ap.add_argument("--blas-threads", default=None, help="OPENBLAS_NUM_THREADS for this run")
     ap.add_argument("--verbose", action="store_true")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    print(
+        f"cpus={os.cpu_count()} OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'default')} "
+        f"load average at start: {os.getloadavg()[0]:.2f}"
+    )
 
     rows_out: list[str] = []
     for name in args.configs:
@@ -77,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"   exact   : {ex_s:7.2f} s total ({'/'.join(f'{x:.2f}' for x in times)})  {_fmt_result(ex)}  "
                 f"[{es.get('tree_nodes', 0)} tree nodes, {es.get('gemm_madds', 0.0):.2e} multiply-adds]"
             )
-            line = f"{name:17s} {n_cams:5d}x{m_pts:6d} -> {ex.stats['cols_after']:5d}x{ex.stats['rows_after']:6d}  exact {ex_s:7.2f}s"
+            after = f"{ex.stats['cols_after']:5d}x{ex.stats['rows_after']:6d}"
+            line = f"{name:17s} {n_cams:5d}x{m_pts:6d} -> {after}  exact {ex_s:7.2f}s"
             if not args.skip_mip:
                 t = time.perf_counter()
                 mip = solve_maxcover(matrix, weights, args.k, engine="mip", time_limit_s=args.mip_time_limit)
@@ -90,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
                 line += f"  mip {mip_s:7.2f}s ({mip.status}, gap {mip.gap:.1e})  ratio {rel}{ratio:.1f}x"
             rows_out.append(line)
             sys.stdout.flush()
-    print("\nsummary (candidates x points -> cols x rows after presolve):")
+    print(f"\nload average at end: {os.getloadavg()[0]:.2f}")
+    print("summary (candidates x points -> cols x rows after presolve):")
     for line in rows_out:
         print("  " + line)
     return 0

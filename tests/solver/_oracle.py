@@ -47,7 +47,9 @@ def tolerance(weights: np.ndarray) -> float:
 
 
 @st.composite
-def small_instances(draw: st.DrawFn, max_n: int = 30, max_m: int = 40, max_k: int = 4) -> tuple[sp.csr_matrix, np.ndarray, int]:
+def small_instances(
+    draw: st.DrawFn, max_n: int = 30, max_m: int = 40, max_k: int = 4
+) -> tuple[sp.csr_matrix, np.ndarray, int]:
     """Random small instances with near-duplicate columns, identical rows and zero weights."""
     n0 = draw(st.integers(1, max_n))
     m = draw(st.integers(0, max_m))

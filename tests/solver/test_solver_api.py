@@ -102,7 +102,9 @@ def test_result_roundtrip() -> None:
     assert back.objective == res.objective and back.bound == res.bound and back.gap == res.gap
     with pytest.raises(ValueError):
         SolverResult(selected=(), status="great", objective=0.0, bound=0.0, gap=0.0, engine="x", time_s=0.0)
-    inf = SolverResult(selected=(), status="unknown", objective=0.0, bound=float("inf"), gap=float("inf"), engine="x", time_s=0.0)
+    inf = SolverResult(
+        selected=(), status="unknown", objective=0.0, bound=float("inf"), gap=float("inf"), engine="x", time_s=0.0
+    )
     d = inf.to_dict()
     json.dumps(d, allow_nan=False)
     assert SolverResult.from_dict(d).bound == float("inf")
@@ -114,6 +116,15 @@ def test_coverage_weight() -> None:
     assert coverage_weight(A, W, (0, 1)) == pytest.approx(6.0)
     with pytest.raises(CamplaceError):
         coverage_weight(A, W, [3])
+
+
+@pytest.mark.parametrize("engine", ["exact", "mip", "cpsat"])
+def test_stats_are_plain_json(engine: str) -> None:
+    rng = np.random.default_rng(1)
+    dense = (rng.random((60, 12)) < 0.3).astype(float)
+    res = solve_maxcover(dense, rng.uniform(0.1, 1.0, 60), 3, engine=engine)
+    json.dumps(res.stats, allow_nan=False)
+    assert res.stats["cols_in"] == 12 and res.stats["rows_in"] == 60
 
 
 def test_engines_listed() -> None:

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
+import scipy.sparse as sp
 
-from camplace.solver import solve_maxcover
+from camplace.solver import SolverResult, solve_maxcover
 from camplace.solver import exact as exact_mod
 from camplace.solver._common import Deadline
 from camplace.solver._synthetic import structured_instance
@@ -27,12 +29,12 @@ class _CountingDeadline(Deadline):
 
 
 @pytest.fixture(scope="module")
-def instance():
+def instance() -> tuple[sp.csr_matrix, np.ndarray]:
     return structured_instance(1200, 260, seed=2, shape="bilobed", corridor=True, fov_deg=70.0)
 
 
 @pytest.fixture(scope="module")
-def optimum(instance) -> dict[int, float]:
+def optimum(instance: tuple[sp.csr_matrix, np.ndarray]) -> dict[int, float]:
     matrix, weights = instance
     out = {}
     for k in (3, 4):
@@ -42,7 +44,7 @@ def optimum(instance) -> dict[int, float]:
     return out
 
 
-def _check_honest(res, opt: float) -> None:
+def _check_honest(res: SolverResult, opt: float) -> None:
     assert res.status in ("optimal", "feasible")
     assert res.objective <= opt + 1e-12
     assert res.bound >= opt - 1e-12, "bound must be a valid upper bound on the optimum"

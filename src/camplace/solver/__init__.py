@@ -24,14 +24,13 @@ import numbers
 import time
 from typing import Any, Callable
 
-import numpy as np
 
 from camplace.errors import CamplaceError
 from camplace.solver._common import EngineOutcome, coverage_weight
 from camplace.solver.exact import EXACT_MAX_K, solve_exact
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
 from camplace.solver.presolve import Presolved, as_pattern, check_weights, presolve
-from camplace.solver.result import SolverResult, relative_gap
+from camplace.solver.result import SolverResult, jsonable, relative_gap
 
 __all__ = [
     "ENGINES",
@@ -164,5 +163,5 @@ def solve_maxcover(
         gap=float(gap),
         engine=name,
         time_s=elapsed,
-        stats=stats,
+        stats=jsonable(stats),
     )

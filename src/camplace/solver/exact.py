@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import blas
 
+from camplace.solver._blas import limit_blas_threads
 from camplace.solver._common import Deadline, EngineOutcome
 from camplace.solver.presolve import Presolved
 
@@ -54,6 +55,9 @@ _INT_EXACT_LIMIT = 1 << 22  # total count limit: stored pair values stay below 2
 _FLOAT_MARGIN = 1e-9  # relative pruning margin for float64 weights
 _SCREEN_MIN = 48  # pair screening by segments only above this many columns
 _SWAP_ROUNDS = 50
+# OpenBLAS threads during a solve (None: leave BLAS alone). One thread is ~1.3x slower on an idle
+# 2-core machine but avoids 5-15x slowdowns when the cores are oversubscribed (see _blas.py).
+BLAS_THREADS: int | None = 1
 
 
 class _Timeout(Exception):
@@ -398,7 +402,7 @@ class _Search:
         return _lower(pv)
 
     def _best_pair(self, pv: np.ndarray) -> tuple[float, int, int]:
-        """Maximum of a symmetric pair-value matrix (diagonal -inf) and its indices."""
+        """Maximum entry of a pair-value matrix (-inf marks invalid pairs) and its indices."""
         flat = int(np.argmax(pv))
         i, j = divmod(flat, pv.shape[1])
         return float(pv[i, j]), int(i), int(j)
@@ -466,7 +470,8 @@ class _Search:
             self._node_key += 1
             key = self._node_key
             self.open_nodes[key] = base + fmax + float(pv.max())
-        self._node(wm, rows, in_n, p, self.n, cols, pv, 0.0, np.zeros(0, dtype=np.int64), g, p, base, prefix, track, key)
+        no_rows = np.zeros(0, dtype=np.int64)
+        self._node(wm, rows, in_n, p, self.n, cols, pv, 0.0, no_rows, g, p, base, prefix, track, key)
 
     def _accumulate(self, c: np.ndarray, x: np.ndarray, w: np.ndarray) -> np.ndarray:
         """Add ``x^T diag(w) x`` to the strict lower triangle of ``c`` (in place if possible).
@@ -750,6 +755,20 @@ def solve_exact(
     time_limit_s: float | None = None,
     n_segments: int | None = None,
 ) -> EngineOutcome:
+    """Solve a presolved max-coverage instance exactly (see :func:`_solve_exact`).
+
+    OpenBLAS is limited to :data:`BLAS_THREADS` threads for the duration of the solve.
+    """
+    with limit_blas_threads(BLAS_THREADS):
+        return _solve_exact(pre, time_limit_s=time_limit_s, n_segments=n_segments)
+
+
+def _solve_exact(
+    pre: Presolved,
+    *,
+    time_limit_s: float | None = None,
+    n_segments: int | None = None,
+) -> EngineOutcome:
     """Solve a presolved max-coverage instance exactly.
 
     Parameters
@@ -841,4 +860,5 @@ def solve_exact(
         stats["gemms"],
         deadline.elapsed(),
     )
-    return EngineOutcome(selected=tuple(int(j) for j in srch.best_set), status=status, bound=float(bound) * scale, stats=stats)
+    selected = tuple(int(j) for j in srch.best_set)
+    return EngineOutcome(selected=selected, status=status, bound=float(bound) * scale, stats=stats)

@@ -24,7 +24,6 @@ import math
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 from camplace.solver._common import Deadline, EngineOutcome, greedy_incumbent
@@ -43,7 +42,8 @@ def _trivial(pre: Presolved) -> EngineOutcome | None:
     m, n = pre.shape
     if m == 0 or n <= pre.k:
         value = float(pre.weights.sum()) if n <= pre.k else 0.0
-        return EngineOutcome(selected=tuple(range(min(pre.k, n))), status="optimal", bound=value, stats={"trivial": True})
+        sel = tuple(range(min(pre.k, n)))
+        return EngineOutcome(selected=sel, status="optimal", bound=value, stats={"trivial": True})
     return None
 
 

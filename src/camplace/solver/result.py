@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["SolverResult", "STATUSES", "relative_gap"]
+__all__ = ["SolverResult", "STATUSES", "jsonable", "relative_gap"]
 
 STATUSES = ("optimal", "feasible", "infeasible", "unknown")
 
@@ -31,14 +31,17 @@ def relative_gap(bound: float, objective: float) -> float:
     return max(0.0, (bound - objective) / max(abs(bound), 1e-12))
 
 
-def _jsonable(value: Any) -> Any:
-    """Convert numpy scalars/arrays (and nested containers) to plain JSON types."""
+def jsonable(value: Any) -> Any:
+    """Convert numpy scalars/arrays (and nested containers) to plain JSON types.
+
+    Non-finite floats become None so that ``json.dumps(..., allow_nan=False)`` works.
+    """
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if hasattr(value, "tolist"):  # numpy scalar or array
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
@@ -92,12 +95,12 @@ class SolverResult:
         return {
             "selected": [int(j) for j in self.selected],
             "status": self.status,
-            "objective": _jsonable(float(self.objective)),
-            "bound": _jsonable(float(self.bound)),
-            "gap": _jsonable(float(self.gap)),
+            "objective": jsonable(float(self.objective)),
+            "bound": jsonable(float(self.bound)),
+            "gap": jsonable(float(self.gap)),
             "engine": self.engine,
             "time_s": float(self.time_s),
-            "stats": _jsonable(self.stats),
+            "stats": jsonable(self.stats),
         }
 
     @classmethod
