@@ -3,11 +3,13 @@
 Prints, from one run on this machine:
 
 - raw embreex throughput: OCCLUDED segment queries on 2 threads over exactly the segments
-  camplace casts (prebuilt float32 arrays, nothing else timed);
+  camplace casts, each against the scene camplace casts it against (prebuilt float32 arrays,
+  nothing else timed);
 - camplace's throughput per cast segment: segments cast / the wall time of the whole matrix
   computation (culling, casting, assembly), and its ratio to the raw figure (target >= 0.8);
 - the naive baseline: build and cast a segment for every (point, candidate) pair with raw embreex
-  on 2 threads, no culling; camplace's end-to-end speed-up over it (target >= 2x);
+  on 2 threads against the full scene, no culling; camplace's end-to-end speed-up over it
+  (target >= 2x);
 - peak memory (RSS) of the visibility stage, measured in a fresh child process.
 
 Usage: python benchmarks/visibility.py [--candidates 5000] [--points 20000]
@@ -87,40 +89,43 @@ def main() -> None:
     print(f"camplace matrix: {ours_s:.2f} s, {cast:,} segments cast ({100 * cast / (m * n):.1f}% of pairs), "
           f"{vis.matrix.nnz:,} observed")
 
-    # 2. the exact segments camplace casts, recorded, then cast with raw embreex on 2 threads
-    task, scenes = make_task(inst, cands, pts)
-    recorded: list[tuple[np.ndarray, np.ndarray]] = []
+    # 2. the exact segments camplace casts (each with the scene it is cast against), recorded by
+    #    replaying the computation, then cast with raw embreex on 2 threads
+    from camplace.visibility.engine import FrameScenes
 
-    class Recorder(RayScene):
+    task, scenes = make_task(inst, cands, pts)
+    batches: list[tuple[object, np.ndarray, np.ndarray]] = []
+
+    class Replay(RayScene):
         def __init__(self, inner: RayScene) -> None:
             self.__dict__.update(inner.__dict__)
 
         def occluded_dir(self, origins, directions):
-            recorded.append((np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(directions, np.float32)))
+            batches.append((self._scene, np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(directions, np.float32)))
             return super().occluded_dir(origins, directions)
 
-    rec_scenes = {f: Recorder(s) for f, s in scenes.items()}
+    rep_scenes = {f: FrameScenes(Replay(s.full), Replay(s.rest)) for f, s in scenes.items()}
     for s in range(0, n, 32):
-        compute_chunk(task, rec_scenes, s, min(s + 32, n))
-    raw_scene = scenes[0]._scene
-    n_seg = sum(len(o) for o, _ in recorded)
+        compute_chunk(task, rep_scenes, s, min(s + 32, n))
+    n_seg = sum(len(o) for _, o, _ in batches)
     assert n_seg == cast, (n_seg, cast)
-    ones = [np.ones(len(o), np.float32) for o, _ in recorded]
+    ones = [np.ones(len(o), np.float32) for _, o, _ in batches]
+    raw_scene = scenes[0].full._scene
 
     def raw(i: int):
-        o, d = recorded[i]
-        return raw_scene.run(o, d, dists=ones[i], query="OCCLUDED")
+        sc, o, d = batches[i]
+        return sc.run(o, d, dists=ones[i], query="OCCLUDED")
 
     with ThreadPoolExecutor(2) as pool:
         t0 = time.perf_counter()
-        list(pool.map(raw, range(len(recorded))))
+        list(pool.map(raw, range(len(batches))))
         raw_s = time.perf_counter() - t0
     raw_tp = n_seg / raw_s
     ours_tp = cast / ours_s
     print(f"raw embreex OCCLUDED on the same segments: {raw_s:.2f} s = {raw_tp / 1e6:.2f} M segments/s")
     print(f"camplace per cast segment (end to end):   {ours_tp / 1e6:.2f} M segments/s = {ours_tp / raw_tp:.2f} x raw "
           f"(target >= 0.8)")
-    del recorded, ones
+    del batches, ones
 
     # 3. naive baseline: a segment for every pair, raw embreex, 2 threads, no culling
     eps = float(task.eps_m[0])

@@ -17,13 +17,16 @@ Its value, the observation quality, is 1 in ``binary`` mode; in ``graded`` mode 
 ``min(1, f_px / (distance * required_px_per_m)) * cos(theta)`` for surface points (resolution
 times foreshortening) and the resolution factor alone for emitters.
 
-Pairs failing 1-4 are culled in numpy before any ray is cast; the remaining segments are cast
-with Embree, chunk by chunk over candidates, on a pool of threads (Embree and numpy release the
-GIL) or on a Dask cluster (:mod:`camplace.visibility.distributed`).
+Pairs failing 1-4 are culled in numpy before any ray is cast (facing by one matrix product per
+chunk, the frustum per camera when the whole target fits in it); segments to points on a
+supporting plane of the target are cast against the occluders alone (they provably miss the
+target); the rest are cast with Embree, chunk by chunk over candidates, on a pool of threads
+(Embree and numpy release the GIL) or on a Dask cluster (:mod:`camplace.visibility.distributed`).
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -124,6 +127,14 @@ class VisibilityTask:
     cos_max_incidence : float
     scene_triangles : dict of int to (t, 3, 3) float32
         The triangles of each frame's scene, exactly as cast.
+    rest_triangles : dict of int to (t, 3, 3) float32
+        The same without the target (the occluders alone).
+    support : (m,) bool
+        Surface rows whose tangent plane supports the target: every target vertex v of the row's
+        frame has ``n . (v - p) <= support_tol``. A segment from a camera with
+        ``n . (c - p) > support_tol`` to ``p + eps n`` then lies in the open half-space beyond that
+        plane and cannot meet the target, so it is cast against the occluders alone.
+    support_tol : (n_frames,) float64
     """
 
     positions: np.ndarray
@@ -142,76 +153,38 @@ class VisibilityTask:
     required_px_per_m: float
     cos_max_incidence: float
     scene_triangles: dict
+    rest_triangles: dict
+    support: np.ndarray
+    support_tol: np.ndarray
 
     @property
     def n_candidates(self) -> int:
         return int(self.cam_positions.shape[0])
 
-    def build_scenes(self) -> dict[int, RayScene]:
-        """One Embree scene per frame (build once per process)."""
-        return {f: RayScene.from_triangles(t) for f, t in self.scene_triangles.items()}
+    @functools.cached_property
+    def live_rows(self) -> np.ndarray:
+        """(l,) int64: the rows that can be observed at all (``active``), ascending."""
+        return np.nonzero(self.active)[0]
+
+    @functools.cached_property
+    def ends32(self) -> np.ndarray:
+        """(m, 3) float32: segment end of every row, ``p + eps n`` (the point itself for emitters)."""
+        return (self.positions + self.eps_m[self.frame][:, None] * self.normals).astype(np.float32)
+
+    def build_scenes(self) -> dict[int, "FrameScenes"]:
+        """The Embree scenes of every frame (build once per process)."""
+        return {
+            f: FrameScenes(RayScene.from_triangles(t), RayScene.from_triangles(self.rest_triangles[f]))
+            for f, t in self.scene_triangles.items()
+        }
 
 
-def cull_chunk(
-    points: np.ndarray,
-    normals: np.ndarray,
-    cam_pos: np.ndarray,
-    cam_rot: np.ndarray,
-    K: np.ndarray,
-    width_px: int,
-    height_px: int,
-    near_m: float,
-    far_m: float,
-    cos_max_incidence: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
-    """Range, frustum and facing/incidence tests for a chunk of cameras against points.
+@dataclass(frozen=True, eq=False)
+class FrameScenes:
+    """A frame's scene with the target (``full``) and without it (``rest``)."""
 
-    Parameters
-    ----------
-    points : (m, 3) float64
-    normals : (m, 3) float64
-        Zero rows (emitters) skip the facing test.
-    cam_pos : (c, 3) float64
-    cam_rot : (c, 3, 3) float64
-        World-from-camera rotations (OpenCV axes).
-    K : (3, 3) float64
-    width_px, height_px : int
-    near_m, far_m : float
-    cos_max_incidence : float
-        cos of the largest accepted angle between normal and view ray.
-
-    Returns
-    -------
-    cam_idx : (q,) int64
-        Chunk-local camera index of each surviving pair.
-    point_idx : (q,) int64
-        Point index of each surviving pair.
-    distance : (q,) float64
-        Camera-to-point distance.
-    cos_theta : (q,) float64
-        Cosine of the incidence angle (1 for emitters).
-    counts : dict
-        Pairs surviving each test.
-    """
-    diff = points[None, :, :] - cam_pos[:, None, :]  # (c, m, 3) camera -> point
-    cam = np.einsum("cmk,ckl->cml", diff, cam_rot)  # camera coordinates
-    z = cam[:, :, 2]
-    ok = (z >= near_m) & (z <= far_m)
-    n_range = int(ok.sum())
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = K[0, 0] * cam[:, :, 0] / z + K[0, 2]
-        v = K[1, 1] * cam[:, :, 1] / z + K[1, 2]
-    ok &= (u >= -0.5) & (u < width_px - 0.5) & (v >= -0.5) & (v < height_px - 0.5)
-    n_frustum = int(ok.sum())
-    cam_idx, point_idx = np.nonzero(ok)
-    d = diff[cam_idx, point_idx]
-    dist = np.linalg.norm(d, axis=1)
-    nrm = normals[point_idx]
-    emitter = ~np.any(nrm != 0.0, axis=1)
-    cos_theta = np.where(emitter, 1.0, -np.einsum("qk,qk->q", d, nrm) / np.maximum(dist, 1e-300))
-    keep = emitter | ((cos_theta > 0.0) & (cos_theta >= cos_max_incidence))
-    counts = {"in_range": n_range, "in_frustum": n_frustum, "facing": int(keep.sum())}
-    return cam_idx[keep], point_idx[keep], dist[keep], cos_theta[keep], counts
+    full: RayScene
+    rest: RayScene
 
 
 def sphere_inside_view(
@@ -250,14 +223,32 @@ def sphere_inside_view(
     return ok
 
 
-def compute_chunk(
-    task: VisibilityTask, scenes: dict[int, RayScene], start: int, stop: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """Observed pairs of candidates ``start:stop``.
+def frustum_mask(
+    points: np.ndarray, cam_pos: np.ndarray, cam_rot: np.ndarray, K: np.ndarray,
+    width_px: int, height_px: int, near_m: float, far_m: float,
+) -> tuple[np.ndarray, int]:
+    """(c, m) bool: points in each camera's depth range and image; also the in-range count."""
+    diff = points[None, :, :] - cam_pos[:, None, :]
+    cam = np.einsum("cmk,ckl->cml", diff, cam_rot)
+    z = cam[:, :, 2]
+    ok = (z >= near_m) & (z <= far_m)
+    n_range = int(ok.sum())
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * cam[:, :, 0] / z + K[0, 2]
+        v = K[1, 1] * cam[:, :, 1] / z + K[1, 2]
+    ok &= (u >= -0.5) & (u < width_px - 0.5) & (v >= -0.5) & (v < height_px - 0.5)
+    return ok, n_range
 
-    Facing tests are one matrix product per frame (``N @ C^T`` against ``n . p``); cameras that
+
+def compute_chunk(
+    task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Observed pairs of candidates ``start:stop``, column-major with rows ascending.
+
+    Facing tests are one matrix product per frame (``C @ N^T`` against ``n . p``); cameras that
     hold the frame's whole active point set inside their frustum and range skip the per-pair
-    frustum test; the rest go through :func:`cull_chunk`.
+    frustum test; segments to points on a supporting plane of the target (see
+    :class:`VisibilityTask`) are cast against the occluders alone.
 
     Returns
     -------
@@ -272,81 +263,78 @@ def compute_chunk(
     rot = task.cam_rotations[start:stop]
     nc = stop - start
     counts = dict.fromkeys(COUNT_KEYS, 0)
-    out_r, out_c, out_v = [], [], []
-    fx = float(task.K[0, 0])
+    live = task.live_rows
+    counts["pairs"] = len(task.frame) * nc
+    if len(live) == 0 or nc == 0:
+        return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, np.float32), counts
+    live_frame = task.frame[live]
+    ok = np.zeros((nc, len(live)), dtype=bool)
+    sup = np.zeros((nc, len(live)), dtype=bool)  # pairs whose segment cannot meet the target
     for f in sorted(task.scene_triangles):
-        in_frame = task.frame == f
-        rows = np.nonzero(in_frame & task.active)[0]
-        counts["pairs"] += int(np.count_nonzero(in_frame)) * nc
-        if len(rows) == 0:
+        sl = np.nonzero(live_frame == f)[0]
+        if len(sl) == 0:
             continue
+        rows = live[sl]
         p = task.positions[rows]
         nrm = task.normals[rows]
+        emitter = ~np.any(nrm != 0.0, axis=1)
+        dot = pos @ nrm.T - np.einsum("ij,ij->i", nrm, p)[None, :]  # n . (c - p)
+        fac = (dot > 0.0) | emitter[None, :]
         lo, hi = p.min(axis=0), p.max(axis=0)
-        centre = (lo + hi) / 2
-        radius = float(np.linalg.norm(hi - lo) / 2)
         whole = sphere_inside_view(
-            centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
+            (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), pos, rot, task.K,
+            task.width_px, task.height_px, task.near_m, task.far_m,
         )
-        ci_parts, pi_parts = [], []
-        n_in = 0
-        if whole.any():
-            wc = np.nonzero(whole)[0]
-            emitter = ~np.any(nrm != 0.0, axis=1)
-            # n . (c - p) > 0  <=>  n . c > n . p : one matrix product for all pairs
-            facing = (pos[wc] @ nrm.T) > np.einsum("ij,ij->i", nrm, p)[None, :]
-            facing |= emitter[None, :]
-            a, b = np.nonzero(facing)
-            ci_parts.append(wc[a])
-            pi_parts.append(b)
-            n_in += len(wc) * len(rows)
+        n_whole = int(whole.sum()) * len(sl)
+        counts["in_range"] += n_whole
+        counts["in_frustum"] += n_whole
         part = np.nonzero(~whole)[0]
         if len(part):
-            ci, pi, _, _, cnt = cull_chunk(
-                p, nrm, pos[part], rot[part], task.K, task.width_px, task.height_px, task.near_m, task.far_m
-            )
-            counts["in_range"] += cnt["in_range"]
-            counts["in_frustum"] += cnt["in_frustum"]
-            ci_parts.append(part[ci])
-            pi_parts.append(pi)
-        counts["in_range"] += n_in
-        counts["in_frustum"] += n_in
-        ci = np.concatenate(ci_parts)
-        pi = np.concatenate(pi_parts)
-        need_geometry = task.graded or task.cos_max_incidence > 0.0
-        if need_geometry:
-            # incidence limit and quality need distance and cos(theta) of the facing pairs
-            d = p[pi] - pos[ci]
-            dist = np.sqrt(np.einsum("qk,qk->q", d, d))
-            nn = nrm[pi]
-            emit = ~np.any(nn != 0.0, axis=1)
-            cos_t = np.where(emit, 1.0, -np.einsum("qk,qk->q", d, nn) / np.maximum(dist, 1e-300))
-            keep = emit | ((cos_t > 0.0) & (cos_t >= task.cos_max_incidence))
-            ci, pi, dist, cos_t = ci[keep], pi[keep], dist[keep], cos_t[keep]
-        counts["facing"] += len(ci)
-        # segments camera -> p + eps * n, as float32 origin + unnormalised direction (tfar = 1)
-        ends32 = (p + float(task.eps_m[f]) * nrm).astype(np.float32)
-        pos32 = pos.astype(np.float32)
-        origins = pos32[ci]
-        blocked = scenes[f].occluded_dir(origins, ends32[pi] - origins)
-        counts["cast"] += len(ci)
-        ok = ~blocked
-        counts["observed"] += int(ok.sum())
-        if task.graded:
-            q = np.minimum(1.0, fx / (dist[ok] * task.required_px_per_m)) * cos_t[ok]
-            q = np.maximum(q, np.finfo(np.float32).tiny).astype(np.float32)
-        else:
-            q = np.ones(int(ok.sum()), dtype=np.float32)
-        out_r.append(rows[pi[ok]].astype(np.int32))
-        out_c.append((ci[ok] + start).astype(np.int32))
-        out_v.append(q)
-    if not out_r:
-        return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, np.float32), counts
-    rows_o, cols_o, vals_o = np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_v)
-    # column-major order with rows ascending within each column (frames, hence rows, were visited
-    # in increasing order), so the matrix can be assembled in linear time
-    order = np.lexsort((rows_o, cols_o))
-    return rows_o[order], cols_o[order], vals_o[order], counts
+            view, n_range = frustum_mask(p, pos[part], rot[part], task.K, task.width_px, task.height_px, task.near_m, task.far_m)
+            counts["in_range"] += n_range
+            counts["in_frustum"] += int(view.sum())
+            fac[part] &= view
+        block = slice(sl[0], sl[-1] + 1) if sl[-1] - sl[0] + 1 == len(sl) else sl  # frames: contiguous rows
+        ok[:, block] = fac
+        sup[:, block] = fac & (dot > task.support_tol[f]) & task.support[rows][None, :]
+    ci, li = np.nonzero(ok)  # camera-major, rows ascending within a camera
+    rows_g = live[li]
+    supported = sup[ci, li]
+    if task.graded or task.cos_max_incidence > 0.0:
+        d = task.positions[rows_g] - pos[ci]
+        dist = np.sqrt(np.einsum("qk,qk->q", d, d))
+        emit = ~np.any(task.normals[rows_g] != 0.0, axis=1)
+        cos_t = np.where(emit, 1.0, -np.einsum("qk,qk->q", d, task.normals[rows_g]) / np.maximum(dist, 1e-300))
+        keep = emit | (cos_t >= task.cos_max_incidence)
+        ci, rows_g, supported, dist, cos_t = ci[keep], rows_g[keep], supported[keep], dist[keep], cos_t[keep]
+    counts["facing"] += len(ci)
+    # segments camera -> p + eps * n, as float32 origin + unnormalised direction (tfar = 1);
+    # rows on a supporting plane of the target, seen from its outer side, skip the target
+    pos32 = pos.astype(np.float32)
+    fr = task.frame[rows_g]
+    single = len(task.scene_triangles) == 1
+    blocked = np.zeros(len(ci), dtype=bool)
+    for f in task.scene_triangles:
+        in_f = None if single else fr == f
+        for flag, scene in ((False, scenes[f].full), (True, scenes[f].rest)):
+            mask = supported if flag else ~supported
+            if in_f is not None:
+                mask = mask & in_f
+            idx = np.nonzero(mask)[0]
+            if len(idx) == 0:
+                continue
+            origins = pos32[ci[idx]]
+            blocked[idx] = scene.occluded_dir(origins, task.ends32[rows_g[idx]] - origins)
+            counts["cast"] += len(idx)
+    ok_q = ~blocked
+    counts["observed"] += int(ok_q.sum())
+    if task.graded:
+        fx = float(task.K[0, 0])
+        q = np.minimum(1.0, fx / (dist[ok_q] * task.required_px_per_m)) * cos_t[ok_q]
+        q = np.maximum(q, np.finfo(np.float32).tiny).astype(np.float32)
+    else:
+        q = np.ones(int(ok_q.sum()), dtype=np.float32)
+    return rows_g[ok_q].astype(np.int32), (ci[ok_q] + start).astype(np.int32), q, counts
 
 
 def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m: np.ndarray) -> np.ndarray:
@@ -368,16 +356,41 @@ def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m:
     return lit
 
 
-def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTask, dict[int, RayScene]]:
+def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarray, tol: float) -> np.ndarray:
+    """(m,) bool: surface rows of ``frame`` whose tangent plane has every target vertex behind it.
+
+    A row p with normal n qualifies when ``max_v n . (v - p) <= tol`` over the frame's target
+    vertices ``v``: the whole (closed, piecewise planar) target lies in the half-space
+    ``n . (x - p) <= tol``.
+    """
+    out = np.zeros(len(points), dtype=bool)
+    rows = np.nonzero((points.frame == frame) & ~points.is_emitter)[0]
+    for s in range(0, len(rows), 2048):
+        r = rows[s:s + 2048]
+        n, p = points.normals[r], points.positions[r]
+        reach = (target_vertices @ n.T).max(axis=0) - np.einsum("ij,ij->i", n, p)
+        out[r] = reach <= tol
+    return out
+
+
+def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTask, dict[int, FrameScenes]]:
     """The picklable task for (instance, candidates, points) and the frame scenes built for it."""
     cam = instance.camera
     q = instance.quality
     frames = [int(f) for f in np.unique(points.frame)]
-    scenes = {f: frame_scene(instance, f) for f in frames}
+    full = {f: frame_scene(instance, f) for f in frames}
+    rest = {f: RayScene([(v, fc) for _, v, fc in instance.occluders_world(f)]) for f in frames}
+    scenes = {f: FrameScenes(full[f], rest[f]) for f in frames}
     eps = np.zeros(len(instance.frames))
+    tol = np.zeros(len(instance.frames))
+    support = np.zeros(len(points), dtype=bool)
     for f in frames:
-        eps[f] = EPS_REL * float(np.linalg.norm(np.ptp(instance.target_world(f)[0], axis=0)))
-    active = lit_mask(instance, points, scenes, eps) if q.require_light else np.ones(len(points), dtype=bool)
+        tv = instance.target_world(f)[0]
+        diag = float(np.linalg.norm(np.ptp(tv, axis=0)))
+        eps[f] = EPS_REL * diag
+        tol[f] = 1e-9 * diag
+        support |= supporting_rows(points, f, tv, tol[f])
+    active = lit_mask(instance, points, full, eps) if q.require_light else np.ones(len(points), dtype=bool)
     cos_max = math.cos(math.radians(q.max_incidence_deg)) if q.max_incidence_deg < 90.0 else 0.0
     task = VisibilityTask(
         positions=points.positions,
@@ -395,7 +408,10 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
         graded=q.mode == "graded",
         required_px_per_m=float(q.required_px_per_m),
         cos_max_incidence=cos_max,
-        scene_triangles={f: s.triangles for f, s in scenes.items()},
+        scene_triangles={f: s.triangles for f, s in full.items()},
+        rest_triangles={f: s.triangles for f, s in rest.items()},
+        support=support,
+        support_tol=tol,
     )
     return task, scenes
 
