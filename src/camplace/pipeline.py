@@ -503,11 +503,14 @@ def run(
     total_weight = float(solve_w.sum())
     observed = covered_rows(vis.matrix, res.selected)
     in_peak = pts.frame == peak
+    # no incumbent at all (a time limit before the first solution): objective 0, gap 100%
+    bound = float(res.bound) if np.isfinite(res.bound) else total_weight
+    gap = float(res.gap) if np.isfinite(res.gap) else 1.0
     solution = Solution(
         status=res.status,
         objective=float(res.objective),
-        bound=float(res.bound),
-        gap=float(res.gap),
+        bound=bound,
+        gap=gap,
         k=k,
         seed=seed,
         sampler=sampler,
