@@ -66,6 +66,54 @@ def write_with_atomic(path: str | os.PathLike[str], writer: Callable[[Path], Non
         writer(tmp)
 
 
+def read_numeric_csv(path: str | os.PathLike[str], header: str, what: str) -> "np.ndarray":
+    """Read a camplace CSV of numbers whose first line must be ``header``.
+
+    Parameters
+    ----------
+    path : path
+    header : str
+        The exact header (spaces ignored); its comma count gives the number of columns.
+    what : str
+        What the file is, for error messages (e.g. "candidates file").
+
+    Returns
+    -------
+    (rows, columns) float64
+        Finite values; a row index first column is checked to run 0, 1, 2, ...
+
+    Raises
+    ------
+    CamplaceError
+        One line naming the file and the problem.
+    """
+    import numpy as np
+
+    from camplace.errors import CamplaceError
+
+    path = Path(path)
+    n_cols = header.count(",") + 1
+    try:
+        lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise CamplaceError(f"{path}: cannot read the {what} ({reason}; check the path)") from None
+    if not lines or lines[0].replace(" ", "") != header:
+        raise CamplaceError(f"{path}: the header must be '{header}' (write it with camplace)")
+    try:
+        data = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], dtype=np.float64)
+    except ValueError as exc:
+        raise CamplaceError(f"{path}: every row needs {n_cols} numbers ({exc})") from None
+    data = data.reshape(-1, n_cols) if data.size else np.empty((0, n_cols))
+    if data.shape[1] != n_cols:
+        raise CamplaceError(f"{path}: every row needs {n_cols} numbers")
+    if not np.all(np.isfinite(data)):
+        raise CamplaceError(f"{path}: contains NaN or infinite values")
+    if header.startswith("index,") and not np.array_equal(data[:, 0], np.arange(len(data))):
+        raise CamplaceError(f"{path}: the index column must run 0, 1, 2, ... (was the file edited?)")
+    return data
+
+
 _TEMP = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
 
 

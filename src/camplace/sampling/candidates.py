@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camplace._io import write_text_atomic
+from camplace._io import read_numeric_csv, write_text_atomic
 from camplace.errors import CamplaceError
 from camplace.sampling.samplers import sample_positions
 
@@ -91,21 +91,8 @@ class CandidateSet:
 
     @classmethod
     def load(cls, path: str | Path) -> "CandidateSet":
-        """Read a ``candidates.csv`` (as written by :meth:`save`); rotations are re-orthonormalised checks."""
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise CamplaceError(f"{path}: cannot read candidates file ({exc.strerror}; check the path)") from None
-        lines = [ln for ln in text.splitlines() if ln.strip()]
-        if not lines or lines[0].replace(" ", "") != CSV_HEADER:
-            raise CamplaceError(f"{path}: header must be '{CSV_HEADER}' (write it with 'camplace run' or CandidateSet.save)")
-        try:
-            data = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], dtype=np.float64).reshape(-1, 16)
-        except ValueError as exc:
-            raise CamplaceError(f"{path}: every row needs 16 numbers ({exc})") from None
-        if not np.all(np.isfinite(data)):
-            raise CamplaceError(f"{path}: contains NaN or infinite values")
+        """Read a ``candidates.csv`` (as written by :meth:`save`); rotations must be orthonormal."""
+        data = read_numeric_csv(path, CSV_HEADER, "candidates file")
         rot = data[:, 7:16].reshape(-1, 3, 3)
         err = np.abs(np.einsum("nji,njk->nik", rot, rot) - np.eye(3)).max(initial=0.0)
         if err > 1e-6:

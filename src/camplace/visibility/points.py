@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camplace._io import write_text_atomic
+from camplace._io import read_numeric_csv, write_text_atomic
 from camplace.errors import CamplaceError
 
 POINTS_HEADER = "index,x,y,z,nx,ny,nz,frame,weight"
@@ -118,17 +118,7 @@ class TargetPoints:
     @classmethod
     def load(cls, path: str | Path) -> "TargetPoints":
         """Read a ``points.csv`` written by :meth:`save`."""
-        path = Path(path)
-        try:
-            lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
-        except OSError as exc:
-            raise CamplaceError(f"{path}: cannot read points file ({exc.strerror})") from None
-        if not lines or lines[0].replace(" ", "") != POINTS_HEADER:
-            raise CamplaceError(f"{path}: header must be '{POINTS_HEADER}'")
-        try:
-            data = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], dtype=np.float64).reshape(-1, 9)
-        except ValueError as exc:
-            raise CamplaceError(f"{path}: every row needs 9 numbers ({exc})") from None
+        data = read_numeric_csv(path, POINTS_HEADER, "points file")
         return cls(
             positions=data[:, 1:4].copy(),
             normals=data[:, 4:7].copy(),
