@@ -84,7 +84,7 @@ def comet_flyby_toml(seed: int = 0) -> dict[str, Any]:
         "schema_version": 1,
         "name": "comet-flyby",
         "k": 3,
-        "run": {"candidates": 2000, "points": 10800, "sampler": "chaotic", "seed": int(seed), "time_limit_s": 60.0,
+        "run": {"candidates": 1000, "points": 10800, "sampler": "chaotic", "seed": int(seed), "time_limit_s": 60.0,
                 "orientations": 3},
         "camera": {**_CAMERA, "near_m": 1.0, "far_m": 250.0},
         "volume": {"min_m": [-60.0, 5.0, -12.0], "max_m": [60.0, 35.0, 12.0]},
