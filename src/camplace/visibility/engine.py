@@ -423,15 +423,23 @@ def assemble(task: VisibilityTask, parts: list[tuple[np.ndarray, np.ndarray, np.
         for key in COUNT_KEYS:
             total[key] += cnt[key]
     m, n = len(task.positions), task.n_candidates
-    rows = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int32)
-    cols = np.concatenate([p[1] for p in parts]) if parts else np.empty(0, np.int32)
-    vals = np.concatenate([p[2] for p in parts]) if parts else np.empty(0, np.float32)
-    # parts are in column order and each is column-major with sorted rows: a CSC matrix as it is,
-    # whose conversion to CSR is linear (no sort)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(cols, minlength=n), out=indptr[1:])
-    del cols
-    csc = sp.csc_matrix((vals, rows, indptr), shape=(m, n))
+    # parts are in column order and each is column-major with sorted rows: together they are a CSC
+    # matrix as it is (filled in place, no concatenation copies), whose conversion to CSR is linear
+    nnz = sum(len(p[0]) for p in parts)
+    index_dtype = np.int32 if max(m, n, nnz) < 2**31 - 1 else np.int64
+    indices = np.empty(nnz, dtype=index_dtype)
+    data = np.empty(nnz, dtype=np.float32)
+    counts = np.zeros(n, dtype=np.int64)
+    at = 0
+    for rows, cols, vals, _ in parts:
+        q = len(rows)
+        indices[at:at + q] = rows
+        data[at:at + q] = vals
+        counts += np.bincount(cols, minlength=n)
+        at += q
+    indptr = np.zeros(n + 1, dtype=index_dtype)
+    np.cumsum(counts, out=indptr[1:])
+    csc = sp.csc_matrix((data, indices, indptr), shape=(m, n), copy=False)
     matrix = csc.tocsr()
     matrix.has_sorted_indices = True
     return matrix, total
@@ -460,7 +468,7 @@ def compute_visibility(
     candidates,
     points: TargetPoints,
     *,
-    chunk_size: int = 32,
+    chunk_size: int | None = None,
     workers: int | None = None,
     progress: Callable[[int], None] | None = None,
     memory_budget_bytes: int | None = None,
@@ -474,8 +482,8 @@ def compute_visibility(
     instance : camplace.instance.Instance
     candidates : camplace.sampling.CandidateSet
     points : TargetPoints
-    chunk_size : int
-        Candidates per work item.
+    chunk_size : int or None
+        Candidates per work item (default: about 2 million pairs per chunk, 8 to 256 candidates).
     workers : int or None
         Threads (default: number of CPUs, at most 8).
     progress : callable or None
@@ -495,6 +503,8 @@ def compute_visibility(
     """
     n_cand = len(candidates)
     task, scenes = make_task(instance, candidates, points)
+    if chunk_size is None:
+        chunk_size = int(np.clip(2_000_000 // max(1, len(task.live_rows)), 8, 256))
     key = None
     if cache_dir is not None:
         from camplace.visibility import cache
