@@ -32,6 +32,32 @@ if "--blas-threads" in sys.argv:  # must happen before numpy is imported
 
 from camplace.solver import SolverResult, solve_maxcover  # noqa: E402
 from camplace.solver._synthetic import structured_instance  # noqa: E402
+from camplace.solver.modes import solve  # noqa: E402
+
+# Issue 8 targets: (mode, candidates, points, time limit s, target)
+MODE_RUNS: list[tuple[str, int, int, float, str]] = [
+    ("maxcover", 10000, 50000, 120.0, "proven optimal <= 10 s"),
+    ("multiview", 1000, 20000, 60.0, "proven optimal <= 60 s"),
+    ("quality", 1000, 20000, 60.0, "proven optimal <= 60 s"),
+    ("multiview", 10000, 50000, 120.0, "gap <= 0.5 % within 120 s"),
+    ("quality", 10000, 50000, 120.0, "gap <= 0.5 % within 120 s"),
+]
+
+
+def run_modes(seed: int, k: int, only: list[str] | None) -> None:
+    """The issue-8 mode benchmarks on the 'sphere' structured instance (one line per run)."""
+    for mode, n_cams, m_pts, limit, target in MODE_RUNS:
+        if only and mode not in only:
+            continue
+        matrix, weights = structured_instance(m_pts, n_cams, seed=seed)
+        t = time.perf_counter()
+        res = solve(matrix, weights, k, mode=mode, views=2, time_limit_s=limit)
+        wall = time.perf_counter() - t
+        print(
+            f"   {mode:9s} {n_cams:5d}x{m_pts:6d} k={k}: {wall:7.2f} s {res.engine:5s} {_fmt_result(res)}  "
+            f"(limit {limit:.0f} s; target: {target})"
+        )
+        sys.stdout.flush()
 
 CONFIGS: dict[str, dict[str, Any]] = {
     "sphere": {},  # cameras 1.5..15 around a unit sphere: optimum ~99.8 %, many near-ties
@@ -58,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="exact-engine repetitions (median reported)")
     ap.add_argument("--blas-threads", default=None, help="OPENBLAS_NUM_THREADS for this run")
     ap.add_argument("--verbose", action="store_true")
+    ap.add_argument("--modes", nargs="*", default=None, help="run the issue-8 mode benchmarks (optionally only these modes) instead")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     print(
@@ -65,6 +92,10 @@ def main(argv: list[str] | None = None) -> int:
         f"load average at start: {os.getloadavg()[0]:.2f}"
     )
 
+    if args.modes is not None:
+        run_modes(args.seed, args.k, args.modes)
+        print(f"load average at end: {os.getloadavg()[0]:.2f}")
+        return 0
     rows_out: list[str] = []
     for name in args.configs:
         for n_cams, m_pts in SIZES:

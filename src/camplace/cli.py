@@ -41,6 +41,15 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--engine", choices=["auto", "exact", "mip", "cpsat"], default="auto", help="solver engine (default: auto)"
     )
+    p.add_argument("--mode", choices=["maxcover", "quality", "multiview", "setcover"], default="maxcover",
+                   help="formulation: maxcover (default), quality, multiview (>= --views cameras), setcover (fewest cameras)")
+    p.add_argument("--views", type=int, default=2, help="multiview: cameras that must observe a point (default 2)")
+    p.add_argument("--min-angle", type=float, default=None, dest="min_angle", help="multiview: minimum angle between two views, degrees")
+    p.add_argument("--required-fraction", type=float, default=1.0, dest="required_fraction",
+                   help="setcover: share of the coverable weight to observe (default 1)")
+    p.add_argument("--fixed", default="", help="candidate columns kept as existing cameras, e.g. 3,17 (k new ones are added)")
+    p.add_argument("--forbidden", default="", help="candidate columns never chosen, e.g. 5,6")
+    p.add_argument("--min-distance", type=float, default=None, dest="min_distance", help="minimum distance between chosen cameras, m")
     p.add_argument("--event-mode", choices=["all", "peak"], default="all", dest="event_mode",
                    help="all: expected coverage over all frames (default); peak: the maximum-likelihood frame")
     _add_visibility_options(p)
@@ -90,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
 # and imports nothing heavy at module level.
-VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli")
+VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli", "camplace.solver.cli")
 
 
 def _verb_modules():
@@ -103,6 +112,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
     from camplace.pipeline import run
+    from camplace.solver.cli import parse_index_list
 
     instance = resolve_instance(args.instance, seed=args.seed)
     sol = run(
@@ -121,10 +131,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
         dask_address=args.dask,
         memory_budget_gb=args.memory_budget_gb,
         event_mode=args.event_mode,
+        mode=args.mode,
+        views=args.views,
+        min_angle_deg=args.min_angle,
+        fixed=parse_index_list(args.fixed, "--fixed"),
+        forbidden=parse_index_list(args.forbidden, "--forbidden"),
+        min_distance_m=args.min_distance,
+        required_fraction=args.required_fraction,
     )
     print(
         f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
-        f"(objective {sol.objective:.6f}, bound {sol.bound:.6f}, gap {100 * sol.gap:.3f}%, engine {sol.engine})"
+        f"({sol.mode} objective {sol.objective:.6f}, bound {sol.bound:.6f}, gap {100 * sol.gap:.3f}%, engine {sol.engine})"
     )
     for note in sol.warnings:
         print(f"warning: {note}", file=sys.stderr)

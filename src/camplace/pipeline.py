@@ -48,7 +48,9 @@ class Solution:
         Proven upper bound on the objective of any k-camera system from these candidates.
     gap : float
         (bound - objective) / bound.
-    k, seed, sampler, n_candidates, n_points : as run
+    k : int
+        Cameras in the system (fixed ones included; for setcover, as many as were needed).
+    seed, sampler, n_candidates, n_points : as run
     coverage_fraction : float
         Observed weight / total point weight.
     timings_s : dict of str to float
@@ -61,6 +63,9 @@ class Solution:
         Instance name.
     engine : str
         Solver engine that produced the answer.
+    mode : str
+        The formulation solved (``maxcover``, ``quality``, ``multiview``, ``setcover``); for
+        ``setcover`` the objective is the number (or cost) of cameras and ``bound`` a lower bound.
     event_mode : str
         ``all``: the objective is the expected coverage over all frames (weights P(t));
         ``peak``: the coverage of the maximum-likelihood frame alone.
@@ -92,6 +97,7 @@ class Solution:
     cameras: list
     instance: str = ""
     engine: str = ""
+    mode: str = "maxcover"
     solver_stats: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     event_mode: str = "all"
@@ -124,6 +130,7 @@ class Solution:
             "cameras": self.cameras,
             "instance": self.instance,
             "engine": self.engine,
+            "mode": self.mode,
             "solver_stats": self.solver_stats,
             "warnings": self.warnings,
             "event_mode": self.event_mode,
@@ -410,6 +417,13 @@ def run(
     dask_address: str | None = None,
     memory_budget_gb: float | None = None,
     event_mode: str = "all",
+    mode: str = "maxcover",
+    views: int = 2,
+    min_angle_deg: float | None = None,
+    fixed: tuple[int, ...] = (),
+    forbidden: tuple[int, ...] = (),
+    min_distance_m: float | None = None,
+    required_fraction: float = 1.0,
 ) -> Solution:
     """Run the whole pipeline on an instance.
 
@@ -436,13 +450,20 @@ def run(
     event_mode : {"all", "peak"}
         ``all`` maximises the expected coverage over all frames (weights P(t)); ``peak`` places the
         cameras for the maximum-likelihood frame alone (the thesis's PS01).
+    mode : {"maxcover", "quality", "multiview", "setcover"}
+        The formulation (see :func:`camplace.solver.modes.solve`): the observed weight, the weight
+        times the best quality, the weight seen by at least ``views`` cameras (optionally
+        ``min_angle_deg`` apart), or the fewest cameras observing ``required_fraction`` of it.
+    views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction : optional
+        Options of the formulation: existing cameras kept (``fixed`` column indices, added to the
+        k new ones), candidates never used, a minimum distance between chosen cameras.
 
     Returns
     -------
     Solution
     """
     from camplace.instance import resolve_instance, save_instance
-    from camplace.solver import solve_maxcover
+    from camplace.solver.modes import solve
 
     if not hasattr(instance, "frames"):
         instance = resolve_instance(str(instance), seed=seed)
@@ -465,7 +486,7 @@ def run(
         raise CamplaceError(f"--seed: must be >= 0, got {seed}")
     if k < 1:
         raise CamplaceError(f"--k: must be >= 1, got {k}")
-    if n_cand < k:
+    if mode != "setcover" and n_cand < k:
         raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
     if n_points < 1:
         raise CamplaceError(f"--points: must be >= 1, got {n_points}")
@@ -490,10 +511,19 @@ def run(
 
     peak = peak_frame(instance)
     solve_w = event_weights(pts, instance, event_mode)
+    geometric = min_angle_deg is not None or min_distance_m is not None
     t0 = time.perf_counter()
     with reporter.stage("solve"):
-        res = solve_maxcover(vis.matrix, solve_w, k, engine=engine, time_limit_s=time_limit_s)
+        res = solve(
+            vis.matrix, solve_w, None if mode == "setcover" else k, mode=mode, views=views,
+            min_angle_deg=min_angle_deg, positions=cands.positions if geometric else None,
+            points=pts.positions if geometric else None, required_fraction=required_fraction,
+            fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
+            engine=engine, time_limit_s=time_limit_s,
+        )
     timings["solve"] = time.perf_counter() - t0
+    # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
+    k = len(res.selected) if (mode == "setcover" or fixed) else k
 
     notes = degenerate_warnings(vis.matrix, solve_w, k)
     for note in notes:
@@ -516,12 +546,13 @@ def run(
         sampler=sampler,
         n_candidates=len(cands),
         n_points=len(pts),
-        coverage_fraction=float(res.objective) / total_weight if total_weight > 0 else 0.0,
+        coverage_fraction=float(solve_w[observed].sum()) / total_weight if total_weight > 0 else 0.0,
         timings_s=timings,
         versions=versions(),
         cameras=[camera_record(instance, cands, j) for j in res.selected],
         instance=instance.name,
         engine=res.engine,
+        mode=mode,
         solver_stats=solver_stats,
         warnings=notes,
         event_mode=event_mode,

@@ -82,3 +82,80 @@ def small_instances(
     for i in rng.choice(m, size=min(m, draw(st.integers(0, 5))), replace=False) if m else []:
         w[i] = 0.0
     return sp.csr_matrix(dense), w, k
+
+
+# ---- oracles for camplace.solver.modes (independent of the solver code) -------------------------
+
+
+def mode_objective(dense: np.ndarray, w: np.ndarray, cols: tuple[int, ...], mode: str, views: int = 2,
+                   min_angle_deg: float | None = None, pos: np.ndarray | None = None,
+                   pts: np.ndarray | None = None) -> float:
+    """Objective of camera set ``cols`` computed point by point from the definitions."""
+    total = 0.0
+    for i in range(dense.shape[0]):
+        qs = [dense[i, j] for j in cols if dense[i, j] > 0]
+        if mode in ("maxcover", "setcover"):
+            total += w[i] if qs else 0.0
+        elif mode == "quality":
+            total += w[i] * (max(qs) if qs else 0.0)
+        else:
+            seen = [j for j in cols if dense[i, j] > 0]
+            if len(seen) < views:
+                continue
+            if min_angle_deg is not None:
+                ok = False
+                for a, b in itertools.combinations(seen, 2):
+                    u, v = pos[a] - pts[i], pos[b] - pts[i]
+                    ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v)), np.dot(u, v)))
+                    ok = ok or ang >= min_angle_deg
+                if not ok:
+                    continue
+            total += w[i]
+    return float(total)
+
+
+def spaced(cols: tuple[int, ...], pos: np.ndarray | None, dmin: float | None) -> bool:
+    """True when every pair of ``cols`` is at least ``dmin`` apart."""
+    if dmin is None:
+        return True
+    return all(np.linalg.norm(pos[a] - pos[b]) >= dmin for a, b in itertools.combinations(cols, 2))
+
+
+def brute_force_mode(dense, w, k, mode, *, views=2, min_angle_deg=None, pos=None, pts=None, fixed=(), forbidden=(),
+                     dmin=None) -> float | None:
+    """Best objective over every set of ``k`` new cameras (fixed kept, forbidden avoided); None if none is feasible."""
+    n = dense.shape[1]
+    free = [j for j in range(n) if j not in fixed and j not in forbidden]
+    best = None
+    for new in itertools.combinations(free, k):
+        cols = tuple(sorted(set(fixed) | set(new)))
+        if not spaced(cols, pos, dmin):
+            continue
+        v = mode_objective(dense, w, cols, mode, views, min_angle_deg, pos, pts)
+        best = v if best is None or v > best else best
+    return best
+
+
+def usable(n, fixed, forbidden, pos=None, dmin=None) -> list[int]:
+    """Cameras that may be used: not forbidden, and (with ``dmin``) not closer than ``dmin`` to a fixed one."""
+    return [j for j in range(n) if j not in forbidden and (j in fixed or all(spaced((j, f), pos, dmin) for f in fixed))]
+
+
+def brute_force_setcover(dense, w, costs, fraction=1.0, *, fixed=(), forbidden=(), pos=None, dmin=None):
+    """Cheapest set of new cameras covering ``fraction`` of the coverable positive weight; None if infeasible."""
+    n = dense.shape[1]
+    allowed = usable(n, fixed, forbidden, pos, dmin)
+    cover = (dense[:, allowed] > 0).any(axis=1) & (w > 0)
+    target = fraction * float(w[cover].sum())
+    free = [j for j in allowed if j not in fixed]
+    best = None
+    for r in range(len(free) + 1):
+        for new in itertools.combinations(free, r):
+            cols = tuple(sorted(set(fixed) | set(new)))
+            if not spaced(cols, pos, dmin):
+                continue
+            got = mode_objective(dense, w, cols, "maxcover")
+            if got >= target - 1e-9 * max(1.0, target):
+                c = float(sum(costs[j] for j in new))
+                best = c if best is None or c < best else best
+    return best

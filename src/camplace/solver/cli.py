@@ -1,0 +1,169 @@
+"""Verbs of the solver stage: ``solve`` (re-solve a run's visibility matrix) and ``setcover``
+(public set-cover benchmark files).
+
+Imports nothing heavy at module level (numpy, scipy and OR-Tools load when a verb runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+from camplace.errors import CamplaceError
+
+EXIT_OK = 0
+EXIT_NO_SOLUTION = 3
+
+_MODES = ["maxcover", "quality", "multiview", "setcover"]
+_ENGINES = ["auto", "exact", "mip", "cpsat"]
+
+
+def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
+    """Add the solver verbs to ``subparsers``; returns {verb: handler}."""
+    p = subparsers.add_parser("solve", help="choose cameras on a stored visibility matrix (any mode, side constraints)")
+    p.add_argument("source", type=Path, help="output folder of 'camplace run' or its visibility.npz")
+    p.add_argument("--mode", choices=_MODES, default="maxcover", help="formulation (default maxcover)")
+    p.add_argument("--k", type=int, default=None, help="number of new cameras (all modes but setcover)")
+    p.add_argument("--views", type=int, default=2, help="multiview: cameras needed per point (default 2)")
+    p.add_argument("--min-angle", type=float, default=None, dest="min_angle", help="multiview: minimum angle between two views at a point, degrees")
+    p.add_argument("--required-fraction", type=float, default=1.0, dest="required_fraction", help="setcover: fraction of the coverable weight to observe (default 1)")
+    p.add_argument("--engine", choices=_ENGINES, default="auto", help="solver engine (default auto)")
+    p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
+    p.add_argument("--fixed", default="", help="comma-separated candidate indices that are always kept")
+    p.add_argument("--forbidden", default="", help="comma-separated candidate indices never chosen")
+    p.add_argument("--min-distance", type=float, default=None, dest="min_distance", help="minimum distance between chosen cameras, metres")
+    p.add_argument("-o", "--out", type=Path, required=True, help="solution JSON to write")
+
+    p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
+    p.add_argument("file", type=Path, help="instance file")
+    p.add_argument("--format", choices=["orlib", "gecco"], required=True, dest="fmt", help="file format")
+    p.add_argument("--engine", choices=["auto", "mip", "cpsat"], default="auto", help="solver engine (default auto = mip)")
+    p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
+    p.add_argument("--json", action="store_true", help="print one JSON object: cost, bound, status, time_s, selected")
+    return {"solve": _cmd_solve, "setcover": _cmd_setcover}
+
+
+def parse_index_list(text: str, name: str) -> tuple[int, ...]:
+    """``"1,2, 5"`` -> ``(1, 2, 5)``; empty -> ``()``."""
+    out = []
+    for part in (text or "").split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            out.append(int(part))
+        except ValueError:
+            raise CamplaceError(f"--{name}: expected comma-separated candidate indices, got {part!r}") from None
+    return tuple(out)
+
+
+def _read_csv_columns(path: Path, columns: list[str]) -> dict[str, Any]:
+    import csv
+
+    import numpy as np
+
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            missing = [c for c in columns if c not in (reader.fieldnames or [])]
+            if missing:
+                raise CamplaceError(f"{path}: missing column(s) {', '.join(missing)}")
+            data: dict[str, list[float]] = {c: [] for c in columns}
+            for row in reader:
+                for c in columns:
+                    data[c].append(float(row[c]))
+    except OSError as exc:
+        raise CamplaceError(f"{path}: cannot read ({exc.strerror})") from None
+    except ValueError as exc:
+        raise CamplaceError(f"{path}: bad number ({exc})") from None
+    return {c: np.asarray(v, dtype=np.float64) for c, v in data.items()}
+
+
+def load_problem(source: Path) -> tuple[Any, Any, Any, Any]:
+    """Matrix, weights, camera positions and point positions from a run folder or visibility.npz.
+
+    ``points.csv`` (index,x,y,z,...,weight) must sit beside the matrix; ``candidates.csv``
+    (index,x,y,z,...) is optional (positions are then None).
+    """
+    import numpy as np
+    import scipy.sparse as sp
+
+    npz = source / "visibility.npz" if source.is_dir() else source
+    if not npz.is_file():
+        raise CamplaceError(f"{npz}: no such file (give a 'camplace run' folder or its visibility.npz)")
+    try:
+        matrix = sp.load_npz(npz).tocsr()
+    except Exception as exc:  # noqa: BLE001 - any load failure is a user input problem
+        raise CamplaceError(f"{npz}: not a scipy sparse .npz matrix ({exc})") from None
+    pts_csv = npz.parent / "points.csv"
+    if not pts_csv.is_file():
+        raise CamplaceError(f"{pts_csv}: missing (the point weights are read from points.csv beside the matrix)")
+    cols = _read_csv_columns(pts_csv, ["x", "y", "z", "weight"])
+    weights = cols["weight"]
+    points = np.column_stack([cols["x"], cols["y"], cols["z"]])
+    if weights.shape[0] != matrix.shape[0]:
+        raise CamplaceError(f"{pts_csv}: {weights.shape[0]} points but the matrix has {matrix.shape[0]} rows")
+    positions = None
+    cand_csv = npz.parent / "candidates.csv"
+    if cand_csv.is_file():
+        c = _read_csv_columns(cand_csv, ["x", "y", "z"])
+        positions = np.column_stack([c["x"], c["y"], c["z"]])
+        if positions.shape[0] != matrix.shape[1]:
+            raise CamplaceError(f"{cand_csv}: {positions.shape[0]} candidates but the matrix has {matrix.shape[1]} columns")
+    return matrix, weights, positions, points
+
+
+def _cmd_solve(args: argparse.Namespace) -> int:
+    from camplace._io import write_json_atomic
+    from camplace.solver.modes import solve
+
+    matrix, weights, positions, points = load_problem(args.source)
+    if (args.min_distance is not None or args.min_angle is not None) and positions is None:
+        raise CamplaceError(f"--min-distance/--min-angle need candidates.csv beside {args.source}")
+    if args.mode != "setcover" and args.k is None:
+        raise CamplaceError(f"--k: required for mode {args.mode}")
+    res = solve(
+        matrix, weights, args.k, mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
+        positions=positions, points=points if args.min_angle is not None else None,
+        required_fraction=args.required_fraction, fixed=parse_index_list(args.fixed, "fixed"),
+        forbidden=parse_index_list(args.forbidden, "forbidden"), min_distance_m=args.min_distance,
+        engine=args.engine, time_limit_s=args.time_limit,
+    )
+    write_json_atomic(args.out, res.to_dict())
+    total = float(weights.sum())
+    what = "cost" if args.mode == "setcover" else "objective"
+    frac = "" if args.mode == "setcover" or total <= 0 else f" ({100 * res.objective / total:.2f}% of the weight)"
+    print(f"{res.status}: {args.mode} {what} {res.objective:.6g}{frac}, bound {res.bound:.6g}, gap {100 * res.gap:.3f}%, "
+          f"engine {res.engine}, {res.time_s:.2f} s")
+    print(f"  cameras: {', '.join(str(j) for j in res.selected)}")
+    print(f"wrote {args.out}")
+    return EXIT_OK if res.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
+
+
+def _cmd_setcover(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from camplace.solver.formats import read_cover
+    from camplace.solver.modes import solve
+
+    inst = read_cover(args.file, args.fmt)
+    res = solve(inst.matrix, np.ones(inst.matrix.shape[0]), mode="setcover", costs=inst.costs, engine=args.engine,
+                time_limit_s=args.time_limit)
+    unc = int(res.stats.get("uncoverable_points", 0))
+    if args.json:
+        out = {
+            "cost": res.objective if math.isfinite(res.objective) else None,
+            "bound": res.bound if math.isfinite(res.bound) else None,
+            "status": res.status,
+            "time_s": res.time_s,
+            "selected": list(res.selected),
+            "uncoverable_rows": unc,
+        }
+        print(json.dumps(out))
+    else:
+        print(f"{inst.name}: {res.status}, cost {res.objective:g}, lower bound {res.bound:g}, "
+              f"{len(res.selected)} columns, {res.time_s:.2f} s" + (f", {unc} uncoverable rows" if unc else ""))
+    return EXIT_OK if res.status in ("optimal", "feasible") else EXIT_NO_SOLUTION

@@ -1,0 +1,700 @@
+"""All placement formulations behind one function, :func:`solve`.
+
+Modes (``Q`` is the (m, n) points x candidates matrix, values in (0, 1], > 0 means "observes";
+``w`` the point weights; ``S`` the chosen new cameras, ``F`` the fixed existing ones):
+
+``maxcover``
+    maximise ``sum_i w_i [some camera of S u F observes i]``, ``|S| = k``.
+``quality``
+    maximise ``sum_i w_i max_{j in S u F} Q_ij`` (0 for unobserved points), ``|S| = k``.
+    Exact reformulation used by every engine: with the distinct values ``q_1 > ... > q_L`` of row
+    ``i``, ``max_j Q_ij = sum_l (q_l - q_{l+1}) [some chosen j has Q_ij >= q_l]`` (``q_{L+1}=0``),
+    i.e. max coverage of "level rows" ``(i, l)``. The exact engine gets the expanded matrix; the
+    MIP/CP-SAT models use the compact chain ``y_il <= y_i,l-1 + sum_{j: Q_ij = q_l} x_j``.
+``multiview``
+    maximise the weight of points observed by at least ``views`` cameras of ``S u F``; with
+    ``min_angle_deg`` a point also needs two of those cameras whose view rays (point -> camera)
+    make an angle >= ``min_angle_deg`` at the point (needs ``positions`` and ``points``). Model:
+    ``views * y_i <= sum_{j observes i} x_j``; with the angle, witness variables
+    ``u_ia <= x_a``, ``sum_a u_ia = 2 y_i``, ``u_ia + u_ib <= 1`` for every pair closer than the
+    angle.
+``setcover``
+    minimise the cost of ``S`` (``costs``, default 1 each; fixed cameras cost nothing) such that
+    every coverable point of positive weight is observed (or, with ``required_fraction < 1``,
+    that fraction of the coverable weight). Points no allowed camera observes are reported as
+    uncoverable in ``stats``. ``objective`` is the cost and ``bound`` a LOWER bound.
+
+Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted in ``k``),
+``forbidden`` (never chosen) and ``min_distance_m`` (chosen cameras, fixed included, pairwise at
+least that far apart; needs ``positions``).
+
+Engines: ``exact`` (the bound-pruned BLAS engine; maxcover and quality without minimum distance),
+``mip`` (SCIP) and ``cpsat``. ``auto`` picks ``exact`` where it applies and ``k <= 4`` (quality:
+when the expanded matrix stays small), otherwise ``mip``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import numbers
+import time
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace.errors import CamplaceError
+from camplace.solver._common import coverage_weight
+from camplace.solver._model import LinearModel, solve_model
+from camplace.solver.exact import EXACT_MAX_K, solve_exact
+from camplace.solver.ortools_engine import solve_cpsat, solve_mip
+from camplace.solver.presolve import as_pattern, check_weights, presolve
+from camplace.solver.result import SolverResult, jsonable, relative_gap
+
+__all__ = ["MODES", "solve", "mode_value", "conflict_pairs"]
+
+log = logging.getLogger(__name__)
+
+MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
+_ENGINES = ("auto", "exact", "mip", "cpsat")
+_QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
+_OPT_TOL = 1e-9
+
+
+# ----------------------------------------------------------------------------------------------
+# input checks
+# ----------------------------------------------------------------------------------------------
+
+
+def _values_matrix(matrix: Any) -> sp.csr_matrix:
+    """(m, n) CSR float64 keeping only entries > 0 (the observation qualities)."""
+    if sp.issparse(matrix):
+        a = sp.csr_matrix(matrix, dtype=np.float64, copy=True)
+    else:
+        arr = np.asarray(matrix, dtype=np.float64)
+        if arr.ndim != 2:
+            raise CamplaceError(f"visibility matrix must be 2-D, got shape {arr.shape}")
+        a = sp.csr_matrix(arr)
+    if a.data.size and not np.all(np.isfinite(a.data)):
+        raise CamplaceError("visibility matrix contains NaN or infinite values")
+    a.data[a.data < 0] = 0.0
+    a.eliminate_zeros()
+    a.sum_duplicates()
+    a.sort_indices()
+    return a
+
+
+def _index_set(values: Any, n: int, name: str) -> tuple[int, ...]:
+    out = []
+    for v in values or ():
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise CamplaceError(f"{name}: candidate indices must be integers, got {v!r}")
+        if not 0 <= int(v) < n:
+            raise CamplaceError(f"{name}: candidate index {int(v)} out of range 0..{n - 1}")
+        out.append(int(v))
+    return tuple(sorted(set(out)))
+
+
+def _coords(arr: Any, rows: int, name: str, what: str) -> np.ndarray:
+    a = np.asarray(arr, dtype=np.float64)
+    if a.shape != (rows, 3) or not np.all(np.isfinite(a)):
+        raise CamplaceError(f"{name} must be a finite ({rows}, 3) array of {what}, got shape {a.shape}")
+    return a
+
+
+def conflict_pairs(positions: np.ndarray, min_distance_m: float) -> np.ndarray:
+    """Candidate pairs closer than ``min_distance_m``.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    min_distance_m : float
+
+    Returns
+    -------
+    (p, 2) int64
+        Pairs ``a < b`` with ``|pos_a - pos_b| < min_distance_m``.
+    """
+    from scipy.spatial import cKDTree
+
+    if positions.shape[0] < 2 or min_distance_m <= 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = cKDTree(positions).query_pairs(float(min_distance_m), output_type="ndarray").astype(np.int64)
+    if pairs.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    d = np.linalg.norm(positions[pairs[:, 0]] - positions[pairs[:, 1]], axis=1)
+    pairs = np.sort(pairs[d < min_distance_m], axis=1)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+# ----------------------------------------------------------------------------------------------
+# objective values (also the definition of each mode)
+# ----------------------------------------------------------------------------------------------
+
+
+def _angle_ok_pairs(pt: np.ndarray, cams: np.ndarray, min_angle_deg: float) -> np.ndarray:
+    """(s, s) bool: the view rays point->camera of the two cameras make an angle >= min_angle."""
+    d = cams - pt[None, :]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    ang = np.degrees(np.arccos(np.clip(d @ d.T, -1.0, 1.0)))
+    return ang >= float(min_angle_deg)
+
+
+def mode_value(
+    matrix: Any,
+    weights: Any,
+    selected: Sequence[int],
+    *,
+    mode: str = "maxcover",
+    views: int = 2,
+    min_angle_deg: float | None = None,
+    positions: Any = None,
+    points: Any = None,
+) -> float:
+    """Objective value of a camera set for the covering modes (weight credited to the points).
+
+    Parameters
+    ----------
+    matrix : (m, n) sparse or array_like
+        Observation quality (> 0 observes).
+    weights : (m,) array_like
+    selected : sequence of int
+        All cameras in use (fixed ones included).
+    mode : {"maxcover", "quality", "multiview", "setcover"}
+        ``setcover`` returns the covered weight (like ``maxcover``).
+    views, min_angle_deg, positions, points
+        As in :func:`solve` (multiview only).
+
+    Returns
+    -------
+    float
+    """
+    q = _values_matrix(matrix)
+    m, n = q.shape
+    w = check_weights(weights, m)
+    cols = sorted({int(j) for j in selected})
+    if not cols:
+        return 0.0
+    if mode in ("maxcover", "setcover"):
+        return coverage_weight(q, w, cols)
+    sub = q[:, cols].toarray()
+    if mode == "quality":
+        return float(w @ sub.max(axis=1))
+    if mode != "multiview":
+        raise CamplaceError(f"unknown mode {mode!r} (choose one of {', '.join(MODES)})")
+    seen = sub > 0
+    ok = seen.sum(axis=1) >= int(views)
+    if min_angle_deg is not None:
+        pos = _coords(positions, n, "positions", "camera positions")[cols]
+        pts = _coords(points, m, "points", "point positions")
+        for i in np.flatnonzero(ok):
+            s = np.flatnonzero(seen[i])
+            good = _angle_ok_pairs(pts[i], pos[s], min_angle_deg)
+            ok[i] = bool(np.any(np.triu(good, 1)))
+    return float(w[ok].sum())
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def _merge_rows(a: sp.csr_matrix, w: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Merge rows with identical indices AND values, summing their weights."""
+    seen: dict[bytes, int] = {}
+    first: list[int] = []
+    wsum: list[float] = []
+    for i in range(a.shape[0]):
+        s, e = a.indptr[i], a.indptr[i + 1]
+        key = a.indices[s:e].astype(np.int32).tobytes() + b"|" + a.data[s:e].tobytes()
+        g = seen.get(key)
+        if g is None:
+            seen[key] = len(first)
+            first.append(i)
+            wsum.append(float(w[i]))
+        else:
+            wsum[g] += float(w[i])
+    return a[first].tocsr() if first else a[:0], np.asarray(wsum, dtype=np.float64)
+
+
+def _greedy(
+    q: sp.csc_matrix, w: np.ndarray, mode: str, views: int, base: np.ndarray, k: int, allowed: np.ndarray,
+    conflict_adj: list[set[int]] | None,
+) -> tuple[int, ...] | None:
+    """Greedy k new cameras (respecting conflicts); None if no conflict-free k-set was found.
+
+    ``base`` is the current per-point state: best quality (quality), covered flag (maxcover) or
+    view count (multiview) from the fixed cameras. The angle condition is ignored (heuristic).
+    """
+    cur = base.astype(np.float64).copy()
+    ok = allowed.copy()
+    chosen: list[int] = []
+    rows, ptr = q.indices, q.indptr
+    nnz_col = np.repeat(np.arange(q.shape[1]), np.diff(ptr))
+    for _ in range(k):
+        if not ok.any():
+            return None
+        if mode == "quality":
+            contrib = w[rows] * np.maximum(q.data - cur[rows], 0.0)
+        elif mode == "maxcover":
+            contrib = w[rows] * (cur[rows] <= 0)
+        else:
+            c = cur[rows]
+            contrib = w[rows] * np.where(c + 1 >= views, (c + 1 == views) * 1.0, 1e-3 * (c + 1) / views)
+        gain = np.bincount(nnz_col, weights=contrib, minlength=q.shape[1]).astype(np.float64)
+        gain[~ok] = -np.inf
+        j = int(np.argmax(gain))
+        chosen.append(j)
+        ok[j] = False
+        if conflict_adj is not None:
+            for b in conflict_adj[j]:
+                ok[b] = False
+        r = rows[ptr[j] : ptr[j + 1]]
+        if mode == "quality":
+            cur[r] = np.maximum(cur[r], q.data[ptr[j] : ptr[j + 1]])
+        elif mode == "maxcover":
+            cur[r] = 1.0
+        else:
+            cur[r] += 1.0
+    return tuple(sorted(chosen))
+
+
+def _expand_levels(q: sp.csr_matrix, w: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Level rows of the quality reformulation: (sum_i L_i, n) 0/1 pattern and their weights."""
+    indptr_out = [0]
+    idx_out: list[np.ndarray] = []
+    w_out: list[float] = []
+    for i in range(q.shape[0]):
+        s, e = q.indptr[i], q.indptr[i + 1]
+        if e == s or w[i] <= 0:
+            continue
+        vals, cols = q.data[s:e], q.indices[s:e]
+        levels = np.unique(vals)[::-1]
+        nxt = np.append(levels[1:], 0.0)
+        for lv, lo in zip(levels, nxt):
+            sel = cols[vals >= lv]
+            idx_out.append(sel)
+            indptr_out.append(indptr_out[-1] + sel.size)
+            w_out.append(float(w[i]) * float(lv - lo))
+    idx = np.concatenate(idx_out) if idx_out else np.zeros(0, dtype=np.int64)
+    e = sp.csr_matrix((np.ones(idx.size), idx, np.asarray(indptr_out)), shape=(len(w_out), q.shape[1]))
+    return e, np.asarray(w_out, dtype=np.float64)
+
+
+# ----------------------------------------------------------------------------------------------
+# the entry point
+# ----------------------------------------------------------------------------------------------
+
+
+def solve(
+    matrix: Any,
+    weights: Any,
+    k: int | None = None,
+    *,
+    mode: str = "maxcover",
+    views: int = 2,
+    min_angle_deg: float | None = None,
+    positions: Any = None,
+    points: Any = None,
+    costs: Any = None,
+    required_fraction: float = 1.0,
+    fixed: Sequence[int] = (),
+    forbidden: Sequence[int] = (),
+    min_distance_m: float | None = None,
+    engine: str = "auto",
+    time_limit_s: float | None = None,
+) -> SolverResult:
+    """Choose cameras under one of the formulations (see the module docstring).
+
+    Parameters
+    ----------
+    matrix : (m, n) scipy.sparse matrix or array_like
+        Observation quality in (0, 1] (> 0 means "observes").
+    weights : (m,) array_like of float64
+        Non-negative point weights.
+    k : int, optional
+        Number of NEW cameras (required for every mode but ``setcover``, which must not get it).
+    mode : {"maxcover", "quality", "multiview", "setcover"}
+    views : int
+        multiview: cameras needed per point (default 2).
+    min_angle_deg : float, optional
+        multiview: minimum angle at the point between two of its views (needs positions, points).
+    positions : (n, 3) array_like, optional
+        Camera positions (for ``min_distance_m`` and ``min_angle_deg``).
+    points : (m, 3) array_like, optional
+        Point positions (for ``min_angle_deg``).
+    costs : (n,) array_like, optional
+        setcover: non-negative camera costs (default 1).
+    required_fraction : float
+        setcover: fraction of the coverable weight to observe, in (0, 1] (default 1: every
+        coverable point of positive weight).
+    fixed, forbidden : sequence of int
+        Cameras always kept / never chosen.
+    min_distance_m : float, optional
+        Minimum distance between any two chosen cameras (fixed included).
+    engine : {"auto", "exact", "mip", "cpsat"}
+    time_limit_s : float, optional
+        Wall-clock limit; on expiry the best solution found is returned with its gap.
+
+    Returns
+    -------
+    SolverResult
+        ``selected`` holds fixed and new cameras (sorted original indices); ``objective`` is
+        recomputed on the original data; for setcover it is the cost of the new cameras and
+        ``bound`` a lower bound. ``stats`` has ``mode``, ``fixed``, ``new`` and, for setcover,
+        ``uncoverable_points`` / ``uncoverable_weight`` / ``covered_fraction``.
+
+    Raises
+    ------
+    CamplaceError
+        On malformed input or an impossible request (one line).
+    """
+    t0 = time.perf_counter()
+    if mode not in MODES:
+        raise CamplaceError(f"unknown mode {mode!r} (choose one of {', '.join(MODES)})")
+    if engine not in _ENGINES:
+        raise CamplaceError(f"unknown solver engine {engine!r} (choose one of {', '.join(_ENGINES)})")
+    if time_limit_s is not None and not (float(time_limit_s) > 0.0):
+        raise CamplaceError(f"time_limit_s must be > 0 seconds, got {time_limit_s!r}")
+    q = _values_matrix(matrix)
+    m, n = q.shape
+    if n == 0:
+        raise CamplaceError("the visibility matrix has no candidate columns")
+    w = check_weights(weights, m)
+    fixed_t = _index_set(fixed, n, "fixed")
+    forbidden_t = _index_set(forbidden, n, "forbidden")
+    both = sorted(set(fixed_t) & set(forbidden_t))
+    if both:
+        raise CamplaceError(f"candidates {both} are both fixed and forbidden")
+    pos = None
+    if positions is not None:
+        pos = _coords(positions, n, "positions", "camera positions")
+    conflicts = np.zeros((0, 2), dtype=np.int64)
+    if min_distance_m is not None:
+        if not (float(min_distance_m) >= 0.0):
+            raise CamplaceError(f"min_distance_m must be >= 0, got {min_distance_m!r}")
+        if pos is None:
+            raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
+        conflicts = conflict_pairs(pos, float(min_distance_m))
+    pts = None
+    if min_angle_deg is not None:
+        if mode != "multiview":
+            raise CamplaceError("min_angle_deg applies to mode 'multiview' only")
+        if not (0.0 <= float(min_angle_deg) <= 180.0):
+            raise CamplaceError(f"min_angle_deg must be within 0..180, got {min_angle_deg!r}")
+        if pos is None or points is None:
+            raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions (points (m, 3))")
+        pts = _coords(points, m, "points", "point positions")
+    if mode == "multiview":
+        if isinstance(views, bool) or not isinstance(views, numbers.Integral) or int(views) < 1:
+            raise CamplaceError(f"views must be an integer >= 1, got {views!r}")
+        views = int(views)
+        if min_angle_deg is not None and views < 2:
+            raise CamplaceError("min_angle_deg needs views >= 2")
+
+    fixed_set = set(fixed_t)
+    banned = set(forbidden_t)
+    for a, b in conflicts.tolist():
+        if a in fixed_set and b in fixed_set:
+            raise CamplaceError(f"fixed cameras {a} and {b} are closer than min_distance_m={min_distance_m}")
+        if a in fixed_set:
+            banned.add(b)
+        elif b in fixed_set:
+            banned.add(a)
+    free = np.ones(n, dtype=bool)
+    free[list(fixed_set | banned)] = False
+    free_cols = np.flatnonzero(free)
+    keep_conf = free[conflicts[:, 0]] & free[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
+    conflicts = conflicts[keep_conf]
+
+    if mode == "setcover":
+        if k is not None:
+            raise CamplaceError("mode 'setcover' chooses the number of cameras itself: do not give k")
+        ctx = _setcover(q, w, costs, required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0)
+    else:
+        if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
+            raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
+        k = int(k)
+        if k < (0 if fixed_t else 1):
+            raise CamplaceError(f"k must be at least {0 if fixed_t else 1}, got {k}")
+        if k > free_cols.size:
+            raise CamplaceError(
+                f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
+                "(lower k, or forbid/fix fewer cameras)"
+            )
+        ctx = _cover_modes(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, engine, time_limit_s, t0)
+
+    selected, status, objective, bound, name, stats = ctx
+    minimize = mode == "setcover"
+    if status == "optimal":
+        bound, gap = objective, 0.0
+    elif selected is None:
+        gap = math.inf
+    elif minimize:
+        bound = min(bound, objective)
+        gap = max(0.0, (objective - bound) / max(abs(objective), 1e-12))
+    else:
+        bound = max(bound, objective)
+        gap = relative_gap(bound, objective)
+    scale = 1.0 if minimize else float(w.sum())
+    if selected is not None and status == "feasible" and abs(bound - objective) <= _OPT_TOL * max(abs(bound), scale):
+        status, bound, gap = "optimal", objective, 0.0
+    sel = tuple(sorted(int(j) for j in (selected or ())))
+    stats.update({"mode": mode, "engine_requested": engine, "fixed": list(fixed_t), "forbidden": list(forbidden_t),
+                  "new": [j for j in sel if j not in fixed_set], "conflict_pairs": int(conflicts.shape[0]),
+                  "rows_in": int(m), "cols_in": int(n)})
+    elapsed = time.perf_counter() - t0
+    log.info("%s engine=%s: %s objective %.9g bound %.9g gap %.3g in %.3f s", mode, name, status, objective, bound, gap, elapsed)
+    return SolverResult(
+        selected=sel, status=status, objective=float(objective), bound=float(bound), gap=float(gap),
+        engine=name, time_s=elapsed, stats=jsonable(stats),
+    )
+
+
+def _remaining(t0: float, time_limit_s: float | None) -> float | None:
+    return None if time_limit_s is None else max(1e-3, float(time_limit_s) - (time.perf_counter() - t0))
+
+
+def _cover_modes(
+    q: sp.csr_matrix, w: np.ndarray, k: int, mode: str, views: int, min_angle_deg: float | None,
+    pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...], free_cols: np.ndarray,
+    conflicts: np.ndarray, engine: str, time_limit_s: float | None, t0: float,
+) -> tuple[Any, str, float, float, str, dict[str, Any]]:
+    """maxcover / quality / multiview. Returns (selected, status, objective, bound, engine, stats)."""
+    m, n = q.shape
+    stats: dict[str, Any] = {"k": k}
+
+    def value(sel: Sequence[int]) -> float:
+        return mode_value(q, w, list(sel), mode=mode, views=views, min_angle_deg=min_angle_deg, positions=pos, points=pts)
+
+    fixed_value = value(fixed_t)
+    if k == 0:
+        return tuple(fixed_t), "optimal", fixed_value, fixed_value, "exact", stats
+
+    # Residual instance on the free columns: what the new cameras add on top of the fixed ones.
+    qf = q[:, free_cols].tocsr()
+    if mode == "maxcover":
+        covered = (np.diff(q[:, list(fixed_t)].tocsr().indptr) > 0) if fixed_t else np.zeros(m, dtype=bool)
+        resid_w = np.where(covered, 0.0, w)
+        resid = qf
+        base = covered.astype(np.float64)
+    elif mode == "quality":
+        base = q[:, list(fixed_t)].max(axis=1).toarray().ravel() if fixed_t else np.zeros(m)
+        resid = qf.copy()
+        resid.data = np.maximum(resid.data - np.repeat(base, np.diff(resid.indptr)), 0.0)
+        resid.eliminate_zeros()
+        resid_w = w
+    else:
+        base = np.asarray((q[:, list(fixed_t)] > 0).sum(axis=1)).ravel().astype(np.float64) if fixed_t else np.zeros(m)
+        resid, resid_w = qf, w
+
+    exact_ok = mode in ("maxcover", "quality") and conflicts.shape[0] == 0
+    expanded = None
+    if mode == "quality" and exact_ok and engine in ("auto", "exact"):
+        # Expanded nnz = sum_i s_i (s_i + 1) / 2 at most; estimate before building.
+        s = np.diff(resid.indptr).astype(np.float64)
+        est = float(np.sum(s * (s + 1) / 2))
+        if engine == "exact" or est <= _QUALITY_EXPAND_MAX:
+            expanded = _expand_levels(resid, resid_w)
+        stats["quality_expanded_nnz_estimate"] = est
+    if engine == "exact" and not exact_ok:
+        raise CamplaceError(f"the exact engine solves maxcover and quality without min_distance_m only; use engine mip or cpsat")
+    name = engine
+    if engine == "auto":
+        name = "exact" if exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None) else "mip"
+
+    if name == "exact" or (exact_ok and mode == "maxcover"):
+        # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
+        pat, pw = (resid, resid_w) if mode == "maxcover" else (expanded if expanded is not None else _expand_levels(resid, resid_w))
+        pre = presolve(pat, pw, k)
+        funcs = {"exact": solve_exact, "mip": solve_mip, "cpsat": solve_cpsat}
+        out = funcs[name](pre, time_limit_s=_remaining(t0, time_limit_s))
+        new = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
+        sel = tuple(sorted(set(fixed_t) | set(new))) if new else None
+        objective = value(sel) if sel else fixed_value
+        const = fixed_value if mode == "maxcover" else float(w @ base)
+        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": dict(out.stats)})
+        return sel, out.status if sel else "unknown", objective, float(out.bound) + const, name, stats
+
+    # General model (SCIP / CP-SAT).
+    model = LinearModel(maximize=True)
+    nf = free_cols.size
+    x = model.add_vars(nf)
+    model.add_row(x, np.ones(nf), float(k), float(k))
+    for a, b in np.searchsorted(free_cols, conflicts).tolist() if conflicts.size else []:
+        model.add_row([x[a], x[b]], [1.0, 1.0], hi=1.0)
+    wmax = float(resid_w.max()) if resid_w.size and resid_w.max() > 0 else 1.0
+    const = 0.0
+    if mode == "maxcover":
+        live = (resid_w > 0) & (np.diff(resid.indptr) > 0)
+        pr, pw = _merge_rows(as_pattern(resid[live]), resid_w[live])
+        y = model.add_vars(pr.shape[0], integer=False, obj=pw / wmax)
+        for r in range(pr.shape[0]):
+            cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+            model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
+        const = fixed_value
+    elif mode == "quality":
+        live = (resid_w > 0) & (np.diff(resid.indptr) > 0)
+        pr, pw = _merge_rows(resid[live].tocsr(), resid_w[live])
+        for r in range(pr.shape[0]):
+            s, e = pr.indptr[r], pr.indptr[r + 1]
+            vals, cols = pr.data[s:e], pr.indices[s:e]
+            levels = np.unique(vals)[::-1]
+            nxt = np.append(levels[1:], 0.0)
+            ys = model.add_vars(levels.size, integer=False, obj=pw[r] * (levels - nxt) / wmax)
+            for li, lv in enumerate(levels):
+                at = cols[vals == lv]
+                idx = np.append(x[at], ys[li])
+                coef = np.append(np.ones(at.size), -1.0)
+                if li > 0:
+                    idx, coef = np.append(idx, ys[li - 1]), np.append(coef, 1.0)
+                model.add_row(idx, coef, lo=0.0)
+        const = float(w @ base)
+    else:
+        fx = np.array(fixed_t, dtype=np.int64)
+        allc = np.concatenate([free_cols, fx])  # model columns: free ones then fixed
+        xf = model.add_vars(fx.size, lb=1.0, ub=1.0)
+        xall = np.concatenate([x, xf])
+        qa = q[:, allc].tocsr()
+        nobs = np.diff(qa.indptr)
+        live = (w > 0) & (nobs >= views)
+        if pts is None:
+            pr, pw = _merge_rows(as_pattern(qa[live]), w[live])
+            y = model.add_vars(pr.shape[0], obj=pw / wmax)
+            for r in range(pr.shape[0]):
+                cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+                model.add_row(np.append(xall[cols], y[r]), np.append(np.ones(cols.size), -float(views)), lo=0.0)
+        else:
+            assert pos is not None
+            for i in np.flatnonzero(live):
+                cols = qa.indices[qa.indptr[i] : qa.indptr[i + 1]]
+                good = _angle_ok_pairs(pts[i], pos[allc[cols]], float(min_angle_deg or 0.0))
+                if not np.any(np.triu(good, 1)):
+                    continue
+                yi = int(model.add_vars(1, obj=w[i] / wmax)[0])
+                if views > 2:
+                    model.add_row(np.append(xall[cols], yi), np.append(np.ones(cols.size), -float(views)), lo=0.0)
+                u = model.add_vars(cols.size)
+                for t, c in enumerate(cols):
+                    model.add_row([u[t], xall[c]], [1.0, -1.0], hi=0.0)
+                model.add_row(np.append(u, yi), np.append(np.ones(cols.size), -2.0), 0.0, 0.0)
+                bad_a, bad_b = np.nonzero(np.triu(~good, 1))
+                for a, b in zip(bad_a.tolist(), bad_b.tolist()):
+                    model.add_row([u[a], u[b]], [1.0, 1.0], hi=1.0)
+
+    adj: list[set[int]] | None = None
+    if conflicts.size:
+        adj = [set() for _ in range(nf)]
+        for a, b in np.searchsorted(free_cols, conflicts).tolist():
+            adj[a].add(b)
+            adj[b].add(a)
+    g_mode = mode if mode != "multiview" else "multiview"
+    g_base = np.zeros(m) if mode == "quality" else base
+    hint_local = _greedy(resid.tocsc() if mode != "multiview" else qf.tocsc(), resid_w, g_mode, views, g_base, k,
+                         np.ones(nf, dtype=bool), adj)
+    hint = None
+    hint_sel = None
+    if hint_local is not None:
+        hint = {int(x[j]): (1.0 if j in hint_local else 0.0) for j in range(nf)}
+        hint_sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in hint_local}))
+    out = solve_model(model, name, time_limit_s=_remaining(t0, time_limit_s), hint=hint)
+    stats["engine_stats"] = dict(out.stats)
+    sel = None
+    if out.values is not None:
+        new = [int(free_cols[j]) for j in np.flatnonzero(out.values[x] > 0.5)]
+        sel = tuple(sorted(set(fixed_t) | set(new)))
+    objective = value(sel) if sel is not None else -math.inf
+    status = out.status
+    if hint_sel is not None:
+        hv = value(hint_sel)
+        stats["hint_value"] = hv
+        if sel is None or hv > objective:
+            sel, objective = hint_sel, hv
+            if status in ("unknown", "optimal"):
+                status = "feasible"
+    if sel is None:
+        return None, status, fixed_value, math.inf, name, stats
+    bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
+    return sel, status, objective, bound, name, stats
+
+
+def _setcover(
+    q: sp.csr_matrix, w: np.ndarray, costs: Any, required_fraction: float, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, conflicts: np.ndarray, engine: str, time_limit_s: float | None, t0: float,
+) -> tuple[Any, str, float, float, str, dict[str, Any]]:
+    """Minimum-cost cover. Returns (selected, status, cost, lower bound, engine, stats)."""
+    m, n = q.shape
+    if engine == "exact":
+        raise CamplaceError("the exact engine does not solve setcover; use engine mip or cpsat (auto: mip)")
+    name = "mip" if engine == "auto" else engine
+    c = np.ones(n) if costs is None else np.asarray(costs, dtype=np.float64)
+    if c.shape != (n,) or not np.all(np.isfinite(c)) or np.any(c < 0):
+        raise CamplaceError(f"costs must be ({n},) finite values >= 0, got shape {c.shape}")
+    frac = float(required_fraction)
+    if not (0.0 < frac <= 1.0):
+        raise CamplaceError(f"required_fraction must be in (0, 1], got {required_fraction!r}")
+    pat = as_pattern(q)
+    allowed = np.zeros(n, dtype=bool)
+    allowed[free_cols] = True
+    allowed[list(fixed_t)] = True
+    obs_allowed = np.diff(pat[:, np.flatnonzero(allowed)].tocsr().indptr) > 0
+    pos_w = w > 0
+    unc = pos_w & ~obs_allowed
+    coverable_w = float(w[pos_w & obs_allowed].sum())
+    stats: dict[str, Any] = {
+        "uncoverable_points": int(unc.sum()),
+        "uncoverable_weight": float(w[unc].sum()),
+        "coverable_weight": coverable_w,
+        "required_fraction": frac,
+    }
+    covered_f = (np.diff(pat[:, list(fixed_t)].tocsr().indptr) > 0) if fixed_t else np.zeros(m, dtype=bool)
+    credit = float(w[covered_f & pos_w].sum())
+    need = frac * coverable_w - credit
+    rows = pos_w & obs_allowed & ~covered_f
+    sub = pat[:, free_cols].tocsr()[rows]
+    sw = w[rows]
+
+    def finish(sel_free: Sequence[int], status: str, bound: float) -> tuple[Any, str, float, float, str, dict[str, Any]]:
+        sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in sel_free}))
+        cov = coverage_weight(pat, w, sel) if sel else 0.0
+        stats["covered_fraction"] = cov / coverable_w if coverable_w > 0 else 1.0
+        stats["covered_weight"] = cov
+        cost = float(sum(c[j] for j in sel if j not in set(fixed_t)))
+        return sel, status, cost, bound, name, stats
+
+    if sub.shape[0] == 0 or need <= 1e-12 * max(coverable_w, 1e-300):
+        return finish((), "optimal", 0.0)
+    model = LinearModel(maximize=False)
+    nf = free_cols.size
+    x = model.add_vars(nf, obj=c[free_cols])
+    for a, b in np.searchsorted(free_cols, conflicts).tolist() if conflicts.size else []:
+        model.add_row([x[a], x[b]], [1.0, 1.0], hi=1.0)
+    if frac >= 1.0:
+        pr, _ = _merge_rows(sub, sw)
+        for r in range(pr.shape[0]):
+            cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+            model.add_row(x[cols], np.ones(cols.size), lo=1.0)
+    else:
+        pr, pw = _merge_rows(sub, sw)
+        y = model.add_vars(pr.shape[0])
+        for r in range(pr.shape[0]):
+            cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+            model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
+        scale_f = 1.0 / max(coverable_w, 1e-300)
+        s_int = 2.0**40 / max(float(pw.sum()), 1e-300)
+        cint = np.floor(pw * s_int).astype(np.int64)
+        model.add_row(y, pw * scale_f, lo=need * scale_f,
+                      int_variant=(cint, float(math.ceil(need * s_int)), math.inf))
+    out = solve_model(model, name, time_limit_s=_remaining(t0, time_limit_s))
+    stats["engine_stats"] = dict(out.stats)
+    stats["rows_after"] = int(pr.shape[0])
+    if out.values is None:
+        st = "infeasible" if out.status == "infeasible" else "unknown"
+        sel, _, _, _, _, _ = finish((), st, -math.inf)
+        return None, st, math.nan, out.bound, name, stats
+    sel_free = [int(j) for j in np.flatnonzero(out.values[x] > 0.5)]
+    bound = out.bound
+    if np.all(c == np.rint(c)) and math.isfinite(bound):
+        bound = math.ceil(bound - 1e-6)  # integral costs: the optimum is an integer
+    return finish(sel_free, out.status, bound)
