@@ -1,6 +1,15 @@
-"""Shared test setup: a private visibility cache per test session."""
+"""Shared test setup: a private visibility cache per test session, and Hypothesis profiles."""
+
+import os
 
 import pytest
+from hypothesis import settings
+
+# Developers explore new random cases on every run; CI (CI=true) replays a fixed, derandomised set
+# so that a landing never depends on luck. Failures found locally are kept in .hypothesis/.
+settings.register_profile("ci", derandomize=True)
+if os.environ.get("CI"):
+    settings.load_profile("ci")
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -57,6 +57,11 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
 
 def _add_visibility_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--orientations", type=int, default=None, help="poses per candidate position (default: instance)")
+    _add_compute_options(p)
+
+
+def _add_compute_options(p: argparse.ArgumentParser) -> None:
+    """Where and how the visibility matrix is computed (run and visibility)."""
     p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
     p.add_argument("--dask", default=None, metavar="ADDRESS", help="compute visibility on a Dask cluster: a scheduler address or local:N")
     p.add_argument("--memory-budget-gb", type=float, default=None, help="stop if the matrix would need more (default: half the RAM)")
@@ -81,9 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--out", required=True, type=Path, help="output folder")
     p.add_argument("--points", type=int, default=None, help="number of target surface points")
     p.add_argument("--seed", type=int, default=None, help="random seed for the points")
-    p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
-    p.add_argument("--dask", default=None, metavar="ADDRESS", help="compute on a Dask cluster: a scheduler address or local:N")
-    p.add_argument("--memory-budget-gb", type=float, default=None, help="stop if the matrix would need more (default: half the RAM)")
+    _add_compute_options(p)
 
     sub.add_parser("instances", help="list the built-in instances")
 

@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 
 from camplace.errors import CamplaceError
-from camplace.solver._common import EngineOutcome, coverage_weight
+from camplace.solver._common import EngineOutcome, check_engine_and_limit, coverage_weight
 from camplace.solver.exact import EXACT_MAX_K, solve_exact
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
 from camplace.solver.presolve import Presolved, as_pattern, check_weights, presolve
@@ -99,10 +99,7 @@ def solve_maxcover(
         For ``k < 1``, ``k > n``, an unknown engine, a non-positive time limit, or malformed input.
     """
     t0 = time.perf_counter()
-    if engine not in ENGINES:
-        raise CamplaceError(f"unknown solver engine {engine!r} (choose one of {', '.join(ENGINES)})")
-    if time_limit_s is not None and not (float(time_limit_s) > 0.0):
-        raise CamplaceError(f"time_limit_s must be > 0 seconds, got {time_limit_s!r}")
+    check_engine_and_limit(engine, ENGINES, time_limit_s)
     pattern = as_pattern(matrix)
     m, n = pattern.shape
     if n == 0:

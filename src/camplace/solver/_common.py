@@ -148,3 +148,11 @@ def greedy_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, rounds: i
         if not improved:
             break
     return tuple(sorted(sel))
+
+
+def check_engine_and_limit(engine: str, engines, time_limit_s) -> None:
+    """One-line errors for an unknown engine name or a non-positive time limit."""
+    if engine not in engines:
+        raise CamplaceError(f"unknown solver engine {engine!r} (choose one of {', '.join(engines)})")
+    if time_limit_s is not None and not (float(time_limit_s) > 0.0):
+        raise CamplaceError(f"time_limit_s must be > 0 seconds, got {time_limit_s!r}")

@@ -45,7 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
-from camplace.solver._common import coverage_weight
+from camplace.solver._common import check_engine_and_limit, coverage_weight
 from camplace.solver._model import LinearModel, solve_model
 from camplace.solver.exact import EXACT_MAX_K, solve_exact
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
@@ -353,10 +353,7 @@ def solve(
     t0 = time.perf_counter()
     if mode not in MODES:
         raise CamplaceError(f"unknown mode {mode!r} (choose one of {', '.join(MODES)})")
-    if engine not in _ENGINES:
-        raise CamplaceError(f"unknown solver engine {engine!r} (choose one of {', '.join(_ENGINES)})")
-    if time_limit_s is not None and not (float(time_limit_s) > 0.0):
-        raise CamplaceError(f"time_limit_s must be > 0 seconds, got {time_limit_s!r}")
+    check_engine_and_limit(engine, _ENGINES, time_limit_s)
     q = _values_matrix(matrix)
     m, n = q.shape
     if n == 0:
@@ -683,7 +680,10 @@ def _setcover(
             model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
         scale_f = 1.0 / max(coverable_w, 1e-300)
         s_int = 2.0**40 / max(float(pw.sum()), 1e-300)
-        cint = np.floor(pw * s_int).astype(np.int64)
+        # CP-SAT needs integers: rounding the weights UP keeps every truly feasible cover feasible
+        # (sum ceil(w s) >= sum w s >= need s), so CP-SAT's optimum is never worse than the true
+        # one; the answer is checked against the exact requirement below
+        cint = np.ceil(pw * s_int).astype(np.int64)
         model.add_row(y, pw * scale_f, lo=need * scale_f,
                       int_variant=(cint, float(math.ceil(need * s_int)), math.inf))
     out = solve_model(model, name, time_limit_s=_remaining(t0, time_limit_s))
@@ -697,4 +697,10 @@ def _setcover(
     bound = out.bound
     if np.all(c == np.rint(c)) and math.isfinite(bound):
         bound = math.ceil(bound - 1e-6)  # integral costs: the optimum is an integer
-    return finish(sel_free, out.status, bound)
+    status = out.status
+    if frac < 1.0:
+        got = float(sw[np.diff(sub[:, sel_free].tocsr().indptr) > 0].sum()) if sel_free else 0.0
+        if got < need - 1e-9 * max(coverable_w, 1e-300):
+            log.warning("setcover: the %s answer misses the required weight by %.3g (integer rounding)", name, need - got)
+            status = "unknown"
+    return finish(sel_free, status, bound)
