@@ -125,7 +125,6 @@ def main() -> None:
     print(f"raw embreex OCCLUDED on the same segments: {raw_s:.2f} s = {raw_tp / 1e6:.2f} M segments/s")
     print(f"camplace per cast segment (end to end):   {ours_tp / 1e6:.2f} M segments/s = {ours_tp / raw_tp:.2f} x raw "
           f"(target >= 0.8)")
-    del batches, ones
 
     # 3. naive baseline: a segment for every pair, raw embreex, 2 threads, no culling
     eps = float(task.eps_m[0])

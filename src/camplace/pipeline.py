@@ -15,7 +15,7 @@ import numpy as np
 from camplace._io import remove_stale_temps, write_json_atomic, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
-from camplace.sampling import SAMPLERS, CandidateSet, make_candidates
+from camplace.sampling import SAMPLERS, CandidateSet
 from camplace.visibility import VisibilityMatrix, compute_visibility, frame_scene, make_target_points, write_ply
 
 log = logging.getLogger(__name__)

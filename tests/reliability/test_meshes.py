@@ -6,7 +6,6 @@ import copy
 import logging
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 import camplace.instance.loader as loader

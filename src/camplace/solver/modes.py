@@ -496,7 +496,7 @@ def _cover_modes(
             expanded = _expand_levels(resid, resid_w)
         stats["quality_expanded_nnz_estimate"] = est
     if engine == "exact" and not exact_ok:
-        raise CamplaceError(f"the exact engine solves maxcover and quality without min_distance_m only; use engine mip or cpsat")
+        raise CamplaceError("the exact engine solves maxcover and quality without min_distance_m only; use engine mip or cpsat")
     name = engine
     if engine == "auto":
         name = "exact" if exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None) else "mip"
