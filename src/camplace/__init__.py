@@ -16,6 +16,7 @@ try:
 except PackageNotFoundError:  # running from a source tree
     __version__ = "0.0.0+src"
 
+from camplace._lazy import lazy_getattr
 from camplace.errors import CamplaceError, InstanceError
 
 # The rest is imported on first use, so that e.g. ``import camplace.solver`` pulls in no geometry.
@@ -29,12 +30,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'camplace' has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY)
 
 __all__ = [
     "CamplaceError",

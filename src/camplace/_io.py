@@ -69,6 +69,25 @@ def write_with_atomic(path: str | os.PathLike[str], writer: Callable[[Path], Non
         writer(tmp)
 
 
+def read_json(path: str | os.PathLike[str], default_name: str, what: str) -> Any:
+    """Read a JSON file, or ``default_name`` inside ``path`` when ``path`` is a folder.
+
+    Raises
+    ------
+    CamplaceError
+        One line naming the file when it cannot be read or parsed.
+    """
+    from camplace.errors import CamplaceError
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / default_name
+    try:
+        return json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CamplaceError(f"{p}: cannot read the {what} ({exc})") from None
+
+
 def read_numeric_csv(path: str | os.PathLike[str], header: str, what: str) -> "np.ndarray":
     """Read a camplace CSV of numbers whose first line must be ``header``.
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import platform
 import time
@@ -12,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from camplace._io import remove_stale_temps, write_json_atomic, write_text_atomic
+from camplace._io import read_json, remove_stale_temps, write_json_atomic, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
 from camplace.sampling import SAMPLERS, CandidateSet
@@ -152,13 +151,7 @@ class Solution:
     @classmethod
     def load(cls, path: str | Path) -> "Solution":
         """Read a ``solution.json`` (or the folder holding one)."""
-        path = Path(path)
-        if path.is_dir():
-            path = path / "solution.json"
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise CamplaceError(f"{path}: cannot read solution ({exc})") from None
+        data = read_json(path, "solution.json", "solution")
         known = {f for f in cls.__dataclass_fields__ if f not in ("candidates", "visibility")}
         return cls(**{k: v for k, v in data.items() if k in known})
 

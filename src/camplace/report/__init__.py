@@ -7,6 +7,8 @@ Everything is imported lazily (``import camplace.report`` loads neither matplotl
 
 from __future__ import annotations
 
+from camplace._lazy import lazy_getattr
+
 _LAZY = {
     # campaigns
     "Campaign": "camplace.report.campaign",
@@ -51,9 +53,4 @@ _LAZY = {
 __all__ = sorted(_LAZY)
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'camplace.report' has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY)

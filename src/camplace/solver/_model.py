@@ -224,6 +224,28 @@ def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, 
     return ModelOutcome(values, status, bound, stats)
 
 
+def run_cpsat(model, workers: int, deadline: Deadline):
+    """Solve a built CP-SAT model with ``workers`` threads within the deadline's remaining time.
+
+    Returns
+    -------
+    solver : ortools CpSolver
+    code : int
+        CP-SAT status code.
+    build_s : float
+        Seconds spent before the solve started (model building).
+    """
+    from ortools.sat.python import cp_model
+
+    solver = cp_model.CpSolver()
+    solver.parameters.num_workers = int(max(1, workers))
+    build_s = deadline.elapsed()
+    rem = deadline.remaining()
+    if rem is not None:
+        solver.parameters.max_time_in_seconds = max(0.01, rem)
+    return solver, solver.solve(model), build_s
+
+
 def _int_objective(obj: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Integer objective ``cint`` with ``obj ~= cint * unit`` and total rounding error ``err``."""
     if obj.size == 0 or (np.all(obj == np.rint(obj)) and float(np.abs(obj).sum()) < 2.0**53):
@@ -273,13 +295,7 @@ def _solve_cpsat(
     if hint:
         for i, v in hint.items():
             cp.add_hint(xs[i], int(round(v)))
-    solver = cp_model.CpSolver()
-    solver.parameters.num_workers = int(max(1, workers))
-    build_s = deadline.elapsed()
-    rem = deadline.remaining()
-    if rem is not None:
-        solver.parameters.max_time_in_seconds = max(0.01, rem)
-    code = solver.solve(cp)
+    solver, code, build_s = run_cpsat(cp, workers, deadline)
     stats: dict[str, Any] = {
         "backend": "CP-SAT",
         "workers": int(max(1, workers)),

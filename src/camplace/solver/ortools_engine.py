@@ -27,13 +27,13 @@ import numpy as np
 
 from camplace.errors import CamplaceError
 from camplace.solver._common import Deadline, EngineOutcome, greedy_incumbent
+from camplace.solver._model import _int_objective, run_cpsat
 from camplace.solver.presolve import Presolved
 
 __all__ = ["solve_mip", "solve_cpsat"]
 
 log = logging.getLogger(__name__)
 
-_CPSAT_TOTAL = 2.0**50  # total of the integer CP-SAT weights (non-integral weights)
 _OPT_TOL = 1e-9  # relative gap under which a result counts as optimal
 
 
@@ -77,14 +77,7 @@ def _integer_weights(pre: Presolved) -> tuple[np.ndarray, float, float]:
     """
     if pre.weight_unit is not None:
         return pre.counts.astype(np.int64), float(pre.weight_unit), 0.0
-    w = pre.weights
-    if np.all(w == np.rint(w)) and float(w.sum()) < 2.0**53:
-        return w.astype(np.int64), 1.0, 0.0
-    s = _CPSAT_TOTAL / float(w.sum())
-    cint = np.rint(w * s).astype(np.int64)
-    unit = 1.0 / s
-    err = float(np.abs(w * s - cint).sum()) * unit
-    return cint, unit, err
+    return _int_objective(np.asarray(pre.weights, dtype=np.float64))
 
 
 def _value(pre: Presolved, sel: tuple[int, ...]) -> float:
@@ -248,13 +241,7 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
     for j in range(n):
         model.add_hint(x[j], j in hint)
 
-    solver = cp_model.CpSolver()
-    solver.parameters.num_workers = int(max(1, workers))
-    build_s = deadline.elapsed()
-    rem = deadline.remaining()
-    if rem is not None:
-        solver.parameters.max_time_in_seconds = max(0.01, rem)
-    code = solver.solve(model)
+    solver, code, build_s = run_cpsat(model, workers, deadline)
 
     stats: dict[str, Any] = {
         "backend": "CP-SAT",

@@ -8,6 +8,8 @@ Everything is imported lazily (``import camplace.validation`` loads neither Open
 
 from __future__ import annotations
 
+from camplace._lazy import lazy_getattr
+
 _LAZY = {
     # cameras
     "CameraView": "camplace.validation.cameras",
@@ -59,9 +61,4 @@ _LAZY = {
 __all__ = sorted(_LAZY)
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'camplace.validation' has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY)

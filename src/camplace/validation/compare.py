@@ -17,7 +17,6 @@ fraction (rows: predicted, columns: photographed), as the thesis's figures 7.16/
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from camplace._io import write_json_atomic
+from camplace._io import read_json, write_json_atomic
 from camplace.errors import CamplaceError
 
 __all__ = [
@@ -239,13 +238,7 @@ class ValidationReport:
     @classmethod
     def load(cls, path: str | Path) -> "ValidationReport":
         """Read a ``validation.json`` (or the folder holding one)."""
-        path = Path(path)
-        if path.is_dir():
-            path = path / "validation.json"
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise CamplaceError(f"{path}: cannot read the validation report ({exc})") from None
+        data = read_json(path, "validation.json", "validation report")
         return cls(**{k: data.get(k, [] if k in ("cameras", "systems", "figures") else {}) for k in cls.__dataclass_fields__})
 
     def summary(self) -> str:
