@@ -17,8 +17,9 @@ Its value, the observation quality, is 1 in ``binary`` mode; in ``graded`` mode 
 ``min(1, f_px / (distance * required_px_per_m)) * cos(theta)`` for surface points (resolution
 times foreshortening) and the resolution factor alone for emitters.
 
-Pairs failing 1-4 are culled in numpy before any ray is cast (facing by one matrix product per
-chunk, the frustum per camera when the whole target fits in it); segments to points on a
+Pairs failing 1-4 are culled before any ray is cast, in compiled GIL-free kernels
+(:mod:`camplace.visibility._kernels`; the per-pair frustum test is skipped for cameras that hold
+the whole target); segments to points on a
 supporting plane of the target are cast against the occluders alone (they provably miss the
 target); the rest are cast with Embree, chunk by chunk over candidates, on a pool of threads
 (Embree and numpy release the GIL) or on a Dask cluster (:mod:`camplace.visibility.distributed`).
@@ -30,6 +31,7 @@ import functools
 import logging
 import math
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +39,7 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import ConvexHull, QhullError
 
 from camplace._io import write_with_atomic
 from camplace.errors import CamplaceError
@@ -47,7 +50,7 @@ log = logging.getLogger(__name__)
 
 EPS_REL = 1e-4
 #: Bumped whenever the meaning of the matrix changes, so cached matrices are not reused.
-ENGINE_VERSION = "3"
+ENGINE_VERSION = "4"
 COUNT_KEYS = ("pairs", "in_range", "in_frustum", "facing", "cast", "observed")
 
 
@@ -93,6 +96,15 @@ class VisibilityMatrix:
                 f"{outdir}: visibility.npz has {matrix.shape[0]} rows but points.csv has {len(points)} (re-run)"
             )
         return cls(matrix=matrix.astype(np.float32), points=points)
+
+
+def _morton3(cell: np.ndarray) -> np.ndarray:
+    """(n,) uint64 Z-curve key of (n, 3) integer cells in 0..1023 (10 bits an axis, interleaved)."""
+    key = np.zeros(len(cell), dtype=np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            key |= ((cell[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return key
 
 
 def frame_scene(instance, frame: int) -> RayScene:
@@ -163,13 +175,54 @@ class VisibilityTask:
 
     @functools.cached_property
     def live_rows(self) -> np.ndarray:
-        """(l,) int64: the rows that can be observed at all (``active``), ascending."""
-        return np.nonzero(self.active)[0]
+        """(l,) int64: the rows that can be observed at all (``active``), by frame, then in Morton
+        (Z-curve) order of position.
+
+        Neighbouring points then face the same way (predictable culling branches) and their
+        segments from one camera traverse the same part of the Embree BVH (coherent casts).
+        Within a chunk's columns rows are in this order; the assembled CSR is sorted anyway.
+        """
+        live = np.nonzero(self.active)[0]
+        if len(live) == 0:
+            return live
+        p = self.positions[live]
+        lo, span = p.min(axis=0), np.ptp(p, axis=0)
+        cell = np.floor((p - lo) / np.where(span > 0, span, 1.0) * 1023.999).astype(np.uint64)
+        return live[np.lexsort((_morton3(cell), self.frame[live]))]
 
     @functools.cached_property
     def ends32(self) -> np.ndarray:
         """(m, 3) float32: segment end of every row, ``p + eps n`` (the point itself for emitters)."""
         return (self.positions + self.eps_m[self.frame][:, None] * self.normals).astype(np.float32)
+
+    @functools.cached_property
+    def live_arrays(self) -> dict[str, np.ndarray]:
+        """Contiguous per-live-row arrays for the kernels: ``pos``, ``nrm`` (l, 3) float64, ``ndotp``
+        (l,) float64, ``emit`` and ``support`` (l,) bool, ``ends32`` (l, 3) float32, and
+        ``frame_start`` (n_frames + 1,) int64 (live rows come frame by frame)."""
+        live = self.live_rows
+        nrm = np.ascontiguousarray(self.normals[live], dtype=np.float64)
+        pos = np.ascontiguousarray(self.positions[live], dtype=np.float64)
+        return {
+            "pos": pos,
+            "nrm": nrm,
+            "ndotp": np.einsum("ij,ij->i", nrm, pos),
+            "emit": ~np.any(nrm != 0.0, axis=1),
+            "support": np.ascontiguousarray(self.support[live]),
+            "frame_start": np.searchsorted(self.frame[live], np.arange(len(self.eps_m) + 1)).astype(np.int64),
+            "ends32": np.ascontiguousarray(self.ends32[live]),
+        }
+
+    @functools.cached_property
+    def frame_spheres(self) -> dict[int, tuple[np.ndarray, float]]:
+        """Bounding sphere (centre (3,) float64, radius) of each frame's live rows."""
+        out = {}
+        live_frame = self.frame[self.live_rows]
+        for f in np.unique(live_frame):
+            p = self.positions[self.live_rows[live_frame == f]]
+            lo, hi = p.min(axis=0), p.max(axis=0)
+            out[int(f)] = ((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2))
+        return out
 
     def build_scenes(self) -> dict[int, "FrameScenes"]:
         """The Embree scenes of every frame (build once per process)."""
@@ -223,42 +276,63 @@ def sphere_inside_view(
     return ok
 
 
-def frustum_mask(
-    points: np.ndarray, cam_pos: np.ndarray, cam_rot: np.ndarray, K: np.ndarray,
-    width_px: int, height_px: int, near_m: float, far_m: float,
-) -> tuple[np.ndarray, int]:
-    """(c, m) bool: points in each camera's depth range and image; also the in-range count."""
-    diff = points[None, :, :] - cam_pos[:, None, :]
-    cam = np.einsum("cmk,ckl->cml", diff, cam_rot)
-    z = cam[:, :, 2]
-    ok = (z >= near_m) & (z <= far_m)
-    n_range = int(ok.sum())
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = K[0, 0] * cam[:, :, 0] / z + K[0, 2]
-        v = K[1, 1] * cam[:, :, 1] / z + K[1, 2]
-    ok &= (u >= -0.5) & (u < width_px - 0.5) & (v >= -0.5) & (v < height_px - 0.5)
-    return ok, n_range
+@dataclass(frozen=True, eq=False)
+class ChunkResult:
+    """The observed pairs of a chunk of candidates, as a list of its nonempty rows.
 
-
-def compute_chunk(
-    task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """Observed pairs of candidates ``start:stop``, column-major with rows ascending.
-
-    Facing tests are one matrix product per frame (``C @ N^T`` against ``n . p``); cameras that
-    hold the frame's whole active point set inside their frustum and range skip the per-pair
-    frustum test; segments to points on a supporting plane of the target (see
-    :class:`VisibilityTask`) are cast against the occluders alone.
-
-    Returns
-    -------
-    rows : (q,) int32
-    cols : (q,) int32
-        Global candidate indices.
-    values : (q,) float32
-        Observation quality.
+    Attributes
+    ----------
+    col0 : int
+        Global index of the chunk's first candidate.
+    rowids : (r,) int32
+        Global rows with at least one observed pair (each once).
+    offsets : (r + 1,) int64
+        Row t's pairs are ``offsets[t]:offsets[t + 1]`` of ``lcols``.
+    lcols : (o,) uint8 or uint16
+        Chunk-local candidate of each pair (global: ``col0 + lcols``), ascending within a row.
+        The observation quality is not stored: :func:`assemble` computes it from the row and
+        the candidate.
     counts : dict
+        Pair counts after each culling step (keys ``COUNT_KEYS``).
     """
+
+    col0: int
+    rowids: np.ndarray
+    offsets: np.ndarray
+    lcols: np.ndarray
+    counts: dict
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch(name: str, shape: int | tuple[int, ...], dtype) -> np.ndarray:
+    """A reusable per-thread work array of this shape (contents undefined).
+
+    Chunk buffers of tens of MB would otherwise be fresh ``mmap`` allocations, page-faulted in
+    for every chunk.
+    """
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    size = math.prod(shape)
+    bufs = _SCRATCH.__dict__.setdefault("bufs", {})
+    buf = bufs.get(name)
+    if buf is None or buf.dtype != np.dtype(dtype) or buf.size < size:
+        buf = np.empty(max(size, int(1.25 * (0 if buf is None else buf.size))), dtype=dtype)
+        bufs[name] = buf
+    return buf[:size].reshape(shape)
+
+
+def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int) -> "ChunkResult":
+    """Observed pairs of candidates ``start:stop``.
+
+    Culling and segment building run in compiled, GIL-free kernels
+    (:mod:`camplace.visibility._kernels`); cameras that hold a frame's whole live point set
+    inside their frustum and range skip the per-pair frustum test; segments to points on a
+    supporting plane of the target (see :class:`VisibilityTask`) are cast against the occluders
+    alone. Each scene gets one contiguous batch of segments.
+    """
+    from camplace.visibility import _kernels
+
     pos = task.cam_positions[start:stop]
     rot = task.cam_rotations[start:stop]
     nc = stop - start
@@ -266,75 +340,86 @@ def compute_chunk(
     live = task.live_rows
     counts["pairs"] = len(task.frame) * nc
     if len(live) == 0 or nc == 0:
-        return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, np.float32), counts
-    live_frame = task.frame[live]
-    ok = np.zeros((nc, len(live)), dtype=bool)
-    sup = np.zeros((nc, len(live)), dtype=bool)  # pairs whose segment cannot meet the target
-    for f in sorted(task.scene_triangles):
-        sl = np.nonzero(live_frame == f)[0]
-        if len(sl) == 0:
-            continue
-        rows = live[sl]
-        p = task.positions[rows]
-        nrm = task.normals[rows]
-        emitter = ~np.any(nrm != 0.0, axis=1)
-        dot = pos @ nrm.T - np.einsum("ij,ij->i", nrm, p)[None, :]  # n . (c - p)
-        fac = (dot > 0.0) | emitter[None, :]
-        lo, hi = p.min(axis=0), p.max(axis=0)
-        whole = sphere_inside_view(
-            (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), pos, rot, task.K,
-            task.width_px, task.height_px, task.near_m, task.far_m,
+        return ChunkResult(start, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)
+    lv = task.live_arrays
+    n_frames = len(task.eps_m)
+    whole = np.zeros((nc, n_frames), dtype=bool)
+    for f, (centre, radius) in task.frame_spheres.items():
+        whole[:, f] = sphere_inside_view(
+            centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
         )
-        n_whole = int(whole.sum()) * len(sl)
-        counts["in_range"] += n_whole
-        counts["in_frustum"] += n_whole
-        part = np.nonzero(~whole)[0]
-        if len(part):
-            view, n_range = frustum_mask(p, pos[part], rot[part], task.K, task.width_px, task.height_px, task.near_m, task.far_m)
-            counts["in_range"] += n_range
-            counts["in_frustum"] += int(view.sum())
-            fac[part] &= view
-        block = slice(sl[0], sl[-1] + 1) if sl[-1] - sl[0] + 1 == len(sl) else sl  # frames: contiguous rows
-        ok[:, block] = fac
-        sup[:, block] = fac & (dot > task.support_tol[f]) & task.support[rows][None, :]
-    ci, li = np.nonzero(ok)  # camera-major, rows ascending within a camera
-    rows_g = live[li]
-    supported = sup[ci, li]
-    if task.graded or task.cos_max_incidence > 0.0:
-        d = task.positions[rows_g] - pos[ci]
-        dist = np.sqrt(np.einsum("qk,qk->q", d, d))
-        emit = ~np.any(task.normals[rows_g] != 0.0, axis=1)
-        cos_t = np.where(emit, 1.0, -np.einsum("qk,qk->q", d, task.normals[rows_g]) / np.maximum(dist, 1e-300))
-        keep = emit | (cos_t >= task.cos_max_incidence)
-        ci, rows_g, supported, dist, cos_t = ci[keep], rows_g[keep], supported[keep], dist[keep], cos_t[keep]
-    counts["facing"] += len(ci)
-    # segments camera -> p + eps * n, as float32 origin + unnormalised direction (tfar = 1);
-    # rows on a supporting plane of the target, seen from its outer side, skip the target
-    pos32 = pos.astype(np.float32)
-    fr = task.frame[rows_g]
-    single = len(task.scene_triangles) == 1
-    blocked = np.zeros(len(ci), dtype=bool)
+    K = task.K
+    kept = _scratch("kept", nc * len(live), np.int32)
+    group = _scratch("group", nc * len(live), np.int8)
+    sizes = np.zeros(2 * n_frames, dtype=np.int64)
+    q, per_cam, steps = _kernels.cull(
+        np.ascontiguousarray(pos), np.ascontiguousarray(rot), whole, lv["frame_start"], lv["pos"], lv["nrm"],
+        lv["ndotp"], lv["emit"], lv["support"], task.support_tol, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+        task.width_px, task.height_px, task.near_m, task.far_m, task.cos_max_incidence, kept, group, sizes,
+    )
+    kept, group = kept[:q], group[:q]
+    counts["in_range"], counts["in_frustum"], counts["facing"] = (int(x) for x in steps)
+    origins, directions = _scratch("origins", (q, 3), np.float32), _scratch("directions", (q, 3), np.float32)
+    slot = _scratch("slot", q, np.int32)
+    offsets = _kernels.build_segments(
+        kept, group, sizes, per_cam, pos.astype(np.float32), lv["ends32"], origins, directions, slot
+    )
+    blocked = _scratch("blocked", q, np.bool_)
     for f in task.scene_triangles:
-        in_f = None if single else fr == f
-        for flag, scene in ((False, scenes[f].full), (True, scenes[f].rest)):
-            mask = supported if flag else ~supported
-            if in_f is not None:
-                mask = mask & in_f
-            idx = np.nonzero(mask)[0]
-            if len(idx) == 0:
-                continue
-            origins = pos32[ci[idx]]
-            blocked[idx] = scene.occluded_dir(origins, task.ends32[rows_g[idx]] - origins)
-            counts["cast"] += len(idx)
-    ok_q = ~blocked
-    counts["observed"] += int(ok_q.sum())
-    if task.graded:
-        fx = float(task.K[0, 0])
-        q = np.minimum(1.0, fx / (dist[ok_q] * task.required_px_per_m)) * cos_t[ok_q]
-        q = np.maximum(q, np.finfo(np.float32).tiny).astype(np.float32)
-    else:
-        q = np.ones(int(ok_q.sum()), dtype=np.float32)
-    return rows_g[ok_q].astype(np.int32), (ci[ok_q] + start).astype(np.int32), q, counts
+        for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
+            a, b = int(offsets[g]), int(offsets[g + 1])
+            if b > a:
+                scene.occluded_dir(origins[a:b], directions[a:b], out=blocked[a:b])
+                counts["cast"] += b - a
+    n_obs = q - int(np.count_nonzero(blocked))
+    lcols = np.empty(n_obs, dtype=np.uint8 if nc <= 256 else np.uint16)
+    rowids, row_offsets = np.empty(len(live), np.int32), np.empty(len(live) + 1, np.int64)
+    r = _kernels.compact(kept, per_cam, slot, blocked, live, _scratch("cursor", len(live), np.int64), rowids, row_offsets, lcols)
+    counts["observed"] = n_obs
+    return ChunkResult(start, rowids[:r].copy(), row_offsets[:r + 1].copy(), lcols, counts)
+    lv = task.live_arrays
+    n_frames = len(task.eps_m)
+    whole = np.zeros((nc, n_frames), dtype=bool)
+    for f, (centre, radius) in task.frame_spheres.items():
+        whole[:, f] = sphere_inside_view(
+            centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
+        )
+    K = task.K
+    kept = _scratch("kept", nc * len(live), np.int32)
+    group = _scratch("group", nc * len(live), np.int8)
+    sizes = np.zeros(2 * n_frames, dtype=np.int64)
+    q, per_cam, steps = _kernels.cull(
+        np.ascontiguousarray(pos), np.ascontiguousarray(rot), whole, lv["frame_start"], lv["pos"], lv["nrm"],
+        lv["ndotp"], lv["emit"], lv["support"], task.support_tol, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+        task.width_px, task.height_px, task.near_m, task.far_m, task.cos_max_incidence, kept, group, sizes,
+    )
+    kept, group = kept[:q], group[:q]
+    counts["in_range"], counts["in_frustum"], counts["facing"] = (int(x) for x in steps)
+    origins, directions = _scratch("origins", (q, 3), np.float32), _scratch("directions", (q, 3), np.float32)
+    slot, quality = _scratch("slot", q, np.int32), _scratch("quality", q, np.float32)
+    offsets = _kernels.build_segments(
+        kept, group, sizes, per_cam, np.ascontiguousarray(pos), pos.astype(np.float32), lv["pos"], lv["nrm"],
+        lv["emit"], lv["ends32"], task.graded, float(K[0, 0]), task.required_px_per_m, origins, directions, slot,
+        quality,
+    )
+    blocked = _scratch("blocked", q, np.bool_)
+    for f in task.scene_triangles:
+        for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
+            a, b = int(offsets[g]), int(offsets[g + 1])
+            if b > a:
+                blocked[a:b] = scene.occluded_dir(origins[a:b], directions[a:b])
+                counts["cast"] += b - a
+    n_obs = q - int(np.count_nonzero(blocked))
+    # one allocation for both outputs: past 4 MiB numpy asks for transparent huge pages
+    out = np.empty(2 * n_obs, dtype=np.int32)
+    cols, vals = out[:n_obs], out[n_obs:].view(np.float32)
+    rowids, offsets = np.empty(len(live), np.int32), np.empty(len(live) + 1, np.int64)
+    r = _kernels.compact(
+        kept, per_cam, slot, blocked, quality, task.graded, live, start, _scratch("cursor", len(live), np.int64),
+        rowids, offsets, cols, vals,
+    )
+    counts["observed"] = n_obs
+    return ChunkResult(rowids[:r].copy(), offsets[:r + 1].copy(), cols, vals, counts)
 
 
 def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m: np.ndarray) -> np.ndarray:
@@ -361,14 +446,20 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
 
     A row p with normal n qualifies when ``max_v n . (v - p) <= tol`` over the frame's target
     vertices ``v``: the whole (closed, piecewise planar) target lies in the half-space
-    ``n . (x - p) <= tol``.
+    ``n . (x - p) <= tol``. A linear function's maximum over the vertices is reached on their
+    convex hull, so only the hull vertices are tried (all of them when the hull is degenerate).
     """
     out = np.zeros(len(points), dtype=bool)
     rows = np.nonzero((points.frame == frame) & ~points.is_emitter)[0]
-    for s in range(0, len(rows), 2048):
-        r = rows[s:s + 2048]
+    verts = np.asarray(target_vertices, dtype=np.float64)
+    try:
+        verts = verts[ConvexHull(verts).vertices]
+    except (QhullError, ValueError):  # flat or too few vertices: try them all
+        pass
+    for s in range(0, len(rows), 8192):
+        r = rows[s:s + 8192]
         n, p = points.normals[r], points.positions[r]
-        reach = (target_vertices @ n.T).max(axis=0) - np.einsum("ij,ij->i", n, p)
+        reach = (verts @ n.T).max(axis=0) - np.einsum("ij,ij->i", n, p)
         out[r] = reach <= tol
     return out
 
@@ -416,33 +507,57 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
     return task, scenes
 
 
-def assemble(task: VisibilityTask, parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, dict]]) -> tuple[sp.csr_matrix, dict]:
-    """CSR float32 matrix (rows x candidates) and summed counts from chunk results in column order."""
+def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None = None) -> tuple[sp.csr_matrix, dict]:
+    """CSR float32 matrix (rows x candidates) and summed counts from chunk results in column order.
+
+    Each chunk's row runs are copied straight into the CSR arrays by a compiled kernel, which
+    computes each pair's observation quality on the way (see the module docstring), on
+    ``workers`` threads (default: number of CPUs, at most 8), each thread filling a contiguous
+    range of rows with about the same number of entries; chunks are taken in column order, so
+    the column indices of each row come out ascending.
+    """
+    from camplace.visibility import _kernels
+
     total = dict.fromkeys(COUNT_KEYS, 0)
-    for _, _, _, cnt in parts:
+    for part in parts:
         for key in COUNT_KEYS:
-            total[key] += cnt[key]
+            total[key] += part.counts[key]
     m, n = len(task.positions), task.n_candidates
-    # parts are in column order and each is column-major with sorted rows: together they are a CSC
-    # matrix as it is (filled in place, no concatenation copies), whose conversion to CSR is linear
-    nnz = sum(len(p[0]) for p in parts)
+    nnz = sum(len(p.lcols) for p in parts)
     index_dtype = np.int32 if max(m, n, nnz) < 2**31 - 1 else np.int64
+    row_counts = np.zeros(m, dtype=np.int64)
+    for p in parts:
+        row_counts[p.rowids] += np.diff(p.offsets)
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    np.cumsum(row_counts, out=indptr[1:])
     indices = np.empty(nnz, dtype=index_dtype)
     data = np.empty(nnz, dtype=np.float32)
-    counts = np.zeros(n, dtype=np.int64)
-    at = 0
-    for rows, cols, vals, _ in parts:
-        q = len(rows)
-        indices[at:at + q] = rows
-        data[at:at + q] = vals
-        counts += np.bincount(cols, minlength=n)
-        at += q
-    indptr = np.zeros(n + 1, dtype=index_dtype)
-    np.cumsum(counts, out=indptr[1:])
-    csc = sp.csc_matrix((data, indices, indptr), shape=(m, n), copy=False)
-    matrix = csc.tocsr()
+    workers = max(1, min(workers or min(8, os.cpu_count() or 1), m))
+    emitter = ~np.any(task.normals != 0.0, axis=1)
+    fx = float(task.K[0, 0])
+    bounds = [0, *np.searchsorted(indptr, [nnz * (t + 1) / workers for t in range(workers - 1)]), m]
+
+    def merge(t: int) -> None:
+        lo, hi = int(bounds[t]), int(bounds[t + 1])
+        if hi <= lo:
+            return
+        nxt = indptr[:-1].copy()
+        for p in parts:
+            _kernels.merge_rows(
+                p.rowids, p.offsets, p.lcols, p.col0, lo, hi, nxt, indices, data, task.graded, task.positions,
+                task.normals, emitter, task.cam_positions, fx, task.required_px_per_m,
+            )
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(merge, range(workers)))
+    matrix = sp.csr_matrix((data, indices, indptr.astype(index_dtype)), shape=(m, n), copy=False)
     matrix.has_sorted_indices = True
     return matrix, total
+
+
+def default_chunk_size(task: VisibilityTask) -> int:
+    """Candidates per work item: about 2 million (row, candidate) pairs, 8 to 256 candidates."""
+    return int(np.clip(2_000_000 // max(1, len(task.live_rows)), 8, 256))
 
 
 def available_memory_bytes() -> int:
@@ -456,11 +571,12 @@ def available_memory_bytes() -> int:
 def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float) -> int:
     """Peak bytes to build a float32 CSR matrix of this density.
 
-    Chunk results (int32 row, int32 column, float32 value = 12 bytes a pair), their concatenation
-    and the CSR (8 bytes a pair plus row pointers) coexist at the peak: about 32 bytes per pair.
+    Chunk results (1 byte a pair, plus 12 bytes a nonempty row of a chunk) and the CSR (8 bytes
+    a pair plus row pointers) coexist at the peak: about 10 bytes per pair, plus the per-thread
+    work arrays (about 60 MB a thread).
     """
     nnz = density * n_rows * n_cols
-    return int(32 * nnz + 8 * (n_rows + 1))
+    return int(10 * nnz + 16 * (n_rows + 1) + 60 * 2**20 * min(8, os.cpu_count() or 1))
 
 
 def compute_visibility(
@@ -504,7 +620,7 @@ def compute_visibility(
     n_cand = len(candidates)
     task, scenes = make_task(instance, candidates, points)
     if chunk_size is None:
-        chunk_size = int(np.clip(2_000_000 // max(1, len(task.live_rows)), 8, 256))
+        chunk_size = default_chunk_size(task)
     key = None
     if cache_dir is not None:
         from camplace.visibility import cache
@@ -518,13 +634,12 @@ def compute_visibility(
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
     starts = list(range(0, n_cand, chunk_size))
 
-    # A pilot chunk measures the density before the bulk of the work, to check the memory budget.
-    parts = []
-    if starts:
-        first = compute_chunk(task, scenes, 0, min(chunk_size, n_cand))
-        parts.append(first)
+    # The first chunk is a pilot: its density is checked against the memory budget before the bulk
+    # of the work (in process, the other chunks start beside it and are cancelled on a failed check).
+
+    def check_pilot(first: ChunkResult) -> None:
         pilot_cols = min(chunk_size, n_cand)
-        density = len(first[0]) / max(1, len(points) * pilot_cols)
+        density = len(first.lcols) / max(1, len(points) * pilot_cols)
         need = estimate_matrix_bytes(len(points), n_cand, density)
         if need > budget:
             raise CamplaceError(
@@ -532,24 +647,34 @@ def compute_visibility(
                 f"candidates, {100 * density:.1f}% observed in a pilot of {pilot_cols} candidates), over the memory "
                 f"budget of {budget / 2**30:.1f} GiB (lower --points or --candidates, or raise --memory-budget-gb)"
             )
-        if progress is not None:
-            progress(pilot_cols)
-    rest = starts[1:]
+
+    parts: list[ChunkResult] = []
     if dask_address is not None:
         from camplace.visibility.distributed import compute_chunks_dask
 
-        parts += compute_chunks_dask(task, rest, chunk_size, dask_address, progress=progress)
+        if starts:
+            parts.append(compute_chunk(task, scenes, 0, min(chunk_size, n_cand)))
+            check_pilot(parts[0])
+            if progress is not None:
+                progress(min(chunk_size, n_cand))
+        parts += compute_chunks_dask(task, starts[1:], chunk_size, dask_address, progress=progress)
     else:
         workers = workers or min(8, os.cpu_count() or 1)
 
-        def work(start: int):
+        def work(start: int) -> ChunkResult:
             return compute_chunk(task, scenes, start, min(start + chunk_size, n_cand))
 
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            for start, part in zip(rest, pool.map(work, rest)):
-                parts.append(part)
+        pool = ThreadPoolExecutor(max_workers=workers)
+        try:
+            futures = [pool.submit(work, start) for start in starts]
+            for i, (start, fut) in enumerate(zip(starts, futures)):
+                parts.append(fut.result())
+                if i == 0:
+                    check_pilot(parts[0])
                 if progress is not None:
                     progress(min(chunk_size, n_cand - start))
+        finally:  # on an error or Ctrl-C, chunks not started are dropped
+            pool.shutdown(wait=True, cancel_futures=True)
     matrix, total = assemble(task, parts)
     if key is not None:
         cache.store(Path(cache_dir), key, matrix, total)

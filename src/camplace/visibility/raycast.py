@@ -2,9 +2,25 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
+
+
+_ONES = threading.local()
+
+
+def _ones32(n: int) -> np.ndarray:
+    """(n,) float32 ones: a view of a per-thread array that is kept and grown as needed (a fresh
+    array per batch of segments costs a page fault every 4 KiB). Embree only reads it
+    (``tests/visibility/test_raycast.py`` checks that it stays all ones)."""
+    buf = getattr(_ONES, "buf", None)
+    if buf is None or len(buf) < n:
+        buf = np.ones(max(n, 2 * (0 if buf is None else len(buf))), dtype=np.float32)
+        _ONES.buf = buf
+    return buf[:n]
 
 
 class RayScene:
@@ -64,7 +80,7 @@ class RayScene:
         res = self._scene.run(o, d, dists=np.ascontiguousarray(length, dtype=np.float32), query="OCCLUDED")
         return np.asarray(res) != -1
 
-    def occluded_dir(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    def occluded_dir(self, origins: np.ndarray, directions: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Whether each segment ``origins[i] + t * directions[i]``, t in [0, 1], is blocked.
 
         The fast path: float32 inputs are passed to Embree as they are (unnormalised directions,
@@ -75,18 +91,23 @@ class RayScene:
         origins : (n, 3) float32
         directions : (n, 3) float32
             Segment end minus origin.
+        out : (n,) bool or None
+            Where to write the answer (saves an allocation).
 
         Returns
         -------
         (n,) bool
         """
         n = len(origins)
+        if out is None:
+            out = np.empty(n, dtype=bool)
         if n == 0 or self._empty:
-            return np.zeros(n, dtype=bool)
+            out[:] = False
+            return out
         o = np.ascontiguousarray(origins, dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
-        res = self._scene.run(o, d, dists=np.ones(n, dtype=np.float32), query="OCCLUDED")
-        return np.asarray(res) != -1
+        res = self._scene.run(o, d, dists=_ones32(n), query="OCCLUDED")
+        return np.not_equal(res, -1, out=out)
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest hit along rays.

@@ -1,0 +1,282 @@
+"""Compiled (numba, GIL-free) culling and segment building for :func:`compute_chunk`.
+
+The tests of one (row, candidate) pair are those of :mod:`camplace.visibility.engine`: depth
+range, image bounds, facing, incidence and the supporting-plane shortcut. The kernels run in
+three steps per chunk of candidates:
+
+1. :func:`cull` walks every (camera, live row) pair and keeps the indices of the pairs that
+   survive, camera-major with rows in live-row order, with the scene each is cast against
+   (frame x {full scene, occluders alone}), counting each culling step;
+2. :func:`build_segments` writes the float32 segments of the kept pairs grouped by scene, so
+   each group is one contiguous slice for Embree;
+3. :func:`compact` keeps the pairs whose segment was not blocked, as a row list (the chunk's
+   own small CSR, built in cache, one byte a pair);
+
+and :func:`merge_rows` copies the chunks' row runs into the matrix's CSR arrays, computing each
+pair's observation quality on the way.
+
+All three release the GIL (``nogil=True``), so the chunk threads run them on every core.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
+
+
+@numba.njit(**_JIT)
+def cull(
+    cam_pos, cam_rot, whole, frame_start, live_pos, live_nrm, live_ndotp, live_emit, live_support, support_tol,
+    fx, fy, cx, cy, width_px, height_px, near_m, far_m, cos_max, kept, group, sizes,
+):  # pragma: no cover - compiled
+    """Pairs passing range, frustum, facing and incidence.
+
+    Parameters
+    ----------
+    cam_pos : (c, 3) float64
+    cam_rot : (c, 3, 3) float64
+        World-to-camera: ``x_cam = (x - c) @ R``.
+    whole : (c, n_frames) bool
+        The camera holds the frame's whole live point set inside its frustum and range (its
+        rows skip the per-pair frustum test).
+    frame_start : (n_frames + 1,) int64
+        Live rows come frame by frame: frame f's are ``frame_start[f]:frame_start[f + 1]``.
+    live_pos, live_nrm : (l, 3) float64
+    live_ndotp : (l,) float64
+        ``n . p`` of every live row.
+    live_emit : (l,) bool
+    live_support : (l,) bool
+        The row's tangent plane supports the target (see ``VisibilityTask.support``).
+    support_tol : (n_frames,) float64
+    fx, fy, cx, cy : float
+    width_px, height_px : int
+    near_m, far_m, cos_max : float
+    kept : (>= c * l,) int32
+        Scratch output: ``kept[:q]`` receives the live-row index of each kept pair,
+        camera-major, in live-row order.
+    group : (>= c * l,) int8
+        Scratch output: ``group[:q]`` the scene group of each kept pair: ``2 * f`` for frame f's
+        full scene, ``2 * f + 1`` for its occluders alone (supporting-plane rows seen from
+        their outer side, ``n . (c - p) > support_tol[f]``).
+    sizes : (2 * n_frames,) int64
+        Output: kept pairs in each group (must come in zeroed).
+
+    Returns
+    -------
+    q : int
+        Kept pairs.
+    per_cam : (c,) int64
+        Kept pairs of each camera.
+    counts : (3,) int64
+        Pairs in range, in the frustum, and facing (incidence included).
+    """
+    nc = cam_pos.shape[0]
+    n_frames = frame_start.shape[0] - 1
+    per_cam = np.zeros(nc, dtype=np.int64)
+    counts = np.zeros(3, dtype=np.int64)
+    u_lo, u_hi = -0.5, width_px - 0.5
+    v_lo, v_hi = -0.5, height_px - 0.5
+    incidence = cos_max > 0.0
+    q = 0
+    for c in range(nc):
+        px, py, pz = cam_pos[c, 0], cam_pos[c, 1], cam_pos[c, 2]
+        r = cam_rot[c]
+        start = q
+        for f in range(n_frames):
+            lo, hi = frame_start[f], frame_start[f + 1]
+            tol_f = support_tol[f]
+            q_f = q
+            n_rest = 0
+            inside = whole[c, f]  # the whole frame is in view: skip the per-pair frustum test
+            if inside:
+                counts[0] += hi - lo
+                counts[1] += hi - lo
+            for i in range(lo, hi):
+                if not inside:
+                    dx = live_pos[i, 0] - px
+                    dy = live_pos[i, 1] - py
+                    dz = live_pos[i, 2] - pz
+                    z = dx * r[0, 2] + dy * r[1, 2] + dz * r[2, 2]
+                    if z < near_m or z > far_m:
+                        continue
+                    counts[0] += 1
+                    x = dx * r[0, 0] + dy * r[1, 0] + dz * r[2, 0]
+                    u = fx * x / z + cx
+                    if u < u_lo or u >= u_hi:
+                        continue
+                    y = dx * r[0, 1] + dy * r[1, 1] + dz * r[2, 1]
+                    v = fy * y / z + cy
+                    if v < v_lo or v >= v_hi:
+                        continue
+                    counts[1] += 1
+                # facing, incidence and scene group without branches (emitters pass both tests):
+                # the index is written unconditionally and the cursor advances for a kept pair
+                nx, ny, nz = live_nrm[i, 0], live_nrm[i, 1], live_nrm[i, 2]
+                emit = live_emit[i]
+                dot = px * nx + py * ny + pz * nz - live_ndotp[i]  # n . (c - p)
+                ok = emit | (dot > 0.0)
+                if incidence:
+                    dx = live_pos[i, 0] - px
+                    dy = live_pos[i, 1] - py
+                    dz = live_pos[i, 2] - pz
+                    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    cos_t = -(dx * nx + dy * ny + dz * nz) / max(dist, 1e-300)
+                    ok = ok & (emit | (cos_t >= cos_max))
+                rest = np.int64(live_support[i]) * np.int64(dot > tol_f)
+                k = np.int64(ok)
+                kept[q] = i
+                group[q] = 2 * f + rest
+                q += k
+                n_rest += k * rest
+            sizes[2 * f] += q - q_f - n_rest
+            sizes[2 * f + 1] += n_rest
+        per_cam[c] = q - start
+    counts[2] = q
+    return q, per_cam, counts
+
+
+@numba.njit(**_JIT)
+def build_segments(kept, group, sizes, per_cam, cam_pos32, live_ends32, origins, directions, slot):  # pragma: no cover
+    """Float32 segments of the kept pairs, grouped by scene.
+
+    Parameters
+    ----------
+    kept, group : (q,) int32, int8
+    sizes : (g,) int64
+        From :func:`cull`.
+    cam_pos32 : (c, 3) float32
+    live_ends32 : (l, 3) float32
+        Segment end of every live row.
+    origins, directions : (>= q, 3) float32
+        Output: segments camera -> ``p + eps n``, grouped (group g is ``offsets[g]:offsets[g + 1]``).
+    slot : (>= q,) int32
+        Output: position of each kept pair (camera-major order) in the grouped arrays.
+
+    Returns
+    -------
+    offsets : (g + 1,) int64
+    """
+    n_groups = sizes.shape[0]
+    offsets = np.zeros(n_groups + 1, dtype=np.int64)
+    for g in range(n_groups):
+        offsets[g + 1] = offsets[g] + sizes[g]
+    fill = offsets[:-1].copy()
+    j = 0
+    for c in range(per_cam.shape[0]):
+        ox, oy, oz = cam_pos32[c, 0], cam_pos32[c, 1], cam_pos32[c, 2]
+        for _ in range(per_cam[c]):
+            i = kept[j]
+            g = group[j]
+            s = fill[g]
+            fill[g] = s + 1
+            slot[j] = s
+            origins[s, 0] = ox
+            origins[s, 1] = oy
+            origins[s, 2] = oz
+            directions[s, 0] = live_ends32[i, 0] - ox
+            directions[s, 1] = live_ends32[i, 1] - oy
+            directions[s, 2] = live_ends32[i, 2] - oz
+            j += 1
+    return offsets
+
+
+@numba.njit(**_JIT)
+def compact(kept, per_cam, slot, blocked, live_rows, row_cursor, rowids, offsets, lcols):  # pragma: no cover
+    """The unblocked pairs of a chunk as a compressed row list (a CSR of the chunk's nonempty rows).
+
+    Parameters
+    ----------
+    kept, per_cam, slot, blocked
+        From :func:`cull`, :func:`build_segments` and the casts.
+    live_rows : (l,) int64
+        Global row of each live row.
+    row_cursor : (l,) int64
+        Scratch.
+    rowids : (>= l,) int32
+        Output: ``rowids[:r]`` are the global rows with an observed pair, in live-row order.
+    offsets : (>= l + 1,) int64
+        Output: row t's pairs are ``offsets[t]:offsets[t + 1]`` of ``lcols``.
+    lcols : (o,) uint8 or uint16
+        Output, o = number of unblocked pairs: the chunk-local camera of each pair, ascending
+        within each row. (The quality is recomputed from the row and the camera when the
+        matrix is assembled: 1 byte a pair is all that waits in memory.)
+
+    Returns
+    -------
+    r : int
+        Rows with an observed pair.
+    """
+    nl = live_rows.shape[0]
+    for i in range(nl):
+        row_cursor[i] = 0
+    j = 0
+    for c in range(per_cam.shape[0]):
+        for _ in range(per_cam[c]):
+            row_cursor[kept[j]] += 1 - blocked[slot[j]]
+            j += 1
+    r = 0
+    total = 0
+    for i in range(nl):
+        cnt = row_cursor[i]
+        if cnt > 0:
+            rowids[r] = live_rows[i]
+            offsets[r] = total
+            row_cursor[i] = total
+            total += cnt
+            r += 1
+    offsets[r] = total
+    j = 0
+    for c in range(per_cam.shape[0]):
+        for _ in range(per_cam[c]):
+            if not blocked[slot[j]]:
+                i = kept[j]
+                at = row_cursor[i]
+                lcols[at] = c
+                row_cursor[i] = at + 1
+            j += 1
+    return r
+
+
+@numba.njit(**_JIT)
+def merge_rows(
+    rowids, offsets, lcols, col0, row_lo, row_hi, nxt, indices, data,
+    graded, positions, normals, emitter, cam_pos, fx, required_px_per_m,
+):  # pragma: no cover - compiled
+    """Append the runs of a chunk's row list (see :func:`compact`) that belong to rows
+    ``row_lo:row_hi`` to a CSR under construction, with their observation quality.
+
+    ``nxt[r]`` is the next free slot of row r in ``indices`` / ``data``. The quality is 1, or
+    with ``graded`` ``min(1, fx / (d * required_px_per_m)) * cos(theta)`` (``cos(theta) = 1``
+    for emitters), floored at the smallest normal float32.
+    """
+    tiny = np.float32(1.1754944e-38)
+    one = np.float32(1.0)
+    for t in range(rowids.shape[0]):
+        r = rowids[t]
+        if r < row_lo or r >= row_hi:
+            continue
+        at = nxt[r]
+        px, py, pz = positions[r, 0], positions[r, 1], positions[r, 2]
+        nx, ny, nz = normals[r, 0], normals[r, 1], normals[r, 2]
+        for x in range(offsets[t], offsets[t + 1]):
+            col = col0 + lcols[x]
+            indices[at] = col
+            if graded:
+                dx = px - cam_pos[col, 0]
+                dy = py - cam_pos[col, 1]
+                dz = pz - cam_pos[col, 2]
+                dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+                if emitter[r]:
+                    cos_t = 1.0
+                else:
+                    cos_t = -(dx * nx + dy * ny + dz * nz) / max(dist, 1e-300)
+                v32 = np.float32(min(1.0, fx / (dist * required_px_per_m)) * cos_t)
+                data[at] = v32 if v32 > tiny else tiny
+            else:
+                data[at] = one
+            at += 1
+        nxt[r] = at

@@ -1,0 +1,111 @@
+"""The compiled culling / assembly kernels: invariances and direct checks.
+
+The end-to-end agreement with the independent numpy oracle is in ``test_oracle*.py``; these
+tests pin what the kernels add: the matrix does not depend on how the candidates are chunked or
+threaded (nor on the chunk-local column width), the whole-frame frustum shortcut changes nothing,
+every stored quality equals the documented formula, and Embree never writes the shared ``tfar``
+array of ones.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import trimesh
+
+from camplace.instance import builtin
+from camplace.pipeline import event_aims
+from camplace.sampling import make_candidates
+from camplace.visibility import compute_visibility, engine, make_target_points
+from camplace.visibility.engine import assemble, compute_chunk, make_task
+from camplace.visibility.raycast import RayScene, _ones32
+
+
+@pytest.fixture(scope="module")
+def flyby():
+    inst = builtin("comet-flyby")
+    pts = make_target_points(inst, 3600, seed=11)
+    cands = make_candidates("chaotic", 300, inst.volume.min_m, inst.volume.max_m, event_aims(inst, 3), seed=12)
+    return inst, pts, cands
+
+
+def same(a, b) -> bool:
+    return (
+        a.shape == b.shape
+        and np.array_equal(a.indptr, b.indptr)
+        and np.array_equal(a.indices, b.indices)
+        and np.array_equal(a.data, b.data)
+    )
+
+
+def test_chunking_and_threads_do_not_change_the_matrix(flyby) -> None:
+    inst, pts, cands = flyby
+    ref = compute_visibility(inst, cands, pts, chunk_size=300, workers=1)  # one chunk, uint16 columns
+    assert ref.matrix.nnz > 10_000
+    for chunk, workers in ((1, 2), (7, 2), (64, 3), (256, 1)):
+        vis = compute_visibility(inst, cands, pts, chunk_size=chunk, workers=workers)
+        assert same(vis.matrix, ref.matrix), (chunk, workers)
+        assert vis.stats == ref.stats
+    m = ref.matrix
+    assert m.has_sorted_indices and np.all(np.diff(m.indices[m.indptr[0]:m.indptr[1]]) > 0)
+    for w in (1, 2, 5):  # assembly threads split the rows
+        task, scenes = make_task(inst, cands, pts)
+        parts = [compute_chunk(task, scenes, s, min(s + 50, len(cands))) for s in range(0, len(cands), 50)]
+        assert same(assemble(task, parts, workers=w)[0], ref.matrix)
+
+
+def test_whole_frame_shortcut_changes_nothing(flyby, monkeypatch) -> None:
+    """Cameras holding a frame's whole point set skip the per-pair frustum test: forcing the
+    per-pair test everywhere gives the same matrix and the same counts."""
+    inst, pts, cands = flyby
+    task, scenes = make_task(inst, cands, pts)
+    whole = engine.sphere_inside_view(*task.frame_spheres[0], task.cam_positions, task.cam_rotations, task.K,
+                                      task.width_px, task.height_px, task.near_m, task.far_m)
+    assert 0 < whole.sum() < len(whole)  # both paths are exercised
+    ref = compute_visibility(inst, cands, pts, chunk_size=40)
+    monkeypatch.setattr(engine, "sphere_inside_view", lambda *a, **k: np.zeros(len(a[2]), dtype=bool))
+    slow = compute_visibility(inst, cands, pts, chunk_size=40)
+    assert same(slow.matrix, ref.matrix)
+    assert slow.stats == ref.stats
+
+
+def test_quality_is_the_documented_formula() -> None:
+    """Every stored value equals min(1, fx / (d * required)) * cos(theta), computed here in numpy."""
+    inst = builtin("comet-67p-bunker")
+    inst = dataclasses.replace(inst, quality=dataclasses.replace(inst.quality, mode="graded", max_incidence_deg=80.0))
+    pts = make_target_points(inst, 1500, seed=3)
+    cands = make_candidates("uniform", 60, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=4)
+    m = compute_visibility(inst, cands, pts).matrix.tocoo()
+    p, n = pts.positions[m.row], pts.normals[m.row]
+    d = p - cands.positions[m.col]
+    dist = np.linalg.norm(d, axis=1)
+    cos_t = np.where(pts.is_emitter[m.row], 1.0, -np.einsum("ij,ij->i", d, n) / dist)
+    fx = inst.camera.K()[0, 0]
+    want = np.maximum(np.minimum(1.0, fx / (dist * inst.quality.required_px_per_m)) * cos_t, np.finfo(np.float32).tiny)
+    assert len(m.data) > 1000 and np.all(m.data > 0) and np.all(cos_t >= np.cos(np.radians(80.0)) - 1e-12)
+    assert np.ptp(m.data) > 0.1  # really graded
+    np.testing.assert_allclose(m.data, want.astype(np.float32), rtol=2e-6, atol=0)
+
+
+def test_live_rows_are_a_permutation_grouped_by_frame(flyby) -> None:
+    inst, pts, cands = flyby
+    task, _ = make_task(inst, cands, pts)
+    live = task.live_rows
+    assert np.array_equal(np.sort(live), np.nonzero(task.active)[0])
+    assert np.all(np.diff(task.frame[live]) >= 0)
+    start = task.live_arrays["frame_start"]
+    assert start[0] == 0 and start[-1] == len(live)
+
+
+def test_embree_leaves_the_shared_ones_untouched() -> None:
+    ico = trimesh.creation.icosphere()
+    scene = RayScene([(ico.vertices, ico.faces)])
+    rng = np.random.default_rng(0)
+    o = np.tile(np.float32([0.0, 0.0, -5.0]), (5000, 1))
+    d = (rng.normal(size=(5000, 3)) * 0.2 + [0.0, 0.0, 10.0]).astype(np.float32)
+    hit = scene.occluded_dir(o, d)
+    assert 0.5 < hit.mean() <= 1.0
+    assert np.all(_ones32(5000) == 1.0)
+    out = np.ones(5000, dtype=bool)
+    scene.occluded_dir(o, -d, out=out)  # pointing away: nothing blocks, written in place
+    assert not out.any()
