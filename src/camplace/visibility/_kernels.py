@@ -280,3 +280,26 @@ def merge_rows(
                 data[at] = one
             at += 1
         nxt[r] = at
+
+
+@numba.njit(**_JIT)
+def supporting(verts, positions, normals, tol, out):  # pragma: no cover - compiled
+    """``out[i] = max_v n_i . (v - p_i) <= tol`` over the vertices ``verts`` (early exit at the
+    first vertex above the plane).
+
+    Parameters
+    ----------
+    verts : (t, 3) float64
+    positions, normals : (r, 3) float64
+    tol : float
+    out : (r,) bool
+    """
+    for i in range(positions.shape[0]):
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        lim = nx * positions[i, 0] + ny * positions[i, 1] + nz * positions[i, 2] + tol
+        ok = True
+        for t in range(verts.shape[0]):
+            if nx * verts[t, 0] + ny * verts[t, 1] + nz * verts[t, 2] > lim:
+                ok = False
+                break
+        out[i] = ok

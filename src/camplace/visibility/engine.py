@@ -303,18 +303,31 @@ class ChunkResult:
     counts: dict
 
 
-_SCRATCH = threading.local()
+_SCRATCH_POOL: list[dict] = []  # idle per-chunk work-array sets, kept between calls
+_SCRATCH_LOCK = threading.Lock()
+_SCRATCH_KEEP = 8
 
 
-def _scratch(name: str, shape: int | tuple[int, ...], dtype) -> np.ndarray:
-    """A reusable per-thread work array of this shape (contents undefined).
+def _take_scratch() -> dict:
+    """A set of reusable work arrays for one chunk (return it with :func:`_give_scratch`).
 
-    Chunk buffers of tens of MB would otherwise be fresh ``mmap`` allocations, page-faulted in
-    for every chunk.
+    Chunk buffers of tens of MB would otherwise be fresh allocations, page-faulted in for every
+    chunk (and on a VM with free-page reporting, for every call).
     """
+    with _SCRATCH_LOCK:
+        return _SCRATCH_POOL.pop() if _SCRATCH_POOL else {}
+
+
+def _give_scratch(bufs: dict) -> None:
+    with _SCRATCH_LOCK:
+        if len(_SCRATCH_POOL) < _SCRATCH_KEEP:
+            _SCRATCH_POOL.append(bufs)
+
+
+def _scratch(bufs: dict, name: str, shape: int | tuple[int, ...], dtype) -> np.ndarray:
+    """A work array of this shape from ``bufs`` (contents undefined), grown when too small."""
     shape = (shape,) if isinstance(shape, int) else tuple(shape)
     size = math.prod(shape)
-    bufs = _SCRATCH.__dict__.setdefault("bufs", {})
     buf = bufs.get(name)
     if buf is None or buf.dtype != np.dtype(dtype) or buf.size < size:
         buf = np.empty(max(size, int(1.25 * (0 if buf is None else buf.size))), dtype=dtype)
@@ -331,6 +344,15 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     supporting plane of the target (see :class:`VisibilityTask`) are cast against the occluders
     alone. Each scene gets one contiguous batch of segments.
     """
+    bufs = _take_scratch()
+    try:
+        return _compute_chunk(task, scenes, start, stop, bufs)
+    finally:
+        _give_scratch(bufs)
+
+
+def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int, bufs: dict) -> "ChunkResult":
+    """:func:`compute_chunk` with the work arrays ``bufs``."""
     from camplace.visibility import _kernels
 
     pos = task.cam_positions[start:stop]
@@ -349,8 +371,8 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
             centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
         )
     K = task.K
-    kept = _scratch("kept", nc * len(live), np.int32)
-    group = _scratch("group", nc * len(live), np.int8)
+    kept = _scratch(bufs, "kept", nc * len(live), np.int32)
+    group = _scratch(bufs, "group", nc * len(live), np.int8)
     sizes = np.zeros(2 * n_frames, dtype=np.int64)
     q, per_cam, steps = _kernels.cull(
         np.ascontiguousarray(pos), np.ascontiguousarray(rot), whole, lv["frame_start"], lv["pos"], lv["nrm"],
@@ -359,12 +381,12 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     )
     kept, group = kept[:q], group[:q]
     counts["in_range"], counts["in_frustum"], counts["facing"] = (int(x) for x in steps)
-    origins, directions = _scratch("origins", (q, 3), np.float32), _scratch("directions", (q, 3), np.float32)
-    slot = _scratch("slot", q, np.int32)
+    origins, directions = _scratch(bufs, "origins", (q, 3), np.float32), _scratch(bufs, "directions", (q, 3), np.float32)
+    slot = _scratch(bufs, "slot", q, np.int32)
     offsets = _kernels.build_segments(
         kept, group, sizes, per_cam, pos.astype(np.float32), lv["ends32"], origins, directions, slot
     )
-    blocked = _scratch("blocked", q, np.bool_)
+    blocked = _scratch(bufs, "blocked", q, np.bool_)
     for f in task.scene_triangles:
         for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
             a, b = int(offsets[g]), int(offsets[g + 1])
@@ -374,7 +396,7 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     n_obs = q - int(np.count_nonzero(blocked))
     lcols = np.empty(n_obs, dtype=np.uint8 if nc <= 256 else np.uint16)
     rowids, row_offsets = np.empty(len(live), np.int32), np.empty(len(live) + 1, np.int64)
-    r = _kernels.compact(kept, per_cam, slot, blocked, live, _scratch("cursor", len(live), np.int64), rowids, row_offsets, lcols)
+    r = _kernels.compact(kept, per_cam, slot, blocked, live, _scratch(bufs, "cursor", len(live), np.int64), rowids, row_offsets, lcols)
     counts["observed"] = n_obs
     return ChunkResult(start, rowids[:r].copy(), row_offsets[:r + 1].copy(), lcols, counts)
     lv = task.live_arrays
@@ -385,8 +407,8 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
             centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
         )
     K = task.K
-    kept = _scratch("kept", nc * len(live), np.int32)
-    group = _scratch("group", nc * len(live), np.int8)
+    kept = _scratch(bufs, "kept", nc * len(live), np.int32)
+    group = _scratch(bufs, "group", nc * len(live), np.int8)
     sizes = np.zeros(2 * n_frames, dtype=np.int64)
     q, per_cam, steps = _kernels.cull(
         np.ascontiguousarray(pos), np.ascontiguousarray(rot), whole, lv["frame_start"], lv["pos"], lv["nrm"],
@@ -395,14 +417,14 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     )
     kept, group = kept[:q], group[:q]
     counts["in_range"], counts["in_frustum"], counts["facing"] = (int(x) for x in steps)
-    origins, directions = _scratch("origins", (q, 3), np.float32), _scratch("directions", (q, 3), np.float32)
-    slot, quality = _scratch("slot", q, np.int32), _scratch("quality", q, np.float32)
+    origins, directions = _scratch(bufs, "origins", (q, 3), np.float32), _scratch(bufs, "directions", (q, 3), np.float32)
+    slot, quality = _scratch(bufs, "slot", q, np.int32), _scratch(bufs, "quality", q, np.float32)
     offsets = _kernels.build_segments(
         kept, group, sizes, per_cam, np.ascontiguousarray(pos), pos.astype(np.float32), lv["pos"], lv["nrm"],
         lv["emit"], lv["ends32"], task.graded, float(K[0, 0]), task.required_px_per_m, origins, directions, slot,
         quality,
     )
-    blocked = _scratch("blocked", q, np.bool_)
+    blocked = _scratch(bufs, "blocked", q, np.bool_)
     for f in task.scene_triangles:
         for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
             a, b = int(offsets[g]), int(offsets[g + 1])
@@ -415,7 +437,7 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     cols, vals = out[:n_obs], out[n_obs:].view(np.float32)
     rowids, offsets = np.empty(len(live), np.int32), np.empty(len(live) + 1, np.int64)
     r = _kernels.compact(
-        kept, per_cam, slot, blocked, quality, task.graded, live, start, _scratch("cursor", len(live), np.int64),
+        kept, per_cam, slot, blocked, quality, task.graded, live, start, _scratch(bufs, "cursor", len(live), np.int64),
         rowids, offsets, cols, vals,
     )
     counts["observed"] = n_obs
@@ -447,7 +469,8 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     A row p with normal n qualifies when ``max_v n . (v - p) <= tol`` over the frame's target
     vertices ``v``: the whole (closed, piecewise planar) target lies in the half-space
     ``n . (x - p) <= tol``. A linear function's maximum over the vertices is reached on their
-    convex hull, so only the hull vertices are tried (all of them when the hull is degenerate).
+    convex hull, so only the hull vertices are tried (all of them when the hull is degenerate),
+    in a compiled loop that stops at the first vertex above the plane.
     """
     out = np.zeros(len(points), dtype=bool)
     rows = np.nonzero((points.frame == frame) & ~points.is_emitter)[0]
@@ -456,11 +479,14 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
         verts = verts[ConvexHull(verts).vertices]
     except (QhullError, ValueError):  # flat or too few vertices: try them all
         pass
-    for s in range(0, len(rows), 8192):
-        r = rows[s:s + 8192]
-        n, p = points.normals[r], points.positions[r]
-        reach = (verts @ n.T).max(axis=0) - np.einsum("ij,ij->i", n, p)
-        out[r] = reach <= tol
+    from camplace.visibility import _kernels
+
+    ok = np.zeros(len(rows), dtype=bool)
+    _kernels.supporting(
+        np.ascontiguousarray(verts), np.ascontiguousarray(points.positions[rows], dtype=np.float64),
+        np.ascontiguousarray(points.normals[rows], dtype=np.float64), float(tol), ok,
+    )
+    out[rows] = ok
     return out
 
 

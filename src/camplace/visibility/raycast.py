@@ -9,17 +9,21 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 
-_ONES = threading.local()
+_ONES: list[np.ndarray] = [np.ones(0, dtype=np.float32)]
+_ONES_LOCK = threading.Lock()
 
 
 def _ones32(n: int) -> np.ndarray:
-    """(n,) float32 ones: a view of a per-thread array that is kept and grown as needed (a fresh
-    array per batch of segments costs a page fault every 4 KiB). Embree only reads it
-    (``tests/visibility/test_raycast.py`` checks that it stays all ones)."""
-    buf = getattr(_ONES, "buf", None)
-    if buf is None or len(buf) < n:
-        buf = np.ones(max(n, 2 * (0 if buf is None else len(buf))), dtype=np.float32)
-        _ONES.buf = buf
+    """(n,) float32 ones: a view of one module-wide array, grown as needed and never written
+    after it is made (a fresh array per batch of segments costs a page fault every 4 KiB).
+    Embree only reads it (``tests/visibility/test_kernels.py`` checks that it stays all ones)."""
+    buf = _ONES[0]
+    if len(buf) < n:
+        with _ONES_LOCK:
+            buf = _ONES[0]
+            if len(buf) < n:
+                buf = np.ones(max(n, 2 * len(buf)), dtype=np.float32)
+                _ONES[0] = buf
     return buf[:n]
 
 
