@@ -1,9 +1,11 @@
 """Choose the best k cameras: proven-optimal maximum weighted coverage.
 
 Input is a visibility matrix ``A`` (m points x n candidate cameras; any value > 0 means "observes")
-and point weights. :func:`solve_maxcover` picks exactly ``k`` distinct columns maximising the total
-weight of the rows observed by at least one of them, and reports whether that is proven optimal
-together with a valid upper bound.
+and point weights. :func:`solve` chooses cameras under every formulation (``maxcover``,
+``quality``, ``multiview``, ``setcover``; see :mod:`camplace.solver.modes`); :func:`solve_maxcover`
+is plain max coverage: exactly ``k`` distinct columns maximising the total weight of the rows
+observed by at least one of them. Both report whether the answer is proven optimal, with a valid
+bound.
 
 Engines (all run on the :func:`presolve`-reduced instance):
 
@@ -34,10 +36,12 @@ from camplace.solver.result import SolverResult, jsonable, relative_gap
 
 __all__ = [
     "ENGINES",
+    "MODES",
     "Presolved",
     "SolverResult",
     "coverage_weight",
     "presolve",
+    "solve",
     "solve_maxcover",
 ]
 
@@ -162,3 +166,8 @@ def solve_maxcover(
         time_s=elapsed,
         stats=jsonable(stats),
     )
+
+
+# Every formulation (maxcover, quality, multiview, setcover) behind one function; imported last
+# because camplace.solver.modes builds on the engines above.
+from camplace.solver.modes import MODES, solve  # noqa: E402
