@@ -78,7 +78,7 @@ def main() -> None:
         return
 
     from camplace.visibility import compute_visibility
-    from camplace.visibility.engine import compute_chunk, default_chunk_size, make_task
+    from camplace.visibility.engine import chunk_plan, compute_chunk, default_chunk_size, make_task
     from camplace.visibility.raycast import RayScene
 
     inst, cands, pts = setup(args.candidates, args.points)
@@ -115,9 +115,8 @@ def main() -> None:
             return super().occluded_dir(origins, directions, out=out)
 
     rep_scenes = {f: FrameScenes(Replay(s.full), Replay(s.rest)) for f, s in scenes.items()}
-    size = default_chunk_size(task)  # the chunks compute_visibility casts
-    for s in range(0, n, size):
-        compute_chunk(task, rep_scenes, s, min(s + size, n))
+    for a, b in chunk_plan(n, default_chunk_size(task), 2):  # the chunks compute_visibility casts
+        compute_chunk(task, rep_scenes, a, b)
     n_seg = sum(len(o) for _, o, _ in batches)
     assert n_seg == cast, (n_seg, cast)
     ones = [np.ones(len(o), np.float32) for _, o, _ in batches]

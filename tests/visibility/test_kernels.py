@@ -109,3 +109,39 @@ def test_embree_leaves_the_shared_ones_untouched() -> None:
     out = np.ones(5000, dtype=bool)
     scene.occluded_dir(o, -d, out=out)  # pointing away: nothing blocks, written in place
     assert not out.any()
+
+
+def test_block_culling_changes_nothing(monkeypatch) -> None:
+    """Blocks of rows decided at once by the normal-cone bound give the per-row answer."""
+    inst = builtin("comet-67p-bunker")
+    assert inst.quality.max_incidence_deg >= 90.0  # no incidence limit: the block path applies
+    pts = make_target_points(inst, 4000, seed=21)
+    cands = make_candidates("chaotic", 120, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=22)
+    task, _ = make_task(inst, cands, pts)
+    lv = task.live_arrays
+    # the bound really decides most blocks (checked here in numpy)
+    d = task.cam_positions[:, None, :] - lv["block_centre"][None]
+    s = np.einsum("cbk,bk->cb", d, lv["block_axis"])
+    e = lv["block_spread"][None] * np.linalg.norm(d, axis=2)
+    decided = (s + e - lv["block_h_lo"] < 0) | (s - e - lv["block_h_hi"] > task.support_tol[0])
+    assert decided.mean() > 0.2  # (more with more points: blocks get smaller)
+    ref = compute_visibility(inst, cands, pts, chunk_size=40)
+    real = engine._row_blocks
+
+    def undecided(*args):
+        out = real(*args)
+        out["block_spread"] = np.full_like(out["block_spread"], np.inf)
+        return out
+
+    monkeypatch.setattr(engine, "_row_blocks", undecided)
+    plain = compute_visibility(inst, cands, pts, chunk_size=40)
+    assert same(plain.matrix, ref.matrix)
+    assert plain.stats == ref.stats
+
+
+@pytest.mark.parametrize("n, size, workers", [(5000, 100, 2), (300, 256, 2), (5, 256, 8), (1000, 8, 3), (77, 10, 1)])
+def test_chunk_plan_covers_every_candidate_once_in_order(n: int, size: int, workers: int) -> None:
+    plan = engine.chunk_plan(n, size, workers)
+    assert plan[0] == (0, min(size, n))  # the pilot keeps its size
+    assert all(b0 == a1 for (_, b0), (a1, _) in zip(plan, plan[1:]))
+    assert plan[-1][1] == n and all(0 < b - a <= min(size, 256) for a, b in plan)

@@ -31,7 +31,8 @@ _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": Fal
 @numba.njit(**_JIT)
 def cull(
     cam_pos, cam_rot, whole, frame_start, live_pos, live_nrm, live_ndotp, live_emit, live_support, support_tol,
-    fx, fy, cx, cy, width_px, height_px, near_m, far_m, cos_max, kept, group, sizes,
+    frame_blocks, block_start, block_centre, block_axis, block_spread, block_h_lo, block_h_hi, block_emit,
+    block_reach, fx, fy, cx, cy, width_px, height_px, near_m, far_m, cos_max, kept, group, sizes,
 ):  # pragma: no cover - compiled
     """Pairs passing range, frustum, facing and incidence.
 
@@ -52,6 +53,11 @@ def cull(
     live_support : (l,) bool
         The row's tangent plane supports the target (see ``VisibilityTask.support``).
     support_tol : (n_frames,) float64
+    frame_blocks, block_start, block_centre, block_axis, block_spread, block_h_lo, block_h_hi, block_emit, block_reach
+        Blocks of consecutive live rows (see ``VisibilityTask.live_arrays``): for a camera that
+        holds the frame in view (and no incidence limit), a block whose facing test has the same
+        answer for every row, by the bound ``n . (c - p) in [s - e - h_hi, s + e - h_lo]`` with
+        ``d = c - centre``, ``s = axis . d``, ``e = spread |d|``, is decided at once.
     fx, fy, cx, cy : float
     width_px, height_px : int
     near_m, far_m, cos_max : float
@@ -86,52 +92,71 @@ def cull(
         px, py, pz = cam_pos[c, 0], cam_pos[c, 1], cam_pos[c, 2]
         r = cam_rot[c]
         start = q
+        slack = 1e-10 * (math.sqrt(px * px + py * py + pz * pz) + block_reach)  # >> rounding of a dot
         for f in range(n_frames):
-            lo, hi = frame_start[f], frame_start[f + 1]
             tol_f = support_tol[f]
             q_f = q
             n_rest = 0
             inside = whole[c, f]  # the whole frame is in view: skip the per-pair frustum test
             if inside:
-                counts[0] += hi - lo
-                counts[1] += hi - lo
-            for i in range(lo, hi):
-                if not inside:
-                    dx = live_pos[i, 0] - px
-                    dy = live_pos[i, 1] - py
-                    dz = live_pos[i, 2] - pz
-                    z = dx * r[0, 2] + dy * r[1, 2] + dz * r[2, 2]
-                    if z < near_m or z > far_m:
+                counts[0] += frame_start[f + 1] - frame_start[f]
+                counts[1] += frame_start[f + 1] - frame_start[f]
+            for bk in range(frame_blocks[f], frame_blocks[f + 1]):
+                lo, hi = block_start[bk], block_start[bk + 1]
+                if inside and not incidence and not block_emit[bk]:
+                    # n_i . (c - p_i) lies within [s - e - h_hi, s + e - h_lo] for every row of the block
+                    dx = px - block_centre[bk, 0]
+                    dy = py - block_centre[bk, 1]
+                    dz = pz - block_centre[bk, 2]
+                    s_ = dx * block_axis[bk, 0] + dy * block_axis[bk, 1] + dz * block_axis[bk, 2]
+                    e_ = block_spread[bk] * math.sqrt(dx * dx + dy * dy + dz * dz)
+                    if s_ + e_ - block_h_lo[bk] < -slack:  # no row faces the camera
                         continue
-                    counts[0] += 1
-                    x = dx * r[0, 0] + dy * r[1, 0] + dz * r[2, 0]
-                    u = fx * x / z + cx
-                    if u < u_lo or u >= u_hi:
+                    if s_ - e_ - block_h_hi[bk] > tol_f + slack:  # every row faces it, beyond tol
+                        for i in range(lo, hi):
+                            rest = np.int64(live_support[i])
+                            kept[q] = i
+                            group[q] = 2 * f + rest
+                            q += 1
+                            n_rest += rest
                         continue
-                    y = dx * r[0, 1] + dy * r[1, 1] + dz * r[2, 1]
-                    v = fy * y / z + cy
-                    if v < v_lo or v >= v_hi:
-                        continue
-                    counts[1] += 1
-                # facing, incidence and scene group without branches (emitters pass both tests):
-                # the index is written unconditionally and the cursor advances for a kept pair
-                nx, ny, nz = live_nrm[i, 0], live_nrm[i, 1], live_nrm[i, 2]
-                emit = live_emit[i]
-                dot = px * nx + py * ny + pz * nz - live_ndotp[i]  # n . (c - p)
-                ok = emit | (dot > 0.0)
-                if incidence:
-                    dx = live_pos[i, 0] - px
-                    dy = live_pos[i, 1] - py
-                    dz = live_pos[i, 2] - pz
-                    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    cos_t = -(dx * nx + dy * ny + dz * nz) / max(dist, 1e-300)
-                    ok = ok & (emit | (cos_t >= cos_max))
-                rest = np.int64(live_support[i]) * np.int64(dot > tol_f)
-                k = np.int64(ok)
-                kept[q] = i
-                group[q] = 2 * f + rest
-                q += k
-                n_rest += k * rest
+                for i in range(lo, hi):
+                    if not inside:
+                        dx = live_pos[i, 0] - px
+                        dy = live_pos[i, 1] - py
+                        dz = live_pos[i, 2] - pz
+                        z = dx * r[0, 2] + dy * r[1, 2] + dz * r[2, 2]
+                        if z < near_m or z > far_m:
+                            continue
+                        counts[0] += 1
+                        x = dx * r[0, 0] + dy * r[1, 0] + dz * r[2, 0]
+                        u = fx * x / z + cx
+                        if u < u_lo or u >= u_hi:
+                            continue
+                        y = dx * r[0, 1] + dy * r[1, 1] + dz * r[2, 1]
+                        v = fy * y / z + cy
+                        if v < v_lo or v >= v_hi:
+                            continue
+                        counts[1] += 1
+                    # facing, incidence and scene group without branches (emitters pass both
+                    # tests): the index is written unconditionally, the cursor advances if kept
+                    nx, ny, nz = live_nrm[i, 0], live_nrm[i, 1], live_nrm[i, 2]
+                    emit = live_emit[i]
+                    dot = px * nx + py * ny + pz * nz - live_ndotp[i]  # n . (c - p)
+                    ok = emit | (dot > 0.0)
+                    if incidence:
+                        dx = live_pos[i, 0] - px
+                        dy = live_pos[i, 1] - py
+                        dz = live_pos[i, 2] - pz
+                        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+                        cos_t = -(dx * nx + dy * ny + dz * nz) / max(dist, 1e-300)
+                        ok = ok & (emit | (cos_t >= cos_max))
+                    rest = np.int64(live_support[i]) * np.int64(dot > tol_f)
+                    k = np.int64(ok)
+                    kept[q] = i
+                    group[q] = 2 * f + rest
+                    q += k
+                    n_rest += k * rest
             sizes[2 * f] += q - q_f - n_rest
             sizes[2 * f + 1] += n_rest
         per_cam[c] = q - start

@@ -107,6 +107,60 @@ def _morton3(cell: np.ndarray) -> np.ndarray:
     return key
 
 
+ROW_BLOCK = 32  # live rows per culling block
+
+
+def _row_blocks(pos: np.ndarray, nrm: np.ndarray, emit: np.ndarray, frame_start: np.ndarray) -> dict[str, np.ndarray]:
+    """Blocks of up to :data:`ROW_BLOCK` consecutive live rows of one frame, with what bounds
+    ``n_i . (c - p_i)`` over a block for any camera c.
+
+    Returns
+    -------
+    dict
+        ``frame_blocks`` (n_frames + 1,) int64: frame f's blocks are
+        ``frame_blocks[f]:frame_blocks[f + 1]``; ``block_start`` (b + 1,) int64 row offsets;
+        ``block_centre`` (b, 3) mean position; ``block_axis`` (b, 3) unit mean normal;
+        ``block_spread`` (b,) ``max_i |n_i - axis|``; ``block_h_lo`` / ``block_h_hi`` (b,)
+        min / max of ``n_i . (p_i - centre)``; ``block_emit`` (b,) bool (holds an emitter);
+        ``block_reach`` float, the largest ``|p_i|`` (scales the rounding slack).
+    """
+    starts = [np.arange(frame_start[f], frame_start[f + 1], ROW_BLOCK) for f in range(len(frame_start) - 1)]
+    first = np.concatenate(starts).astype(np.int64) if starts else np.zeros(0, dtype=np.int64)
+    block_start = np.append(first, frame_start[-1]).astype(np.int64)
+    frame_blocks = np.searchsorted(block_start, frame_start).astype(np.int64)
+    nb = len(first)
+    out = {
+        "frame_blocks": frame_blocks,
+        "block_start": block_start,
+        "block_centre": np.zeros((nb, 3)),
+        "block_axis": np.zeros((nb, 3)),
+        "block_spread": np.full(nb, np.inf),
+        "block_h_lo": np.zeros(nb),
+        "block_h_hi": np.zeros(nb),
+        "block_emit": np.zeros(nb, dtype=bool),
+        "block_reach": float(np.linalg.norm(pos, axis=1).max()) if len(pos) else 0.0,
+    }
+    if nb == 0:
+        return out
+    size = np.diff(block_start).astype(np.float64)
+    of = np.repeat(np.arange(nb), np.diff(block_start))
+    centre = np.add.reduceat(pos, first, axis=0) / size[:, None]
+    axis = np.add.reduceat(nrm, first, axis=0)
+    norm = np.linalg.norm(axis, axis=1)
+    axis = np.where(norm[:, None] > 0, axis / np.where(norm > 0, norm, 1.0)[:, None], 0.0)
+    spread = np.maximum.reduceat(np.linalg.norm(nrm - axis[of], axis=1), first)
+    h = np.einsum("ij,ij->i", nrm, pos - centre[of])
+    out.update(
+        block_centre=centre,
+        block_axis=axis,
+        block_spread=np.where(norm > 0, spread * (1 + 1e-12) + 1e-15, np.inf),
+        block_h_lo=np.minimum.reduceat(h, first),
+        block_h_hi=np.maximum.reduceat(h, first),
+        block_emit=np.maximum.reduceat(emit.astype(np.int8), first).astype(bool),
+    )
+    return out
+
+
 def frame_scene(instance, frame: int) -> RayScene:
     """Embree scene of everything that occludes in ``frame``: occluders and the posed target."""
     meshes = [(v, f) for _, v, f in instance.occluders_world(frame)]
@@ -198,20 +252,25 @@ class VisibilityTask:
     @functools.cached_property
     def live_arrays(self) -> dict[str, np.ndarray]:
         """Contiguous per-live-row arrays for the kernels: ``pos``, ``nrm`` (l, 3) float64, ``ndotp``
-        (l,) float64, ``emit`` and ``support`` (l,) bool, ``ends32`` (l, 3) float32, and
-        ``frame_start`` (n_frames + 1,) int64 (live rows come frame by frame)."""
+        (l,) float64, ``emit`` and ``support`` (l,) bool, ``ends32`` (l, 3) float32,
+        ``frame_start`` (n_frames + 1,) int64 (live rows come frame by frame), and the row blocks
+        of :func:`_row_blocks`."""
         live = self.live_rows
         nrm = np.ascontiguousarray(self.normals[live], dtype=np.float64)
         pos = np.ascontiguousarray(self.positions[live], dtype=np.float64)
-        return {
+        emit = ~np.any(nrm != 0.0, axis=1)
+        frame_start = np.searchsorted(self.frame[live], np.arange(len(self.eps_m) + 1)).astype(np.int64)
+        out = {
             "pos": pos,
             "nrm": nrm,
             "ndotp": np.einsum("ij,ij->i", nrm, pos),
-            "emit": ~np.any(nrm != 0.0, axis=1),
+            "emit": emit,
             "support": np.ascontiguousarray(self.support[live]),
-            "frame_start": np.searchsorted(self.frame[live], np.arange(len(self.eps_m) + 1)).astype(np.int64),
+            "frame_start": frame_start,
             "ends32": np.ascontiguousarray(self.ends32[live]),
         }
+        out.update(_row_blocks(pos, nrm, emit, frame_start))
+        return out
 
     @functools.cached_property
     def frame_spheres(self) -> dict[int, tuple[np.ndarray, float]]:
@@ -376,7 +435,9 @@ def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start
     sizes = np.zeros(2 * n_frames, dtype=np.int64)
     q, per_cam, steps = _kernels.cull(
         np.ascontiguousarray(pos), np.ascontiguousarray(rot), whole, lv["frame_start"], lv["pos"], lv["nrm"],
-        lv["ndotp"], lv["emit"], lv["support"], task.support_tol, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+        lv["ndotp"], lv["emit"], lv["support"], task.support_tol, lv["frame_blocks"], lv["block_start"],
+        lv["block_centre"], lv["block_axis"], lv["block_spread"], lv["block_h_lo"], lv["block_h_hi"], lv["block_emit"],
+        lv["block_reach"], float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
         task.width_px, task.height_px, task.near_m, task.far_m, task.cos_max_incidence, kept, group, sizes,
     )
     kept, group = kept[:q], group[:q]
@@ -399,49 +460,6 @@ def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start
     r = _kernels.compact(kept, per_cam, slot, blocked, live, _scratch(bufs, "cursor", len(live), np.int64), rowids, row_offsets, lcols)
     counts["observed"] = n_obs
     return ChunkResult(start, rowids[:r].copy(), row_offsets[:r + 1].copy(), lcols, counts)
-    lv = task.live_arrays
-    n_frames = len(task.eps_m)
-    whole = np.zeros((nc, n_frames), dtype=bool)
-    for f, (centre, radius) in task.frame_spheres.items():
-        whole[:, f] = sphere_inside_view(
-            centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
-        )
-    K = task.K
-    kept = _scratch(bufs, "kept", nc * len(live), np.int32)
-    group = _scratch(bufs, "group", nc * len(live), np.int8)
-    sizes = np.zeros(2 * n_frames, dtype=np.int64)
-    q, per_cam, steps = _kernels.cull(
-        np.ascontiguousarray(pos), np.ascontiguousarray(rot), whole, lv["frame_start"], lv["pos"], lv["nrm"],
-        lv["ndotp"], lv["emit"], lv["support"], task.support_tol, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-        task.width_px, task.height_px, task.near_m, task.far_m, task.cos_max_incidence, kept, group, sizes,
-    )
-    kept, group = kept[:q], group[:q]
-    counts["in_range"], counts["in_frustum"], counts["facing"] = (int(x) for x in steps)
-    origins, directions = _scratch(bufs, "origins", (q, 3), np.float32), _scratch(bufs, "directions", (q, 3), np.float32)
-    slot, quality = _scratch(bufs, "slot", q, np.int32), _scratch(bufs, "quality", q, np.float32)
-    offsets = _kernels.build_segments(
-        kept, group, sizes, per_cam, np.ascontiguousarray(pos), pos.astype(np.float32), lv["pos"], lv["nrm"],
-        lv["emit"], lv["ends32"], task.graded, float(K[0, 0]), task.required_px_per_m, origins, directions, slot,
-        quality,
-    )
-    blocked = _scratch(bufs, "blocked", q, np.bool_)
-    for f in task.scene_triangles:
-        for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
-            a, b = int(offsets[g]), int(offsets[g + 1])
-            if b > a:
-                blocked[a:b] = scene.occluded_dir(origins[a:b], directions[a:b])
-                counts["cast"] += b - a
-    n_obs = q - int(np.count_nonzero(blocked))
-    # one allocation for both outputs: past 4 MiB numpy asks for transparent huge pages
-    out = np.empty(2 * n_obs, dtype=np.int32)
-    cols, vals = out[:n_obs], out[n_obs:].view(np.float32)
-    rowids, offsets = np.empty(len(live), np.int32), np.empty(len(live) + 1, np.int64)
-    r = _kernels.compact(
-        kept, per_cam, slot, blocked, quality, task.graded, live, start, _scratch(bufs, "cursor", len(live), np.int64),
-        rowids, offsets, cols, vals,
-    )
-    counts["observed"] = n_obs
-    return ChunkResult(rowids[:r].copy(), offsets[:r + 1].copy(), cols, vals, counts)
 
 
 def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m: np.ndarray) -> np.ndarray:
@@ -586,6 +604,22 @@ def default_chunk_size(task: VisibilityTask) -> int:
     return int(np.clip(2_000_000 // max(1, len(task.live_rows)), 8, 256))
 
 
+def chunk_plan(n_candidates: int, chunk_size: int, workers: int) -> list[tuple[int, int]]:
+    """Candidate ranges ``(start, stop)`` for the thread pool, in column order.
+
+    Chunks of ``chunk_size``, except that the last ``2 * workers`` are cut in four (at least 8
+    candidates each), so that the threads run out of work at about the same time.
+    """
+    starts = list(range(0, n_candidates, chunk_size))
+    tail = max(1, len(starts) - 2 * workers)  # the first chunk (the pilot) keeps its size
+    plan = [(s, min(s + chunk_size, n_candidates)) for s in starts[:tail]]
+    for s in starts[tail:]:
+        e = min(s + chunk_size, n_candidates)
+        step = max(8, -(-(e - s) // 4))
+        plan += [(a, min(a + step, e)) for a in range(s, e, step)]
+    return plan
+
+
 def available_memory_bytes() -> int:
     """Physical memory of this machine (bytes), or 8 GiB when unknown."""
     try:
@@ -687,18 +721,16 @@ def compute_visibility(
     else:
         workers = workers or min(8, os.cpu_count() or 1)
 
-        def work(start: int) -> ChunkResult:
-            return compute_chunk(task, scenes, start, min(start + chunk_size, n_cand))
-
+        plan = chunk_plan(n_cand, chunk_size, workers)
         pool = ThreadPoolExecutor(max_workers=workers)
         try:
-            futures = [pool.submit(work, start) for start in starts]
-            for i, (start, fut) in enumerate(zip(starts, futures)):
+            futures = [pool.submit(compute_chunk, task, scenes, a, b) for a, b in plan]
+            for i, ((a, b), fut) in enumerate(zip(plan, futures)):
                 parts.append(fut.result())
                 if i == 0:
                     check_pilot(parts[0])
                 if progress is not None:
-                    progress(min(chunk_size, n_cand - start))
+                    progress(b - a)
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
     matrix, total = assemble(task, parts)
