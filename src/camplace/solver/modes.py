@@ -514,7 +514,84 @@ def _cover_modes(
         stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": dict(out.stats)})
         return sel, out.status if sel else "unknown", objective, float(out.bound) + const, name, stats
 
-    # General model (SCIP / CP-SAT).
+    # General model (SCIP / CP-SAT). The greedy answer comes first: it is the hint, and the answer
+    # (with a cheap valid bound) when the time limit passes while the model is still being built.
+    nf = free_cols.size
+    adj: list[set[int]] | None = None
+    if conflicts.size:
+        adj = [set() for _ in range(nf)]
+        for a, b in np.searchsorted(free_cols, conflicts).tolist():
+            adj[a].add(b)
+            adj[b].add(a)
+    g_base = np.zeros(m) if mode == "quality" else base
+    hint_local = _greedy(resid.tocsc() if mode != "multiview" else qf.tocsc(), resid_w, mode, views, g_base, k,
+                         np.ones(nf, dtype=bool), adj)
+    hint_sel = None
+    if hint_local is not None:
+        hint_sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in hint_local}))
+    try:
+        model, x, wmax, const = _build_model(q, resid, resid_w, w, base, k, mode, views, min_angle_deg, pos, pts,
+                                             fixed_t, free_cols, conflicts, fixed_value, t0, time_limit_s)
+    except _BuildTimeout:
+        stats["model_build"] = "interrupted by the time limit: greedy answer, cheap bound"
+        bound = _cheap_bound(q, qf, w, base, k, mode, views)
+        if hint_sel is None:
+            return None, "unknown", fixed_value, bound, name, stats
+        return hint_sel, "feasible", value(hint_sel), bound, name, stats
+    hint = None
+    if hint_local is not None:
+        hint = {int(x[j]): (1.0 if j in hint_local else 0.0) for j in range(nf)}
+    out = solve_model(model, name, time_limit_s=_remaining(t0, time_limit_s), hint=hint)
+    stats["engine_stats"] = dict(out.stats)
+    sel = None
+    if out.values is not None:
+        new = [int(free_cols[j]) for j in np.flatnonzero(out.values[x] > 0.5)]
+        sel = tuple(sorted(set(fixed_t) | set(new)))
+    objective = value(sel) if sel is not None else -math.inf
+    status = out.status
+    if hint_sel is not None:
+        hv = value(hint_sel)
+        stats["hint_value"] = hv
+        if sel is None or hv > objective:
+            sel, objective = hint_sel, hv
+            if status in ("unknown", "optimal"):
+                status = "feasible"
+    if sel is None:
+        return None, status, fixed_value, math.inf, name, stats
+    bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
+    return sel, status, objective, bound, name, stats
+
+
+class _BuildTimeout(Exception):
+    """The time limit passed while the general model was being built."""
+
+
+def _cheap_bound(q: sp.csr_matrix, qf: sp.csr_matrix, w: np.ndarray, base: np.ndarray, k: int, mode: str, views: int) -> float:
+    """A valid upper bound on the objective (fixed cameras included) without any model: every
+    point gets the best any allowed camera could give it (multiview: at most k new views)."""
+    if mode == "maxcover":
+        return float(w @ ((base > 0) | (np.diff(qf.indptr) > 0)))
+    if mode == "quality":
+        best = qf.max(axis=1).toarray().ravel() if qf.shape[1] else np.zeros(q.shape[0])
+        return float(w @ np.maximum(base, best))
+    return float(w @ (base + np.minimum(np.diff(qf.indptr), k) >= views))
+
+
+def _build_model(
+    q: sp.csr_matrix, resid: sp.csr_matrix, resid_w: np.ndarray, w: np.ndarray, base: np.ndarray, k: int,
+    mode: str, views: int,
+    min_angle_deg: float | None, pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, conflicts: np.ndarray, fixed_value: float, t0: float, time_limit_s: float | None,
+) -> tuple[LinearModel, np.ndarray, float, float]:
+    """The SCIP / CP-SAT model of a k-camera mode: (model, x variables, objective scale, constant).
+
+    Raises :class:`_BuildTimeout` when the time limit passes while rows are being added.
+    """
+
+    def check(r: int) -> None:
+        if (r & 255) == 0 and time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+            raise _BuildTimeout
+
     model = LinearModel(maximize=True)
     nf = free_cols.size
     x = model.add_vars(nf)
@@ -528,6 +605,7 @@ def _cover_modes(
         pr, pw = _merge_rows(as_pattern(resid[live]), resid_w[live])
         y = model.add_vars(pr.shape[0], integer=False, obj=pw / wmax)
         for r in range(pr.shape[0]):
+            check(r)
             cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
             model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
         const = fixed_value
@@ -535,6 +613,7 @@ def _cover_modes(
         live = (resid_w > 0) & (np.diff(resid.indptr) > 0)
         pr, pw = _merge_rows(resid[live].tocsr(), resid_w[live])
         for r in range(pr.shape[0]):
+            check(r)
             s, e = pr.indptr[r], pr.indptr[r + 1]
             vals, cols = pr.data[s:e], pr.indices[s:e]
             levels = np.unique(vals)[::-1]
@@ -560,11 +639,13 @@ def _cover_modes(
             pr, pw = _merge_rows(as_pattern(qa[live]), w[live])
             y = model.add_vars(pr.shape[0], obj=pw / wmax)
             for r in range(pr.shape[0]):
+                check(r)
                 cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
                 model.add_row(np.append(xall[cols], y[r]), np.append(np.ones(cols.size), -float(views)), lo=0.0)
         else:
             assert pos is not None
-            for i in np.flatnonzero(live):
+            for r, i in enumerate(np.flatnonzero(live)):
+                check(r)
                 cols = qa.indices[qa.indptr[i] : qa.indptr[i + 1]]
                 good = _angle_ok_pairs(pts[i], pos[allc[cols]], float(min_angle_deg or 0.0))
                 if not np.any(np.triu(good, 1)):
@@ -580,40 +661,7 @@ def _cover_modes(
                 for a, b in zip(bad_a.tolist(), bad_b.tolist()):
                     model.add_row([u[a], u[b]], [1.0, 1.0], hi=1.0)
 
-    adj: list[set[int]] | None = None
-    if conflicts.size:
-        adj = [set() for _ in range(nf)]
-        for a, b in np.searchsorted(free_cols, conflicts).tolist():
-            adj[a].add(b)
-            adj[b].add(a)
-    g_mode = mode if mode != "multiview" else "multiview"
-    g_base = np.zeros(m) if mode == "quality" else base
-    hint_local = _greedy(resid.tocsc() if mode != "multiview" else qf.tocsc(), resid_w, g_mode, views, g_base, k,
-                         np.ones(nf, dtype=bool), adj)
-    hint = None
-    hint_sel = None
-    if hint_local is not None:
-        hint = {int(x[j]): (1.0 if j in hint_local else 0.0) for j in range(nf)}
-        hint_sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in hint_local}))
-    out = solve_model(model, name, time_limit_s=_remaining(t0, time_limit_s), hint=hint)
-    stats["engine_stats"] = dict(out.stats)
-    sel = None
-    if out.values is not None:
-        new = [int(free_cols[j]) for j in np.flatnonzero(out.values[x] > 0.5)]
-        sel = tuple(sorted(set(fixed_t) | set(new)))
-    objective = value(sel) if sel is not None else -math.inf
-    status = out.status
-    if hint_sel is not None:
-        hv = value(hint_sel)
-        stats["hint_value"] = hv
-        if sel is None or hv > objective:
-            sel, objective = hint_sel, hv
-            if status in ("unknown", "optimal"):
-                status = "feasible"
-    if sel is None:
-        return None, status, fixed_value, math.inf, name, stats
-    bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
-    return sel, status, objective, bound, name, stats
+    return model, x, wmax, const
 
 
 def _setcover(
