@@ -1,4 +1,4 @@
-"""Compiled (numba, GIL-free) culling and segment building for :func:`compute_chunk`.
+"""Compiled (numba, GIL-free) kernels of the visibility engine (:mod:`camplace.visibility.engine`).
 
 The tests of one (row, candidate) pair are those of :mod:`camplace.visibility.engine`: depth
 range, image bounds, facing, incidence and the supporting-plane shortcut. The kernels run in
@@ -13,9 +13,10 @@ three steps per chunk of candidates:
    own small CSR, built in cache, one byte a pair);
 
 and :func:`merge_rows` copies the chunks' row runs into the matrix's CSR arrays, computing each
-pair's observation quality on the way.
+pair's observation quality on the way; :func:`supporting` finds the rows whose tangent plane
+supports the target.
 
-All three release the GIL (``nogil=True``), so the chunk threads run them on every core.
+All of them release the GIL (``nogil=True``), so the chunk threads run them on every core.
 """
 
 from __future__ import annotations
