@@ -216,3 +216,31 @@ def test_time_limit_during_model_build_keeps_a_valid_bound(mode, data) -> None:
     assert res.objective == pytest.approx(mode_objective(dense, w, res.selected, mode, views=2))
     assert res.bound >= best - 1e-9 * max(1.0, float(w.sum()))
     assert res.bound >= res.objective - 1e-12
+
+
+@pytest.mark.parametrize("engine", ["exact", "auto"])
+@settings(max_examples=60, **_SETTINGS)
+@given(data=st.data())
+def test_stereo_exact_engine_equals_enumeration(engine, data) -> None:
+    """multiview with 2 views and k = 3: the bound-pruned stereo engine against enumeration."""
+    dense, w, pos, pts, rng = data.draw(instances(max_n=10, max_m=18))
+    n = dense.shape[1]
+    _, forbidden = _side(data.draw, n, 0)
+    if n - len(forbidden) < 3:
+        return
+    res = solve(dense, w, 3, mode="multiview", views=2, forbidden=forbidden, engine=engine)
+    assert res.engine == "exact"
+    best = brute_force_mode(dense, w, 3, "multiview", views=2, forbidden=forbidden)
+    _check_max(res, best, dense, w, 3, "multiview", (), forbidden, views=2)
+
+
+def test_stereo_time_limit_keeps_a_valid_bound() -> None:
+    from camplace.solver._synthetic import structured_instance
+
+    a, w = structured_instance(3000, 200, seed=4)
+    full = solve(a, w, 3, mode="multiview", views=2, engine="exact")
+    assert full.status == "optimal"
+    cut = solve(a, w, 3, mode="multiview", views=2, engine="exact", time_limit_s=1e-6)  # stops at the root
+    assert cut.status == "feasible" and cut.gap > 0 and len(cut.selected) == 3
+    assert cut.bound >= full.objective - 1e-12 >= cut.objective - 1e-12
+    assert cut.objective == pytest.approx(mode_objective(a.toarray(), w, cut.selected, "multiview", views=2))

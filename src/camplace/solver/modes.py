@@ -28,9 +28,11 @@ Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted i
 ``forbidden`` (never chosen) and ``min_distance_m`` (chosen cameras, fixed included, pairwise at
 least that far apart; needs ``positions``).
 
-Engines: ``exact`` (the bound-pruned BLAS engine; maxcover and quality without minimum distance),
-``mip`` (SCIP) and ``cpsat``. ``auto`` picks ``exact`` where it applies and ``k <= 4`` (quality:
-when the expanded matrix stays small), otherwise ``mip``.
+Engines: ``exact`` (the bound-pruned BLAS engines: maxcover and quality without minimum distance,
+and multiview with ``views = 2``, ``k = 3``, no fixed cameras, minimum angle or minimum distance,
+see :mod:`camplace.solver.multiview_exact`), ``mip`` (SCIP) and ``cpsat``. ``auto`` picks
+``exact`` where it applies and ``k <= 4`` (quality: when the expanded matrix stays small),
+otherwise ``mip``.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from camplace.errors import CamplaceError
 from camplace.solver._common import check_engine_and_limit, coverage_weight
 from camplace.solver._model import LinearModel, solve_model
 from camplace.solver.exact import EXACT_MAX_K, solve_exact
+from camplace.solver.multiview_exact import solve_multiview_exact
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
 from camplace.solver.presolve import as_pattern, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
@@ -60,6 +63,7 @@ MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
 _ENGINES = ("auto", "exact", "mip", "cpsat")
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 _OPT_TOL = 1e-9
+_STEREO_AUTO_MAX_N = 4000  # auto uses the stereo engine up to this many candidates (its n x n Gram setup)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -495,11 +499,24 @@ def _cover_modes(
         if engine == "exact" or est <= _QUALITY_EXPAND_MAX:
             expanded = _expand_levels(resid, resid_w)
         stats["quality_expanded_nnz_estimate"] = est
-    if engine == "exact" and not exact_ok:
-        raise CamplaceError("the exact engine solves maxcover and quality without min_distance_m only; use engine mip or cpsat")
+    stereo_ok = (mode == "multiview" and views == 2 and k == 3 and min_angle_deg is None and not fixed_t
+                 and conflicts.shape[0] == 0)
+    if engine == "exact" and not (exact_ok or stereo_ok):
+        raise CamplaceError(
+            "the exact engine solves maxcover and quality without min_distance_m, and multiview with views=2, k=3 "
+            "and no fixed cameras, minimum angle or minimum distance; use engine mip or cpsat"
+        )
     name = engine
     if engine == "auto":
-        name = "exact" if exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None) else "mip"
+        name = "exact" if (exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None)) or (
+            stereo_ok and free_cols.size <= _STEREO_AUTO_MAX_N) else "mip"
+
+    if name == "exact" and stereo_ok:
+        pre = presolve(as_pattern(resid), resid_w, k, dominance=False)
+        out = solve_multiview_exact(pre, time_limit_s=_remaining(t0, time_limit_s))
+        sel = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
+        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": dict(out.stats)})
+        return sel, out.status if sel else "unknown", value(sel) if sel else 0.0, float(out.bound), name, stats
 
     if name == "exact" or (exact_ok and mode == "maxcover"):
         # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
