@@ -29,7 +29,7 @@ Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted i
 least that far apart; needs ``positions``).
 
 Engines: ``exact`` (the bound-pruned BLAS engines: maxcover and quality without minimum distance,
-and multiview with ``views = 2``, ``k = 3``, no fixed cameras, minimum angle or minimum distance,
+and multiview with ``views = 2``, ``k = 2`` or ``3``, no fixed cameras, minimum angle or minimum distance,
 see :mod:`camplace.solver.multiview_exact`), ``mip`` (SCIP) and ``cpsat``. ``auto`` picks
 ``exact`` where it applies and ``k <= 4`` (quality: when the expanded matrix stays small),
 otherwise ``mip``.
@@ -499,11 +499,11 @@ def _cover_modes(
         if engine == "exact" or est <= _QUALITY_EXPAND_MAX:
             expanded = _expand_levels(resid, resid_w)
         stats["quality_expanded_nnz_estimate"] = est
-    stereo_ok = (mode == "multiview" and views == 2 and k == 3 and min_angle_deg is None and not fixed_t
+    stereo_ok = (mode == "multiview" and views == 2 and k in (2, 3) and min_angle_deg is None and not fixed_t
                  and conflicts.shape[0] == 0)
     if engine == "exact" and not (exact_ok or stereo_ok):
         raise CamplaceError(
-            "the exact engine solves maxcover and quality without min_distance_m, and multiview with views=2, k=3 "
+            "the exact engine solves maxcover and quality without min_distance_m, and multiview with views=2, k=2 or 3 "
             "and no fixed cameras, minimum angle or minimum distance; use engine mip or cpsat"
         )
     name = engine

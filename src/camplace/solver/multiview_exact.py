@@ -1,4 +1,4 @@
-"""Exact bound-pruned engine for stereo coverage: the best 3 cameras when a point needs 2 views.
+"""Exact bound-pruned engine for stereo coverage: the best 3 (or 2) cameras when a point needs 2 views.
 
 For a triple ``{a, b, c}`` the weight of the points seen by at least two of them is
 
@@ -186,13 +186,14 @@ class _Stereo:
 
 
 def solve_multiview_exact(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOutcome:
-    """Best 3 columns of a presolved instance (presolve with ``dominance=False``) when a row counts
-    only if at least 2 chosen columns observe it.
+    """Best 3 (or 2) columns of a presolved instance (presolve with ``dominance=False``) when a
+    row counts only if at least 2 chosen columns observe it.
 
     Parameters
     ----------
     pre : Presolved
-        Merged rows x all columns; ``pre.k`` must be 3.
+        Merged rows x all columns; ``pre.k`` must be 3 (the tree search) or 2 (the best pair,
+        read off the weighted Gram matrix).
     time_limit_s : float, optional
         On expiry the incumbent comes back with status "feasible" and a valid bound.
 
@@ -201,15 +202,22 @@ def solve_multiview_exact(pre: Presolved, *, time_limit_s: float | None = None) 
     EngineOutcome
         Reduced column indices, status, bound (original weight units) and stats.
     """
-    if pre.k != 3:
-        raise ValueError("the stereo engine chooses exactly 3 cameras")
+    if pre.k not in (2, 3):
+        raise ValueError("the stereo engine chooses 2 or 3 cameras")
     with limit_blas_threads(BLAS_THREADS):
         deadline = Deadline(time_limit_s)
         m, n = pre.shape
-        if n <= 3 or m == 0:
-            return EngineOutcome(selected=tuple(range(min(3, n))), status="optimal",
-                                 bound=float(pre.weights[np.diff(pre.matrix.indptr) >= 2].sum()) if n <= 3 else 0.0,
+        k = pre.k
+        if n <= k or m == 0:
+            return EngineOutcome(selected=tuple(range(min(k, n))), status="optimal",
+                                 bound=float(pre.weights[np.diff(pre.matrix.indptr) >= 2].sum()) if n <= k else 0.0,
                                  stats={"trivial": True})
+        if k == 2:  # the value of a pair is its weighted intersection: the best off-diagonal Gram entry
+            d = pre.matrix.astype(np.float64)
+            gram = _lower((d.T @ d.multiply(pre.weights[:, None]).tocsc()).toarray())
+            a, b = divmod(int(np.argmax(gram)), n)
+            return EngineOutcome(selected=(b, a), status="optimal", bound=float(gram[a, b]),
+                                 stats={"pair": True, "time_s": deadline.elapsed()})
         integer = pre.weight_unit is not None and int(pre.counts.sum()) < _INT_EXACT_LIMIT
         if integer:
             d = pre.matrix.astype(np.float32).toarray()
