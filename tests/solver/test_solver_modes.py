@@ -243,3 +243,20 @@ def test_stereo_time_limit_keeps_a_valid_bound() -> None:
     assert cut.status == "feasible" and cut.gap > 0 and len(cut.selected) == 3
     assert cut.bound >= full.objective - 1e-12 >= cut.objective - 1e-12
     assert cut.objective == pytest.approx(mode_objective(a.toarray(), w, cut.selected, "multiview", views=2))
+
+
+def test_too_large_model_is_not_built(monkeypatch) -> None:
+    """Past the model-size limit the greedy answer comes back with a valid bound, before any
+    memory goes into a model."""
+    import camplace.solver.modes as modes
+
+    rng = np.random.default_rng(7)
+    dense = (rng.random((30, 8)) < 0.4) * rng.uniform(0.1, 1.0, (30, 8))
+    w = rng.uniform(0.0, 1.0, 30)
+    monkeypatch.setattr(modes, "_MODEL_MAX_NNZ", 0)
+    for mode in ("quality", "multiview"):
+        res = solve(dense, w, 3, mode=mode, views=3, engine="mip")
+        assert res.stats["model_build"].startswith("skipped")
+        best = brute_force_mode(dense, w, 3, mode, views=3)
+        assert res.objective == pytest.approx(mode_objective(dense, w, res.selected, mode, views=3))
+        assert res.bound >= best - 1e-12 and res.objective <= best + 1e-12

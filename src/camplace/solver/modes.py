@@ -63,6 +63,7 @@ MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
 _ENGINES = ("auto", "exact", "mip", "cpsat")
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 _OPT_TOL = 1e-9
+_MODEL_MAX_NNZ = 40_000_000  # larger SCIP / CP-SAT models exhaust memory (about 100 bytes a nonzero)
 _STEREO_AUTO_MAX_N = 4000  # auto uses the stereo engine up to this many candidates (its n x n Gram setup)
 
 
@@ -546,11 +547,16 @@ def _cover_modes(
     hint_sel = None
     if hint_local is not None:
         hint_sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in hint_local}))
+    size = int(resid.nnz if mode != "multiview" else qf.nnz)
     try:
+        if size > _MODEL_MAX_NNZ:
+            log.warning("%s: the SCIP / CP-SAT model would have about %d nonzeros (over %d); returning the greedy "
+                        "answer with a cheap bound", mode, size, _MODEL_MAX_NNZ)
+            raise _BuildTimeout(f"skipped: the model would have about {size} nonzeros (over {_MODEL_MAX_NNZ})")
         model, x, wmax, const = _build_model(q, resid, resid_w, w, base, k, mode, views, min_angle_deg, pos, pts,
                                              fixed_t, free_cols, conflicts, fixed_value, t0, time_limit_s)
-    except _BuildTimeout:
-        stats["model_build"] = "interrupted by the time limit: greedy answer, cheap bound"
+    except _BuildTimeout as exc:
+        stats["model_build"] = (str(exc) or "interrupted by the time limit") + ": greedy answer, cheap bound"
         bound = _cheap_bound(q, qf, w, base, k, mode, views)
         if hint_sel is None:
             return None, "unknown", fixed_value, bound, name, stats
