@@ -63,6 +63,7 @@ MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
 _ENGINES = ("auto", "exact", "mip", "cpsat")
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 _OPT_TOL = 1e-9
+_GREEDY_BLOCK_NNZ = 4_000_000  # matrix entries per column block in the greedy heuristic
 _MODEL_MAX_NNZ = 40_000_000  # larger SCIP / CP-SAT models exhaust memory (about 100 bytes a nonzero)
 _STEREO_AUTO_MAX_N = 4000  # auto uses the stereo engine up to this many candidates (its n x n Gram setup)
 
@@ -236,18 +237,29 @@ def _greedy(
     ok = allowed.copy()
     chosen: list[int] = []
     rows, ptr = q.indices, q.indptr
-    nnz_col = np.repeat(np.arange(q.shape[1]), np.diff(ptr))
+    n = q.shape[1]
+    # column blocks of at most _GREEDY_BLOCK_NNZ entries: no temporary is as large as the matrix
+    edges = [0]
+    while edges[-1] < n:
+        edges.append(max(edges[-1] + 1, int(np.searchsorted(ptr, ptr[edges[-1]] + _GREEDY_BLOCK_NNZ, side="right")) - 1))
+    edges[-1] = n
     for _ in range(k):
         if not ok.any():
             return None
-        if mode == "quality":
-            contrib = w[rows] * np.maximum(q.data - cur[rows], 0.0)
-        elif mode == "maxcover":
-            contrib = w[rows] * (cur[rows] <= 0)
-        else:
-            c = cur[rows]
-            contrib = w[rows] * np.where(c + 1 >= views, (c + 1 == views) * 1.0, 1e-3 * (c + 1) / views)
-        gain = np.bincount(nnz_col, weights=contrib, minlength=q.shape[1]).astype(np.float64)
+        if mode == "maxcover":
+            per_row = w * (cur <= 0)
+        elif mode == "multiview":
+            per_row = w * np.where(cur + 1 >= views, (cur + 1 == views) * 1.0, 1e-3 * (cur + 1) / views)
+        gain = np.empty(n, dtype=np.float64)
+        for c0, c1 in zip(edges[:-1], edges[1:]):
+            s, e = ptr[c0], ptr[c1]
+            r = rows[s:e]
+            if mode == "quality":
+                contrib = w[r] * np.maximum(q.data[s:e] - cur[r], 0.0)
+            else:
+                contrib = per_row[r]
+            col = np.repeat(np.arange(c1 - c0), np.diff(ptr[c0 : c1 + 1]))
+            gain[c0:c1] = np.bincount(col, weights=contrib, minlength=c1 - c0)
         gain[~ok] = -np.inf
         j = int(np.argmax(gain))
         chosen.append(j)
