@@ -11,6 +11,13 @@ Usage::
     PYTHONPATH=src python benchmarks/solver.py                     # all configurations
     PYTHONPATH=src python benchmarks/solver.py --mip-time-limit 60 --configs sphere bilobed
     PYTHONPATH=src python benchmarks/solver.py --skip-mip --repeat 3 --blas-threads 1
+    PYTHONPATH=src python benchmarks/solver.py --modes                 # issue-8 mode targets, sphere
+    PYTHONPATH=src python benchmarks/solver.py --modes multiview quality --source bunker
+
+``--modes`` runs the issue's mode targets (maxcover 10,000 x 50,000; multiview and quality
+1,000 x 20,000 and 10,000 x 50,000) with ``solve(..., engine="auto")`` and prints one line each,
+on the structured sphere or on comet-67p-bunker visibility matrices (computed once, then cached;
+quality on a graded version of the instance).
 
 OpenBLAS threading degrades badly when the cores are oversubscribed (other processes running);
 ``--blas-threads`` sets ``OPENBLAS_NUM_THREADS`` before numpy is imported. The load average is
@@ -44,17 +51,44 @@ MODE_RUNS: list[tuple[str, int, int, float, str]] = [
 ]
 
 
-def run_modes(seed: int, k: int, only: list[str] | None) -> None:
-    """The issue-8 mode benchmarks on the 'sphere' structured instance (one line per run)."""
+def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int):
+    """A comet-67p-bunker visibility matrix (cached): chaotic candidates aimed at the comet.
+
+    For ``quality`` the instance is switched to graded quality (resolution x incidence, max 80 deg),
+    since the built-in's binary matrix would make it plain max coverage.
+    """
+    import dataclasses
+
+    from camplace.instance import builtin
+    from camplace.pipeline import compute_points, event_aims, stage_seeds
+    from camplace.sampling import make_candidates
+    from camplace.visibility import compute_visibility
+    from camplace.visibility.cache import default_cache_dir
+
+    inst = builtin("comet-67p-bunker")
+    if mode == "quality":
+        inst = dataclasses.replace(inst, quality=dataclasses.replace(inst.quality, mode="graded", max_incidence_deg=80.0))
+    pts = compute_points(inst, m_pts, seed)
+    cands = make_candidates("chaotic", n_cams, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=stage_seeds(seed)[0])
+    vis = compute_visibility(inst, cands, pts, cache_dir=default_cache_dir())
+    return vis.matrix, pts.weight
+
+
+def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere") -> None:
+    """The issue-8 mode benchmarks (one line per run) on the 'sphere' structured instance or on
+    comet-67p-bunker matrices (``source="bunker"``)."""
     for mode, n_cams, m_pts, limit, target in MODE_RUNS:
         if only and mode not in only:
             continue
-        matrix, weights = structured_instance(m_pts, n_cams, seed=seed)
+        if source == "bunker":
+            matrix, weights = builtin_matrix(mode, n_cams, m_pts, seed)
+        else:
+            matrix, weights = structured_instance(m_pts, n_cams, seed=seed)
         t = time.perf_counter()
         res = solve(matrix, weights, k, mode=mode, views=2, time_limit_s=limit)
         wall = time.perf_counter() - t
         print(
-            f"   {mode:9s} {n_cams:5d}x{m_pts:6d} k={k}: {wall:7.2f} s {res.engine:5s} {_fmt_result(res)}  "
+            f"   {source} {mode:9s} {n_cams:5d}x{m_pts:6d} k={k}: {wall:7.2f} s {res.engine:5s} {_fmt_result(res)}  "
             f"(limit {limit:.0f} s; target: {target})"
         )
         sys.stdout.flush()
@@ -85,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--blas-threads", default=None, help="OPENBLAS_NUM_THREADS for this run")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--modes", nargs="*", default=None, help="run the issue-8 mode benchmarks (optionally only these modes) instead")
+    ap.add_argument("--source", choices=["sphere", "bunker"], default="sphere",
+                    help="--modes matrices: the structured sphere, or comet-67p-bunker visibility (cached)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     print(
@@ -93,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     )
 
     if args.modes is not None:
-        run_modes(args.seed, args.k, args.modes)
+        run_modes(args.seed, args.k, args.modes, args.source)
         print(f"load average at end: {os.getloadavg()[0]:.2f}")
         return 0
     rows_out: list[str] = []
