@@ -692,10 +692,10 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float) -> int:
 
     Chunk results (1 byte a pair, plus 12 bytes a nonempty row of a chunk) and the CSR (8 bytes
     a pair plus row pointers) coexist at the peak: about 10 bytes per pair, plus the per-thread
-    work arrays (about 60 MB a thread).
+    work arrays and result slab (about 100 MB a thread).
     """
     nnz = density * n_rows * n_cols
-    return int(10 * nnz + 16 * (n_rows + 1) + 60 * 2**20 * min(8, os.cpu_count() or 1))
+    return int(10 * nnz + 16 * (n_rows + 1) + 100 * 2**20 * min(8, os.cpu_count() or 1))
 
 
 def compute_visibility(
