@@ -260,3 +260,33 @@ def test_too_large_model_is_not_built(monkeypatch) -> None:
         best = brute_force_mode(dense, w, 3, mode, views=3)
         assert res.objective == pytest.approx(mode_objective(dense, w, res.selected, mode, views=3))
         assert res.bound >= best - 1e-12 and res.objective <= best + 1e-12
+
+
+def test_setcover_fraction_cpsat_regression() -> None:
+    """CP-SAT once claimed cost 3 optimal here (optimum 2): weights scaled to 2**40 broke it."""
+    pattern = np.array([
+        [1, 0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 1, 0, 1], [1, 1, 1, 1, 1, 0, 0], [0, 0, 1, 0, 0, 0, 0],
+        [0, 0, 0, 0, 1, 0, 0], [0, 1, 0, 0, 0, 1, 0], [0, 1, 1, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0, 0],
+        [0, 0, 0, 0, 1, 0, 0], [0, 1, 1, 0, 0, 1, 0], [0, 1, 0, 0, 0, 1, 0], [0, 0, 1, 1, 0, 0, 1],
+    ], dtype=float)
+    w = np.array([0.3881222, 0.82926972, 0.79469306, 0.20247959, 0.80943139, 0.3868496,
+                  0.99653288, 0.31626606, 0.2774125, 0.13696664, 0.05430517, 0.71728347])
+    best = brute_force_setcover(pattern, w, np.ones(7), 0.8)
+    for engine in ("cpsat", "mip"):
+        res = solve(pattern, w, mode="setcover", required_fraction=0.8, engine=engine)
+        assert res.status == "optimal" and res.objective == best == 2.0
+
+
+def test_quality_engine_time_limit_keeps_a_valid_bound() -> None:
+    from camplace.solver._synthetic import structured_instance
+
+    a, w = structured_instance(3000, 150, seed=2)
+    rng = np.random.default_rng(2)
+    a = a.astype(np.float32)
+    a.data = rng.uniform(0.05, 1.0, a.nnz).astype(np.float32)  # graded qualities
+    full = solve(a, w, 3, mode="quality", engine="exact")
+    assert full.status == "optimal" and full.engine == "exact"
+    cut = solve(a, w, 3, mode="quality", engine="exact", time_limit_s=1e-6)
+    assert len(cut.selected) == 3
+    assert cut.bound >= full.objective - 1e-9 >= cut.objective - 1e-9
+    assert cut.objective == pytest.approx(mode_objective(a.toarray(), w, cut.selected, "quality"))

@@ -30,7 +30,8 @@ least that far apart; needs ``positions``).
 
 Engines: ``exact`` (the bound-pruned BLAS engines: maxcover and quality without minimum distance,
 and multiview with ``views = 2``, ``k = 2`` or ``3``, no fixed cameras, minimum angle or minimum distance,
-see :mod:`camplace.solver.multiview_exact`), ``mip`` (SCIP) and ``cpsat``. ``auto`` picks
+see :mod:`camplace.solver.multiview_exact`; quality with k = 2 or 3 new cameras uses the min-Gram
+triple engine of :mod:`camplace.solver.quality_exact`), ``mip`` (SCIP) and ``cpsat``. ``auto`` picks
 ``exact`` where it applies and ``k <= 4`` (quality: when the expanded matrix stays small),
 otherwise ``mip``.
 """
@@ -51,6 +52,9 @@ from camplace.solver._common import check_engine_and_limit, coverage_weight
 from camplace.solver._model import LinearModel, solve_model
 from camplace.solver.exact import EXACT_MAX_K, solve_exact
 from camplace.solver.multiview_exact import solve_multiview_exact
+from camplace.solver.quality_exact import (
+    QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, min_gram_cost, solve_quality_exact,
+)
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
 from camplace.solver.presolve import as_pattern, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
@@ -504,6 +508,15 @@ def _cover_modes(
         resid, resid_w = qf, w
 
     exact_ok = mode in ("maxcover", "quality") and conflicts.shape[0] == 0
+    # quality with 2 or 3 new cameras: the min-Gram triple engine (no level expansion)
+    quality3 = mode == "quality" and exact_ok and k in (2, 3) and (
+        engine == "exact" or (engine == "auto" and free_cols.size <= QUALITY_EXACT_MAX_N
+                              and min_gram_cost(resid) <= QUALITY_EXACT_MAX_PAIRS))
+    if quality3:
+        out = solve_quality_exact(resid, resid_w, k, time_limit_s=_remaining(t0, time_limit_s))
+        sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
+        stats["engine_stats"] = dict(out.stats)
+        return sel, out.status, value(sel), float(out.bound) + float(w @ base), "exact", stats
     expanded = None
     if mode == "quality" and exact_ok and engine in ("auto", "exact"):
         # Expanded nnz = sum_i s_i (s_i + 1) / 2 at most; estimate before building.
@@ -762,7 +775,7 @@ def _setcover(
             cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
             model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
         scale_f = 1.0 / max(coverable_w, 1e-300)
-        s_int = 2.0**40 / max(float(pw.sum()), 1e-300)
+        s_int = 2.0**30 / max(float(pw.sum()), 1e-300)
         # CP-SAT needs integers: rounding the weights UP keeps every truly feasible cover feasible
         # (sum ceil(w s) >= sum w s >= need s), so CP-SAT's optimum is never worse than the true
         # one; the answer is checked against the exact requirement below
