@@ -28,6 +28,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
+from camplace._signals import ctrl_c_deferred
 from camplace.solver._common import Deadline, EngineOutcome
 
 __all__ = ["solve_quality_exact", "min_gram_cost", "QUALITY_EXACT_MAX_N", "QUALITY_EXACT_MAX_PAIRS"]
@@ -162,7 +163,8 @@ def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
         val = float(w @ q.max(axis=1).toarray().ravel()) if n else 0.0
         return EngineOutcome(selected=tuple(cols), status="optimal", bound=val, stats={"trivial": True})
     margin = _MARGIN * float(w.sum())
-    mg = _min_gram(q.indptr, q.indices, q.data, w, n)
+    with ctrl_c_deferred():
+        mg = _min_gram(q.indptr, q.indices, q.data, w, n)
     f = np.diagonal(mg).copy()
     stats: dict[str, Any] = {"time_min_gram_s": deadline.elapsed()}
     if k == 2:
@@ -208,7 +210,8 @@ def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
         firsts = firsts[ub_a[firsts] > best + margin]
         if firsts.size == 0:
             continue
-        new_best, e = _scan(firsts, f, mg, qt, w, best, margin, out_set)
+        with ctrl_c_deferred():
+            new_best, e = _scan(firsts, f, mg, qt, w, best, margin, out_set)
         evals += int(e)
         if new_best > best:
             best = float(new_best)

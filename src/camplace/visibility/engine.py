@@ -404,9 +404,12 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     supporting plane of the target (see :class:`VisibilityTask`) are cast against the occluders
     alone. Each scene gets one contiguous batch of segments.
     """
+    from camplace.visibility._kernels import ctrl_c_deferred
+
     bufs = _take_scratch()
     try:
-        return _compute_chunk(task, scenes, start, stop, bufs)
+        with ctrl_c_deferred():  # (in the main thread only: the Dask pilot, direct calls)
+            return _compute_chunk(task, scenes, start, stop, bufs)
     finally:
         _give_scratch(bufs)
 
@@ -504,10 +507,11 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     from camplace.visibility import _kernels
 
     ok = np.zeros(len(rows), dtype=bool)
-    _kernels.supporting(
-        np.ascontiguousarray(verts), np.ascontiguousarray(points.positions[rows], dtype=np.float64),
-        np.ascontiguousarray(points.normals[rows], dtype=np.float64), float(tol), ok,
-    )
+    with _kernels.ctrl_c_deferred():
+        _kernels.supporting(
+            np.ascontiguousarray(verts), np.ascontiguousarray(points.positions[rows], dtype=np.float64),
+            np.ascontiguousarray(points.normals[rows], dtype=np.float64), float(tol), ok,
+        )
     out[rows] = ok
     return out
 
