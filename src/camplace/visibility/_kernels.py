@@ -26,8 +26,6 @@ import math
 import numba
 import numpy as np
 
-from camplace._signals import ctrl_c_deferred  # noqa: F401  (re-exported for the engine)
-
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 

@@ -43,6 +43,7 @@ import scipy.sparse as sp
 from scipy.spatial import ConvexHull, QhullError
 
 from camplace._io import write_with_atomic
+from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.visibility.points import TargetPoints
 from camplace.visibility.raycast import RayScene
@@ -404,8 +405,6 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     supporting plane of the target (see :class:`VisibilityTask`) are cast against the occluders
     alone. Each scene gets one contiguous batch of segments.
     """
-    from camplace.visibility._kernels import ctrl_c_deferred
-
     bufs = _take_scratch()
     try:
         with ctrl_c_deferred():  # (in the main thread only: the Dask pilot, direct calls)
@@ -507,7 +506,7 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     from camplace.visibility import _kernels
 
     ok = np.zeros(len(rows), dtype=bool)
-    with _kernels.ctrl_c_deferred():
+    with ctrl_c_deferred():
         _kernels.supporting(
             np.ascontiguousarray(verts), np.ascontiguousarray(points.positions[rows], dtype=np.float64),
             np.ascontiguousarray(points.normals[rows], dtype=np.float64), float(tol), ok,
