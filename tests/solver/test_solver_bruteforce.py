@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from itertools import combinations
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.solver import coverage_weight, presolve, solve_maxcover
-from camplace.solver import exact as exact_mod
-from camplace.solver.exact import solve_exact
+from camplace.solver import bitset_exact as bitset_mod
+from camplace.solver.bitset_exact import solve_bitset
 from tests.solver._oracle import brute_force, small_instances, tolerance
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -58,24 +60,28 @@ def test_auto_equals_enumeration(inst) -> None:
     _check(res, matrix, weights, k)
 
 
-@settings(max_examples=80, **_SETTINGS)
-@given(inst=small_instances(max_k=4), segments=st.integers(1, 8))
-def test_exact_internal_screening_paths(inst, segments: int) -> None:
-    """Force the segment screening and segment bounds on tiny instances (normally > 48 columns)."""
+@settings(max_examples=120, **_SETTINGS)
+@given(inst=small_instances(max_k=4), views=st.integers(1, 3), slice_=st.integers(1, 5), integer=st.booleans())
+def test_bitset_engine_any_views_equals_enumeration(inst, views: int, slice_: int, integer: bool) -> None:
+    """The bitset engine for ``views`` = 1..3 (k <= 4), its search resumed every few bound
+    evaluations, with integer (equal) or float weights, against enumeration of every k-subset."""
     matrix, weights, k = inst
-    best, _ = brute_force(matrix, weights, k)
-    pre = presolve(matrix, weights, k)
+    dense = np.asarray(matrix.toarray() if hasattr(matrix, "toarray") else matrix) > 0
+    w = np.where(weights > 0, 0.25, 0.0) if integer else weights
+    pre = presolve(matrix, w, k, dominance=views == 1)
     mp = pytest.MonkeyPatch()
-    mp.setattr(exact_mod, "_SCREEN_MIN", 1)
+    mp.setattr(bitset_mod, "_SLICE", slice_)
     try:
-        out = solve_exact(pre, n_segments=segments)
+        out = solve_bitset(pre, views=views)
     finally:
         mp.undo()
     sel = pre.original_columns(out.selected)
+    best = max(float(w[dense[:, list(c)].sum(axis=1) >= views].sum()) for c in combinations(range(dense.shape[1]), k))
+    got = float(w[dense[:, list(sel)].sum(axis=1) >= views].sum())
     assert out.status == "optimal"
-    assert len(sel) == k
-    assert abs(coverage_weight(matrix, weights, sel) - best) <= tolerance(weights)
-    assert out.bound >= best - tolerance(weights)
+    assert len(sel) == k == len(set(sel))
+    assert abs(got - best) <= tolerance(w)
+    assert abs(out.bound - best) <= tolerance(w)
 
 
 @pytest.mark.parametrize("k", [1, 2, 3, 4, 5])

@@ -163,7 +163,7 @@ def test_errors_are_one_line() -> None:
         dict(k=2, mode="setcover"),
         dict(k=3, forbidden=[1]),
         dict(k=1, mode="multiview", min_angle_deg=30.0),
-        dict(k=1, mode="multiview", engine="exact"),
+        dict(k=1, mode="multiview", engine="exact", fixed=[0]),
     ]
     for kw in cases:
         k = kw.pop("k")

@@ -75,7 +75,7 @@ def test_original_and_reduced_columns_maps() -> None:
     assert pre.reduced_columns([0, 1]) is None
 
 
-@pytest.mark.parametrize("mode", ["sparse", "dense", "dense_chunked"])
+@pytest.mark.parametrize("mode", ["sparse", "dense", "dense_chunked", "bitsets"])
 def test_gram_paths_agree(mode: str) -> None:
     rng = np.random.default_rng(5)
     base = (rng.random((300, 40)) < 0.3).astype(float)
@@ -90,7 +90,11 @@ def test_gram_paths_agree(mode: str) -> None:
     if mode == "dense_chunked":
         mp.setattr(presolve_mod, "_DENSE_BYTES", 4 * 65 * 7)  # 7-row chunks
     try:
-        dominated = presolve_mod._dominated_columns(presolve_mod.as_pattern(a))
+        if mode == "bitsets":
+            rows = np.arange(a.shape[0], dtype=np.int64)
+            dominated = presolve_mod.dominated_bitsets(a, rows, np.diff(a.indptr).astype(np.int64))
+        else:
+            dominated = presolve_mod._dominated_columns(presolve_mod.as_pattern(a))
     finally:
         mp.undo()
     # Reference: explicit set comparisons.
@@ -131,3 +135,20 @@ def test_presolve_preserves_optimum_and_maps_back(inst) -> None:
         obs = set(a.indices[a.indptr[i] : a.indptr[i + 1]][a.data[a.indptr[i] : a.indptr[i + 1]] > 0].tolist())
         red = pre.matrix.indices[pre.matrix.indptr[pre.row_groups[i]] : pre.matrix.indptr[pre.row_groups[i] + 1]]
         assert {int(pre.columns[j]) for j in red} == obs & set(pre.columns.tolist())
+
+
+def test_row_merge_survives_hash_collisions() -> None:
+    """Every row in one hash bucket: grouping must still come from exact comparison."""
+    from camplace.solver import _bitkernels as bk
+
+    rng = np.random.default_rng(11)
+    base = (rng.random((6, 9)) < 0.4).astype(float)
+    dense = base[rng.integers(0, 6, size=40)]
+    a = sp.csr_matrix(dense)
+    rows = np.arange(40, dtype=np.int64)
+    col_map = np.arange(9, dtype=np.int64)
+    groups, n_groups = bk.group_rows(a.indptr, a.indices, a.data, rows, col_map, np.zeros(40, dtype=np.uint64))
+    keys = [dense[i].tobytes() for i in range(40)]
+    ref = {key: g for g, key in enumerate(dict.fromkeys(keys))}
+    assert n_groups == len(ref)
+    assert groups.tolist() == [ref[key] for key in keys]

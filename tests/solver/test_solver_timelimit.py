@@ -9,7 +9,7 @@ import pytest
 import scipy.sparse as sp
 
 from camplace.solver import SolverResult, solve_maxcover
-from camplace.solver import exact as exact_mod
+from camplace.solver import bitset_exact as bitset_mod
 from camplace.solver._common import Deadline
 from camplace.solver._synthetic import structured_instance
 from camplace.solver.result import relative_gap
@@ -61,7 +61,8 @@ def _check_honest(res: SolverResult, opt: float) -> None:
 @pytest.mark.parametrize("after", [0, 1, 2, 3, 5, 8, 13, 30, 80, 200])
 def test_exact_interrupted_anywhere_has_valid_bound(instance, optimum, monkeypatch, k: int, after: int) -> None:
     matrix, weights = instance
-    monkeypatch.setattr(exact_mod, "Deadline", lambda _limit: _CountingDeadline(after))
+    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: _CountingDeadline(after))
+    monkeypatch.setattr(bitset_mod, "_SLICE", 3)  # deadline checks every 3 bound evaluations
     res = solve_maxcover(matrix, weights, k, engine="exact", time_limit_s=10.0)
     _check_honest(res, optimum[k])
     assert len(res.selected) == k

@@ -29,9 +29,10 @@ from typing import Any, Callable
 
 from camplace.errors import CamplaceError
 from camplace.solver._common import EngineOutcome, check_engine_and_limit, coverage_weight
-from camplace.solver.exact import EXACT_MAX_K, solve_exact
+from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
+from camplace.solver.bitset_exact import solve_bitset
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
-from camplace.solver.presolve import Presolved, as_pattern, check_weights, presolve
+from camplace.solver.presolve import Presolved, as_pattern, canonical_csr, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
 
 __all__ = [
@@ -50,7 +51,7 @@ log = logging.getLogger(__name__)
 ENGINES: tuple[str, ...] = ("auto", "exact", "mip", "cpsat")
 
 _ENGINE_FUNCS: dict[str, Callable[..., EngineOutcome]] = {
-    "exact": solve_exact,
+    "exact": solve_bitset,
     "mip": solve_mip,
     "cpsat": solve_cpsat,
 }
@@ -104,7 +105,7 @@ def solve_maxcover(
     """
     t0 = time.perf_counter()
     check_engine_and_limit(engine, ENGINES, time_limit_s)
-    pattern = as_pattern(matrix)
+    pattern = canonical_csr(matrix)
     m, n = pattern.shape
     if n == 0:
         raise CamplaceError("the visibility matrix has no candidate columns")

@@ -9,10 +9,12 @@ from typing import Any, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
+from camplace.solver import _bitkernels as _bk
 from camplace.solver.presolve import as_pattern, check_weights
 
-__all__ = ["EngineOutcome", "coverage_weight", "Deadline"]
+__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline"]
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,10 @@ def coverage_weight(matrix: Any, weights: Any, selected: Sequence[int]) -> float
     float
         ``sum(weights[i] for rows i covered by selected)`` in float64.
     """
+    if sp.issparse(matrix) and matrix.format == "csr":
+        count, _ = selected_row_stats(matrix, selected)
+        w = check_weights(weights, matrix.shape[0])
+        return float(np.sum(w[count > 0], dtype=np.float64))
     a = sp.csc_matrix(matrix) if sp.issparse(matrix) else sp.csc_matrix(np.asarray(matrix))
     m, n = a.shape
     w = check_weights(weights, m)
@@ -93,6 +99,36 @@ def coverage_weight(matrix: Any, weights: Any, selected: Sequence[int]) -> float
     sub = as_pattern(a[:, cols])
     covered = np.diff(sub.indptr) > 0
     return float(np.sum(w[covered], dtype=np.float64))
+
+
+def selected_row_stats(matrix: sp.csr_matrix, selected: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of a CSR matrix: number of selected columns with a value > 0, and their largest value.
+
+    One compiled pass over the matrix (no copy), so it suits large visibility matrices.
+
+    Parameters
+    ----------
+    matrix : (m, n) scipy.sparse.csr_matrix
+        Values > 0 mean "observes" (canonical or not: duplicates count separately).
+    selected : sequence of int
+        0-based column indices (duplicates are ignored).
+
+    Returns
+    -------
+    count : (m,) int64
+    vmax : (m,) float64
+    """
+    m, n = matrix.shape
+    cols = sorted({int(j) for j in selected})
+    if any(j < 0 or j >= n for j in cols):
+        raise CamplaceError(f"selected column index out of range 0..{n - 1}: {cols}")
+    chosen = np.zeros(n, dtype=bool)
+    chosen[cols] = True
+    data = np.asarray(matrix.data)
+    if data.dtype.kind == "b":
+        data = data.view(np.uint8)
+    with ctrl_c_deferred():
+        return _bk.selected_row_stats(matrix.indptr, matrix.indices, data, chosen)
 
 
 def greedy_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, rounds: int = 20) -> tuple[int, ...]:

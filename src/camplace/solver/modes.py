@@ -28,12 +28,14 @@ Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted i
 ``forbidden`` (never chosen) and ``min_distance_m`` (chosen cameras, fixed included, pairwise at
 least that far apart; needs ``positions``).
 
-Engines: ``exact`` (the bound-pruned BLAS engines: maxcover and quality without minimum distance,
-and multiview with ``views = 2``, ``k = 2`` or ``3``, no fixed cameras, minimum angle or minimum distance,
-see :mod:`camplace.solver.multiview_exact`; quality with k = 2 or 3 new cameras uses the min-Gram
-triple engine of :mod:`camplace.solver.quality_exact`), ``mip`` (SCIP) and ``cpsat``. ``auto`` picks
-``exact`` where it applies and ``k <= 4`` (quality: when the expanded matrix stays small),
-otherwise ``mip``.
+Engines: ``exact`` (the bound-pruned bitset engine of :mod:`camplace.solver.bitset_exact` for
+maxcover without minimum distance and multiview (any ``views``) without fixed cameras, minimum
+angle or minimum distance -- with ``views = 2`` and ``k = 2, 3`` on up to 4,000 candidates (any
+number when ``exact`` is requested) the pair-Gram stereo engine of
+:mod:`camplace.solver.multiview_exact`, which is faster there; quality with k = 2 or 3 new cameras uses the min-Gram triple engine of
+:mod:`camplace.solver.quality_exact`, other k the bitset engine on the level rows), ``mip`` (SCIP)
+and ``cpsat``. ``auto`` picks ``exact`` where it applies and ``k <= 4`` (quality: when the
+expanded matrix stays small), otherwise ``mip``.
 """
 
 from __future__ import annotations
@@ -48,9 +50,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
-from camplace.solver._common import check_engine_and_limit, coverage_weight
+from camplace.solver._common import check_engine_and_limit, coverage_weight, selected_row_stats
 from camplace.solver._model import LinearModel, solve_model
-from camplace.solver.exact import EXACT_MAX_K, solve_exact
+from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
+from camplace.solver.bitset_exact import solve_bitset
 from camplace.solver.multiview_exact import solve_multiview_exact
 from camplace.solver.quality_exact import (
     QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, min_gram_cost, solve_quality_exact,
@@ -65,11 +68,11 @@ log = logging.getLogger(__name__)
 
 MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
 _ENGINES = ("auto", "exact", "mip", "cpsat")
+_STEREO_AUTO_MAX_N = 4000  # the pair-Gram stereo engine (views=2, k<=3) up to this many candidates, bitsets above
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 _OPT_TOL = 1e-9
 _GREEDY_BLOCK_NNZ = 4_000_000  # matrix entries per column block in the greedy heuristic
 _MODEL_MAX_NNZ = 40_000_000  # larger SCIP / CP-SAT models exhaust memory (about 100 bytes a nonzero)
-_STEREO_AUTO_MAX_N = 4000  # auto uses the stereo engine up to this many candidates (its n x n Gram setup)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -78,7 +81,19 @@ _STEREO_AUTO_MAX_N = 4000  # auto uses the stereo engine up to this many candida
 
 
 def _values_matrix(matrix: Any) -> sp.csr_matrix:
-    """(m, n) CSR float64 keeping only entries > 0 (the observation qualities)."""
+    """(m, n) CSR keeping only entries > 0 (the observation qualities).
+
+    A canonical CSR matrix of float32/float64 values, all finite and >= 0, is used as it is (a
+    visibility matrix can hold 10^8 entries; no copy); anything else is converted to float64.
+    """
+    if sp.issparse(matrix) and matrix.format == "csr" and matrix.dtype in (np.float32, np.float64) \
+            and matrix.has_canonical_format:
+        data = matrix.data
+        if data.size == 0:
+            return matrix
+        lo, hi = data.min(), data.max()  # NaN propagates into both
+        if np.isfinite(lo) and np.isfinite(hi) and lo >= 0:
+            return matrix
     if sp.issparse(matrix):
         a = sp.csr_matrix(matrix, dtype=np.float64, copy=True)
     else:
@@ -186,16 +201,16 @@ def mode_value(
     cols = sorted({int(j) for j in selected})
     if not cols:
         return 0.0
-    if mode in ("maxcover", "setcover"):
-        return coverage_weight(q, w, cols)
-    sub = q[:, cols].toarray()
-    if mode == "quality":
-        return float(w @ sub.max(axis=1))
-    if mode != "multiview":
+    if mode not in MODES:
         raise CamplaceError(f"unknown mode {mode!r} (choose one of {', '.join(MODES)})")
-    seen = sub > 0
-    ok = seen.sum(axis=1) >= int(views)
+    count, vmax = selected_row_stats(q, cols)
+    if mode in ("maxcover", "setcover"):
+        return float(np.sum(w[count > 0], dtype=np.float64))
+    if mode == "quality":
+        return float(w @ vmax)
+    ok = count >= int(views)
     if min_angle_deg is not None:
+        seen = q[:, cols].toarray() > 0
         pos = _coords(positions, n, "positions", "camera positions")[cols]
         pts = _coords(points, m, "points", "point positions")
         for i in np.flatnonzero(ok):
@@ -491,7 +506,7 @@ def _cover_modes(
         return tuple(fixed_t), "optimal", fixed_value, fixed_value, "exact", stats
 
     # Residual instance on the free columns: what the new cameras add on top of the fixed ones.
-    qf = q[:, free_cols].tocsr()
+    qf = q if free_cols.size == n else q[:, free_cols].tocsr()
     if mode == "maxcover":
         covered = (np.diff(q[:, list(fixed_t)].tocsr().indptr) > 0) if fixed_t else np.zeros(m, dtype=bool)
         resid_w = np.where(covered, 0.0, w)
@@ -525,21 +540,23 @@ def _cover_modes(
         if engine == "exact" or est <= _QUALITY_EXPAND_MAX:
             expanded = _expand_levels(resid, resid_w)
         stats["quality_expanded_nnz_estimate"] = est
-    stereo_ok = (mode == "multiview" and views == 2 and k in (2, 3) and min_angle_deg is None and not fixed_t
-                 and conflicts.shape[0] == 0)
+    stereo_ok = mode == "multiview" and min_angle_deg is None and not fixed_t and conflicts.shape[0] == 0
     if engine == "exact" and not (exact_ok or stereo_ok):
         raise CamplaceError(
-            "the exact engine solves maxcover and quality without min_distance_m, and multiview with views=2, k=2 or 3 "
-            "and no fixed cameras, minimum angle or minimum distance; use engine mip or cpsat"
+            "the exact engine solves maxcover and quality without min_distance_m, and multiview without fixed "
+            "cameras, minimum angle or minimum distance; use engine mip or cpsat"
         )
     name = engine
     if engine == "auto":
         name = "exact" if (exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None)) or (
-            stereo_ok and free_cols.size <= _STEREO_AUTO_MAX_N) else "mip"
+            stereo_ok and k <= EXACT_MAX_K) else "mip"
 
     if name == "exact" and stereo_ok:
-        pre = presolve(as_pattern(resid), resid_w, k, dominance=False)
-        out = solve_multiview_exact(pre, time_limit_s=_remaining(t0, time_limit_s))
+        pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
+        if views == 2 and k in (2, 3) and (engine == "exact" or free_cols.size <= _STEREO_AUTO_MAX_N):
+            out = solve_multiview_exact(pre, time_limit_s=_remaining(t0, time_limit_s))
+        else:
+            out = solve_bitset(pre, views=views, time_limit_s=_remaining(t0, time_limit_s))
         sel = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
         stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": dict(out.stats)})
         return sel, out.status if sel else "unknown", value(sel) if sel else 0.0, float(out.bound), name, stats
@@ -548,7 +565,7 @@ def _cover_modes(
         # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
         pat, pw = (resid, resid_w) if mode == "maxcover" else (expanded if expanded is not None else _expand_levels(resid, resid_w))
         pre = presolve(pat, pw, k)
-        funcs = {"exact": solve_exact, "mip": solve_mip, "cpsat": solve_cpsat}
+        funcs = {"exact": solve_bitset, "mip": solve_mip, "cpsat": solve_cpsat}
         out = funcs[name](pre, time_limit_s=_remaining(t0, time_limit_s))
         new = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
         sel = tuple(sorted(set(fixed_t) | set(new))) if new else None

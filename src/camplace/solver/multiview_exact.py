@@ -33,7 +33,6 @@ import numpy as np
 
 from camplace.solver._blas import limit_blas_threads
 from camplace.solver._common import Deadline, EngineOutcome
-from camplace.solver.exact import BLAS_THREADS, _bisection_order, _lower, _rowcol_max
 from camplace.solver.presolve import Presolved
 
 __all__ = ["solve_multiview_exact"]
@@ -43,6 +42,60 @@ log = logging.getLogger(__name__)
 _INT_EXACT_LIMIT = 1 << 22
 _FLOAT_MARGIN = 1e-9
 _SWAP_ROUNDS = 50
+# OpenBLAS threads during a solve (None: leave BLAS alone). One thread is ~1.3x slower on an idle
+# 2-core machine but avoids 5-15x slowdowns when the cores are oversubscribed (see _blas.py).
+BLAS_THREADS: int | None = 1
+
+
+def _bisection_order(f: np.ndarray, gram: np.ndarray) -> np.ndarray:
+    """Column order from recursive balanced bisection (similar columns end up adjacent).
+
+    A range of size ``s`` is split into its first ``s // 2`` and last ``s - s // 2`` columns, the
+    same rule as the search tree.
+
+    Parameters
+    ----------
+    f : (n,) float64
+        Column weights ``w(a)``.
+    gram : (n, n) float64
+        Weighted intersections ``w(a & b)``.
+
+    Returns
+    -------
+    (n,) int64
+        Permutation of ``0..n-1``.
+    """
+    out: list[np.ndarray] = []
+    stack = [np.arange(f.size, dtype=np.int64)]
+    while stack:
+        s = stack.pop()
+        if s.size <= 2:
+            out.append(s[np.argsort(-f[s], kind="stable")])
+            continue
+        a0 = s[int(np.argmax(f[s]))]
+        d0 = f[a0] + f[s] - 2.0 * gram[a0, s]
+        s1 = s[int(np.argmax(d0))]
+        d1 = f[s1] + f[s] - 2.0 * gram[s1, s]
+        s2 = s[int(np.argmax(d1))]
+        d2 = f[s2] + f[s] - 2.0 * gram[s2, s]
+        idx = np.argsort(d1 - d2, kind="stable")
+        half = s.size // 2
+        stack.append(s[idx[half:]])  # popped second
+        stack.append(s[idx[:half]])  # popped first
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+
+
+def _lower(pv: np.ndarray) -> np.ndarray:
+    """Keep the strict lower triangle of a square matrix, -inf elsewhere (in place)."""
+    pv[np.triu_indices(pv.shape[0])] = -np.inf
+    return pv
+
+
+def _rowcol_max(pv: np.ndarray) -> np.ndarray:
+    """Best partner value of each column of a strict-lower-triangular pair matrix."""
+    return np.maximum(pv.max(axis=1), pv.max(axis=0))
+
+
 
 
 class _Timeout(Exception):

@@ -7,15 +7,23 @@ Three reductions, all on the 0/1 pattern of the matrix (any value > 0 counts as 
    set of another column ``b`` (for identical columns the lowest index is kept). Replacing a
    dominated column by its dominator never lowers the covered weight, so some optimal ``k``-subset
    uses kept columns only -- provided at least ``k`` columns are kept (if not, the best dropped
-   columns are restored). Subset tests use exact integer counts ``|a & b|`` from ``A^T A``
-   (a BLAS product of 0/1 data in float32 over row chunks of fewer than 2**24 rows, so every
-   partial sum is an exactly representable integer, or a sparse integer product);
+   columns are restored). Subset tests run on column bitsets (compiled): the candidate
+   dominators of a column are the columns observing its rarest row, each tested word by word.
+   When the bitsets would exceed :data:`BITSET_BYTES`, exact integer counts ``|a & b|`` from
+   ``A^T A`` are used instead (a BLAS product of 0/1 data in float32 over row chunks of fewer
+   than 2**24 rows, so every partial sum is an exactly representable integer, or a sparse
+   integer product);
 3. rows with identical patterns (over the kept columns) are merged, summing their weights and
-   recording how many original rows each merged row stands for.
+   recording how many original rows each merged row stands for (64-bit hashes of the row
+   patterns, confirmed by exact comparison).
+
+Everything runs in compiled kernels on the CSR arrays (no copy of a canonical CSR input), so a
+10,000 x 50,000 matrix with 2e8 nonzeros presolves in a few seconds.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import dataclass, field
@@ -24,15 +32,18 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
+from camplace.solver import _bitkernels as _bk
 
-__all__ = ["Presolved", "presolve", "as_pattern", "check_weights"]
+__all__ = ["Presolved", "presolve", "as_pattern", "canonical_csr", "check_weights"]
 
 log = logging.getLogger(__name__)
 
 _ROW_CHUNK = 1 << 15  # rows per dense float32 GEMM chunk (far below 2**24: integer-exact)
 _DENSE_BYTES = 256 * 1024 * 1024  # max bytes of one dense float32 working block
 _SPARSE_SPEEDUP = 40.0  # how much faster BLAS is per multiply-add than a sparse product
+BITSET_BYTES = 1 << 30  # column dominance on bitsets up to this many bytes of bitsets (else a Gram product)
 
 
 def as_pattern(matrix: Any) -> sp.csr_matrix:
@@ -95,10 +106,12 @@ def check_weights(weights: Any, m: int) -> np.ndarray:
 class Presolved:
     """A reduced instance and the maps back to the original one.
 
+    The reduced matrix is built on first use, from the kept rows of the source matrix, as a CSR
+    pattern (:attr:`matrix`, for the OR-Tools engines) or as column bitsets (:attr:`bits`, for
+    the exact engine); presolving a large visibility matrix never copies it.
+
     Attributes
     ----------
-    matrix : (m', n') scipy.sparse.csr_matrix of float64
-        0/1 pattern of the reduced instance (merged rows x kept columns).
     weights : (m',) float64
         Summed weight of the original rows merged into each reduced row.
     counts : (m',) int64
@@ -116,9 +129,11 @@ class Presolved:
         ``weights == counts * weight_unit`` and integer counts can be used as exact weights.
     stats : dict
         JSON-serialisable sizes and timings.
+    source : tuple
+        ``(csr, rows, col_map)``: the canonical source matrix, the source row of each reduced
+        row and the reduced index of each source column (-1: dropped).
     """
 
-    matrix: sp.csr_matrix
     weights: np.ndarray
     counts: np.ndarray
     columns: np.ndarray
@@ -126,12 +141,28 @@ class Presolved:
     k: int
     shape_in: tuple[int, int]
     weight_unit: float | None
+    source: tuple[sp.csr_matrix, np.ndarray, np.ndarray] = field(repr=False)
     stats: dict[str, Any] = field(default_factory=dict)
 
     @property
     def shape(self) -> tuple[int, int]:
         """``(m', n')`` of the reduced matrix."""
-        return (int(self.matrix.shape[0]), int(self.matrix.shape[1]))
+        return (int(self.weights.shape[0]), int(self.columns.shape[0]))
+
+    @functools.cached_property
+    def matrix(self) -> sp.csr_matrix:
+        """(m', n') scipy.sparse.csr_matrix of float64: 0/1 pattern of the reduced instance."""
+        a, rows, col_map = self.source
+        with ctrl_c_deferred():
+            ptr, idx = _bk.extract_rows(a.indptr, a.indices, a.data, rows, col_map)
+        return sp.csr_matrix((np.ones(idx.size), idx, ptr), shape=self.shape)
+
+    @functools.cached_property
+    def bits(self) -> np.ndarray:
+        """(n', ceil(m' / 64)) uint64: column bitsets of the reduced instance (bit i = reduced row i)."""
+        a, rows, col_map = self.source
+        with ctrl_c_deferred():
+            return _bk.build_bits(a.indptr, a.indices, a.data, rows, col_map, self.shape[1])
 
     def original_columns(self, selected: Sequence[int]) -> tuple[int, ...]:
         """Map reduced column indices to sorted original column indices.
@@ -229,26 +260,52 @@ def _dominated_columns(b: sp.csr_matrix) -> np.ndarray:
     return out
 
 
-def _merge_rows(b: sp.csr_matrix) -> tuple[np.ndarray, int]:
-    """Group identical rows of a CSR pattern (exact byte comparison of sorted index lists).
+def canonical_csr(matrix: Any) -> sp.csr_matrix:
+    """The matrix as CSR with sorted, unique indices and finite values, copied only when needed.
+
+    Unlike :func:`as_pattern` the values are kept (kernels test ``value > 0``), which avoids
+    copying a large visibility matrix.
+    """
+    if sp.issparse(matrix):
+        a = matrix.tocsr()
+        if a.ndim != 2:
+            raise CamplaceError(f"visibility matrix must be 2-D, got shape {a.shape}")
+        if not a.has_canonical_format:
+            return as_pattern(a)
+        data = np.asarray(a.data)
+        if data.dtype.kind not in "biuf":
+            return as_pattern(a)
+        if data.dtype.kind == "f" and data.size and not (np.isfinite(data.min()) and np.isfinite(data.max())):
+            raise CamplaceError("visibility matrix contains NaN or infinite values")  # min/max propagate NaN
+        return a
+    return as_pattern(matrix)
+
+
+def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray) -> np.ndarray:
+    """Dominated columns of the pattern of ``a[rows]`` (same rule as :func:`_dominated_columns`).
+
+    Each column becomes a bitset of ``rows``; the candidate dominators of a column are the
+    columns observing its rarest row, each tested word by word (compiled; about
+    ``n * rows / 8`` bytes).
+
+    Parameters
+    ----------
+    a : (m, n) scipy.sparse.csr_matrix
+        Canonical CSR (values > 0 mean "observes").
+    rows : (r,) int64
+        Rows to consider.
+    row_nnz : (m,) int64
+        Number of values > 0 of every row.
 
     Returns
     -------
-    groups : (m,) int64
-        Group of each row, numbered by first occurrence.
-    n_groups : int
+    (n,) bool
     """
-    indptr, indices = b.indptr, b.indices.astype(np.int32, copy=False)
-    seen: dict[bytes, int] = {}
-    groups = np.empty(b.shape[0], dtype=np.int64)
-    for i in range(b.shape[0]):
-        key = indices[indptr[i] : indptr[i + 1]].tobytes()
-        g = seen.get(key)
-        if g is None:
-            g = len(seen)
-            seen[key] = g
-        groups[i] = g
-    return groups, len(seen)
+    n = a.shape[1]
+    with ctrl_c_deferred():
+        bits = _bk.build_bits(a.indptr, a.indices, a.data, rows, np.arange(n, dtype=np.int64), n)
+        size, _ = _bk.column_sizes(bits, np.zeros(rows.size, dtype=np.float64))
+        return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, a.data, rows)
 
 
 def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Presolved:
@@ -271,33 +328,38 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         The reduced instance; ``original_columns`` maps a reduced selection back.
     """
     t0 = time.perf_counter()
-    a = as_pattern(matrix)
+    a = canonical_csr(matrix)
     m, n = a.shape
     w = check_weights(weights, m)
     if k < 1 or k > n:
         raise CamplaceError(f"k must be between 1 and the number of candidates ({n}), got {k}")
 
-    row_nnz = np.diff(a.indptr)
-    live = (w > 0) & (row_nnz > 0)
-    live_rows = np.flatnonzero(live)
-    b = a[live_rows]
+    with ctrl_c_deferred():
+        live, row_nnz = _bk.live_rows(a.indptr, a.indices, a.data, w)
+    live_rows = np.flatnonzero(live).astype(np.int64)
     stats: dict[str, Any] = {
         "rows_in": int(m),
         "cols_in": int(n),
         "nnz_in": int(a.nnz),
         "rows_live": int(live_rows.size),
+        "time_live_s": time.perf_counter() - t0,
     }
 
     # Column dominance (weights are irrelevant once dead rows are gone).
     t1 = time.perf_counter()
     if dominance and n > k and live_rows.size > 0:
-        dominated = _dominated_columns(b)
+        if float(n) * live_rows.size / 8.0 <= BITSET_BYTES:
+            dominated = dominated_bitsets(a, live_rows, row_nnz)
+            stats["dominance_method"] = "bitsets"
+        else:
+            dominated = _dominated_columns(as_pattern(a[live_rows]))
+            stats["dominance_method"] = "gram"
     else:
         dominated = np.zeros(n, dtype=bool)
     keep = ~dominated
     restored = 0
     if int(keep.sum()) < k:
-        cover = np.asarray(b.T @ w[live_rows]).ravel()
+        cover = np.asarray(a[live_rows].T @ (w[live_rows] * 1.0)).ravel() if live_rows.size else np.zeros(n)
         cand = np.flatnonzero(dominated)
         order = cand[np.lexsort((cand, -cover[cand]))]
         need = k - int(keep.sum())
@@ -309,17 +371,16 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
     stats["cols_restored"] = int(restored)
 
     # Restrict to kept columns, drop rows no kept column observes, merge identical rows.
-    bk = b[:, columns].tocsr()
-    bk.sort_indices()
-    observed = np.diff(bk.indptr) > 0
-    rows2 = np.flatnonzero(observed)
-    bk = bk[rows2]
-    orig_rows = live_rows[rows2]
-    groups, n_groups = _merge_rows(bk)
+    col_map = np.full(n, -1, dtype=np.int64)
+    col_map[columns] = np.arange(columns.size, dtype=np.int64)
+    salt = np.random.default_rng(0x5EED).integers(0, np.iinfo(np.int64).max, size=max(1, columns.size), dtype=np.int64)
+    with ctrl_c_deferred():
+        h, has = _bk.row_hashes(a.indptr, a.indices, a.data, live_rows, col_map, salt.astype(np.uint64))
+        orig_rows = live_rows[has]
+        groups, n_groups = _bk.group_rows(a.indptr, a.indices, a.data, orig_rows, col_map, h[has])
+    stats["time_merge_s"] = time.perf_counter() - t1 - stats["time_dominance_s"]
     first = np.full(n_groups, -1, dtype=np.int64)
     first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)
-    reduced = bk[first].tocsr() if n_groups else sp.csr_matrix((0, columns.size), dtype=np.float64)
-    reduced.sort_indices()
     wsum = np.bincount(groups, weights=w[orig_rows], minlength=n_groups).astype(np.float64)
     counts = np.bincount(groups, minlength=n_groups).astype(np.int64)
     row_groups = np.full(m, -1, dtype=np.int64)
@@ -332,7 +393,6 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         {
             "rows_after": int(n_groups),
             "cols_after": int(columns.size),
-            "nnz_after": int(reduced.nnz),
             "time_s": time.perf_counter() - t0,
         }
     )
@@ -347,7 +407,6 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         stats["time_s"],
     )
     return Presolved(
-        matrix=reduced,
         weights=wsum,
         counts=counts,
         columns=columns,
@@ -355,5 +414,6 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         k=int(k),
         shape_in=(int(m), int(n)),
         weight_unit=unit,
+        source=(a, orig_rows[first], col_map),
         stats=stats,
     )
