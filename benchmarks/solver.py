@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(
                 f"   exact   : {ex_s:7.2f} s total ({'/'.join(f'{x:.2f}' for x in times)})  {_fmt_result(ex)}  "
-                f"[{es.get('tree_nodes', 0)} tree nodes, {es.get('gemm_madds', 0.0):.2e} multiply-adds]"
+                f"[{es.get('bound_evaluations', 0)} bound evaluations]"
             )
             after = f"{ex.stats['cols_after']:5d}x{ex.stats['rows_after']:6d}"
             line = f"{name:17s} {n_cams:5d}x{m_pts:6d} -> {after}  exact {ex_s:7.2f}s"
