@@ -10,7 +10,8 @@ bound.
 Engines (all run on the :func:`presolve`-reduced instance):
 
 ``exact``
-    Bound-pruned BLAS search for small k (:mod:`camplace.solver.exact`); the default for k <= 4.
+    Bound-pruned search over tuples of candidate clusters on row bitsets, for small k
+    (:mod:`camplace.solver.bitset_exact`); the default for k <= 4.
 ``mip``
     SCIP through OR-Tools ``pywraplp``; the default for k > 4.
 ``cpsat``
@@ -32,7 +33,7 @@ from camplace.solver._common import EngineOutcome, check_engine_and_limit, cover
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
 from camplace.solver.bitset_exact import solve_bitset
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
-from camplace.solver.presolve import Presolved, as_pattern, canonical_csr, check_weights, presolve
+from camplace.solver.presolve import Presolved, canonical_csr, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
 
 __all__ = [
