@@ -7,16 +7,20 @@ set of columns is scored with a few word operations per 64 rows.
   (``views = 1``: max coverage; ``views = 2``: stereo coverage). Per 64-row word the rows reaching
   ``views`` are ``atleast_m(x_1, ..., x_k)`` (a bit-parallel counter).
 * **Tree.** The columns are ordered by recursive balanced bisection on the Hamming distance of
-  their bitsets (similar columns adjacent) and form an implicit binary tree over that order; each
-  node stores the union of its columns' bitsets.
+  their bitsets (similar columns adjacent) and form an implicit binary tree over that order; node
+  ``v`` stores level bitsets ``L_j(v)``: the rows observed by at least ``j`` of its columns
+  (``j = 1``: the union; ``j <= min(views, k)``).
 * **Search.** A tuple of ``k`` tree nodes (non-decreasing in the order; a node may repeat) stands
-  for every ``k``-subset with one column in each node. Since every column is inside its node's
-  union and ``atleast_m`` is monotone, ``w(atleast_m(U_1, ..., U_k))`` is an upper bound on all
-  those subsets; a tuple of leaves is one subset and the bound is its exact value. Depth-first
-  search splits the largest node of a tuple into its two children (every non-decreasing mix for a
-  repeated node, a leaf never twice) and drops tuples whose bound cannot beat the incumbent.
-  The weight of the rows NOT reaching ``views`` is summed and the sum stops as soon as it proves
-  the tuple cannot win, so near-complete coverage is cheap to evaluate.
+  for every ``k``-subset with one column in each node. A node repeated ``c`` times can give a row
+  at most ``j <= c`` views where the row is in ``L_j``, so counting these per row (a bit-parallel
+  counter) bounds every subset of the tuple; for ``views = 1`` the bound is the weight of the
+  union of the nodes' unions. A tuple of leaves is one subset and the bound is its exact value.
+  Depth-first search splits the largest node of a tuple into its two children (every
+  non-decreasing mix for a repeated node, a leaf never twice) and drops tuples whose bound cannot
+  beat the incumbent. The weight of the rows that miss is summed (popcounts of the weights'
+  binary digits for integer weights with ``views > 1``, set bits one by one otherwise) and the
+  sum stops as soon as it proves the tuple cannot win, so near-complete coverage is cheap to
+  evaluate.
 * **Incumbent.** Greedy from several starts plus 1-swap local search on the bitsets.
 * **Exactness.** When every original weight is equal, weights are the merged-row counts (exact
   integers in float64) and pruning is exact; otherwise pruning keeps a margin of
@@ -24,7 +28,8 @@ set of columns is scored with a few word operations per 64 rows.
 * **Time limit.** The compiled search runs in slices of bound evaluations; between slices the
   deadline is checked. On expiry the incumbent is returned with status ``feasible`` and the bound
   ``max(incumbent, bounds of the tuples still on the stack)``.
-* **Memory.** ``n' * m' / 8`` bytes of column bitsets and twice that for the tree unions.
+* **Memory.** ``n' * m' / 8`` bytes of column bitsets and ``2 min(views, k)`` times that for the
+  tree levels.
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ log = logging.getLogger(__name__)
 
 BITSET_MAX_K = 4  # auto uses this engine up to this k (it is exact for any k, but slow for large k)
 _FLOAT_MARGIN = 1e-9
-_SLICE = 250_000  # bound evaluations per compiled call (about 0.1-0.5 s)
+_SLICE = 50_000  # bound evaluations per compiled call (0.02-0.5 s): the deadline is checked between calls
 _STACK = 1 << 14
 _STARTS = 2  # greedy starts (the best columns), besides the plain greedy
 _SWAP_ROUNDS = 50
