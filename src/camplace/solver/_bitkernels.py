@@ -37,9 +37,13 @@ def _ctz(typingctx, x):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def popcount(x):  # pragma: no cover - compiled
-    """Set bits of a uint64 (callable from compiled code and from Python for tests)."""
-    return _popcount(x)
+def _bits_weight(x, wd, w):  # pragma: no cover - compiled
+    """Sum of ``w[64 wd + t]`` over the set bits t of word ``x``."""
+    acc = 0.0
+    while x:
+        acc += w[(wd << 6) + _ctz(x)]
+        x &= x - np.uint64(1)
+    return acc
 
 
 @numba.njit(**_JIT)
@@ -114,10 +118,7 @@ def column_sizes(bits, w):  # pragma: no cover - compiled
         for wd in range(n_words):
             x = bits[c, wd]
             s += _popcount(x)
-            while x:
-                t = _ctz(x)
-                acc += w[(wd << 6) + t]
-                x &= x - np.uint64(1)
+            acc += _bits_weight(x, wd, w)
         size[c] = s
         wt[c] = acc
     return size, wt
@@ -412,10 +413,7 @@ def shortfall(levels, nodes, k, m, w, planes, last_mask, need, acc):  # pragma: 
             x = ~x
             if wd == n_words - 1:
                 x &= last_mask
-            while x:
-                t = _ctz(x)
-                total += w[(wd << 6) + t]
-                x &= x - np.uint64(1)
+            total += _bits_weight(x, wd, w)
             if total >= need:
                 return total
         return total
@@ -445,10 +443,7 @@ def shortfall(levels, nodes, k, m, w, planes, last_mask, need, acc):  # pragma: 
             for b in range(n_planes):
                 total += float(_popcount(x & planes[b, wd]) << np.uint64(b))
         else:
-            while x:
-                t = _ctz(x)
-                total += w[(wd << 6) + t]
-                x &= x - np.uint64(1)
+            total += _bits_weight(x, wd, w)
         if total >= need:
             return total
     return total
@@ -480,10 +475,7 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
             x = ~(done[wd] | (near[wd] & bits[c, wd]))
             if wd == n_words - 1:
                 x &= last_mask
-            while x:
-                t = _ctz(x)
-                tot += w[(wd << 6) + t]
-                x &= x - np.uint64(1)
+            tot += _bits_weight(x, wd, w)
         out[c] = tot
     return out
 
