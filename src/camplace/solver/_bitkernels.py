@@ -101,27 +101,16 @@ def build_bits(indptr, indices, data, rows, col_map, n_cols):  # pragma: no cove
 
 
 @numba.njit(**_JIT)
-def column_sizes(bits, w):  # pragma: no cover - compiled
-    """Set-bit count and weight of every column.
-
-    Returns
-    -------
-    size : (n,) int64
-    weight : (n,) float64
-    """
+def column_sizes(bits):  # pragma: no cover - compiled
+    """(n,) int64: set bits of every column."""
     n, n_words = bits.shape
     size = np.zeros(n, dtype=np.int64)
-    wt = np.zeros(n, dtype=np.float64)
     for c in range(n):
         s = 0
-        acc = 0.0
         for wd in range(n_words):
-            x = bits[c, wd]
-            s += _popcount(x)
-            acc += _bits_weight(x, wd, w)
+            s += _popcount(bits[c, wd])
         size[c] = s
-        wt[c] = acc
-    return size, wt
+    return size
 
 
 @numba.njit(**_JIT)
@@ -271,12 +260,7 @@ def bisection_order(bits):  # pragma: no cover - compiled
     """
     n, n_words = bits.shape
     perm = np.arange(n, dtype=np.int64)
-    size = np.zeros(n, dtype=np.int64)
-    for c in range(n):
-        s = 0
-        for wd in range(n_words):
-            s += _popcount(bits[c, wd])
-        size[c] = s
+    size = column_sizes(bits)
     stack_lo = np.empty(128, dtype=np.int64)
     stack_hi = np.empty(128, dtype=np.int64)
     stack_lo[0] = 0
@@ -318,15 +302,13 @@ def bisection_order(bits):  # pragma: no cover - compiled
                 piv = p1
             else:
                 p2 = far
-        # key = d(c, p1) - d(c, p2): smaller is nearer p1
+        # key = d(c, p1) - d(c, p2): smaller is nearer p1 (dist holds d(c, p1) from the second pass)
         for q in range(lo, hi):
             c = perm[q]
-            d1 = 0
             d2 = 0
             for wd in range(n_words):
-                d1 += _popcount(bits[c, wd] ^ bits[p1, wd])
                 d2 += _popcount(bits[c, wd] ^ bits[p2, wd])
-            key[q] = d1 - d2
+            key[q] = dist[q] - d2
         idx = np.argsort(key[lo:hi], kind="mergesort")
         seg = perm[lo:hi].copy()
         for q in range(s):

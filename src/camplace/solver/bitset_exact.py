@@ -66,8 +66,7 @@ class _State:
     """Bitsets, weights and the incumbent of one solve."""
 
     def __init__(self, pre: Presolved, views: int) -> None:
-        m, n = pre.shape
-        self.m, self.n, self.k, self.views = m, n, pre.k, views
+        self.k, self.views = pre.k, views
         self.integer = pre.weight_unit is not None
         if self.integer:
             self.w = pre.counts.astype(np.float64)
@@ -81,15 +80,15 @@ class _State:
         self.bits = pre.bits
         self.n_words = self.bits.shape[1]
         self.planes = K.weight_planes(self.w) if (self.integer and views > 1) else np.zeros((0, self.n_words), np.uint64)
-        self.mask = _last_mask(m)
+        self.mask = _last_mask(pre.shape[0])
         self.best = -math.inf
         self.best_set: tuple[int, ...] = ()
 
-    def value_all(self, sel: list[int]) -> np.ndarray:
+    def value_all(self, sel: list[int], views: int | None = None) -> np.ndarray:
         """``value(sel + [x])`` for every column x (x in sel gives a meaningless number)."""
         sb = self.bits[np.asarray(sel, dtype=np.int64)] if sel else np.zeros((0, self.n_words), dtype=np.uint64)
         with ctrl_c_deferred():
-            short = K.shortfall_all(self.bits, np.ascontiguousarray(sb), self.views, self.w, self.mask)
+            short = K.shortfall_all(self.bits, np.ascontiguousarray(sb), views or self.views, self.w, self.mask)
         return self.total - short
 
     def value(self, sel: list[int]) -> float:
@@ -110,7 +109,6 @@ class _State:
         while len(sel) < self.k:
             v = self.value_all(sel)
             v[sel] = -math.inf
-            # ties: prefer the column with the largest own weight (helps views > 1 start)
             sel.append(int(np.argmax(v)))
         for _ in range(_SWAP_ROUNDS):
             improved = False
@@ -128,7 +126,7 @@ class _State:
         return sel
 
     def incumbent(self) -> None:
-        f = self.value_all([]) if self.views == 1 else K.column_sizes(self.bits, self.w)[1]
+        f = self.value_all([], views=1)  # each column's own weight
         starts: list[list[int]] = [[]] if self.views == 1 else []
         for j in np.argsort(-f, kind="stable")[:_STARTS]:
             starts.append([int(j)])
@@ -163,10 +161,8 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
         raise ValueError("views must be >= 1")
     if m == 0 or n <= k:
         sel = tuple(range(min(k, n)))
-        value = float(pre.weights.sum()) if (n >= k and views <= k and m > 0) else 0.0
-        if n <= k and views > 1 and m > 0:
-            counts = np.diff(pre.matrix.tocsc()[:, list(sel)].tocsr().indptr)
-            value = float(pre.weights[counts >= views].sum())
+        # n == k: every column is chosen, so a row's views are its entries in the reduced matrix
+        value = float(pre.weights[np.diff(pre.matrix.indptr) >= views].sum()) if n <= k else 0.0
         return EngineOutcome(selected=sel, status="optimal", bound=value, stats={"trivial": True})
 
     st = _State(pre, views)
@@ -186,7 +182,6 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
     best_pos = np.zeros(k, dtype=np.int64)
     evaluated = 0
     status = "optimal"
-    best_before = st.best
     while sp > 0:
         if deadline.expired():
             status = "feasible"
@@ -197,10 +192,9 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
         evaluated += ev
         if sp < 0:
             raise RuntimeError("bitset search stack overflow")  # cannot happen: depth <= k * log2(n) levels
-        if best > best_before:
+        if best > st.best:
             st.offer(best, tuple(int(perm[p]) for p in best_pos))
-            best_before = st.best
-    bound = st.best if status == "optimal" else max(st.best, float(stack_bound[:sp].max()) if sp else st.best)
+    bound = max(st.best, float(stack_bound[:sp].max(initial=-math.inf)))
     if bound <= st.best + st.margin:
         status, bound = "optimal", st.best
     stats.update({"bound_evaluations": int(evaluated), "time_search_s": deadline.elapsed() - stats["time_setup_s"]})

@@ -540,8 +540,8 @@ def _cover_modes(
         if engine == "exact" or est <= _QUALITY_EXPAND_MAX:
             expanded = _expand_levels(resid, resid_w)
         stats["quality_expanded_nnz_estimate"] = est
-    stereo_ok = mode == "multiview" and min_angle_deg is None and not fixed_t and conflicts.shape[0] == 0
-    if engine == "exact" and not (exact_ok or stereo_ok):
+    multiview_ok = mode == "multiview" and min_angle_deg is None and not fixed_t and conflicts.shape[0] == 0
+    if engine == "exact" and not (exact_ok or multiview_ok):
         raise CamplaceError(
             "the exact engine solves maxcover and quality without min_distance_m, and multiview without fixed "
             "cameras, minimum angle or minimum distance; use engine mip or cpsat"
@@ -549,9 +549,9 @@ def _cover_modes(
     name = engine
     if engine == "auto":
         name = "exact" if (exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None)) or (
-            stereo_ok and k <= EXACT_MAX_K) else "mip"
+            multiview_ok and k <= EXACT_MAX_K) else "mip"
 
-    if name == "exact" and stereo_ok:
+    if name == "exact" and multiview_ok:
         pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
         if views == 2 and k in (2, 3) and (engine == "exact" or free_cols.size <= _STEREO_AUTO_MAX_N):
             out = solve_multiview_exact(pre, time_limit_s=_remaining(t0, time_limit_s))

@@ -304,7 +304,7 @@ def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray) -
     n = a.shape[1]
     with ctrl_c_deferred():
         bits = _bk.build_bits(a.indptr, a.indices, a.data, rows, np.arange(n, dtype=np.int64), n)
-        size, _ = _bk.column_sizes(bits, np.zeros(rows.size, dtype=np.float64))
+        size = _bk.column_sizes(bits)
         return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, a.data, rows)
 
 
@@ -359,7 +359,7 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
     keep = ~dominated
     restored = 0
     if int(keep.sum()) < k:
-        cover = np.asarray(a[live_rows].T @ (w[live_rows] * 1.0)).ravel() if live_rows.size else np.zeros(n)
+        cover = np.asarray(as_pattern(a[live_rows]).T @ w[live_rows]).ravel() if live_rows.size else np.zeros(n)
         cand = np.flatnonzero(dominated)
         order = cand[np.lexsort((cand, -cover[cand]))]
         need = k - int(keep.sum())
