@@ -324,19 +324,16 @@ def bisection_order(bits):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def build_tree(bits_ordered, n_levels):  # pragma: no cover - compiled
-    """Implicit bisection tree over the ordered columns with each node's level bitsets.
+def tree_shape(n):  # pragma: no cover - compiled
+    """Implicit bisection tree over ``n`` ordered columns, nodes numbered breadth-first.
 
     Node 0 is the root [0, n); a node [lo, hi) of size > 1 has children [lo, mid), [mid, hi)
-    with ``mid = lo + (hi - lo) // 2``. Leaves are single columns. ``levels[j - 1, v]`` holds
-    the rows observed by at least ``j`` columns of node v (``j = 1``: the union).
+    with ``mid = lo + (hi - lo) // 2`` (numbered after their parent). Leaves are single columns.
 
     Returns
     -------
-    lo, hi, left, right : (N,) int64 (left = right = -1 at leaves)
-    levels : (n_levels, N, n_words) uint64
+    lo, hi, left, right : (2 n - 1,) int64 (left = right = -1 at leaves)
     """
-    n, n_words = bits_ordered.shape
     n_nodes = 2 * n - 1
     lo = np.empty(n_nodes, dtype=np.int64)
     hi = np.empty(n_nodes, dtype=np.int64)
@@ -358,6 +355,23 @@ def build_tree(bits_ordered, n_levels):  # pragma: no cover - compiled
             lo[nxt + 1] = mid
             hi[nxt + 1] = hi[v]
             nxt += 2
+    return lo, hi, left, right
+
+
+@numba.njit(**_JIT)
+def build_tree(bits_ordered, n_levels):  # pragma: no cover - compiled
+    """The tree of :func:`tree_shape` over the ordered columns with each node's level bitsets:
+    ``levels[j - 1, v]`` holds the rows observed by at least ``j`` columns of node v (``j = 1``:
+    the union).
+
+    Returns
+    -------
+    lo, hi, left, right : (N,) int64 (left = right = -1 at leaves)
+    levels : (n_levels, N, n_words) uint64
+    """
+    n, n_words = bits_ordered.shape
+    n_nodes = 2 * n - 1
+    lo, hi, left, right = tree_shape(n)
     levels = np.zeros((n_levels, n_nodes, n_words), dtype=np.uint64)
     for v in range(n_nodes - 1, -1, -1):
         if left[v] < 0:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -14,7 +15,10 @@ from camplace.errors import CamplaceError
 from camplace.solver import _bitkernels as _bk
 from camplace.solver.presolve import as_pattern, check_weights
 
-__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline"]
+__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline", "memory_budget_bytes"]
+
+MEMORY_FRACTION = 0.6  # an engine's working memory may use this share of the memory available at its start
+_FALLBACK_AVAILABLE = 4 << 30  # assumed when the platform does not say
 
 
 @dataclass(frozen=True)
@@ -65,6 +69,29 @@ class Deadline:
     def expired(self) -> bool:
         """True once the limit has passed."""
         return self.limit is not None and self.elapsed() >= self.limit
+
+
+def memory_budget_bytes() -> int:
+    """Bytes an engine may allocate: :data:`MEMORY_FRACTION` of the memory available now.
+
+    Read from ``MemAvailable`` in ``/proc/meminfo`` (Linux), else from ``os.sysconf``; 4 GiB
+    is assumed when neither says.
+    """
+    avail = None
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except OSError:
+        pass
+    if avail is None:
+        try:
+            avail = int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+        except (AttributeError, ValueError, OSError):
+            avail = _FALLBACK_AVAILABLE
+    return int(MEMORY_FRACTION * avail)
 
 
 def coverage_weight(matrix: Any, weights: Any, selected: Sequence[int]) -> float:

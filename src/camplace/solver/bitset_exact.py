@@ -45,7 +45,7 @@ from camplace.solver import _bitkernels as K
 from camplace.solver._common import Deadline, EngineOutcome
 from camplace.solver.presolve import Presolved
 
-__all__ = ["solve_bitset", "BITSET_MAX_K"]
+__all__ = ["solve_bitset", "bitset_bytes", "BITSET_MAX_K"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,12 @@ _SLICE = 50_000  # bound evaluations per compiled call (0.02-0.5 s): the deadlin
 _STACK = 1 << 14
 _STARTS = 2  # greedy starts (the best columns), besides the plain greedy
 _SWAP_ROUNDS = 50
+
+
+def bitset_bytes(m: int, n: int, levels: int) -> int:
+    """Approximate working memory for ``m`` reduced rows and ``n`` columns: the column bitsets,
+    their ordered copy and ``levels`` level bitsets per tree node (2 n - 1 nodes)."""
+    return n * ((m + 63) // 64) * 8 * (2 + 2 * max(1, levels))
 
 
 def _last_mask(m: int) -> np.uint64:

@@ -32,10 +32,14 @@ Engines: ``exact`` (the bound-pruned bitset engine of :mod:`camplace.solver.bits
 maxcover without minimum distance and multiview (any ``views``) without fixed cameras, minimum
 angle or minimum distance -- with ``views = 2`` and ``k = 2, 3`` on up to 4,000 candidates (any
 number when ``exact`` is requested) the pair-Gram stereo engine of
-:mod:`camplace.solver.multiview_exact`, which is faster there; quality with k = 2 or 3 new cameras uses the min-Gram triple engine of
-:mod:`camplace.solver.quality_exact`, other k the bitset engine on the level rows), ``mip`` (SCIP)
-and ``cpsat``. ``auto`` picks ``exact`` where it applies and ``k <= 4`` (quality: when the
-expanded matrix stays small), otherwise ``mip``.
+:mod:`camplace.solver.multiview_exact`, which is faster there; quality with k = 2 or 3 new cameras
+on up to 3,000 candidates uses the min-Gram triple engine of :mod:`camplace.solver.quality_exact`,
+otherwise the bitset engine on the level rows while that expansion stays small, and else the
+quantised-tree engine of :mod:`camplace.solver.quality_tree`), ``mip`` (SCIP) and ``cpsat``.
+``auto`` picks ``exact`` where it applies and ``k <= 4``, otherwise ``mip``. Each exact engine
+first checks that its working memory fits in :func:`camplace.solver._common.memory_budget_bytes`;
+if not, ``auto`` falls back to the general model (``stats["memory_fallback"]`` says why) and an
+explicit ``exact`` is a one-line error.
 """
 
 from __future__ import annotations
@@ -50,14 +54,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
-from camplace.solver._common import check_engine_and_limit, coverage_weight, selected_row_stats
+from camplace.solver._common import check_engine_and_limit, coverage_weight, memory_budget_bytes, selected_row_stats
 from camplace.solver._model import LinearModel, solve_model
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
-from camplace.solver.bitset_exact import solve_bitset
-from camplace.solver.multiview_exact import solve_multiview_exact
+from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
+from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
 from camplace.solver.quality_exact import (
-    QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, min_gram_cost, solve_quality_exact,
+    QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, min_gram_cost, quality_exact_bytes, solve_quality_exact,
 )
+from camplace.solver.quality_tree import quality_tree_bytes, solve_quality_tree
 from camplace.solver.ortools_engine import solve_cpsat, solve_mip
 from camplace.solver.presolve import as_pattern, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
@@ -523,23 +528,33 @@ def _cover_modes(
         resid, resid_w = qf, w
 
     exact_ok = mode in ("maxcover", "quality") and conflicts.shape[0] == 0
-    # quality with 2 or 3 new cameras: the min-Gram triple engine (no level expansion)
-    quality3 = mode == "quality" and exact_ok and k in (2, 3) and (
-        engine == "exact" or (engine == "auto" and free_cols.size <= QUALITY_EXACT_MAX_N
-                              and min_gram_cost(resid) <= QUALITY_EXACT_MAX_PAIRS))
+    budget = memory_budget_bytes()
+    # quality with 2 or 3 new cameras: the min-Gram triple engine (no level expansion) on small
+    # instances, the quantised tree engine on large ones
+    quality3 = mode == "quality" and exact_ok and k in (2, 3) and engine in ("auto", "exact") and (
+        free_cols.size <= QUALITY_EXACT_MAX_N and min_gram_cost(resid) <= QUALITY_EXACT_MAX_PAIRS
+        and quality_exact_bytes(m, free_cols.size) <= budget)
     if quality3:
         out = solve_quality_exact(resid, resid_w, k, time_limit_s=_remaining(t0, time_limit_s))
         sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
         stats["engine_stats"] = dict(out.stats)
         return sel, out.status, value(sel), float(out.bound) + float(w @ base), "exact", stats
     expanded = None
-    if mode == "quality" and exact_ok and engine in ("auto", "exact"):
+    if mode == "quality" and exact_ok and engine in ("auto", "exact") and (engine == "exact" or k <= EXACT_MAX_K):
         # Expanded nnz = sum_i s_i (s_i + 1) / 2 at most; estimate before building.
         s = np.diff(resid.indptr).astype(np.float64)
         est = float(np.sum(s * (s + 1) / 2))
-        if engine == "exact" or est <= _QUALITY_EXPAND_MAX:
-            expanded = _expand_levels(resid, resid_w)
         stats["quality_expanded_nnz_estimate"] = est
+        if est <= _QUALITY_EXPAND_MAX:
+            expanded = _expand_levels(resid, resid_w)
+        else:
+            need = quality_tree_bytes(m, free_cols.size, resid.nnz)
+            if need <= budget:
+                out = solve_quality_tree(resid, resid_w, k, time_limit_s=_remaining(t0, time_limit_s))
+                sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
+                stats["engine_stats"] = dict(out.stats)
+                return sel, out.status, value(sel), float(out.bound) + float(w @ base), "exact", stats
+            _too_big(engine, stats, need, budget)
     multiview_ok = mode == "multiview" and min_angle_deg is None and not fixed_t and conflicts.shape[0] == 0
     if engine == "exact" and not (exact_ok or multiview_ok):
         raise CamplaceError(
@@ -553,18 +568,28 @@ def _cover_modes(
 
     if name == "exact" and multiview_ok:
         pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
-        if views == 2 and k in (2, 3) and (engine == "exact" or free_cols.size <= _STEREO_AUTO_MAX_N):
-            out = solve_multiview_exact(pre, time_limit_s=_remaining(t0, time_limit_s))
+        mp, np_ = pre.shape
+        need = bitset_bytes(mp, np_, min(views, k))
+        if need > budget:
+            _too_big(engine, stats, need, budget)
+            name = "mip"
         else:
-            out = solve_bitset(pre, views=views, time_limit_s=_remaining(t0, time_limit_s))
-        sel = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
-        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": dict(out.stats)})
-        return sel, out.status if sel else "unknown", value(sel) if sel else 0.0, float(out.bound), name, stats
+            stereo = views == 2 and k in (2, 3) and (engine == "exact" or free_cols.size <= _STEREO_AUTO_MAX_N)
+            if stereo and stereo_bytes(mp, np_) <= budget:
+                out = solve_multiview_exact(pre, time_limit_s=_remaining(t0, time_limit_s))
+            else:
+                out = solve_bitset(pre, views=views, time_limit_s=_remaining(t0, time_limit_s))
+            sel = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
+            stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
+            return sel, out.status if sel else "unknown", value(sel) if sel else 0.0, float(out.bound), name, stats
 
     if name == "exact" or (exact_ok and mode == "maxcover"):
         # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
         pat, pw = (resid, resid_w) if mode == "maxcover" else (expanded if expanded is not None else _expand_levels(resid, resid_w))
         pre = presolve(pat, pw, k)
+        if name == "exact" and bitset_bytes(pre.shape[0], pre.shape[1], 1) > budget:
+            _too_big(engine, stats, bitset_bytes(pre.shape[0], pre.shape[1], 1), budget)
+            name = "mip"
         funcs = {"exact": solve_bitset, "mip": solve_mip, "cpsat": solve_cpsat}
         out = funcs[name](pre, time_limit_s=_remaining(t0, time_limit_s))
         new = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
@@ -625,6 +650,17 @@ def _cover_modes(
         return None, status, fixed_value, math.inf, name, stats
     bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
     return sel, status, objective, bound, name, stats
+
+
+def _too_big(engine: str, stats: dict[str, Any], need: int, budget: int) -> None:
+    """The exact engine would need more memory than is free: an error when it was asked for,
+    otherwise a logged fallback to the general model (recorded in ``stats``)."""
+    msg = (f"the exact engine needs about {need / 2**30:.1f} GiB for this instance but only "
+           f"{budget / 2**30:.1f} GiB may be used")
+    if engine == "exact":
+        raise CamplaceError(msg + "; use engine mip (or fewer candidates / points)")
+    log.warning("%s; falling back to the general model", msg)
+    stats["memory_fallback"] = msg
 
 
 class _BuildTimeout(Exception):

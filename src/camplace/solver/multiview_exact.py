@@ -35,7 +35,7 @@ from camplace.solver._blas import limit_blas_threads
 from camplace.solver._common import Deadline, EngineOutcome
 from camplace.solver.presolve import Presolved
 
-__all__ = ["solve_multiview_exact"]
+__all__ = ["solve_multiview_exact", "stereo_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +45,12 @@ _SWAP_ROUNDS = 50
 # OpenBLAS threads during a solve (None: leave BLAS alone). One thread is ~1.3x slower on an idle
 # 2-core machine but avoids 5-15x slowdowns when the cores are oversubscribed (see _blas.py).
 BLAS_THREADS: int | None = 1
+
+
+def stereo_bytes(m: int, n: int) -> int:
+    """Approximate working memory for ``m`` reduced rows and ``n`` columns: the dense matrix and
+    its weighted copy (float32), the pair Gram in several precisions and the per-node pair values."""
+    return 8 * m * n + 32 * n * n
 
 
 def _bisection_order(f: np.ndarray, gram: np.ndarray) -> np.ndarray:

@@ -31,7 +31,7 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._common import Deadline, EngineOutcome
 
-__all__ = ["solve_quality_exact", "min_gram_cost", "QUALITY_EXACT_MAX_N", "QUALITY_EXACT_MAX_PAIRS"]
+__all__ = ["solve_quality_exact", "min_gram_cost", "quality_exact_bytes", "QUALITY_EXACT_MAX_N", "QUALITY_EXACT_MAX_PAIRS"]
 
 log = logging.getLogger(__name__)
 
@@ -100,6 +100,12 @@ def _scan(firsts, f, mg, qt, w, best, margin, out_set):  # pragma: no cover - co
                         out_set[1] = b
                         out_set[2] = c
     return best, evals
+
+
+def quality_exact_bytes(m: int, n: int) -> int:
+    """Approximate working memory for ``m`` rows and ``n`` columns: the dense transposed matrix
+    (and its float64 temporary) and the (n, n) min-Gram with the pair table."""
+    return 16 * m * n + 24 * n * n
 
 
 def min_gram_cost(matrix: sp.csr_matrix) -> float:

@@ -1,0 +1,147 @@
+"""The quantised-tree quality engine and the memory guard, against exhaustive enumeration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import camplace.solver.modes as modes
+import camplace.solver.quality_tree as qt
+from camplace.errors import CamplaceError
+from camplace.solver.modes import solve
+from tests.solver._oracle import brute_force_mode, mode_objective
+
+_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@st.composite
+def graded(draw, max_n: int = 10, max_m: int = 40):
+    n = draw(st.integers(1, max_n))
+    m = draw(st.integers(1, max_m))
+    rng = np.random.default_rng(draw(st.integers(0, 2**31 - 1)))
+    levels = draw(st.sampled_from([None, 2, 300]))  # ties; values finer than the 255 quantisation steps
+    q = rng.uniform(0.001, 1.0, size=(m, n))
+    if levels:
+        q = np.ceil(q * levels) / levels
+    dense = (rng.random((m, n)) < draw(st.sampled_from([0.15, 0.5, 0.9]))) * q
+    if draw(st.booleans()) and n >= 2:
+        dense[:, -1] = dense[:, 0]  # duplicate camera
+    w = rng.integers(0, 3, size=m).astype(float) if draw(st.booleans()) else rng.uniform(0.0, 1.0, size=m)
+    return dense, w
+
+
+def _value(dense: np.ndarray, w: np.ndarray, cols) -> float:
+    return float(w @ dense[:, list(cols)].max(axis=1)) if len(cols) else 0.0
+
+
+@settings(max_examples=150, **_SETTINGS)
+@given(data=graded(), k=st.integers(1, 4))
+def test_tree_engine_equals_enumeration(data, k) -> None:
+    dense, w = data
+    n = dense.shape[1]
+    out = qt.solve_quality_tree(sp.csr_matrix(dense), w, k)
+    best = brute_force_mode(dense, w, min(k, n), "quality")
+    tol = 1e-9 * max(1.0, float(w.sum()))
+    assert out.status == "optimal"
+    assert len(out.selected) == min(k, n) == len(set(out.selected))
+    assert abs(_value(dense, w, out.selected) - best) <= tol
+    assert abs(out.bound - best) <= tol
+
+
+class _Expiring:
+    """A deadline that expires after a fixed number of checks (deterministic interruption)."""
+
+    checks = 0
+
+    def __init__(self, time_limit_s) -> None:
+        self.left = _Expiring.checks
+
+    def expired(self) -> bool:
+        self.left -= 1
+        return self.left < 0
+
+    def elapsed(self) -> float:
+        return 0.0
+
+
+@pytest.mark.parametrize("checks", [0, 1, 3, 8])
+def test_tree_engine_interrupted_keeps_a_valid_bound(monkeypatch, checks) -> None:
+    rng = np.random.default_rng(checks)
+    dense = (rng.random((60, 14)) < 0.5) * rng.uniform(0.05, 1.0, (60, 14))
+    w = rng.uniform(0.0, 1.0, 60)
+    best = brute_force_mode(dense, w, 3, "quality")
+    monkeypatch.setattr(qt, "_CHUNK", 1)
+    monkeypatch.setattr(qt, "Deadline", _Expiring)
+    _Expiring.checks = checks
+    out = qt.solve_quality_tree(sp.csr_matrix(dense), w, 3, time_limit_s=1.0)
+    v = _value(dense, w, out.selected)
+    assert len(set(out.selected)) == 3
+    assert out.bound >= best - 1e-12 >= v - 1e-12
+    if out.status == "optimal":
+        assert v == pytest.approx(best) and out.bound == pytest.approx(best)
+
+
+def test_tree_engine_frontier_cap_keeps_a_valid_bound(monkeypatch) -> None:
+    rng = np.random.default_rng(5)
+    dense = (rng.random((80, 16)) < 0.6) * rng.uniform(0.05, 1.0, (80, 16))
+    w = rng.uniform(0.0, 1.0, 80)
+    best = brute_force_mode(dense, w, 3, "quality")
+    monkeypatch.setattr(qt, "FRONTIER_MAX", 2)
+    monkeypatch.setattr(qt, "_STARTS", 0)  # no incumbent before the search: the frontier must grow
+    out = qt.solve_quality_tree(sp.csr_matrix(dense), w, 3)
+    assert out.status == "feasible"
+    assert out.bound >= best - 1e-12
+
+
+@settings(max_examples=40, **_SETTINGS)
+@given(data=st.data())
+def test_solve_routes_large_quality_to_the_tree_engine(data) -> None:
+    """With the small-instance engines switched off, ``solve`` (fixed and forbidden cameras
+    included) answers through the tree engine and equals enumeration."""
+    dense, w = data.draw(graded(max_n=9))
+    n = dense.shape[1]
+    fixed = tuple(sorted(data.draw(st.sets(st.integers(0, n - 1), max_size=2))))
+    forbidden = tuple(sorted(data.draw(st.sets(st.integers(0, n - 1), max_size=2)) - set(fixed)))
+    free = n - len(fixed) - len(forbidden)
+    if free < 1:
+        return
+    k = data.draw(st.integers(1, min(4, free)))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(modes, "QUALITY_EXACT_MAX_N", 0)
+        mp.setattr(modes, "_QUALITY_EXPAND_MAX", -1)
+        res = solve(dense, w, k, mode="quality", fixed=fixed, forbidden=forbidden)
+    best = brute_force_mode(dense, w, k, "quality", fixed=fixed, forbidden=forbidden)
+    tol = 1e-9 * max(1.0, float(w.sum()))
+    assert res.engine == "exact" and res.status == "optimal"
+    assert "peak_frontier" in res.stats["engine_stats"] or res.stats["engine_stats"].get("trivial")
+    assert set(fixed) <= set(res.selected) and not set(forbidden) & set(res.selected)
+    assert len(res.selected) == len(fixed) + k
+    assert abs(mode_objective(dense, w, res.selected, "quality") - res.objective) <= tol
+    assert abs(res.objective - best) <= tol and res.bound == res.objective
+
+
+@pytest.mark.parametrize("mode", ["maxcover", "quality", "multiview"])
+def test_memory_guard(monkeypatch, mode) -> None:
+    """When the exact engine's memory would not fit: a one-line error if it was asked for, the
+    general model (still optimal here) under ``auto``."""
+    rng = np.random.default_rng(11)
+    dense = (rng.random((40, 10)) < 0.5) * rng.uniform(0.05, 1.0, (40, 10))
+    w = rng.uniform(0.0, 1.0, 40)
+    monkeypatch.setattr(modes, "memory_budget_bytes", lambda: 0)
+    monkeypatch.setattr(modes, "_QUALITY_EXPAND_MAX", -1)  # quality: the tree engine would be next
+    with pytest.raises(CamplaceError, match="GiB") as err:
+        solve(dense, w, 3, mode=mode, engine="exact")
+    assert "\n" not in str(err.value)
+    res = solve(dense, w, 3, mode=mode)
+    assert res.engine == "mip" and "memory_fallback" in res.stats
+    best = brute_force_mode(dense, w, 3, mode, views=2)
+    assert res.status == "optimal" and res.objective == pytest.approx(best)
+
+
+def test_memory_budget_is_positive() -> None:
+    from camplace.solver._common import memory_budget_bytes
+
+    assert memory_budget_bytes() > 0
