@@ -29,7 +29,11 @@ def graded(draw, max_n: int = 10, max_m: int = 40):
     dense = (rng.random((m, n)) < draw(st.sampled_from([0.15, 0.5, 0.9]))) * q
     if draw(st.booleans()) and n >= 2:
         dense[:, -1] = dense[:, 0]  # duplicate camera
-    w = rng.integers(0, 3, size=m).astype(float) if draw(st.booleans()) else rng.uniform(0.0, 1.0, size=m)
+    kind = draw(st.sampled_from(["int", "float", "equal"]))  # equal weights: the integer bound path
+    if kind == "equal":
+        w = np.full(m, 0.1)
+    else:
+        w = rng.integers(0, 3, size=m).astype(float) if kind == "int" else rng.uniform(0.0, 1.0, size=m)
     return dense, w
 
 
@@ -66,8 +70,11 @@ class _Expiring:
     def elapsed(self) -> float:
         return 0.0
 
+    def remaining(self) -> float:
+        return 0.0 if self.left < 0 else 1.0
 
-@pytest.mark.parametrize("checks", [0, 1, 3, 8])
+
+@pytest.mark.parametrize("checks", [0, 1, 3, 8, 12, 20])
 def test_tree_engine_interrupted_keeps_a_valid_bound(monkeypatch, checks) -> None:
     rng = np.random.default_rng(checks)
     dense = (rng.random((60, 14)) < 0.5) * rng.uniform(0.05, 1.0, (60, 14))
@@ -145,3 +152,20 @@ def test_memory_budget_is_positive() -> None:
     from camplace.solver._common import memory_budget_bytes
 
     assert memory_budget_bytes() > 0
+
+
+def test_solve_time_limit_on_the_tree_engine(monkeypatch) -> None:
+    from camplace.solver._synthetic import structured_instance
+
+    a, w = structured_instance(3000, 150, seed=3)
+    rng = np.random.default_rng(3)
+    a = a.astype(np.float32)
+    a.data = rng.uniform(0.05, 1.0, a.nnz).astype(np.float32)  # graded qualities
+    monkeypatch.setattr(modes, "QUALITY_EXACT_MAX_N", 0)
+    monkeypatch.setattr(modes, "_QUALITY_EXPAND_MAX", -1)
+    full = solve(a, w, 3, mode="quality")
+    assert full.status == "optimal" and "peak_frontier" in full.stats["engine_stats"]
+    cut = solve(a, w, 3, mode="quality", time_limit_s=1e-6)  # stops after the first greedy start
+    assert len(cut.selected) == 3 and cut.stats["engine_stats"]["time_incumbent_s"] >= 0
+    assert cut.bound >= full.objective - 1e-9 >= cut.objective - 1e-9
+    assert cut.objective == pytest.approx(mode_objective(a.toarray(), w, cut.selected, "quality"))

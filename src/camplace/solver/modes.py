@@ -519,9 +519,11 @@ def _cover_modes(
         base = covered.astype(np.float64)
     elif mode == "quality":
         base = q[:, list(fixed_t)].max(axis=1).toarray().ravel() if fixed_t else np.zeros(m)
-        resid = qf.copy()
-        resid.data = np.maximum(resid.data - np.repeat(base, np.diff(resid.indptr)), 0.0)
-        resid.eliminate_zeros()
+        resid = qf
+        if fixed_t:  # what a new camera adds over the fixed ones' best quality
+            resid = qf.copy()
+            resid.data = np.maximum(resid.data - np.repeat(base, np.diff(resid.indptr)), 0.0)
+            resid.eliminate_zeros()
         resid_w = w
     else:
         base = np.asarray((q[:, list(fixed_t)] > 0).sum(axis=1)).ravel().astype(np.float64) if fixed_t else np.zeros(m)

@@ -21,7 +21,8 @@
 * **Time limit.** Checked between chunks; on expiry the incumbent is returned with status
   ``feasible`` and the bound ``max(incumbent, bounds of the tuples not yet expanded)``. The same
   happens if the frontier would exceed :data:`FRONTIER_MAX` tuples.
-* **Exactness.** Pruning keeps a margin of ``1e-9 * total weight`` (floating-point sums).
+* **Exactness.** Pruning keeps a margin of ``1e-9 * total weight`` (floating-point sums). With
+  equal row weights a bound is an integer sum of bytes, scaled once.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ log = logging.getLogger(__name__)
 FRONTIER_MAX = 5_000_000  # tuples kept between rounds (about 40 bytes each for k = 3)
 _CHUNK = 8192  # tuples expanded per compiled call; the deadline is checked between calls
 _MARGIN = 1e-9
-_STARTS = 3  # greedy starts: the best single columns
+_STARTS = 1  # greedy starts: the best single columns (the search soon finds better sets)
 _SWAP_ROUNDS = 50
 _PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False, "parallel": True}
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
@@ -161,8 +162,33 @@ def _bound(t, nodes, wq):  # pragma: no cover - compiled
     return s
 
 
+@numba.njit(**_JIT)
+def _bound_equal(t, nodes, wq):  # pragma: no cover - compiled
+    """:func:`_bound` when every live row has the same weight ``wq[0]``: an integer sum (vectorises
+    over bytes), scaled once."""
+    k = nodes.shape[0]
+    m = t.shape[1]
+    s = 0
+    ra = t[nodes[0]]
+    if k == 1:
+        for i in range(m):
+            s += np.int64(ra[i])
+    elif k == 2:
+        rb = t[nodes[1]]
+        for i in range(m):
+            s += np.int64(max(ra[i], rb[i]))
+    elif k == 3:
+        rb = t[nodes[1]]
+        rc = t[nodes[2]]
+        for i in range(m):
+            s += np.int64(max(ra[i], max(rb[i], rc[i])))
+    else:
+        return _bound(t, nodes, wq)
+    return wq[0] * float(s)
+
+
 @numba.njit(**_PJIT)
-def _expand(front, lo, hi, left, right, t, wq, best, margin, indptr, indices, data, w, order):  # pragma: no cover - compiled
+def _expand(front, lo, hi, left, right, t, wq, equal, best, margin, indptr, indices, data, w, order):  # pragma: no cover - compiled
     """Split every tuple of ``front`` (F, k) once.
 
     Returns ``children`` (F, k + 1, k), ``value`` (F, k + 1) (bound, or the exact value for a
@@ -204,7 +230,7 @@ def _expand(front, lo, hi, left, right, t, wq, best, margin, indptr, indices, da
                 child[j] = cur[j]
             for j in range(cnt):
                 child[first + j] = lch if j < nl else rch
-            b = _bound(t, child, wq)
+            b = _bound_equal(t, child, wq) if equal else _bound(t, child, wq)
             if b <= best + margin:
                 continue
             is_leaf = True
@@ -246,13 +272,16 @@ class _Columns:
         with ctrl_c_deferred():
             return _gains(self.indptr, self.indices, self.data, self.w, self.state(sel))
 
-    def greedy_swap(self, start: list[int], k: int) -> list[int]:
+    def greedy_swap(self, start: list[int], k: int, deadline: Deadline) -> list[int]:
+        """Greedy completion of ``start``, then 1-swaps until none improves or the deadline passes."""
         sel = list(start)
         while len(sel) < k:
             g = self.gains(sel)
             g[sel] = -math.inf
             sel.append(int(np.argmax(g)))
         for _ in range(_SWAP_ROUNDS):
+            if deadline.expired():
+                break
             improved = False
             for p in range(k):
                 others = sel[:p] + sel[p + 1 :]
@@ -310,19 +339,29 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
     single = colsrc.gains([])
     best, best_set = -math.inf, ()
     for j in np.argsort(-single, kind="stable")[: min(_STARTS, n)]:
-        sel = colsrc.greedy_swap([int(j)], k)
+        sel = colsrc.greedy_swap([int(j)], k, deadline)
         v = colsrc.value(sel)
         if v > best:
             best, best_set = v, tuple(sorted(sel))
+        if deadline.expired():
+            break
     stats["initial_incumbent"] = best
     stats["time_incumbent_s"] = deadline.elapsed()
+    if deadline.expired():  # no time for the tree: every point gets its best quality
+        with ctrl_c_deferred():
+            bound = float(w @ _row_max(qc.indptr, qc.indices, qc.data, m))  # each point's best camera
+        status = "optimal" if bound <= best + margin else "feasible"
+        return EngineOutcome(selected=best_set, status=status, bound=best if status == "optimal" else bound,
+                             stats=stats)
 
     # live rows (positive weight, observed), quantised node table over the bisection order
-    live = (w > 0) & (np.bincount(qc.indices, minlength=m) > 0)
+    with ctrl_c_deferred():
+        rmax = _row_max(qc.indptr, qc.indices, qc.data, m)
+    live = (w > 0) & (rmax > 0)
     rowmap = np.full(m, -1, dtype=np.int64)
     rowmap[live] = np.arange(int(live.sum()), dtype=np.int64)
     m_live = int(live.sum())
-    qmax = float(qc.data.max()) if qc.nnz else 0.0
+    qmax = float(rmax.max()) if m else 0.0
     if m_live == 0 or qmax <= 0:
         stats["trivial"] = True  # nothing observed: every set is worth 0
         return EngineOutcome(selected=best_set, status="optimal", bound=best, stats=stats)
@@ -333,6 +372,7 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
         lo, hi, left, right = K.tree_shape(n)
         table = _node_table(qc.indptr, qc.indices, qc.data, rowmap, m_live, order, lo, left, right, 255.0 / qmax)
     wq = w[live] * (qmax / 255.0)
+    equal = bool(np.all(wq == wq[0]))
     stats["time_setup_s"] = deadline.elapsed()
     stats["table_bytes"] = int(table.nbytes)
 
@@ -361,7 +401,7 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
             if chunk.shape[0] == 0:
                 continue
             with ctrl_c_deferred():
-                children, value, leaf = _expand(chunk, lo, hi, left, right, table, wq, best, margin,
+                children, value, leaf = _expand(chunk, lo, hi, left, right, table, wq, equal, best, margin,
                                                 qc.indptr, qc.indices, qc.data, w, order)
             made = np.isfinite(value)
             evaluated += int(made.sum())
@@ -395,6 +435,16 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
     log.info("quality tree: k=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", k, m_live, n,
              status, best, bound, evaluated, deadline.elapsed())
     return EngineOutcome(selected=best_set, status=status, bound=float(bound), stats=stats)
+
+
+@numba.njit(**_JIT)
+def _row_max(indptr, indices, data, m):  # pragma: no cover - compiled
+    """(m,) float64: the largest value of every row (CSC arrays)."""
+    out = np.zeros(m)
+    for p in range(indices.shape[0]):
+        if data[p] > out[indices[p]]:
+            out[indices[p]] = data[p]
+    return out
 
 
 def _pattern_bits(qc: sp.csc_matrix, rowmap: np.ndarray, m_live: int) -> np.ndarray:
