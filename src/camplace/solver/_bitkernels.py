@@ -478,12 +478,16 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
 
 @numba.njit(**_JIT)
 def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, margin, stack, stack_bound, sp, best, best_set,
-                 budget):  # pragma: no cover - compiled
+                 budget, colmax):  # pragma: no cover - compiled
     """Depth-first search over k-tuples of tree nodes with the union bound (resumable).
 
     A stack entry is a non-decreasing tuple of nodes (``stack[i, :k]``) standing for every k-subset
     of columns with one column in each node, and ``stack_bound[i]`` an upper bound on their
     values. The bound of a tuple is ``total - shortfall`` (see :func:`shortfall`).
+    With ``m > 1`` and ``colmax`` (per node, the largest weight one of its columns observes) the
+    bound is also at most ``sum_t colmax[v_t] / m``: a row that counts is observed by at least m
+    chosen columns, so m times the value is at most the sum of their weights. That check comes
+    first and skips the row scan when it already prunes.
     A popped tuple whose bound cannot beat ``best`` (by more than ``margin``) is dropped;
     otherwise its largest node is split into its two children L < R, and the positions it holds
     are replaced by every non-decreasing mix of L and R (a leaf never twice, a node never more
@@ -539,9 +543,17 @@ def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, ma
                 child[j] = cur[j]
             for j in range(cnt):
                 child[first + j] = lch if j < nl else rch
-            need = total - best - margin
-            bnd = total - shortfall(levels, child, k, m, w, planes, last_mask, need, acc)
             evaluated += 1
+            wcap = np.inf
+            if colmax.shape[0] > 0:
+                wcap = 0.0
+                for j in range(k):
+                    wcap += colmax[child[j]]
+                wcap /= m
+                if wcap <= best + margin:
+                    continue
+            need = total - best - margin
+            bnd = min(wcap, total - shortfall(levels, child, k, m, w, planes, last_mask, need, acc))
             if bnd <= best + margin:
                 continue
             leaf = True

@@ -21,6 +21,8 @@ set of columns is scored with a few word operations per 64 rows.
   binary digits for integer weights with ``views > 1``, set bits one by one otherwise) and the
   sum stops as soon as it proves the tuple cannot win, so near-complete coverage is cheap to
   evaluate.
+  For ``views > 1`` a tuple's bound is also at most the sum of its nodes' heaviest column
+  weights divided by ``views`` (a counted row is observed ``views`` times).
 * **Incumbent.** Greedy from several starts plus 1-swap local search on the bitsets.
 * **Exactness.** When every original weight is equal, weights are the merged-row counts (exact
   integers in float64) and pruning is exact; otherwise pruning keeps a margin of
@@ -181,9 +183,18 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
         perm = K.bisection_order(st.bits)
         lo, hi, left, right, levels = K.build_tree(np.ascontiguousarray(st.bits[perm]), min(views, k))
     stats["time_setup_s"] = deadline.elapsed()
+    # views > 1: per node the largest column weight (m x value <= the chosen columns' weights)
+    colmax = np.zeros(0)
+    if views > 1:
+        f = st.value_all([], views=1)[perm]
+        colmax = np.empty(lo.shape[0])
+        for v in range(lo.shape[0] - 1, -1, -1):
+            colmax[v] = f[lo[v]] if left[v] < 0 else max(colmax[left[v]], colmax[right[v]])
     stack = np.zeros((_STACK, k), dtype=np.int64)
     stack_bound = np.zeros(_STACK, dtype=np.float64)
     stack_bound[0] = st.total
+    if views > 1:  # the k heaviest columns, each row counted views times
+        stack_bound[0] = min(st.total, float(np.sort(f)[-k:].sum()) / views)
     sp = 1
     best_pos = np.zeros(k, dtype=np.int64)
     evaluated = 0
@@ -194,7 +205,7 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
             break
         with ctrl_c_deferred():
             sp, best, ev = K.tuple_search(lo, hi, left, right, levels, views, st.w, st.planes, st.mask, st.total, st.margin,
-                                          stack, stack_bound, sp, st.best, best_pos, _SLICE)
+                                          stack, stack_bound, sp, st.best, best_pos, _SLICE, colmax)
         evaluated += ev
         if sp < 0:
             raise RuntimeError("bitset search stack overflow")  # cannot happen: depth <= k * log2(n) levels
