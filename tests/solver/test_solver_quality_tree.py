@@ -123,7 +123,7 @@ def test_solve_routes_large_quality_to_the_tree_engine(data) -> None:
     best = brute_force_mode(dense, w, k, "quality", fixed=fixed, forbidden=forbidden)
     tol = 1e-9 * max(1.0, float(w.sum()))
     assert res.engine == "exact" and res.status == "optimal"
-    assert "peak_frontier" in res.stats["engine_stats"] or res.stats["engine_stats"].get("trivial")
+    assert "peak_open" in res.stats["engine_stats"] or res.stats["engine_stats"].get("trivial")
     assert set(fixed) <= set(res.selected) and not set(forbidden) & set(res.selected)
     assert len(res.selected) == len(fixed) + k
     assert abs(mode_objective(dense, w, res.selected, "quality") - res.objective) <= tol
@@ -164,7 +164,7 @@ def test_solve_time_limit_on_the_tree_engine(monkeypatch) -> None:
     monkeypatch.setattr(modes, "QUALITY_EXACT_MAX_N", 0)
     monkeypatch.setattr(modes, "_QUALITY_EXPAND_MAX", -1)
     full = solve(a, w, 3, mode="quality")
-    assert full.status == "optimal" and "peak_frontier" in full.stats["engine_stats"]
+    assert full.status == "optimal" and "peak_open" in full.stats["engine_stats"]
     cut = solve(a, w, 3, mode="quality", time_limit_s=1e-6)  # stops after the first greedy start
     assert len(cut.selected) == 3 and cut.stats["engine_stats"]["time_incumbent_s"] >= 0
     assert cut.bound >= full.objective - 1e-9 >= cut.objective - 1e-9

@@ -12,15 +12,16 @@
 * **Bound.** A tuple of ``k`` nodes (non-decreasing; a node may repeat) stands for every k-subset
   with one column in each node, and ``sum_i w_i qmax / 255 * max_t T[v_t, i]`` bounds all of them.
   A tuple of leaves is one camera set and is scored exactly (a merge of its sparse columns).
-* **Search.** Breadth-first over tuples, in parallel chunks (numba ``prange``): the largest node
-  of a tuple is split into its two children (every non-decreasing mix for a repeated node, a
-  leaf never twice, as in :func:`camplace.solver._bitkernels.tuple_search`) and children whose
-  bound cannot beat the incumbent are dropped. Each round processes the tuples with the largest
-  bounds first.
+* **Search.** Depth-first over chunks of tuples, each chunk expanded in parallel (numba
+  ``prange``): the largest node of a tuple is split into its two children (every non-decreasing
+  mix for a repeated node, a leaf never twice, as in
+  :func:`camplace.solver._bitkernels.tuple_search`), children whose bound cannot beat the
+  incumbent are dropped, and the survivors are pushed as chunks in increasing bound order, so the
+  most promising chunk is expanded next. Open tuples stay below about ``k^2 log2(n)`` chunks.
 * **Incumbent.** Greedy plus 1-swap local search from the best single columns (exact values).
 * **Time limit.** Checked between chunks; on expiry the incumbent is returned with status
   ``feasible`` and the bound ``max(incumbent, bounds of the tuples not yet expanded)``. The same
-  happens if the frontier would exceed :data:`FRONTIER_MAX` tuples.
+  happens if more than :data:`FRONTIER_MAX` tuples are open (a guard; depth-first keeps far fewer).
 * **Exactness.** Pruning keeps a margin of ``1e-9 * total weight`` (floating-point sums). With
   equal row weights a bound is an integer sum of bytes, scaled once.
 """
@@ -44,7 +45,7 @@ __all__ = ["solve_quality_tree", "quality_tree_bytes", "FRONTIER_MAX"]
 
 log = logging.getLogger(__name__)
 
-FRONTIER_MAX = 5_000_000  # tuples kept between rounds (about 40 bytes each for k = 3)
+FRONTIER_MAX = 5_000_000  # open tuples at most (about 40 bytes each for k = 3)
 _CHUNK = 8192  # tuples expanded per compiled call; the deadline is checked between calls
 _MARGIN = 1e-9
 _STARTS = 1  # greedy starts: the best single columns (the search soon finds better sets)
@@ -376,62 +377,54 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
     stats["time_setup_s"] = deadline.elapsed()
     stats["table_bytes"] = int(table.nbytes)
 
-    frontier = np.zeros((1, k), dtype=np.int64)
-    fbound = np.array([_bound(table, frontier[0], wq)])
-    evaluated = exact_evals = rounds = 0
-    peak = 1
+    # Depth-first over chunks: pop the top chunk, expand it in parallel, push its surviving
+    # children as chunks in increasing bound order (the most promising on top).
+    root = np.zeros((1, k), dtype=np.int64)
+    stack_t: list[np.ndarray] = [root]
+    stack_b: list[np.ndarray] = [np.array([_bound(table, root[0], wq)])]
+    evaluated = exact_evals = chunks = 0
+    n_open = peak = 1
     status = "optimal"
     open_bound = -math.inf
-    while frontier.shape[0] > 0:
-        rounds += 1
-        idx = np.argsort(-fbound, kind="stable")
-        frontier, fbound = frontier[idx], fbound[idx]
-        parts: list[np.ndarray] = []
-        pbounds: list[np.ndarray] = []
-        kept = 0
-        stopped = False
-        for c0 in range(0, frontier.shape[0], _CHUNK):
-            if deadline.expired():
-                status = "feasible"
-                open_bound = max(float(fbound[c0:].max()), max((float(b.max()) for b in pbounds if b.size), default=-math.inf))
-                stopped = True
-                break
-            chunk = frontier[c0 : c0 + _CHUNK]
-            chunk = chunk[fbound[c0 : c0 + _CHUNK] > best + margin]
-            if chunk.shape[0] == 0:
-                continue
-            with ctrl_c_deferred():
-                children, value, leaf = _expand(chunk, lo, hi, left, right, table, wq, equal, best, margin,
-                                                qc.indptr, qc.indices, qc.data, w, order)
-            made = np.isfinite(value)
-            evaluated += int(made.sum())
-            lv = np.where(leaf & made, value, -math.inf)
-            exact_evals += int((leaf & made).sum())
-            if lv.size and lv.max() > best:
-                f, q = np.unravel_index(int(np.argmax(lv)), lv.shape)
-                best = float(lv[f, q])
-                best_set = tuple(sorted(int(order[lo[x]]) for x in children[f, q]))
-                log.debug("quality tree: incumbent %.9g %s", best, best_set)
-            keep = made & ~leaf & (value > best + margin)
-            parts.append(children[keep])
-            pbounds.append(value[keep])
-            kept += int(keep.sum())
-            if kept > FRONTIER_MAX:
-                status = "feasible"
-                open_bound = max(float(fbound[c0:].max()), max(float(b.max()) for b in pbounds if b.size))
-                log.warning("quality tree: frontier over %d tuples; stopping with a bound", FRONTIER_MAX)
-                stopped = True
-                break
-        if stopped:
+    while stack_t:
+        if deadline.expired() or n_open > FRONTIER_MAX:
+            if n_open > FRONTIER_MAX:
+                log.warning("quality tree: over %d open tuples; stopping with a bound", FRONTIER_MAX)
+            status = "feasible"
+            open_bound = max(float(b.max()) for b in stack_b if b.size)
             break
-        frontier = np.concatenate(parts) if parts else np.zeros((0, k), dtype=np.int64)
-        fbound = np.concatenate(pbounds) if pbounds else np.zeros(0)
-        peak = max(peak, frontier.shape[0])
+        tup, tb = stack_t.pop(), stack_b.pop()
+        n_open -= tb.shape[0]
+        tup = tup[tb > best + margin]
+        if tup.shape[0] == 0:
+            continue
+        chunks += 1
+        with ctrl_c_deferred():
+            children, value, leaf = _expand(tup, lo, hi, left, right, table, wq, equal, best, margin,
+                                            qc.indptr, qc.indices, qc.data, w, order)
+        made = np.isfinite(value)
+        evaluated += int(made.sum())
+        lv = np.where(leaf & made, value, -math.inf)
+        exact_evals += int((leaf & made).sum())
+        if lv.size and lv.max() > best:
+            f, q = np.unravel_index(int(np.argmax(lv)), lv.shape)
+            best = float(lv[f, q])
+            best_set = tuple(sorted(int(order[lo[x]]) for x in children[f, q]))
+            log.debug("quality tree: incumbent %.9g %s", best, best_set)
+        keep = made & ~leaf & (value > best + margin)
+        ch, cv = children[keep], value[keep]
+        idx = np.argsort(cv, kind="stable")
+        ch, cv = ch[idx], cv[idx]
+        for c0 in range(0, cv.shape[0], _CHUNK):
+            stack_t.append(ch[c0 : c0 + _CHUNK])
+            stack_b.append(cv[c0 : c0 + _CHUNK])
+        n_open += cv.shape[0]
+        peak = max(peak, n_open)
     bound = max(best, open_bound) if status == "feasible" else best
     if bound <= best + margin:
         status, bound = "optimal", best
-    stats.update({"bound_evaluations": evaluated, "exact_evaluations": exact_evals, "rounds": rounds,
-                  "peak_frontier": int(peak), "time_search_s": deadline.elapsed() - stats["time_setup_s"]})
+    stats.update({"bound_evaluations": evaluated, "exact_evaluations": exact_evals, "chunks": chunks,
+                  "peak_open": int(peak), "time_search_s": deadline.elapsed() - stats["time_setup_s"]})
     log.info("quality tree: k=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", k, m_live, n,
              status, best, bound, evaluated, deadline.elapsed())
     return EngineOutcome(selected=best_set, status=status, bound=float(bound), stats=stats)
