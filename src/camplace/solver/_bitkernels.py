@@ -477,13 +477,56 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
 
 
 @numba.njit(**_JIT)
+def split_tuple(cur, lo, hi, left, right, out):  # pragma: no cover - compiled
+    """Children of a non-decreasing tuple of tree nodes: its largest node v is split into its
+    children L < R and the positions v holds are replaced by every non-decreasing mix of L and R
+    (a leaf never twice, a node never more often than it has columns).
+
+    Writes the children to ``out`` ((k + 1, k) int64) and returns their number (0 for a tuple
+    of leaves).
+    """
+    k = cur.shape[0]
+    jbest = -1
+    sbest = 1
+    for j in range(k):
+        s = hi[cur[j]] - lo[cur[j]]
+        if s > sbest:
+            sbest = s
+            jbest = j
+    if jbest < 0:
+        return 0
+    v = cur[jbest]
+    first = jbest
+    while first > 0 and cur[first - 1] == v:
+        first -= 1
+    last = jbest
+    while last < k - 1 and cur[last + 1] == v:
+        last += 1
+    cnt = last - first + 1
+    lch = left[v]
+    rch = right[v]
+    n_out = 0
+    for nl in range(cnt, -1, -1):  # nl copies of L, then cnt - nl copies of R
+        nr = cnt - nl
+        if nl > hi[lch] - lo[lch] or nr > hi[rch] - lo[rch]:
+            continue
+        for j in range(k):
+            out[n_out, j] = cur[j]
+        for j in range(cnt):
+            out[n_out, first + j] = lch if j < nl else rch
+        n_out += 1
+    return n_out
+
+
+@numba.njit(**_JIT)
 def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, margin, stack, stack_bound, sp, best, best_set,
                  budget, colmax):  # pragma: no cover - compiled
     """Depth-first search over k-tuples of tree nodes with the union bound (resumable).
 
     A stack entry is a non-decreasing tuple of nodes (``stack[i, :k]``) standing for every k-subset
     of columns with one column in each node, and ``stack_bound[i]`` an upper bound on their
-    values. The bound of a tuple is ``total - shortfall`` (see :func:`shortfall`).
+    values. The bound of a tuple is ``total - shortfall`` (see :func:`shortfall`); children come
+    from :func:`split_tuple`.
     With ``m > 1`` and ``colmax`` (per node, the largest weight one of its columns observes) the
     bound is also at most ``sum_t colmax[v_t] / m``: a row that counts is observed by at least m
     chosen columns, so m times the value is at most the sum of their weights. That check comes
@@ -505,7 +548,7 @@ def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, ma
     k = stack.shape[1]
     cap = stack.shape[0]
     evaluated = 0
-    child = np.empty(k, dtype=np.int64)
+    kids = np.empty((k + 1, k), dtype=np.int64)
     cand = np.empty((k + 1, k), dtype=np.int64)
     cand_b = np.empty(k + 1, dtype=np.float64)
     used = np.zeros(k + 1, dtype=np.bool_)
@@ -514,35 +557,10 @@ def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, ma
         sp -= 1
         if stack_bound[sp] <= best + margin:
             continue
-        cur = stack[sp]
-        jbest = -1
-        sbest = 1
-        for j in range(k):
-            s = hi[cur[j]] - lo[cur[j]]
-            if s > sbest:
-                sbest = s
-                jbest = j
-        if jbest < 0:
-            continue
-        v = cur[jbest]
-        first = jbest
-        while first > 0 and cur[first - 1] == v:
-            first -= 1
-        last = jbest
-        while last < k - 1 and cur[last + 1] == v:
-            last += 1
-        cnt = last - first + 1
-        lch = left[v]
-        rch = right[v]
+        n_kids = split_tuple(stack[sp], lo, hi, left, right, kids)
         nc = 0
-        for nl in range(cnt, -1, -1):  # nl copies of L, then cnt - nl copies of R
-            nr = cnt - nl
-            if nl > hi[lch] - lo[lch] or nr > hi[rch] - lo[rch]:
-                continue
-            for j in range(k):
-                child[j] = cur[j]
-            for j in range(cnt):
-                child[first + j] = lch if j < nl else rch
+        for c in range(n_kids):
+            child = kids[c]
             evaluated += 1
             wcap = np.inf
             if colmax.shape[0] > 0:

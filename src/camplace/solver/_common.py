@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -15,7 +15,7 @@ from camplace.errors import CamplaceError
 from camplace.solver import _bitkernels as _bk
 from camplace.solver.presolve import as_pattern, check_weights
 
-__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline", "memory_budget_bytes"]
+__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline", "memory_budget_bytes", "greedy_swap"]
 
 MEMORY_FRACTION = 0.6  # an engine's working memory may use this share of the memory available at its start
 _FALLBACK_AVAILABLE = 4 << 30  # assumed when the platform does not say
@@ -69,6 +69,53 @@ class Deadline:
     def expired(self) -> bool:
         """True once the limit has passed."""
         return self.limit is not None and self.elapsed() >= self.limit
+
+
+def greedy_swap(scores: Callable[[list[int]], np.ndarray], start: Sequence[int], k: int, margin: float,
+                rounds: int, expired: Callable[[], bool] | None = None) -> list[int]:
+    """Greedy completion of ``start`` to ``k`` columns, then 1-swap local search.
+
+    Parameters
+    ----------
+    scores : callable
+        ``scores(sel)`` is an (n,) array ranking every column x by the value of ``sel + [x]``
+        (values or gains over ``sel``; entries of ``sel`` itself are ignored).
+    start : sequence of int
+        Columns to start from.
+    k : int
+        Columns wanted.
+    margin : float
+        A swap must improve by more than this.
+    rounds : int
+        Swap rounds at most (a round tries every position once).
+    expired : callable, optional
+        Stops the swaps when it returns True.
+
+    Returns
+    -------
+    list of int
+    """
+    sel = list(start)
+    while len(sel) < k:
+        v = scores(sel)
+        v[sel] = -np.inf
+        sel.append(int(np.argmax(v)))
+    for _ in range(rounds):
+        if expired is not None and expired():
+            break
+        improved = False
+        for p in range(k):
+            others = sel[:p] + sel[p + 1 :]
+            v = scores(others)
+            cur = v[sel[p]]
+            v[sel] = -np.inf
+            j = int(np.argmax(v))
+            if v[j] > cur + margin:
+                sel[p] = j
+                improved = True
+        if not improved:
+            break
+    return sel
 
 
 def memory_budget_bytes() -> int:

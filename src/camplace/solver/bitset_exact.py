@@ -44,7 +44,7 @@ import numpy as np
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver import _bitkernels as K
-from camplace.solver._common import Deadline, EngineOutcome
+from camplace.solver._common import Deadline, EngineOutcome, greedy_swap
 from camplace.solver.presolve import Presolved
 
 __all__ = ["solve_bitset", "bitset_bytes", "BITSET_MAX_K"]
@@ -113,25 +113,7 @@ class _State:
             log.debug("bitset: incumbent %.9g %s", value * self.scale, self.best_set)
 
     def greedy_swap(self, start: list[int]) -> list[int]:
-        sel = list(start)
-        while len(sel) < self.k:
-            v = self.value_all(sel)
-            v[sel] = -math.inf
-            sel.append(int(np.argmax(v)))
-        for _ in range(_SWAP_ROUNDS):
-            improved = False
-            for p in range(self.k):
-                others = sel[:p] + sel[p + 1 :]
-                v = self.value_all(others)
-                cur = v[sel[p]]
-                v[sel] = -math.inf
-                j = int(np.argmax(v))
-                if v[j] > cur + self.margin:
-                    sel[p] = j
-                    improved = True
-            if not improved:
-                break
-        return sel
+        return greedy_swap(self.value_all, start, self.k, self.margin, _SWAP_ROUNDS)
 
     def incumbent(self) -> None:
         f = self.value_all([], views=1)  # each column's own weight

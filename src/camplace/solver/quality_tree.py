@@ -39,7 +39,7 @@ from numba import prange
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver import _bitkernels as K
-from camplace.solver._common import Deadline, EngineOutcome
+from camplace.solver._common import Deadline, EngineOutcome, greedy_swap
 
 __all__ = ["solve_quality_tree", "quality_tree_bytes", "FRONTIER_MAX"]
 
@@ -190,47 +190,21 @@ def _bound_equal(t, nodes, wq):  # pragma: no cover - compiled
 
 @numba.njit(**_PJIT)
 def _expand(front, lo, hi, left, right, t, wq, equal, best, margin, indptr, indices, data, w, order):  # pragma: no cover - compiled
-    """Split every tuple of ``front`` (F, k) once.
+    """Split every tuple of ``front`` (F, k) once (:func:`camplace.solver._bitkernels.split_tuple`).
 
     Returns ``children`` (F, k + 1, k), ``value`` (F, k + 1) (bound, or the exact value for a
-    tuple of leaves; -inf where no child was made) and ``leaf`` (F, k + 1) bool.
+    tuple of leaves; -inf where no child was made or its bound cannot beat ``best``) and
+    ``leaf`` (F, k + 1) bool.
     """
     f_count, k = front.shape
     children = np.zeros((f_count, k + 1, k), dtype=np.int64)
     value = np.full((f_count, k + 1), -np.inf)
     leaf = np.zeros((f_count, k + 1), dtype=np.bool_)
     for f in prange(f_count):
-        cur = front[f]
-        jbest = -1
-        sbest = 1
-        for j in range(k):
-            s = hi[cur[j]] - lo[cur[j]]
-            if s > sbest:
-                sbest = s
-                jbest = j
-        if jbest < 0:
-            continue
-        v = cur[jbest]
-        first = jbest
-        while first > 0 and cur[first - 1] == v:
-            first -= 1
-        last = jbest
-        while last < k - 1 and cur[last + 1] == v:
-            last += 1
-        cnt = last - first + 1
-        lch = left[v]
-        rch = right[v]
-        q = 0
+        n_kids = K.split_tuple(front[f], lo, hi, left, right, children[f])
         cols = np.empty(k, dtype=np.int64)
-        for nl in range(cnt, -1, -1):  # nl copies of L, then cnt - nl copies of R
-            nr = cnt - nl
-            if nl > hi[lch] - lo[lch] or nr > hi[rch] - lo[rch]:
-                continue
+        for q in range(n_kids):
             child = children[f, q]
-            for j in range(k):
-                child[j] = cur[j]
-            for j in range(cnt):
-                child[first + j] = lch if j < nl else rch
             b = _bound_equal(t, child, wq) if equal else _bound(t, child, wq)
             if b <= best + margin:
                 continue
@@ -245,7 +219,6 @@ def _expand(front, lo, hi, left, right, t, wq, equal, best, margin, indptr, indi
                 b = _exact(indptr, indices, data, w, cols)
             value[f, q] = b
             leaf[f, q] = is_leaf
-            q += 1
     return children, value, leaf
 
 
@@ -275,27 +248,7 @@ class _Columns:
 
     def greedy_swap(self, start: list[int], k: int, deadline: Deadline) -> list[int]:
         """Greedy completion of ``start``, then 1-swaps until none improves or the deadline passes."""
-        sel = list(start)
-        while len(sel) < k:
-            g = self.gains(sel)
-            g[sel] = -math.inf
-            sel.append(int(np.argmax(g)))
-        for _ in range(_SWAP_ROUNDS):
-            if deadline.expired():
-                break
-            improved = False
-            for p in range(k):
-                others = sel[:p] + sel[p + 1 :]
-                g = self.gains(others)
-                cur = g[sel[p]]
-                g[sel] = -math.inf
-                j = int(np.argmax(g))
-                if g[j] > cur + self.margin:
-                    sel[p] = j
-                    improved = True
-            if not improved:
-                break
-        return sel
+        return greedy_swap(self.gains, start, k, self.margin, _SWAP_ROUNDS, deadline.expired)
 
 
 def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
