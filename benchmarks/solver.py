@@ -13,6 +13,7 @@ Usage::
     PYTHONPATH=src python benchmarks/solver.py --skip-mip --repeat 3 --blas-threads 1
     PYTHONPATH=src python benchmarks/solver.py --modes                 # issue-8 mode targets, sphere
     PYTHONPATH=src python benchmarks/solver.py --modes multiview quality --source bunker
+    PYTHONPATH=src python benchmarks/solver.py --quality-engines     # min-Gram vs quantised tree
 
 ``--modes`` runs the issue's mode targets (maxcover 10,000 x 50,000; multiview and quality
 1,000 x 20,000 and 10,000 x 50,000) with ``solve(..., engine="auto")`` and prints one line each,
@@ -93,6 +94,29 @@ def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere")
         )
         sys.stdout.flush()
 
+def run_quality_engines(seed: int, k: int) -> None:
+    """The two exact quality engines on the same graded comet-67p-bunker matrices (same run):
+    min-Gram triple enumeration vs the quantised tree, times and their ratio."""
+    from camplace.solver.quality_exact import QUALITY_EXACT_MAX_N, solve_quality_exact
+    from camplace.solver.quality_tree import solve_quality_tree
+
+    for n_cams, m_pts in [(1000, 20000), (3000, 20000)]:
+        matrix, weights = builtin_matrix("quality", n_cams, m_pts, seed)
+        out = {}
+        for name, fn in (("min-gram", solve_quality_exact), ("tree", solve_quality_tree)):
+            if name == "min-gram" and n_cams > QUALITY_EXACT_MAX_N:
+                continue
+            t = time.perf_counter()
+            res = fn(matrix, weights, k, time_limit_s=120.0)
+            out[name] = (time.perf_counter() - t, res)
+            print(f"   quality {name:8s} {n_cams:5d}x{m_pts:6d} k={k}: {out[name][0]:7.2f} s {res.status:8s} "
+                  f"bound={res.bound:.6f} selected={res.selected}")
+        if len(out) == 2:
+            print(f"   ratio min-gram/tree: {out['min-gram'][0] / out['tree'][0]:.1f}x "
+                  f"(same bound: {abs(out['min-gram'][1].bound - out['tree'][1].bound) <= 1e-9})")
+        sys.stdout.flush()
+
+
 CONFIGS: dict[str, dict[str, Any]] = {
     "sphere": {},  # cameras 1.5..15 around a unit sphere: optimum ~99.8 %, many near-ties
     "sphere-near": {"dmax": 4.0},  # cameras 1.5..4: optimum ~95 %
@@ -119,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--blas-threads", default=None, help="OPENBLAS_NUM_THREADS for this run")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--modes", nargs="*", default=None, help="run the issue-8 mode benchmarks (optionally only these modes) instead")
+    ap.add_argument("--quality-engines", action="store_true",
+                    help="compare the two exact quality engines on graded comet-67p-bunker matrices instead")
     ap.add_argument("--source", choices=["sphere", "bunker"], default="sphere",
                     help="--modes matrices: the structured sphere, or comet-67p-bunker visibility (cached)")
     args = ap.parse_args(argv)
@@ -128,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
         f"load average at start: {os.getloadavg()[0]:.2f}"
     )
 
+    if args.quality_engines:
+        run_quality_engines(args.seed, args.k)
+        return 0
     if args.modes is not None:
         run_modes(args.seed, args.k, args.modes, args.source)
         print(f"load average at end: {os.getloadavg()[0]:.2f}")

@@ -169,3 +169,21 @@ def test_solve_time_limit_on_the_tree_engine(monkeypatch) -> None:
     assert len(cut.selected) == 3 and cut.stats["engine_stats"]["time_incumbent_s"] >= 0
     assert cut.bound >= full.objective - 1e-9 >= cut.objective - 1e-9
     assert cut.objective == pytest.approx(mode_objective(a.toarray(), w, cut.selected, "quality"))
+
+
+@settings(max_examples=30, **_SETTINGS)
+@given(data=graded(max_n=9), k=st.integers(2, 3))
+def test_portfolio_hands_over_to_the_min_gram_engine(data, k) -> None:
+    """When the tree engine's share of the time runs out first, the min-Gram engine finishes the
+    proof; the answer still equals enumeration."""
+    dense, w = data
+    if dense.shape[1] <= k:
+        return
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(modes, "_TREE_FIRST_S", 0.0)
+        mp.setattr(modes, "_TREE_FIRST_MIN_S", 0.0)
+        res = solve(dense, w, k, mode="quality")
+    best = brute_force_mode(dense, w, k, "quality")
+    tol = 1e-9 * max(1.0, float(w.sum()))
+    assert res.stats["quality_engines"][0] == "tree"
+    assert res.status == "optimal" and abs(res.objective - best) <= tol and res.bound == res.objective

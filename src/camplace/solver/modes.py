@@ -32,10 +32,12 @@ Engines: ``exact`` (the bound-pruned bitset engine of :mod:`camplace.solver.bits
 maxcover without minimum distance and multiview (any ``views``) without fixed cameras, minimum
 angle or minimum distance -- with ``views = 2`` and ``k = 2, 3`` on up to 4,000 candidates (any
 number when ``exact`` is requested) the pair-Gram stereo engine of
-:mod:`camplace.solver.multiview_exact`, which is faster there; quality with k = 2 or 3 new cameras
-on up to 3,000 candidates uses the min-Gram triple engine of :mod:`camplace.solver.quality_exact`,
-otherwise the bitset engine on the level rows while that expansion stays small, and else the
-quantised-tree engine of :mod:`camplace.solver.quality_tree`), ``mip`` (SCIP) and ``cpsat``.
+:mod:`camplace.solver.multiview_exact`, which is faster there; quality runs the quantised-tree
+engine of :mod:`camplace.solver.quality_tree` and, for k = 2 or 3 new cameras on up to 3,000
+candidates, hands over to the min-Gram triple engine of :mod:`camplace.solver.quality_exact` if the
+tree has not finished within its share of the time (see :func:`_quality_engines`); when neither
+fits in memory, the bitset engine on the level rows while that expansion stays small), ``mip``
+(SCIP) and ``cpsat``.
 ``auto`` picks ``exact`` where it applies and ``k <= 4``, otherwise ``mip``. Each exact engine
 first checks that its working memory fits in :func:`camplace.solver._common.memory_budget_bytes`;
 if not, ``auto`` falls back to the general model (``stats["memory_fallback"]`` says why) and an
@@ -76,6 +78,10 @@ _ENGINES = ("auto", "exact", "mip", "cpsat")
 _STEREO_AUTO_MAX_N = 4000  # the pair-Gram stereo engine (views=2, k<=3) up to this many candidates, bitsets above
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 _OPT_TOL = 1e-9
+# quality portfolio: the tree engine's share of the time when the min-Gram engine could follow
+_TREE_FIRST_S = 30.0  # without a time limit
+_TREE_FIRST_SHARE = 0.25
+_TREE_FIRST_MIN_S = 2.0
 _GREEDY_BLOCK_NNZ = 4_000_000  # matrix entries per column block in the greedy heuristic
 _MODEL_MAX_NNZ = 40_000_000  # larger SCIP / CP-SAT models exhaust memory (about 100 bytes a nonzero)
 
@@ -531,32 +537,24 @@ def _cover_modes(
 
     exact_ok = mode in ("maxcover", "quality") and conflicts.shape[0] == 0
     budget = memory_budget_bytes()
-    # quality with 2 or 3 new cameras: the min-Gram triple engine (no level expansion) on small
-    # instances, the quantised tree engine on large ones
-    quality3 = mode == "quality" and exact_ok and k in (2, 3) and engine in ("auto", "exact") and (
-        free_cols.size <= QUALITY_EXACT_MAX_N and min_gram_cost(resid) <= QUALITY_EXACT_MAX_PAIRS
-        and quality_exact_bytes(m, free_cols.size) <= budget)
-    if quality3:
-        out = solve_quality_exact(resid, resid_w, k, time_limit_s=_remaining(t0, time_limit_s))
-        sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
-        stats["engine_stats"] = dict(out.stats)
-        return sel, out.status, value(sel), float(out.bound) + float(w @ base), "exact", stats
     expanded = None
-    if mode == "quality" and exact_ok and engine in ("auto", "exact") and (engine == "exact" or k <= EXACT_MAX_K):
-        # Expanded nnz = sum_i s_i (s_i + 1) / 2 at most; estimate before building.
-        s = np.diff(resid.indptr).astype(np.float64)
-        est = float(np.sum(s * (s + 1) / 2))
-        stats["quality_expanded_nnz_estimate"] = est
-        if est <= _QUALITY_EXPAND_MAX:
-            expanded = _expand_levels(resid, resid_w)
-        else:
-            need = quality_tree_bytes(m, free_cols.size, resid.nnz)
-            if need <= budget:
-                out = solve_quality_tree(resid, resid_w, k, time_limit_s=_remaining(t0, time_limit_s))
-                sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
-                stats["engine_stats"] = dict(out.stats)
-                return sel, out.status, value(sel), float(out.bound) + float(w @ base), "exact", stats
-            _too_big(engine, stats, need, budget)
+    if mode == "quality" and exact_ok and engine in ("auto", "exact"):
+        nf = free_cols.size
+        tree_ok = (engine == "exact" or k <= EXACT_MAX_K) and quality_tree_bytes(m, nf, resid.nnz) <= budget
+        gram_ok = (k in (2, 3) and nf <= QUALITY_EXACT_MAX_N and min_gram_cost(resid) <= QUALITY_EXACT_MAX_PAIRS
+                   and quality_exact_bytes(m, nf) <= budget)
+        if tree_ok or gram_ok:
+            return _quality_engines(resid, resid_w, k, tree_ok, gram_ok, fixed_t, free_cols, value,
+                                    float(w @ base), t0, time_limit_s, stats)
+        if engine == "exact" or k <= EXACT_MAX_K:
+            # Expanded nnz = sum_i s_i (s_i + 1) / 2 at most; estimate before building.
+            s = np.diff(resid.indptr).astype(np.float64)
+            est = float(np.sum(s * (s + 1) / 2))
+            stats["quality_expanded_nnz_estimate"] = est
+            if est <= _QUALITY_EXPAND_MAX:
+                expanded = _expand_levels(resid, resid_w)
+            else:
+                _too_big(engine, stats, quality_tree_bytes(m, nf, resid.nnz), budget)
     multiview_ok = mode == "multiview" and min_angle_deg is None and not fixed_t and conflicts.shape[0] == 0
     if engine == "exact" and not (exact_ok or multiview_ok):
         raise CamplaceError(
@@ -652,6 +650,40 @@ def _cover_modes(
         return None, status, fixed_value, math.inf, name, stats
     bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
     return sel, status, objective, bound, name, stats
+
+
+def _quality_engines(
+    resid: sp.csr_matrix, resid_w: np.ndarray, k: int, tree_ok: bool, gram_ok: bool, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, value: Any, const: float, t0: float, time_limit_s: float | None, stats: dict[str, Any],
+) -> tuple[Any, str, float, float, str, dict[str, Any]]:
+    """The exact quality engines as a portfolio: the quantised tree first (fast on the spatially
+    coherent qualities of real scenes); if it has not proven the optimum within its share of the
+    time and the min-Gram triple engine applies (k = 2, 3, small n), that one gets the rest (it does
+    not depend on coherence). The better camera set wins; the smaller bound holds for both."""
+    runs: list[tuple[str, Any]] = []
+    if tree_ok:
+        limit = _remaining(t0, time_limit_s)
+        if gram_ok:
+            limit = _TREE_FIRST_S if limit is None else min(limit, max(_TREE_FIRST_MIN_S, _TREE_FIRST_SHARE * limit))
+        runs.append(("tree", solve_quality_tree(resid, resid_w, k, time_limit_s=limit)))
+    if gram_ok and (not runs or runs[0][1].status != "optimal"):
+        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, time_limit_s=_remaining(t0, time_limit_s))))
+    best = None
+    for name, out in runs:
+        sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
+        v = value(sel)
+        if best is None or v > best[1] or (out.status == "optimal" and best[2] != "optimal" and v >= best[1]):
+            best = (sel, v, out.status)
+    assert best is not None
+    sel, objective, status = best
+    bound = min(float(out.bound) for _, out in runs) + const
+    if any(out.status == "optimal" for _, out in runs) or bound <= objective + _OPT_TOL * max(1.0, abs(objective)):
+        status, bound = "optimal", objective
+    stats["quality_engines"] = [name for name, _ in runs]
+    stats["engine_stats"] = dict(runs[0][1].stats)
+    if len(runs) > 1:
+        stats["engine_stats"]["min_gram"] = dict(runs[1][1].stats)
+    return sel, status, objective, bound, "exact", stats
 
 
 def _too_big(engine: str, stats: dict[str, Any], need: int, budget: int) -> None:
