@@ -36,6 +36,7 @@ set of columns is scored with a few word operations per 64 rows.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import Any
@@ -115,8 +116,13 @@ class _State:
     def greedy_swap(self, start: list[int]) -> list[int]:
         return greedy_swap(self.value_all, start, self.k, self.margin, _SWAP_ROUNDS)
 
+    @functools.cached_property
+    def column_weights(self) -> np.ndarray:
+        """(n',) float64: the weight each column observes."""
+        return self.value_all([], views=1)
+
     def incumbent(self) -> None:
-        f = self.value_all([], views=1)  # each column's own weight
+        f = self.column_weights
         starts: list[list[int]] = [[]] if self.views == 1 else []
         for j in np.argsort(-f, kind="stable")[:_STARTS]:
             starts.append([int(j)])
@@ -168,7 +174,7 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
     # views > 1: per node the largest column weight (m x value <= the chosen columns' weights)
     colmax = np.zeros(0)
     if views > 1:
-        f = st.value_all([], views=1)[perm]
+        f = st.column_weights[perm]
         colmax = np.empty(lo.shape[0])
         for v in range(lo.shape[0] - 1, -1, -1):
             colmax[v] = f[lo[v]] if left[v] < 0 else max(colmax[left[v]], colmax[right[v]])
