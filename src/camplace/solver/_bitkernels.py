@@ -477,6 +477,15 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
 
 
 @numba.njit(**_JIT)
+def all_leaves(tup, lo, hi):  # pragma: no cover - compiled
+    """True if every node of the tuple is a single column (the tuple is one camera set)."""
+    for j in range(tup.shape[0]):
+        if hi[tup[j]] - lo[tup[j]] > 1:
+            return False
+    return True
+
+
+@numba.njit(**_JIT)
 def split_tuple(cur, lo, hi, left, right, out):  # pragma: no cover - compiled
     """Children of a non-decreasing tuple of tree nodes: its largest node v is split into its
     children L < R and the positions v holds are replaced by every non-decreasing mix of L and R
@@ -574,12 +583,7 @@ def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, ma
             bnd = min(wcap, total - shortfall(levels, child, k, m, w, planes, last_mask, need, acc))
             if bnd <= best + margin:
                 continue
-            leaf = True
-            for j in range(k):
-                if hi[child[j]] - lo[child[j]] > 1:
-                    leaf = False
-                    break
-            if leaf:
+            if all_leaves(child, lo, hi):
                 best = bnd
                 for j in range(k):
                     best_set[j] = lo[child[j]]

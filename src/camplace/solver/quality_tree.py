@@ -208,11 +208,7 @@ def _expand(front, lo, hi, left, right, t, wq, equal, best, margin, indptr, indi
             b = _bound_equal(t, child, wq) if equal else _bound(t, child, wq)
             if b <= best + margin:
                 continue
-            is_leaf = True
-            for j in range(k):
-                if hi[child[j]] - lo[child[j]] > 1:
-                    is_leaf = False
-                    break
+            is_leaf = K.all_leaves(child, lo, hi)
             if is_leaf:
                 for j in range(k):
                     cols[j] = order[lo[child[j]]]
