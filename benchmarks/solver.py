@@ -18,7 +18,8 @@ Usage::
 ``--modes`` runs the issue's mode targets (maxcover 10,000 x 50,000; multiview and quality
 1,000 x 20,000 and 10,000 x 50,000) with ``solve(..., engine="auto")`` and prints one line each,
 on the structured sphere or on comet-67p-bunker visibility matrices (computed once, then cached;
-quality on a graded version of the instance).
+quality on a graded version of the instance): ``--source bunker`` counts the lit side only, as the
+issue's matrices do, ``--source bunker-all`` every surface point (a near-flat case for multiview).
 
 OpenBLAS threading degrades badly when the cores are oversubscribed (other processes running);
 ``--blas-threads`` sets ``OPENBLAS_NUM_THREADS`` before numpy is imported. The load average is
@@ -52,9 +53,13 @@ MODE_RUNS: list[tuple[str, int, int, float, str]] = [
 ]
 
 
-def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int):
+def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int, lit: bool = True):
     """A comet-67p-bunker visibility matrix (cached): chaotic candidates aimed at the comet.
 
+    ``lit=True`` (the issue's matrices: "bilobed comet in the corridor, lit side only") counts only
+    points the instance's lamp lights (``require_light``); ``lit=False`` counts every surface point,
+    which makes ``multiview`` nearly flat (of three cameras seeing a convex body from afar, about
+    half the surface is seen by at least two, whichever three they are).
     For ``quality`` the instance is switched to graded quality (resolution x incidence, max 80 deg),
     since the built-in's binary matrix would make it plain max coverage.
     """
@@ -67,8 +72,10 @@ def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int):
     from camplace.visibility.cache import default_cache_dir
 
     inst = builtin("comet-67p-bunker")
+    quality = dataclasses.replace(inst.quality, require_light=lit)
     if mode == "quality":
-        inst = dataclasses.replace(inst, quality=dataclasses.replace(inst.quality, mode="graded", max_incidence_deg=80.0))
+        quality = dataclasses.replace(quality, mode="graded", max_incidence_deg=80.0)
+    inst = dataclasses.replace(inst, quality=quality)
     pts = compute_points(inst, m_pts, seed)
     cands = make_candidates("chaotic", n_cams, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=stage_seeds(seed)[0])
     vis = compute_visibility(inst, cands, pts, cache_dir=default_cache_dir())
@@ -77,12 +84,13 @@ def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int):
 
 def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere") -> None:
     """The issue-8 mode benchmarks (one line per run) on the 'sphere' structured instance or on
-    comet-67p-bunker matrices (``source="bunker"``)."""
+    comet-67p-bunker matrices (``source="bunker"``: lit side only; ``"bunker-all"``: every surface
+    point)."""
     for mode, n_cams, m_pts, limit, target in MODE_RUNS:
         if only and mode not in only:
             continue
-        if source == "bunker":
-            matrix, weights = builtin_matrix(mode, n_cams, m_pts, seed)
+        if source.startswith("bunker"):
+            matrix, weights = builtin_matrix(mode, n_cams, m_pts, seed, lit=source == "bunker")
         else:
             matrix, weights = structured_instance(m_pts, n_cams, seed=seed)
         t = time.perf_counter()
@@ -101,7 +109,7 @@ def run_quality_engines(seed: int, k: int) -> None:
     from camplace.solver.quality_tree import solve_quality_tree
 
     for n_cams, m_pts in [(1000, 20000), (3000, 20000)]:
-        matrix, weights = builtin_matrix("quality", n_cams, m_pts, seed)
+        matrix, weights = builtin_matrix("quality", n_cams, m_pts, seed, lit=False)  # every surface point
         out = {}
         for name, fn in (("min-gram", solve_quality_exact), ("tree", solve_quality_tree)):
             if name == "min-gram" and n_cams > QUALITY_EXACT_MAX_N:
@@ -145,8 +153,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--modes", nargs="*", default=None, help="run the issue-8 mode benchmarks (optionally only these modes) instead")
     ap.add_argument("--quality-engines", action="store_true",
                     help="compare the two exact quality engines on graded comet-67p-bunker matrices instead")
-    ap.add_argument("--source", choices=["sphere", "bunker"], default="sphere",
-                    help="--modes matrices: the structured sphere, or comet-67p-bunker visibility (cached)")
+    ap.add_argument("--source", choices=["sphere", "bunker", "bunker-all"], default="sphere",
+                    help="--modes matrices: the structured sphere, or comet-67p-bunker visibility (cached) of "
+                         "its lit side only (bunker, as in the issue) or of every surface point (bunker-all)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     print(
