@@ -42,6 +42,12 @@ fits in memory, the bitset engine on the level rows while that expansion stays s
 first checks that its working memory fits in :func:`camplace.solver._common.memory_budget_bytes`;
 if not, ``auto`` falls back to the general model (``stats["memory_fallback"]`` says why) and an
 explicit ``exact`` is a one-line error.
+
+For ``multiview`` with fewer cameras (new and fixed) than ``2 * views``, an answer the engine could
+not prove gets its bound tightened by :func:`camplace.solver.pair_cap.opposite_pair_bound` (pairs of
+points no allowed camera observes together, of which at most one can count); the engines then run
+with 95 % of the time limit (all but 2 s at most), the bound with the rest
+(``stats["opposite_pairs"]``). The bitset engine uses the same pairs inside its search.
 """
 
 from __future__ import annotations
@@ -61,6 +67,7 @@ from camplace.solver._model import LinearModel, solve_model
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
 from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
 from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
+from camplace.solver.pair_cap import opposite_pair_bound
 from camplace.solver.quality_exact import (
     QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, min_gram_cost, quality_exact_bytes, solve_quality_exact,
 )
@@ -78,6 +85,8 @@ _ENGINES = ("auto", "exact", "mip", "cpsat")
 _STEREO_AUTO_MAX_N = 4000  # the pair-Gram stereo engine (views=2, k<=3) up to this many candidates, bitsets above
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 _OPT_TOL = 1e-9
+_CAP_SHARE = 0.05  # multiview: share of the time limit kept for the opposite-pairs bound ...
+_CAP_MAX_S = 2.0  # ... at most this many seconds (a matching stopped early is still a valid bound)
 # quality portfolio: the tree engine's share of the time when the min-Gram engine could follow
 _TREE_FIRST_S = 30.0  # without a time limit
 _TREE_FIRST_SHARE = 0.25
@@ -467,7 +476,17 @@ def solve(
                 f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
                 "(lower k, or forbid/fix fewer cameras)"
             )
-        ctx = _cover_modes(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, engine, time_limit_s, t0)
+        # multiview with fewer cameras than 2 x views: opposite points cap the bound when the search
+        # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
+        cap = mode == "multiview" and k + len(fixed_t) < 2 * views
+        inner = time_limit_s
+        if cap and time_limit_s is not None:
+            inner = time_limit_s - min(_CAP_SHARE * time_limit_s, _CAP_MAX_S)
+        ctx = _cover_modes(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, engine, inner, t0)
+        searched = ctx[5].get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
+        if cap and ctx[0] is not None and ctx[1] != "optimal" and not searched:
+            ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
+                                     _remaining(t0, time_limit_s))
 
     selected, status, objective, bound, name, stats = ctx
     minimize = mode == "setcover"
@@ -494,6 +513,20 @@ def solve(
         selected=sel, status=status, objective=float(objective), bound=float(bound), gap=float(gap),
         engine=name, time_s=elapsed, stats=jsonable(stats),
     )
+
+
+def _opposite_pair_cap(
+    ctx: tuple[Any, str, float, float, str, dict[str, Any]], q: sp.csr_matrix, w: np.ndarray, views: int,
+    cameras: int, allowed: np.ndarray, time_limit_s: float | None,
+) -> tuple[Any, str, float, float, str, dict[str, Any]]:
+    """Tighten an unproven multiview bound with :func:`~camplace.solver.pair_cap.opposite_pair_bound`."""
+    selected, status, objective, bound, name, stats = ctx
+    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, time_limit_s=time_limit_s)
+    cap_stats["bound_before"] = float(bound)
+    stats["opposite_pairs"] = cap_stats
+    if cap < bound:
+        bound = cap
+    return selected, status, objective, bound, name, stats
 
 
 def _remaining(t0: float, time_limit_s: float | None) -> float | None:
