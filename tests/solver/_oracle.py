@@ -159,3 +159,24 @@ def brute_force_setcover(dense, w, costs, fraction=1.0, *, fixed=(), forbidden=(
                 c = float(sum(costs[j] for j in new))
                 best = c if best is None or c < best else best
     return best
+
+
+class ExpiringDeadline:
+    """A stand-in for ``Deadline`` that expires after ``ExpiringDeadline.checks`` checks
+    (deterministic interruption of an engine's search)."""
+
+    checks = 0
+    limit = None
+
+    def __init__(self, time_limit_s) -> None:
+        self.left = ExpiringDeadline.checks
+
+    def expired(self) -> bool:
+        self.left -= 1
+        return self.left < 0
+
+    def elapsed(self) -> float:
+        return 0.0
+
+    def remaining(self) -> float:
+        return 0.0 if self.left < 0 else 1.0

@@ -16,7 +16,7 @@ from camplace.solver.bitset_exact import solve_bitset
 from camplace.solver.modes import solve
 from camplace.solver.pair_cap import opposite_pair_bound
 from camplace.solver.presolve import presolve
-from tests.solver._oracle import mode_objective, small_instances, tolerance
+from tests.solver._oracle import ExpiringDeadline, mode_objective, small_instances, tolerance
 
 
 def circle(n_points: int, n_cams: int) -> np.ndarray:
@@ -150,23 +150,6 @@ def engine_instances(draw):
     return dense, w, min(k, 2 * views - 1), views
 
 
-class _Expiring:
-    """A deadline that expires after a fixed number of checks (deterministic interruption)."""
-
-    checks = 0
-    limit = None
-
-    def __init__(self, time_limit_s) -> None:
-        self.left = _Expiring.checks
-
-    def expired(self) -> bool:
-        self.left -= 1
-        return self.left < 0
-
-    def elapsed(self) -> float:
-        return 0.0
-
-
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(inst=engine_instances(), chunk=st.integers(1, 3), checks=st.sampled_from([None, 0, 1, 2, 5]),
        incumbent=st.booleans())
@@ -184,8 +167,8 @@ def test_bitset_opposite_pairs_search_equals_enumeration(inst, chunk, checks, in
         mp.setattr(bitset_mod, "_STARTS", 0)
         checks = None
     if checks is not None:
-        mp.setattr(bitset_mod, "Deadline", _Expiring)
-        _Expiring.checks = checks
+        mp.setattr(bitset_mod, "Deadline", ExpiringDeadline)
+        ExpiringDeadline.checks = checks
     try:
         out = solve_bitset(pre, views=views)
     finally:

@@ -12,7 +12,7 @@ import camplace.solver.modes as modes
 import camplace.solver.quality_tree as qt
 from camplace.errors import CamplaceError
 from camplace.solver.modes import solve
-from tests.solver._oracle import brute_force_mode, mode_objective
+from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
@@ -55,25 +55,6 @@ def test_tree_engine_equals_enumeration(data, k) -> None:
     assert abs(out.bound - best) <= tol
 
 
-class _Expiring:
-    """A deadline that expires after a fixed number of checks (deterministic interruption)."""
-
-    checks = 0
-
-    def __init__(self, time_limit_s) -> None:
-        self.left = _Expiring.checks
-
-    def expired(self) -> bool:
-        self.left -= 1
-        return self.left < 0
-
-    def elapsed(self) -> float:
-        return 0.0
-
-    def remaining(self) -> float:
-        return 0.0 if self.left < 0 else 1.0
-
-
 @pytest.mark.parametrize("checks", [0, 1, 3, 8, 12, 20])
 def test_tree_engine_interrupted_keeps_a_valid_bound(monkeypatch, checks) -> None:
     rng = np.random.default_rng(checks)
@@ -81,8 +62,8 @@ def test_tree_engine_interrupted_keeps_a_valid_bound(monkeypatch, checks) -> Non
     w = rng.uniform(0.0, 1.0, 60)
     best = brute_force_mode(dense, w, 3, "quality")
     monkeypatch.setattr(qt, "_CHUNK", 1)
-    monkeypatch.setattr(qt, "Deadline", _Expiring)
-    _Expiring.checks = checks
+    monkeypatch.setattr(qt, "Deadline", ExpiringDeadline)
+    ExpiringDeadline.checks = checks
     out = qt.solve_quality_tree(sp.csr_matrix(dense), w, 3, time_limit_s=1.0)
     v = _value(dense, w, out.selected)
     assert len(set(out.selected)) == 3

@@ -15,7 +15,8 @@ from camplace.errors import CamplaceError
 from camplace.solver import _bitkernels as _bk
 from camplace.solver.presolve import as_pattern, check_weights
 
-__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline", "memory_budget_bytes", "greedy_swap"]
+__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline", "memory_budget_bytes", "greedy_swap",
+           "best_leaf", "push_chunks"]
 
 MEMORY_FRACTION = 0.6  # an engine's working memory may use this share of the memory available at its start
 _FALLBACK_AVAILABLE = 4 << 30  # assumed when the platform does not say
@@ -266,3 +267,40 @@ def check_engine_and_limit(engine: str, engines, time_limit_s) -> None:
         raise CamplaceError(f"unknown solver engine {engine!r} (choose one of {', '.join(engines)})")
     if time_limit_s is not None and not (float(time_limit_s) > 0.0):
         raise CamplaceError(f"time_limit_s must be > 0 seconds, got {time_limit_s!r}")
+
+
+def best_leaf(children: np.ndarray, value: np.ndarray, leaf: np.ndarray) -> tuple[float, np.ndarray] | None:
+    """The best tuple of leaves among expanded children (value -inf: not made or pruned).
+
+    Parameters
+    ----------
+    children : (F, c, k) int64
+    value : (F, c) float64
+    leaf : (F, c) bool
+
+    Returns
+    -------
+    (value, (k,) tree nodes) or None if no child is a tuple of leaves.
+    """
+    lv = np.where(leaf & np.isfinite(value), value, -np.inf)
+    if lv.size == 0 or not np.isfinite(lv.max()):
+        return None
+    f, q = np.unravel_index(int(np.argmax(lv)), lv.shape)
+    return float(lv[f, q]), children[f, q]
+
+
+def push_chunks(stack_t: list[np.ndarray], stack_b: list[np.ndarray], children: np.ndarray, value: np.ndarray,
+                leaf: np.ndarray, threshold: float, chunk: int) -> int:
+    """Push the children that are not tuples of leaves and whose bound beats ``threshold`` onto a
+    depth-first stack of chunks, in increasing bound order (the most promising is popped first).
+
+    Returns the number of tuples pushed.
+    """
+    keep = np.isfinite(value) & ~leaf & (value > threshold)
+    ch, cv = children[keep], value[keep]
+    idx = np.argsort(cv, kind="stable")
+    ch, cv = ch[idx], cv[idx]
+    for c0 in range(0, cv.shape[0], chunk):
+        stack_t.append(ch[c0 : c0 + chunk])
+        stack_b.append(cv[c0 : c0 + chunk])
+    return int(cv.shape[0])

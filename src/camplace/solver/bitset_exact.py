@@ -56,7 +56,7 @@ from numba import prange
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver import _bitkernels as K
-from camplace.solver._common import Deadline, EngineOutcome, greedy_swap, memory_budget_bytes
+from camplace.solver._common import Deadline, EngineOutcome, best_leaf, greedy_swap, memory_budget_bytes, push_chunks
 from camplace.solver.pair_cap import match_opposite
 from camplace.solver.presolve import Presolved
 
@@ -259,20 +259,11 @@ def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.
         with ctrl_c_deferred():
             children, value, leaf, n_made = _expand_pairs(tup, lo, hi, left, right, levels, views, lw, planes, mask,
                                                           total, st.best, st.margin, colmax, pw)
-        made = np.isfinite(value)
         evaluated += int(n_made)
-        lv = np.where(leaf & made, value, -math.inf)
-        if lv.size and lv.max() > st.best:
-            f, q = np.unravel_index(int(np.argmax(lv)), lv.shape)
-            st.offer(float(lv[f, q]), [int(perm[lo[x]]) for x in children[f, q]])
-        keep = made & ~leaf & (value > st.best + st.margin)
-        ch, cv = children[keep], value[keep]
-        idx = np.argsort(cv, kind="stable")
-        ch, cv = ch[idx], cv[idx]
-        for c0 in range(0, cv.shape[0], _CHUNK):
-            stack_t.append(ch[c0 : c0 + _CHUNK])
-            stack_b.append(cv[c0 : c0 + _CHUNK])
-        n_open += cv.shape[0]
+        top = best_leaf(children, value, leaf)
+        if top is not None:
+            st.offer(top[0], [int(perm[lo[x]]) for x in top[1]])
+        n_open += push_chunks(stack_t, stack_b, children, value, leaf, st.best + st.margin, _CHUNK)
         peak = max(peak, n_open)
     stats.update({"search": "opposite pairs", "bound_evaluations": evaluated, "chunks": chunks, "peak_open": int(peak),
                   "words": int(levels.shape[2])})

@@ -39,7 +39,7 @@ from numba import prange
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver import _bitkernels as K
-from camplace.solver._common import Deadline, EngineOutcome, greedy_swap
+from camplace.solver._common import Deadline, EngineOutcome, best_leaf, greedy_swap, push_chunks
 
 __all__ = ["solve_quality_tree", "quality_tree_bytes", "FRONTIER_MAX"]
 
@@ -353,21 +353,13 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
                                             qc.indptr, qc.indices, qc.data, w, order)
         made = np.isfinite(value)
         evaluated += int(made.sum())
-        lv = np.where(leaf & made, value, -math.inf)
         exact_evals += int((leaf & made).sum())
-        if lv.size and lv.max() > best:
-            f, q = np.unravel_index(int(np.argmax(lv)), lv.shape)
-            best = float(lv[f, q])
-            best_set = tuple(sorted(int(order[lo[x]]) for x in children[f, q]))
+        top = best_leaf(children, value, leaf)
+        if top is not None and top[0] > best:
+            best = top[0]
+            best_set = tuple(sorted(int(order[lo[x]]) for x in top[1]))
             log.debug("quality tree: incumbent %.9g %s", best, best_set)
-        keep = made & ~leaf & (value > best + margin)
-        ch, cv = children[keep], value[keep]
-        idx = np.argsort(cv, kind="stable")
-        ch, cv = ch[idx], cv[idx]
-        for c0 in range(0, cv.shape[0], _CHUNK):
-            stack_t.append(ch[c0 : c0 + _CHUNK])
-            stack_b.append(cv[c0 : c0 + _CHUNK])
-        n_open += cv.shape[0]
+        n_open += push_chunks(stack_t, stack_b, children, value, leaf, best + margin, _CHUNK)
         peak = max(peak, n_open)
     bound = max(best, open_bound) if status == "feasible" else best
     if bound <= best + margin:
