@@ -580,6 +580,24 @@ def split_tuple(cur, lo, hi, left, right, out):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
+def child_bound(levels, child, m, w, planes, last_mask, total, beat, colmax, acc, pw):  # pragma: no cover - compiled
+    """Bound of a node tuple: ``total - shortfall``, also at most ``sum_t colmax[v_t] / m`` when
+    ``colmax`` is given (a counted row is observed by ``m`` chosen columns). Returns ``-inf`` as
+    soon as it is clear the bound cannot exceed ``beat`` (the column cap is checked first)."""
+    k = child.shape[0]
+    wcap = np.inf
+    if colmax.shape[0] > 0:
+        wcap = 0.0
+        for j in range(k):
+            wcap += colmax[child[j]]
+        wcap /= m
+        if wcap <= beat:
+            return -np.inf
+    b = min(wcap, total - shortfall(levels, child, k, m, w, planes, last_mask, total - beat, acc, pw))
+    return b if b > beat else -np.inf
+
+
+@numba.njit(**_JIT)
 def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, margin, stack, stack_bound, sp, best, best_set,
                  budget, colmax):  # pragma: no cover - compiled
     """Depth-first search over k-tuples of tree nodes with the union bound (resumable).
@@ -623,16 +641,7 @@ def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, ma
         for c in range(n_kids):
             child = kids[c]
             evaluated += 1
-            wcap = np.inf
-            if colmax.shape[0] > 0:
-                wcap = 0.0
-                for j in range(k):
-                    wcap += colmax[child[j]]
-                wcap /= m
-                if wcap <= best + margin:
-                    continue
-            need = total - best - margin
-            bnd = min(wcap, total - shortfall(levels, child, k, m, w, planes, last_mask, need, acc, 0))
+            bnd = child_bound(levels, child, m, w, planes, last_mask, total, best + margin, colmax, acc, 0)
             if bnd <= best + margin:
                 continue
             if all_leaves(child, lo, hi):

@@ -169,15 +169,8 @@ def _expand_pairs(front, lo, hi, left, right, levels, views, w, planes, mask, to
         made[f] = n_kids
         for q in range(n_kids):
             child = children[f, q]
-            wcap = 0.0
-            for j in range(k):
-                wcap += colmax[child[j]]
-            wcap /= views
-            if wcap <= best + margin:
-                continue
-            need = total - best - margin
-            b = min(wcap, total - K.shortfall(levels, child, k, views, w, planes, mask, need, acc, pw))
-            if b <= best + margin:
+            b = K.child_bound(levels, child, views, w, planes, mask, total, best + margin, colmax, acc, pw)
+            if b == -np.inf:
                 continue
             value[f, q] = b
             leaf[f, q] = K.all_leaves(child, lo, hi)
