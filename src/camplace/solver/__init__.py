@@ -49,7 +49,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-ENGINES: tuple[str, ...] = ("auto", "exact", "mip", "cpsat")
+from camplace.names import ENGINES  # noqa: E402  (one list of the names)
 
 _ENGINE_FUNCS: dict[str, Callable[..., EngineOutcome]] = {
     "exact": solve_bitset,
