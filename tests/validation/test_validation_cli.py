@@ -37,9 +37,9 @@ def small_instance(frames: int = 1, extra: dict | None = None):
     return parse_instance(data, "test", Path.cwd())
 
 
-def make_run(outdir: Path, frames: int = 1, chosen=(0, 1, 2), seed: int = 5) -> Path:
+def make_run(outdir: Path, frames: int = 1, chosen=(0, 1, 2), seed: int = 5, extra: dict | None = None) -> Path:
     """instance.toml, candidates.csv and solution.json as 'camplace run' writes them (cameras chosen by hand)."""
-    inst = small_instance(frames)
+    inst = small_instance(frames, extra)
     outdir.mkdir(parents=True, exist_ok=True)
     save_instance(inst, outdir / "instance.toml", mesh_files=True)
     aim = inst.target_centre(0)
@@ -104,9 +104,9 @@ def test_validate_emulated_perfect_camera_agrees_with_prediction(cli, run_dir, t
     assert len(rep["cameras"]) == 3 and rep["settings"]["physical"]["sigma_position_m"] == 0.0
     for c in rep["cameras"]:
         assert c["pose_error_m"] == 0.0
-        assert c["predicted_intensity"] == pytest.approx(c["detected_intensity"], abs=0.02)
-        # a perfect camera: every detected pixel is target or the target's cast shadow
-        assert c["detected_px"] >= 0.9 * c["predicted_px"]
+        # a perfect camera detects what the detection on the render predicts (target and cast shadow alike)
+        assert c["detected_px"] == c["predicted_px"] and c["iou"] == 1.0 and c["inside_fraction"] == 1.0
+        assert c["predicted_intensity"] == c["detected_intensity"]
     rows = list(csv.DictReader((out / "photos" / "manifest.csv").read_text().splitlines()))
     assert [r["camera"] for r in rows] == [c["name"] for c in rep["cameras"]]
     # the emulated photos can be validated again as real photographs (same numbers)
@@ -115,6 +115,68 @@ def test_validate_emulated_perfect_camera_agrees_with_prediction(cli, run_dir, t
     rep2 = json.loads((out2 / "validation.json").read_text())
     for a, b in zip(rep["cameras"], rep2["cameras"]):
         assert (a["iou"], a["detected_px"]) == (b["iou"], b["detected_px"])
+
+
+def _median_over_views(cams: list[dict], key: str, min_target_px: int = 500) -> float:
+    vals = [c[key] for c in cams if c["target_px"] >= min_target_px]
+    assert vals and all(v is not None for v in vals)
+    return float(np.median(vals))
+
+
+def test_validate_perfect_camera_default_settings_like_for_like(cli, run_dir, tmp_path, capsys) -> None:
+    """Default detection (Otsu, 5 px morphology), no [physical]: the photos' detections equal the predictions."""
+    out = tmp_path / "val"
+    assert cli(["validate", str(run_dir), "--random-systems", "3", "-o", str(out)]) == 0
+    rep = json.loads((out / "validation.json").read_text())
+    cams = rep["cameras"]
+    big = [c for c in cams if c["target_px"] >= 500]
+    assert len(cams) == 12 and len(big) >= 5
+    for c in big:
+        assert c["iou"] >= 0.98 and c["inside_fraction"] >= 0.98, c["name"]
+    assert _median_over_views(cams, "iou") >= 0.98 and _median_over_views(cams, "inside_fraction") >= 0.98
+    # the second figure: against the target mask alone (here Otsu keeps the cast shadow and drops dark faces)
+    inst = small_instance()
+    cam = CameraSet.from_solution(Solution.load(run_dir)).cameras[0]
+    target = render_view(cam, scene_for_frame(inst, 0)).target_mask
+    from camplace.validation.detect import detect_target
+
+    det = detect_target(read_image(out / "photos" / f"{cam.name}.png"), read_image(out / "photos" / f"{cam.name}.background.png"))
+    c0 = cams[0]
+    assert c0["name"] == cam.name and c0["target_px"] == int(target.sum())
+    inter = int(np.count_nonzero(target & det.mask))
+    assert c0["iou_target"] == pytest.approx(inter / np.count_nonzero(target | det.mask))
+    assert c0["inside_fraction_target"] == pytest.approx(inter / det.area_px)
+    assert c0["perfect_iou_target"] == pytest.approx(c0["iou_target"])
+    # the summary block: medians over the views with >= 500 target px, nothing lost against a perfect camera
+    g = rep["agreement"]
+    assert g["n_views"] == len(big) and g["min_target_px"] == 500
+    assert g["like_for_like"]["iou_median"] == pytest.approx(_median_over_views(cams, "iou"))
+    assert g["like_for_like"]["iou_drop"] == 0.0 and g["like_for_like"]["inside_fraction_drop"] == 0.0
+    assert g["target_mask"]["iou_median"] == pytest.approx(_median_over_views(cams, "iou_target"))
+    assert g["target_mask"]["iou_drop"] == pytest.approx(0.0, abs=1e-12)
+    text = capsys.readouterr().out
+    assert "against the prediction" in text and "against the target mask" in text
+
+
+def test_validate_placement_error_lowers_the_figures(cli, tmp_path, capsys) -> None:
+    """The instance's [physical] placement error: both like-for-like medians fall, more for a larger error, and the report says by how much."""
+    medians = []
+    for level, (sp, sr) in enumerate([(0.0, 0.0), (0.02, 0.5), (0.1, 3.0)]):
+        run = make_run(tmp_path / f"run{level}", extra={"physical": {"sigma_position_m": sp, "sigma_rotation_deg": sr}})
+        out = tmp_path / f"val{level}"
+        assert cli(["validate", str(run), "--random-systems", "3", "-o", str(out)]) == 0
+        rep = json.loads((out / "validation.json").read_text())
+        assert rep["settings"]["physical"]["sigma_position_m"] == sp
+        cams = rep["cameras"]
+        iou, inside = _median_over_views(cams, "iou"), _median_over_views(cams, "inside_fraction")
+        g = rep["agreement"]["like_for_like"]
+        assert g["iou_median"] == pytest.approx(iou) and g["inside_fraction_median"] == pytest.approx(inside)
+        assert g["iou_drop"] == pytest.approx(1.0 - iou) and g["inside_fraction_drop"] == pytest.approx(1.0 - inside)
+        assert f"drop {1.0 - iou:.3f} / {1.0 - inside:.3f}" in capsys.readouterr().out
+        medians.append((iou, inside))
+    assert medians[0] == (1.0, 1.0)
+    assert medians[0][0] > medians[1][0] + 0.05 > medians[2][0] + 0.1, medians
+    assert medians[0][1] > medians[1][1] + 0.05 > medians[2][1] + 0.1, medians
 
 
 def test_validate_with_physical_errors_and_several_systems(cli, run_dir, tmp_path) -> None:

@@ -11,6 +11,7 @@ from scipy.stats import norm
 from camplace.validation.compare import (
     ValidationReport,
     across_systems,
+    agreement,
     difference_matrix,
     heatmap_image,
     kde_image,
@@ -18,6 +19,7 @@ from camplace.validation.compare import (
     mask_metrics,
     rank_correlation,
     system_scores,
+    target_metrics,
 )
 
 
@@ -30,6 +32,40 @@ def test_mask_metrics_by_hand() -> None:
     assert m == {"predicted_px": 20, "detected_px": 20, "intersection_px": 10, "iou": 10 / 30, "inside_fraction": 0.5, "area_ratio": 1.0}
     empty = mask_metrics(np.zeros((3, 3), bool), np.zeros((3, 3), bool))
     assert empty["iou"] is None and empty["inside_fraction"] is None and empty["area_ratio"] is None
+
+
+def test_target_metrics_by_hand() -> None:
+    t = np.zeros((10, 10), bool)
+    d = np.zeros((10, 10), bool)
+    e = np.zeros((10, 10), bool)
+    t[0:4, 0:5] = True  # 20 px target
+    d[0:4, 0:10] = True  # 40 px detected (target and its shadow), 20 shared
+    e[0:4, 0:8] = True  # 32 px expected, 20 shared
+    m = target_metrics(t, d, e)
+    assert m == {
+        "target_px": 20, "target_intersection_px": 20, "iou_target": 0.5, "inside_fraction_target": 0.5, "area_ratio_target": 2.0,
+        "perfect_iou_target": 20 / 32, "perfect_inside_fraction_target": 20 / 32,
+    }
+
+
+def test_agreement_by_hand() -> None:
+    def rec(target_px, iou, inside, predicted_px=100, iou_t=0.5, inside_t=0.6, p_iou_t=0.7, p_inside_t=0.8):
+        return {"target_px": target_px, "predicted_px": predicted_px, "iou": iou, "inside_fraction": inside, "iou_target": iou_t,
+                "inside_fraction_target": inside_t, "perfect_iou_target": p_iou_t, "perfect_inside_fraction_target": p_inside_t}
+
+    recs = [rec(600, 0.9, 0.95), rec(500, 0.7, 0.85, iou_t=0.3), rec(2000, 0.8, 1.0, iou_t=0.4, p_iou_t=0.9), rec(499, 0.0, 0.0), rec(800, None, None, 0, 0.0, None, 0.0, None)]
+    g = agreement(recs)
+    assert g["n_views"] == 4 and g["min_target_px"] == 500  # the 499 px view is left out
+    lfl, tm = g["like_for_like"], g["target_mask"]
+    assert lfl["iou_median"] == pytest.approx(0.8) and lfl["iou_min"] == pytest.approx(0.7) and lfl["n_undefined"] == 1
+    assert lfl["inside_fraction_median"] == pytest.approx(0.95) and lfl["inside_fraction_min"] == pytest.approx(0.85)
+    assert lfl["perfect_iou_median"] == 1.0 and lfl["iou_drop"] == pytest.approx(0.2) and lfl["inside_fraction_drop"] == pytest.approx(0.05)
+    # nothing predicted nor detected on the 800 px view: IoU against the target 0, inside undefined
+    assert tm["iou_median"] == pytest.approx(0.35) and tm["iou_min"] == 0.0 and tm["n_undefined"] == 0
+    assert tm["perfect_iou_median"] == pytest.approx(0.7) and tm["iou_drop"] == pytest.approx(0.35)
+    assert tm["inside_fraction_median"] == pytest.approx(0.6) and tm["inside_fraction_drop"] == pytest.approx(0.2)
+    none = agreement(recs[3:4])
+    assert none["n_views"] == 0 and none["like_for_like"]["iou_median"] is None and none["like_for_like"]["iou_drop"] is None
 
 
 def test_kde_overlap_of_two_normals() -> None:
@@ -79,8 +115,9 @@ def test_difference_matrix_and_figures() -> None:
 
 
 def test_report_save_load(tmp_path) -> None:
-    r = ValidationReport(cameras=[{"name": "a", "iou": float("nan"), "x": np.float32(0.5)}], across={"kde_overlap_pct": 12.5}, figures=["f.png"])
+    r = ValidationReport(cameras=[{"name": "a", "iou": float("nan"), "x": np.float32(0.5)}], across={"kde_overlap_pct": 12.5}, figures=["f.png"],
+                         agreement={"n_views": 1})
     r.save(tmp_path)
     back = ValidationReport.load(tmp_path)
-    assert back.cameras == [{"name": "a", "iou": None, "x": 0.5}]
+    assert back.cameras == [{"name": "a", "iou": None, "x": 0.5}] and back.agreement == {"n_views": 1}
     assert back.across == {"kde_overlap_pct": 12.5} and back.figures == ["f.png"] and back.systems == []

@@ -38,6 +38,7 @@ _LAZY = {
     "Detection": "camplace.validation.detect",
     "DetectionSettings": "camplace.validation.detect",
     "detect_target": "camplace.validation.detect",
+    "expected_detection": "camplace.validation.detect",
     # comparison
     "ValidationReport": "camplace.validation.compare",
     "mask_metrics": "camplace.validation.compare",

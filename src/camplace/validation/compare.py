@@ -1,14 +1,25 @@
 """Prediction against photographs: per camera, per system and across systems (``validation.json``).
 
-Per camera (predicted mask = render's target pixels; detected mask = :func:`detect_target` on the photo):
+Per camera, the detected mask D is :func:`detect_target` on the photo and two masks are predicted:
 
-* ``iou`` = |P & D| / |P | D|; ``inside_fraction`` = |P & D| / |D| (share of detected pixels the
-  prediction explains); ``area_ratio`` = |D| / |P|;
-* ``intensity_difference`` = mean photo gray level over D - mean render level over P ([0, 1] units).
+* the **prediction** P (like for like): the same detection run on the render, against the
+  background render when the photo has a background photograph (:func:`expected_detection`) - what
+  a perfect camera would detect, cast shadow, unlit faces and threshold splits included. A perfect
+  camera scores ``iou = inside_fraction = 1``;
+* the **target mask** T: the render's target pixels (the target alone, no shadow), a second figure.
+
+``iou`` = |P & D| / |P | D|; ``inside_fraction`` = |P & D| / |D| (share of detected pixels the
+prediction explains); ``area_ratio`` = |D| / |P|; the same against T are ``iou_target``,
+``inside_fraction_target``, ``area_ratio_target``, and ``perfect_iou_target`` /
+``perfect_inside_fraction_target`` are what a perfect camera scores against T (P in place of D).
+``intensity_difference`` = mean photo gray level over D - mean render level over P ([0, 1] units).
+:func:`agreement` gathers their medians and minima over the views where the target covers at least
+``min_target_px`` pixels, with the drop from a perfect camera's values.
 
 Per system (the cameras of one solution), a score from the prediction and one from the photos:
-``score = sum over its cameras of target pixels / image pixels`` (the coverage the system gets of
-the target, in images). Across systems (thesis section 7.3) the scores are normalised by their
+``score = sum over its cameras of predicted (detected) pixels / image pixels`` (the coverage the
+system gets of the target, in images; ``score_target`` from the target masks). Across systems
+(thesis section 7.3) the scores are normalised by their
 maximum, then compared by the overlap of their Gaussian KDEs (``integral of min(f, g)``, percent),
 the mean difference (photo - predicted) and Spearman's rank correlation. The camera x camera
 heatmaps hold ``|value_predicted[i] - value_photo[j]|`` for the mean intensity and the coverage
@@ -29,6 +40,9 @@ from camplace.errors import CamplaceError
 
 __all__ = [
     "mask_metrics",
+    "target_metrics",
+    "agreement",
+    "MIN_TARGET_PX",
     "kde_overlap",
     "rank_correlation",
     "system_scores",
@@ -69,6 +83,91 @@ def mask_metrics(predicted: np.ndarray, detected: np.ndarray) -> dict[str, Any]:
         "inside_fraction": inter / nd if nd else None,
         "area_ratio": nd / np_ if np_ else None,
     }
+
+
+def target_metrics(target: np.ndarray, detected: np.ndarray, expected: np.ndarray) -> dict[str, Any]:
+    """The second figure: the detected mask, and a perfect camera's (``expected``), against the target mask.
+
+    Parameters
+    ----------
+    target : (h, w) bool
+        The ray-cast target mask (the target alone).
+    detected : (h, w) bool
+        Detection in the photograph.
+    expected : (h, w) bool
+        Detection in the render (:func:`camplace.validation.detect.expected_detection`).
+
+    Returns
+    -------
+    dict
+        target_px, target_intersection_px, iou_target, inside_fraction_target, area_ratio_target,
+        perfect_iou_target, perfect_inside_fraction_target (None when a denominator is 0).
+    """
+    m = mask_metrics(target, detected)
+    e = mask_metrics(target, expected)
+    return {
+        "target_px": m["predicted_px"],
+        "target_intersection_px": m["intersection_px"],
+        "iou_target": m["iou"],
+        "inside_fraction_target": m["inside_fraction"],
+        "area_ratio_target": m["area_ratio"],
+        "perfect_iou_target": e["iou"],
+        "perfect_inside_fraction_target": e["inside_fraction"],
+    }
+
+
+MIN_TARGET_PX = 500
+
+
+def _median_min(values: Sequence[float | None]) -> tuple[float | None, float | None, int]:
+    v = [float(x) for x in values if x is not None]
+    if not v:
+        return None, None, len(values)
+    return float(np.median(v)), float(min(v)), len(values) - len(v)
+
+
+def agreement(cameras: Sequence[dict[str, Any]], min_target_px: int = MIN_TARGET_PX) -> dict[str, Any]:
+    """Medians and minima of both figures over the views where the target covers >= ``min_target_px`` pixels.
+
+    Parameters
+    ----------
+    cameras : list of dict
+        Per-camera records (``iou``, ``inside_fraction``, ``predicted_px``, ``target_px``,
+        ``iou_target``, ``inside_fraction_target``, ``perfect_iou_target``, ``perfect_inside_fraction_target``).
+    min_target_px : int
+
+    Returns
+    -------
+    dict
+        ``min_target_px``, ``n_views``, and per figure (``like_for_like``: against the prediction;
+        ``target_mask``: against the target mask) ``{iou,inside_fraction}_{median,min}``, a perfect
+        camera's medians ``perfect_{iou,inside_fraction}_median`` (1 like for like, by construction,
+        where the prediction is not empty), the drops ``{iou,inside_fraction}_drop`` (perfect median
+        - median) and ``n_undefined`` (views where IoU is undefined: nothing predicted nor detected).
+    """
+    views = [c for c in cameras if (c.get("target_px") if c.get("target_px") is not None else c.get("predicted_px", 0)) >= min_target_px]
+    out: dict[str, Any] = {"min_target_px": int(min_target_px), "n_views": len(views)}
+    figures = {
+        "like_for_like": ("iou", "inside_fraction", lambda c: 1.0 if c.get("predicted_px") else None, lambda c: 1.0 if c.get("predicted_px") else None),
+        "target_mask": ("iou_target", "inside_fraction_target", lambda c: c.get("perfect_iou_target"), lambda c: c.get("perfect_inside_fraction_target")),
+    }
+    for fig, (k_iou, k_in, perfect_iou, perfect_in) in figures.items():
+        iou_med, iou_min, undefined = _median_min([c.get(k_iou) for c in views])
+        in_med, in_min, _ = _median_min([c.get(k_in) for c in views])
+        p_iou, _, _ = _median_min([perfect_iou(c) for c in views])
+        p_in, _, _ = _median_min([perfect_in(c) for c in views])
+        out[fig] = {
+            "iou_median": iou_med,
+            "iou_min": iou_min,
+            "inside_fraction_median": in_med,
+            "inside_fraction_min": in_min,
+            "perfect_iou_median": p_iou,
+            "perfect_inside_fraction_median": p_in,
+            "iou_drop": None if iou_med is None or p_iou is None else p_iou - iou_med,
+            "inside_fraction_drop": None if in_med is None or p_in is None else p_in - in_med,
+            "n_undefined": undefined,
+        }
+    return out
 
 
 _trapezoid = getattr(np, "trapezoid", None) or np.trapz  # numpy < 2 has only trapz
@@ -119,7 +218,8 @@ def system_scores(cameras: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     Parameters
     ----------
     cameras : list of dict
-        Per-camera records with ``system``, ``name``, ``width``, ``height``, ``predicted_px``, ``detected_px``.
+        Per-camera records with ``system``, ``name``, ``width``, ``height``, ``predicted_px``, ``detected_px``
+        (and ``target_px``: then ``score_target`` too).
     """
     systems: dict[int, list[dict]] = {}
     for rec in cameras:
@@ -129,7 +229,10 @@ def system_scores(cameras: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         recs = systems[s]
         pred = sum(r["predicted_px"] / (r["width"] * r["height"]) for r in recs)
         phot = sum(r["detected_px"] / (r["width"] * r["height"]) for r in recs if r.get("detected_px") is not None)
-        out.append({"system": s, "cameras": [r["name"] for r in recs], "score_predicted": pred, "score_photo": phot})
+        entry = {"system": s, "cameras": [r["name"] for r in recs], "score_predicted": pred, "score_photo": phot}
+        if all(r.get("target_px") is not None for r in recs):
+            entry["score_target"] = sum(r["target_px"] / (r["width"] * r["height"]) for r in recs)
+        out.append(entry)
     return out
 
 
@@ -194,11 +297,14 @@ class ValidationReport:
     Attributes
     ----------
     cameras : list of dict
-        Per camera: name, system, photo, background, width, height, predicted_px, detected_px,
-        intersection_px, iou, inside_fraction, area_ratio, predicted_intensity, detected_intensity,
-        intensity_difference, bbox_xywh, threshold, and (emulated photos) pose_error_m, pose_error_deg.
+        Per camera: name, system, photo, background, width, height; against the prediction (Algorithm 3
+        on the render): predicted_px, detected_px, intersection_px, iou, inside_fraction, area_ratio;
+        against the target mask: target_px, target_intersection_px, iou_target, inside_fraction_target,
+        area_ratio_target, perfect_iou_target, perfect_inside_fraction_target; predicted_intensity,
+        target_intensity, detected_intensity, intensity_difference, bbox_xywh, threshold, and (emulated
+        photos) pose_error_m, pose_error_deg.
     systems : list of dict
-        Per system: cameras, score_predicted, score_photo, normalised_predicted, normalised_photo.
+        Per system: cameras, score_predicted, score_photo, score_target, normalised_predicted, normalised_photo.
     across : dict
         n_systems, kde_overlap_pct, mean_difference, spearman_rho, spearman_p, best systems, notes.
     heatmaps : dict
@@ -208,6 +314,8 @@ class ValidationReport:
         How it was made: mode, photos source, detection settings, physical camera, seed, frame.
     figures : list of str
         PNG files written beside ``validation.json``.
+    agreement : dict
+        Both figures' medians, minima and drops from a perfect camera (see :func:`agreement`).
     """
 
     cameras: list = field(default_factory=list)
@@ -216,6 +324,7 @@ class ValidationReport:
     heatmaps: dict = field(default_factory=dict)
     settings: dict = field(default_factory=dict)
     figures: list = field(default_factory=list)
+    agreement: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return _clean(
@@ -226,6 +335,7 @@ class ValidationReport:
                 "heatmaps": self.heatmaps,
                 "settings": self.settings,
                 "figures": self.figures,
+                "agreement": self.agreement,
             }
         )
 
@@ -243,11 +353,16 @@ class ValidationReport:
 
     def summary(self) -> str:
         """A few human-readable lines."""
-        lines = []
+
+        def f3(v: Any) -> str:
+            return "-" if v is None else f"{v:.3f}"
+
+        lines = ["  predicted = Algorithm 3 on the render (like for like); target = the ray-cast target mask alone"]
         for c in self.cameras:
-            iou = "-" if c.get("iou") is None else f"{c['iou']:.3f}"
-            inside = "-" if c.get("inside_fraction") is None else f"{c['inside_fraction']:.3f}"
-            lines.append(f"  {c['name']}: detected {c.get('detected_px')} px, predicted {c['predicted_px']} px, inside {inside}, IoU {iou}")
+            line = f"  {c['name']}: detected {c.get('detected_px')} px, predicted {c['predicted_px']} px, inside {f3(c.get('inside_fraction'))}, IoU {f3(c.get('iou'))}"
+            if "target_px" in c:
+                line += f" | target {c['target_px']} px, inside {f3(c.get('inside_fraction_target'))}, IoU {f3(c.get('iou_target'))}"
+            lines.append(line)
         a = self.across
         if a:
             ov = a.get("kde_overlap_pct")
@@ -256,6 +371,17 @@ class ValidationReport:
                 f"  {a.get('n_systems')} system(s): KDE overlap {'-' if ov is None else f'{ov:.1f}%'}, "
                 f"Spearman {'-' if rho is None else f'{rho:.3f}'}, mean difference {a.get('mean_difference')}"
             )
+        g = self.agreement
+        if g:
+            lines.append(f"  {g['n_views']} view(s) where the target covers >= {g['min_target_px']} px:")
+            for fig, what in (("like_for_like", "against the prediction "), ("target_mask", "against the target mask")):
+                d = g.get(fig) or {}
+                lines.append(
+                    f"    {what}: median IoU {f3(d.get('iou_median'))} (min {f3(d.get('iou_min'))}), "
+                    f"median inside {f3(d.get('inside_fraction_median'))} (min {f3(d.get('inside_fraction_min'))}); "
+                    f"a perfect camera {f3(d.get('perfect_iou_median'))} / {f3(d.get('perfect_inside_fraction_median'))}, "
+                    f"drop {f3(d.get('iou_drop'))} / {f3(d.get('inside_fraction_drop'))}"
+                )
         return "\n".join(lines)
 
 
@@ -352,8 +478,9 @@ def kde_image(a: Sequence[float], b: Sequence[float], labels: tuple[str, str] = 
     return img
 
 
-def overlay_image(photo: np.ndarray, predicted: np.ndarray, detected: np.ndarray, bbox_xywh: tuple[int, int, int, int] | None, label: str = "") -> np.ndarray:
-    """The photo with the predicted mask's outline (green), the detected outline (blue) and box (red)."""
+def overlay_image(photo: np.ndarray, predicted: np.ndarray, detected: np.ndarray, bbox_xywh: tuple[int, int, int, int] | None,
+                  label: str = "", target: np.ndarray | None = None) -> np.ndarray:
+    """The photo with outlines: target mask (yellow, when given), prediction (green), detection (blue) and its box (red)."""
     import cv2
 
     from camplace.validation.render import quantise
@@ -362,7 +489,9 @@ def overlay_image(photo: np.ndarray, predicted: np.ndarray, detected: np.ndarray
     if p.dtype != np.uint8:
         p = quantise(p if p.dtype != np.uint16 else p.astype(np.float32) / 65535.0, 8)
     img = cv2.cvtColor(p, cv2.COLOR_GRAY2BGR) if p.ndim == 2 else p[:, :, :3].copy()
-    for mask, colour in ((predicted, (0, 220, 0)), (detected, (255, 120, 0))):
+    outlines = [(target, (0, 220, 255), "target mask")] if target is not None else []
+    outlines += [(predicted, (0, 220, 0), "predicted (render)"), (detected, (255, 120, 0), "detected (photo)")]
+    for mask, colour, _ in outlines:
         cs, _ = cv2.findContours(np.asarray(mask, dtype=np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         cv2.drawContours(img, cs, -1, colour, 1, cv2.LINE_AA)
     if bbox_xywh is not None:
@@ -370,4 +499,7 @@ def overlay_image(photo: np.ndarray, predicted: np.ndarray, detected: np.ndarray
         cv2.rectangle(img, (x, y), (x + w - 1, y + h - 1), (0, 0, 255), 1)
     if label:
         _text(img, label, (6, 18), 0.45, outline=True)
+    if img.shape[1] >= 320 and img.shape[0] >= 120:
+        for i, (_, colour, name) in enumerate(reversed(outlines)):
+            _text(img, name, (6, img.shape[0] - 8 - 16 * i), 0.4, colour, outline=True)
     return img

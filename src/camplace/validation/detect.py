@@ -9,6 +9,12 @@
 6. optionally only the largest connected component is kept;
 7. external contours, their joint bounding box, the coverage area (mask pixels) and the mean
    target intensity (mean gray level of I_t over the mask, in [0, 1] whatever the bit depth).
+
+:func:`expected_detection` runs the same algorithm on a render (and its background render) saved as
+an 8-bit photograph: what a perfect camera would detect. Validation compares the photograph's
+detection with it (like for like: the target's cast shadow, unlit faces that match the background,
+the two-class split of Otsu's threshold and the morphology affect both alike), and reports the
+ray-cast target mask as a second figure.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ import numpy as np
 from camplace._io import write_bytes_atomic
 from camplace.errors import CamplaceError
 
-__all__ = ["Detection", "DetectionSettings", "detect_target", "to_gray01", "parse_threshold"]
+__all__ = ["Detection", "DetectionSettings", "detect_target", "expected_detection", "to_gray01", "parse_threshold"]
 
 
 @dataclass(frozen=True)
@@ -203,3 +209,32 @@ def detect_target(image: np.ndarray, background: np.ndarray | None = None, setti
     bbox = (int(x0), int(y0), int(x1 - x0 + 1), int(y1 - y0 + 1))
     mean_i = float(to_gray01(img)[m].mean())
     return Detection(m, bbox, area, mean_i, float(level), len(contours))
+
+
+def expected_detection(
+    render: np.ndarray, background_render: np.ndarray | None = None, settings: DetectionSettings = DetectionSettings(), bit_depth: int = 8
+) -> Detection:
+    """What :func:`detect_target` finds in a perfect camera's photograph: the render itself.
+
+    The render (and background render) are quantised as the photographs are written (clipped to
+    [0, 1], ``bit_depth`` bits), so an emulated perfect camera's photo gives exactly this detection.
+
+    Parameters
+    ----------
+    render : (h, w) float32
+        Linear radiance of the view with the target (glow included).
+    background_render : (h, w) float32 or None
+        The same view without the target; None when the photograph has no background photograph
+        (then the render is thresholded alone, as the photo is).
+    settings : DetectionSettings
+        The settings used on the photographs.
+    bit_depth : {8, 16}
+
+    Returns
+    -------
+    Detection
+    """
+    from camplace.validation.render import quantise
+
+    bg = None if background_render is None else quantise(background_render, bit_depth)
+    return detect_target(quantise(render, bit_depth), bg, settings)

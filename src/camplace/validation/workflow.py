@@ -44,6 +44,10 @@ __all__ = [
 
 PHOTO_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
+#: what the photographs' detections are compared with (``settings.prediction`` of validation.json)
+PREDICTION = ("Algorithm 3 on the nominal camera's render as an 8-bit photo, against its background render when the photo "
+              "has a background photograph (like for like); second figure (*_target): the ray-cast target mask alone")
+
 
 # --------------------------------------------------------------------------------------------------
 # runs and config tables
@@ -384,33 +388,56 @@ def box_mesh(lo: Sequence[float], hi: Sequence[float]) -> tuple[np.ndarray, np.n
 # comparison
 
 
-def _compare_one(name: str, system: int, cam: CameraView, predicted_mask: np.ndarray, predicted_image: np.ndarray | None,
-                 photo: np.ndarray, background: np.ndarray | None, detection_settings, extra: dict) -> tuple[dict, Any]:
-    from camplace.validation.compare import mask_metrics
-    from camplace.validation.detect import detect_target
+def _compare_one(name: str, system: int, cam: CameraView, render, background_render: np.ndarray | None,
+                 photo: np.ndarray, background: np.ndarray | None, detection_settings, extra: dict,
+                 *, intensity: bool = True) -> tuple[dict, Any, Any]:
+    """One camera's record: the photo's detection against the prediction and against the target mask.
+
+    Parameters
+    ----------
+    render : RenderResult
+        The nominal camera's render with the target.
+    background_render : (h, w) float32 or None
+        Its render without the target; used (as the photo's background is) only when ``background`` is given.
+    photo, background : (h, w[, 3]) float32
+        The photograph and its background photograph (or None).
+    intensity : bool
+        Record the render's intensities (False when the render has no light: cameras mode).
+
+    Returns
+    -------
+    (record dict, Detection in the photo, expected Detection in the render)
+    """
+    from camplace.validation.compare import mask_metrics, target_metrics
+    from camplace.validation.detect import detect_target, expected_detection
 
     if photo.shape[:2] != (cam.height, cam.width):
         raise CamplaceError(f"camera {name}: photo is {photo.shape[1]}x{photo.shape[0]} but the camera is {cam.width}x{cam.height} (check the calibration or the manifest)")
     det = detect_target(photo, background, detection_settings)
+    expected = expected_detection(render.image, background_render if background is not None else None, detection_settings)
     rec: dict[str, Any] = {"name": name, "system": system, "width": cam.width, "height": cam.height}
-    rec.update(mask_metrics(predicted_mask, det.mask))
-    pred_i = None
-    if predicted_image is not None and predicted_mask.any():
-        pred_i = float(np.clip(predicted_image[predicted_mask], 0.0, 1.0).mean())
+    rec.update(mask_metrics(expected.mask, det.mask))
+    rec.update(target_metrics(render.target_mask, det.mask, expected.mask))
+    pred_i = expected.mean_intensity if intensity and expected.area_px else None
+    target_i = None
+    if intensity and render.target_mask.any():
+        target_i = float(np.clip(render.image[render.target_mask], 0.0, 1.0).mean())
     rec["predicted_intensity"] = pred_i
+    rec["target_intensity"] = target_i
     rec["detected_intensity"] = det.mean_intensity if det.area_px else None
     rec["intensity_difference"] = None if pred_i is None or not det.area_px else det.mean_intensity - pred_i
     rec["bbox_xywh"] = None if det.bbox_xywh is None else list(det.bbox_xywh)
     rec["threshold"] = det.threshold
     rec["n_contours"] = det.n_contours
     rec.update(extra)
-    return rec, det
+    return rec, det, expected
 
 
 def _finish_report(records: list[dict], out: Path, overlays: list[tuple[str, np.ndarray]], settings: dict):
     from camplace.validation.compare import (
         ValidationReport,
         across_systems,
+        agreement,
         difference_matrix,
         heatmap_image,
         kde_image,
@@ -440,7 +467,8 @@ def _finish_report(records: list[dict], out: Path, overlays: list[tuple[str, np.
     if len(systems) >= 2:
         write_png(out / "kde_scores.png", kde_image([s["normalised_predicted"] for s in systems], [s["normalised_photo"] for s in systems]))
         figures.append("kde_scores.png")
-    report = ValidationReport(cameras=records, systems=systems, across=across, heatmaps=heat, settings=settings, figures=figures)
+    report = ValidationReport(cameras=records, systems=systems, across=across, heatmaps=heat, settings=settings, figures=figures,
+                              agreement=agreement(records))
     report.save(out)
     return report
 
@@ -458,7 +486,9 @@ def validate_cameras(
 ) -> Any:
     """Compare photographs of a target with the masks predicted from calibrated cameras (no instance).
 
-    The predicted mask of each camera is the target mesh ray cast alone (no other geometry).
+    The target mask of each camera is the target mesh ray cast alone (no other geometry, no light);
+    the prediction is Algorithm 3 run on that render (the target on black; against a black
+    background render when the photo has a background photograph).
     Writes ``validation.json`` and ``overlay.{camera}.png`` figures into ``out``.
 
     Returns
@@ -467,7 +497,7 @@ def validate_cameras(
     """
     from camplace.validation.compare import overlay_image
     from camplace.validation.detect import DetectionSettings
-    from camplace.validation.render import read_image, render_view, target_scene
+    from camplace.validation.render import RenderSettings, read_image, render_view, target_scene
 
     detection = detection or DetectionSettings()
     out = Path(out)
@@ -481,12 +511,15 @@ def validate_cameras(
         pred = render_view(cam, scene, workers=workers)
         photo = read_image(ph.photo)
         bg = read_image(ph.background) if ph.background is not None else None
-        rec, det = _compare_one(cam.name, 1, cam, pred.target_mask, None, photo, bg, detection,
-                                {"photo": str(ph.photo), "background": None if ph.background is None else str(ph.background)})
+        empty = np.full(pred.image.shape, RenderSettings().background, dtype=np.float32)
+        rec, det, expected = _compare_one(cam.name, 1, cam, pred, empty, photo, bg, detection,
+                                          {"photo": str(ph.photo), "background": None if ph.background is None else str(ph.background)},
+                                          intensity=False)
         records.append(rec)
-        overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, pred.target_mask, det.mask, det.bbox_xywh, cam.name)))
+        overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, expected.mask, det.mask, det.bbox_xywh, cam.name, target=pred.target_mask)))
     settings = {
         "mode": "cameras",
+        "prediction": PREDICTION,
         "cameras": cameras.source,
         "target": target_spec,
         "photos": str(photos_dir),
@@ -553,6 +586,10 @@ def validate_runs(
     table, else a perfect camera) and written to ``out/photos`` with a ``manifest.csv``.
     ``random_systems`` adds that many systems of k candidates drawn at random (seeded) from the
     first run's ``candidates.csv``, as a baseline for the across-system statistics.
+
+    Each photo's detection (Algorithm 3) is compared with the same detection run on the nominal
+    camera's render (against its background render when the photo has a background): a perfect
+    camera scores IoU 1. The ray-cast target mask alone is the second figure (``*_target`` fields).
 
     Returns
     -------
@@ -622,15 +659,17 @@ def validate_runs(
                     "pose_error_m": float(np.linalg.norm(shot.actual.position - cam.position)),
                     "pose_error_deg": float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))),
                 }
-            rec, det = _compare_one(cam.name, s, cam, pred.target_mask, pred.image, photo, bg, detection, extra)
+            bg_render = render_view(cam, bg_scene, settings=settings, workers=workers).image if bg is not None else None
+            rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, detection, extra)
             records.append(rec)
-            overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, pred.target_mask, det.mask, det.bbox_xywh, cam.name)))
+            overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, expected.mask, det.mask, det.bbox_xywh, cam.name, target=pred.target_mask)))
     if manifest_rows:
         write_text_atomic(out / "photos" / "manifest.csv", "camera,photo,background\n" + "\n".join(manifest_rows) + "\n")
     if not records:
         raise CamplaceError("validate: no camera had a photo to compare")
     report_settings = {
         "mode": "runs",
+        "prediction": PREDICTION,
         "runs": [str(d) for d in outdirs],
         "experiment": exp,
         "frame": frame,
