@@ -218,7 +218,11 @@ def test_render_validate_export(reported_run, tmp_path) -> None:
     val = tmp_path / "val"
     camplace("validate", str(out), "--random-systems", "3", "-o", str(val), cwd=tmp_path)
     report = json.loads((val / "validation.json").read_text())
-    assert report, "validation.json is empty"
+    # the emulated camera is perfect here: like for like it must agree with its own prediction
+    views = [c for c in report["cameras"] if (c.get("target_px") or 0) >= 500]
+    assert report["agreement"]["n_views"] == len(views)
+    for c in views:
+        assert c["iou"] >= 0.98 and c["inside_fraction"] >= 0.98, c
     exp = tmp_path / "exp"
     camplace("export-cameras", str(out), "--format", "glb,colmap", "-o", str(exp), cwd=tmp_path)
     lines = [ln for ln in (exp / "colmap" / "images.txt").read_text().splitlines() if not ln.startswith("#")]

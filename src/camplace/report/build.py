@@ -523,7 +523,8 @@ def _validation_html(vpath: Path) -> str:
     return (f"<h3>Simulation against photographs ({esc(rel)}/validation.json)</h3>"
             + _table(["camera", "system", "predicted px", "detected px", "IoU", "inside", "intensity diff", "pose error (m)", "pose error (deg)"], rows)
             + across + notes
-            + "<p class='muted'>Overlays (system 1): predicted mask, detected mask and detected bounding box. Heatmaps: "
+            + "<p class='muted'>Predicted px: Algorithm 3 run on the render (like for like with the photograph). Overlays (system 1): "
+              "target mask (yellow), prediction (green), detected outline (blue) and bounding box (red). Heatmaps: "
               "|predicted − photographed| per camera pair (thesis Figures 7.16/7.17).</p>"
             + "<div class='grid'>" + "".join(figs) + "</div>")
 
