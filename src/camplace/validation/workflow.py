@@ -459,7 +459,8 @@ def validate_cameras(
     """Compare photographs of a target with the masks predicted from calibrated cameras (no instance).
 
     The predicted mask of each camera is the target mesh ray cast alone (no other geometry).
-    Writes ``validation.json`` and ``overlay.{camera}.png`` figures into ``out``.
+    Writes ``validation.json``, ``overlay.{camera}.png`` figures and ``scene3d.html`` (every
+    camera of ``cameras`` around the target, :mod:`camplace.validation.scene3d`) into ``out``.
 
     Returns
     -------
@@ -493,7 +494,18 @@ def validate_cameras(
         "manifest": None if manifest is None else str(manifest),
         "detection": detection.to_dict(),
     }
-    return _finish_report(records, out, overlays, settings)
+    report = _finish_report(records, out, overlays, settings)
+    _write_cameras_scene(out, cameras.cameras, target, title=Path(cameras.source).name or "cameras", target_name=target_spec or "target",
+                         meta={"mode": "cameras", "cameras_file": cameras.source, "target": target_spec,
+                               "photographed": [r["name"] for r in records]})
+    return report
+
+
+def _write_cameras_scene(out: Path, cameras, target, **scene_options) -> None:
+    """``out/scene3d.html`` (skipped with a warning when plotly is missing)."""
+    from camplace.validation.scene3d import cameras_scene, write_scene3d
+
+    write_scene3d(out, cameras_scene(cameras, target, **scene_options))
 
 
 def _run_physical(outdir: str | Path, instance):
@@ -642,7 +654,14 @@ def validate_runs(
         "detection": detection.to_dict(),
         "render": settings.__dict__,
     }
-    return _finish_report(records, out, overlays, report_settings)
+    report = _finish_report(records, out, overlays, report_settings)
+    inst1, cams1 = systems[0]
+    em = _frame_emitters(inst1, frame)
+    _write_cameras_scene(out, cams1, inst1.target_world(frame), title=f"{exp}, frame {frame}", target_name=inst1.target.name,
+                         occluders=inst1.occluders_world(frame), emitters=None if em is None else em.positions_m,
+                         other_systems=[(f"system {s}", cams) for s, (_, cams) in enumerate(systems[1:], start=2)],
+                         seed=seed, meta={"mode": "runs", "runs": [str(d) for d in outdirs], "frame": frame})
+    return report
 
 
 # --------------------------------------------------------------------------------------------------
