@@ -21,9 +21,14 @@ def _private_cache(tmp_path_factory):
 
 
 def pytest_terminal_summary(terminalreporter):
-    """Print the reliability suite's counts when it ran."""
+    """Print the reliability suite's counts and the user-path command times when they ran."""
     import sys
 
+    e2e = sys.modules.get("tests.e2e.test_user_paths")
+    if e2e is not None and e2e.TIMINGS:
+        terminalreporter.write_sep("-", "user paths: whole-command times")
+        for cmd, secs in e2e.TIMINGS.items():
+            terminalreporter.write_line(f"{secs:7.1f} s  camplace {cmd}")
     mod = sys.modules.get("tests.reliability.counts")
     if mod is None or not any(mod.COUNTS.values()):
         return

@@ -9,13 +9,6 @@ The small public API::
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("camplace")
-except PackageNotFoundError:  # running from a source tree
-    __version__ = "0.0.0+src"
-
 from camplace._lazy import lazy_getattr
 from camplace.errors import CamplaceError, InstanceError
 
@@ -30,7 +23,23 @@ _LAZY = {
 }
 
 
-__getattr__ = lazy_getattr(__name__, _LAZY)
+_lazy_attr = lazy_getattr(__name__, _LAZY)
+
+
+def _version() -> str:
+    """The installed distribution's version (importlib.metadata costs 0.1 s, so only on demand)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("camplace")
+    except PackageNotFoundError:  # running from a source tree
+        return "0.0.0+src"
+
+
+def __getattr__(name: str):
+    if name == "__version__":
+        return _version()
+    return _lazy_attr(name)
 
 __all__ = [
     "CamplaceError",

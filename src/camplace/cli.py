@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from camplace.errors import CamplaceError
+from camplace.names import ENGINES, EVENT_MODES, MODES, SAMPLERS
 
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 1
@@ -35,13 +36,13 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the instance's, usually 0)")
     p.add_argument("--candidates", type=int, default=None, help="number of candidate camera positions")
     p.add_argument("--points", type=int, default=None, help="number of target surface points")
-    p.add_argument("--sampler", choices=["chaotic", "uniform", "sobol"], default=None, help="candidate sampler")
+    p.add_argument("--sampler", choices=SAMPLERS, default=None, help="candidate sampler")
     p.add_argument("--k", type=int, default=None, help="number of cameras to place (default: the instance's k)")
     p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="solver time limit, seconds")
     p.add_argument(
-        "--engine", choices=["auto", "exact", "mip", "cpsat"], default="auto", help="solver engine (default: auto)"
+        "--engine", choices=ENGINES, default="auto", help="solver engine (default: auto)"
     )
-    p.add_argument("--mode", choices=["maxcover", "quality", "multiview", "setcover"], default="maxcover",
+    p.add_argument("--mode", choices=MODES, default="maxcover",
                    help="formulation: maxcover (default), quality, multiview (>= --views cameras), setcover (fewest cameras)")
     p.add_argument("--views", type=int, default=2, help="multiview: cameras that must observe a point (default 2)")
     p.add_argument("--min-angle", type=float, default=None, dest="min_angle", help="multiview: minimum angle between two views, degrees")
@@ -50,7 +51,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fixed", default="", help="candidate columns kept as existing cameras, e.g. 3,17 (k new ones are added)")
     p.add_argument("--forbidden", default="", help="candidate columns never chosen, e.g. 5,6")
     p.add_argument("--min-distance", type=float, default=None, dest="min_distance", help="minimum distance between chosen cameras, m")
-    p.add_argument("--event-mode", choices=["all", "peak"], default="all", dest="event_mode",
+    p.add_argument("--event-mode", choices=EVENT_MODES, default="all", dest="event_mode",
                    help="all: expected coverage over all frames (default); peak: the maximum-likelihood frame")
     _add_visibility_options(p)
 

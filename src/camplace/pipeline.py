@@ -7,7 +7,7 @@ import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -49,7 +49,11 @@ class Solution:
         (bound - objective) / bound.
     k : int
         Cameras in the system (fixed ones included; for setcover, as many as were needed).
-    seed, sampler, n_candidates, n_points : as run
+    seed, sampler, n_candidates : as run
+    n_points : int
+        Rows of the visibility matrix (``points.csv``): the surface points of every frame plus the
+        emitter points. This is THE meaning of ``n_points`` everywhere (run, campaign, report);
+        the ``--points`` value that produced them is ``points_requested``.
     coverage_fraction : float
         Observed weight / total point weight.
     timings_s : dict of str to float
@@ -77,6 +81,15 @@ class Solution:
     warnings : list of str
         Degenerate situations worth a look: nothing observable, fewer useful candidates than k,
         all weights zero.
+    points_requested : int
+        The ``--points`` value of the run (surface points split over the frames, before rounding
+        up to a whole number per frame and adding emitters); with ``seed`` it recreates the rows.
+    options : dict
+        Every option that shaped the answer, as asked for (:func:`run_options`): ``mode``, ``k``,
+        ``views``, ``min_angle_deg``, ``required_fraction``, ``fixed``, ``forbidden``,
+        ``min_distance_m``, ``engine``, ``time_limit_s``, ``event_mode``, ``sampler``, ``seed``,
+        ``candidates``, ``points``, ``orientations``. With ``points.csv`` and the matrix they
+        recompute the objective from the folder alone.
     candidates, visibility : optional
         The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
     """
@@ -103,6 +116,8 @@ class Solution:
     peak_frame: int = 0
     expected_coverage: float = 0.0
     peak_coverage: float = 0.0
+    points_requested: int = 0
+    options: dict = field(default_factory=dict)
     candidates: CandidateSet | None = field(default=None, repr=False)
     visibility: VisibilityMatrix | None = field(default=None, repr=False)
 
@@ -136,6 +151,8 @@ class Solution:
             "peak_frame": self.peak_frame,
             "expected_coverage": self.expected_coverage,
             "peak_coverage": self.peak_coverage,
+            "points_requested": self.points_requested,
+            "options": self.options,
         }
 
     def save(self, outdir: str | Path) -> None:
@@ -154,6 +171,47 @@ class Solution:
         data = read_json(path, "solution.json", "solution")
         known = {f for f in cls.__dataclass_fields__ if f not in ("candidates", "visibility")}
         return cls(**{k: v for k, v in data.items() if k in known})
+
+
+def run_options(
+    *, mode: str, k: int | None, views: int, min_angle_deg: float | None, required_fraction: float,
+    fixed: Sequence[int], forbidden: Sequence[int], min_distance_m: float | None, engine: str,
+    time_limit_s: float | None, event_mode: str = "all", **run_settings: Any,
+) -> dict[str, Any]:
+    """The ``options`` record of ``solution.json``: every option that shaped an answer, as asked for.
+
+    Parameters
+    ----------
+    mode, k, views, min_angle_deg, required_fraction, fixed, forbidden, min_distance_m, engine, time_limit_s
+        The solver's options (:func:`camplace.solver.solve`); ``k`` counts the new cameras (None
+        for setcover).
+    event_mode : {"all", "peak"}
+        Which row weights the solver maximised (:func:`event_weights`).
+    **run_settings
+        Further settings of the run (``sampler``, ``seed``, ``candidates``, ``points``,
+        ``orientations``), recorded as given.
+
+    Returns
+    -------
+    dict
+        JSON-ready; ``views`` and ``min_angle_deg`` are None outside multiview,
+        ``required_fraction`` None outside setcover.
+    """
+    out: dict[str, Any] = {
+        "mode": mode,
+        "k": None if mode == "setcover" or k is None else int(k),
+        "views": int(views) if mode == "multiview" else None,
+        "min_angle_deg": None if min_angle_deg is None else float(min_angle_deg),
+        "required_fraction": float(required_fraction) if mode == "setcover" else None,
+        "fixed": sorted(int(j) for j in fixed),
+        "forbidden": sorted(int(j) for j in forbidden),
+        "min_distance_m": None if min_distance_m is None else float(min_distance_m),
+        "engine": engine,
+        "time_limit_s": None if time_limit_s is None else float(time_limit_s),
+        "event_mode": event_mode,
+    }
+    out.update(run_settings)
+    return out
 
 
 def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
@@ -210,7 +268,7 @@ def event_aims(instance, orientations: int = 1) -> np.ndarray:
     return centres[keys]
 
 
-EVENT_MODES = ("all", "peak")
+from camplace.names import EVENT_MODES  # noqa: E402  (one list of the names)
 
 
 def peak_frame(instance) -> int:
@@ -486,6 +544,11 @@ def run(
     if time_limit_s <= 0:
         raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
 
+    options = run_options(
+        mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction, fixed=fixed,
+        forbidden=forbidden, min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
+        event_mode=event_mode, sampler=sampler, seed=seed, candidates=n_cand, points=n_points, orientations=orientations,
+    )
     timings: dict[str, float] = {}
     cand_seed, _ = stage_seeds(seed)
 
@@ -552,6 +615,8 @@ def run(
         peak_frame=peak,
         expected_coverage=float(pts.weight[observed].sum() / pts.weight.sum()),
         peak_coverage=float(pts.weight[observed & in_peak].sum() / max(pts.weight[in_peak].sum(), 1e-300)),
+        points_requested=n_points,
+        options=options,
         candidates=cands,
         visibility=vis,
     )

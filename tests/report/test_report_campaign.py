@@ -103,7 +103,7 @@ def test_score_systems_matches_a_brute_force_oracle() -> None:
     w = rng.random(60)
     cols = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 11], [2, 9, 10]])
     got = score_systems(A, w, cols)
-    np.testing.assert_allclose(got, [dense_coverage(A, w, c) for c in cols], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got, [dense_coverage(A, w, c) for c in cols], rtol=1e-9, atol=0)  # sums up to ~30
 
 
 def test_legacy_columns_are_algorithm_2(inst, camp) -> None:

@@ -62,3 +62,39 @@ def test_event_scene_shows_the_peak_frame_and_the_trajectory(flyby) -> None:
     d = json.loads(page.split("id='scene3d-data'>", 1)[1].split("</script>", 1)[0])
     assert d["n_cameras"] == 3 and d["trajectory"]["peak"] == peak and len(d["trajectory"]["centres"]) == 36
     assert d["coverage"]["points"] == [int(np.sum(np.minimum(counts[rows], 3) == c)) for c in range(4)]
+
+
+def test_event_report_holds_the_3d_view(flyby) -> None:
+    from camplace.report.build import write_report
+
+    page = write_report(flyby, sampler_study=False, out=flyby / "r.html")
+    text = page.read_text()
+    d = json.loads(text.split("id='scene3d-data'>", 1)[1].split("</script>", 1)[0])
+    sol = json.loads((flyby / "solution.json").read_text())
+    assert d["n_cameras"] == len(sol["cameras"]) == 3 and d["frame"] == sol["peak_frame"] and d["n_frames"] == 36
+    assert len(text.encode()) < 8_000_000
+
+
+def test_multiview_counted_rows_weigh_the_objective(tmp_path) -> None:
+    """Oracle: the solver's mode_value of the chosen cameras is the weight of the rows the view marks as counted."""
+    from camplace.report.scene3d import multiview_counted
+    from camplace.solver.modes import mode_value
+    from tests.report.test_report_html import small_instance
+
+    out = tmp_path / "mv"
+    run(small_instance(), seed=2, candidates=40, points=400, mode="multiview", views=2, min_angle_deg=25.0, time_limit_s=2, outdir=out)
+    rd = load_run_data(out)
+    sol = rd.solution
+    sel = sol.selected
+    seen = (rd.matrix[:, sel] > 0).toarray()
+    pos = rd.candidates.positions[sel]
+    for angle in (None, 25.0, 60.0):
+        want = mode_value(rd.matrix, rd.weights, sel, mode="multiview", views=2, min_angle_deg=angle,
+                          positions=rd.candidates.positions, points=rd.points.positions)
+        got = multiview_counted(rd.points.positions, seen, pos, 2, angle)
+        assert float(rd.weights[got].sum()) == pytest.approx(want, rel=1e-12, abs=1e-15)
+    assert float(rd.weights[multiview_counted(rd.points.positions, seen, pos, 2, 25.0)].sum()) == pytest.approx(sol.objective, rel=1e-9)
+    scene = run_scene(rd)
+    peak = rd.points.frame == sol.peak_frame
+    assert np.array_equal(scene.counted, multiview_counted(rd.points.positions, seen, pos, 2, 25.0)[peak])
+    assert any("25 deg apart" in n for n in scene.notes)

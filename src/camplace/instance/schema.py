@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 SCHEMA_VERSION = 1
-SAMPLERS = ("chaotic", "uniform", "sobol")
+from camplace.names import SAMPLERS  # noqa: E402  (one list of the names)
 
 
 def rotation_from_euler_deg(angles_deg: tuple[float, float, float] | np.ndarray) -> np.ndarray:

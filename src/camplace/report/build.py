@@ -161,15 +161,33 @@ def _instance_section(run) -> str:
     return "<h2 id='instance'>Instance and run</h2>" + _table(None, rows, left=2) + warn
 
 
+def _objective_words(sol) -> str:
+    """What the report's objective measures, in words (the run's mode; :func:`scoring_of`)."""
+    from camplace.report.campaign import scoring_of
+
+    sc = scoring_of(sol)
+    if sc["mode"] == "quality":
+        return "weight x best observation quality"
+    if sc["mode"] == "multiview":
+        angle = f", two of them >= {sc['min_angle_deg']:g} deg apart" if sc["min_angle_deg"] is not None else ""
+        return f"weight seen by >= {sc['views']} cameras{angle}"
+    if getattr(sol, "mode", "maxcover") == "setcover":
+        return f"observed weight of the {len(sol.cameras)} cameras that cover it all (setcover, {sol.status})"
+    return "observed weight"
+
+
 def _system_section(run, comp) -> str:
+    from camplace.report.campaign import scoring_of
+
     sol = run.solution
     w_total = float(run.weights.sum())
     head = (
         f"<h2 id='system'>Optimised system</h2>"
         f"<table><tbody>"
         f"<tr><th class='l'>status</th><td class='l'>{esc(comp.status)}</td></tr>"
-        f"<tr><th class='l'>objective (observed weight)</th><td class='l'>{_num(comp.objective, 6)}</td></tr>"
-        f"<tr><th class='l'>coverage</th><td class='l'>{_num(100 * comp.objective / w_total if w_total > 0 else 0, 2)} % of the event</td></tr>"
+        f"<tr><th class='l'>objective ({esc(_objective_words(sol))})</th><td class='l'>{_num(comp.objective, 6)}</td></tr>"
+        f"<tr><th class='l'>{'share of the event' if scoring_of(sol)['mode'] != 'maxcover' else 'coverage'}</th>"
+        f"<td class='l'>{_num(100 * comp.objective / w_total if w_total > 0 else 0, 2)} % of the event</td></tr>"
         f"<tr><th class='l'>proven bound</th><td class='l'>{_num(comp.bound, 6)}</td></tr>"
         f"<tr><th class='l'>gap</th><td class='l'>{_num(100 * comp.gap if comp.gap is not None and math.isfinite(comp.gap) else None, 4)} %</td></tr>"
         f"<tr><th class='l'>chosen from</th><td class='l'>{comp.n_columns:,} candidate poses ({esc(comp.note)})</td></tr>"
@@ -516,6 +534,7 @@ def _validation_html(vpath: Path) -> str:
 
 
 def _load_or_run_study(run, *, samplers, ladder, time_limit_s, cache, reporter):
+    from camplace.report.campaign import scoring_of
     from camplace.report.study import SamplerStudy, default_ladder, sampler_study
 
     path = run.outdir / "samplers.json"
@@ -527,7 +546,8 @@ def _load_or_run_study(run, *, samplers, ladder, time_limit_s, cache, reporter):
         except CamplaceError:
             old = None
         mode = getattr(run.solution, "event_mode", "all") or "all"
-        if old is not None and old.matches(run.fingerprint, run.solution.seed, len(run.solution.cameras), lad, samplers, mode, run.aims) and (
+        if old is not None and old.matches(run.fingerprint, run.solution.seed, len(run.solution.cameras), lad, samplers, mode, run.aims,
+                                           scoring_of(run.solution)) and (
             time_limit_s is None or old.time_limit_s == float(time_limit_s)
         ):
             log.info("report: reusing %s", path)
@@ -669,15 +689,13 @@ def run_report_bundle(
     Path
         ``OUTDIR/report.html``.
     """
-    from camplace.report.campaign import run_campaign
+    from camplace.report.campaign import campaign_for_run
     from camplace.report.compare import load_run_data
     from camplace.report.figures import require_matplotlib
 
     require_matplotlib()
     outdir = Path(outdir)
     run = load_run_data(outdir)
-    sol = run.solution
     for s in campaign_samplers:
-        run_campaign(run.instance, systems=systems, sampler=s, seed=sol.seed, points=sol.n_points, k=len(sol.cameras),
-                     aims=run.aims, legacy_omega=legacy_omega, event_mode=getattr(sol, "event_mode", "all") or "all", outdir=outdir / f"campaign-{s}", cache=cache, reporter=reporter)
+        campaign_for_run(run, systems=systems, sampler=s, legacy_omega=legacy_omega, cache=cache, reporter=reporter)
     return write_report(outdir, cache=cache, reporter=reporter, run_data=run, **report_options)

@@ -55,9 +55,11 @@ __all__ = [
     "Campaign",
     "CAMPAIGN_COLUMNS",
     "campaign_seed",
+    "campaign_for_run",
     "problem_fingerprint",
     "run_campaign",
     "score_systems",
+    "scoring_of",
     "find_campaigns",
 ]
 
@@ -109,8 +111,32 @@ def problem_fingerprint(instance, points) -> str:
     return h.hexdigest()
 
 
-def score_systems(matrix, weights: np.ndarray, columns: np.ndarray) -> np.ndarray:
-    """The solver's objective for each system: :func:`camplace.solver.coverage_weight` of its columns.
+def scoring_of(solution) -> dict[str, Any]:
+    """How a run's systems are scored: its solver mode and the options that define the objective.
+
+    Parameters
+    ----------
+    solution : camplace.pipeline.Solution
+
+    Returns
+    -------
+    dict
+        ``mode`` (a setcover run is scored by the weight its cameras observe, ``maxcover``),
+        ``views`` and ``min_angle_deg`` (multiview only; else 2 and None).
+    """
+    mode = getattr(solution, "mode", "maxcover") or "maxcover"
+    opts = getattr(solution, "options", None) or {}
+    if mode == "setcover":
+        mode = "maxcover"
+    multiview = mode == "multiview"
+    return {"mode": mode, "views": int(opts.get("views") or 2) if multiview else 2,
+            "min_angle_deg": opts.get("min_angle_deg") if multiview else None}
+
+
+def score_systems(matrix, weights: np.ndarray, columns: np.ndarray, *, mode: str = "maxcover", views: int = 2,
+                  min_angle_deg: float | None = None, positions: np.ndarray | None = None,
+                  points: np.ndarray | None = None) -> np.ndarray:
+    """The solver's objective for each system (:func:`camplace.solver.mode_value` of its columns).
 
     Parameters
     ----------
@@ -118,6 +144,12 @@ def score_systems(matrix, weights: np.ndarray, columns: np.ndarray) -> np.ndarra
     weights : (m,) float64
     columns : (n_systems, k) int
         Column indices of each system's cameras.
+    mode, views, min_angle_deg : optional
+        The formulation whose objective scores the systems (default maxcover: observed weight).
+    positions : (n, 3) float64 or None
+        Camera centres of the columns, metres (``min_angle_deg`` only).
+    points : (m, 3) float64 or None
+        Row positions, metres (``min_angle_deg`` only).
 
     Returns
     -------
@@ -126,9 +158,15 @@ def score_systems(matrix, weights: np.ndarray, columns: np.ndarray) -> np.ndarra
     import scipy.sparse as sp
 
     from camplace.solver import coverage_weight
+    from camplace.solver.modes import mode_value
 
-    csc = sp.csc_matrix(matrix)
-    return np.array([coverage_weight(csc, weights, [int(j) for j in cols]) for cols in np.atleast_2d(columns)], dtype=np.float64)
+    if mode == "maxcover":
+        csc = sp.csc_matrix(matrix)
+        return np.array([coverage_weight(csc, weights, [int(j) for j in cols]) for cols in np.atleast_2d(columns)],
+                        dtype=np.float64)
+    csr = sp.csr_matrix(matrix)
+    return np.array([mode_value(csr, weights, [int(j) for j in cols], mode=mode, views=views, min_angle_deg=min_angle_deg,
+                                positions=positions, points=points) for cols in np.atleast_2d(columns)], dtype=np.float64)
 
 
 def _summary(values: np.ndarray) -> dict[str, float]:
@@ -173,6 +211,8 @@ class Campaign:
         Row weights of the objective (as ``camplace run --event-mode``).
     fingerprint : str
         :func:`problem_fingerprint` of the scoring problem.
+    mode, views, min_angle_deg
+        The objective the systems were scored with (:func:`score_systems`; a run's :func:`scoring_of`).
     timings_s : dict
     name : str
         The folder name it was loaded from (or ``campaign-{sampler}``).
@@ -198,6 +238,9 @@ class Campaign:
     total_weight: float = 1.0
     event_mode: str = "all"
     fingerprint: str = ""
+    mode: str = "maxcover"
+    views: int = 2
+    min_angle_deg: float | None = None
     timings_s: dict = field(default_factory=dict)
     name: str = ""
     matrix: Any = field(default=None, repr=False)
@@ -268,8 +311,11 @@ class Campaign:
             "total_weight": self.total_weight,
             "event_mode": self.event_mode,
             "fingerprint": self.fingerprint,
-            "objective": "weight of the rows observed by at least one camera (camplace.solver.coverage_weight), "
-                         "on the rows of a run with the same seed and points",
+            "mode": self.mode,
+            "views": self.views,
+            "min_angle_deg": self.min_angle_deg,
+            "objective": "the solver's objective of the mode (maxcover: weight of the rows observed by at least one "
+                         "camera), on the rows of a run with the same seed and points (n_points = rows)",
             "legacy": {**self.legacy.to_dict(), "score": "sum over cameras of d + a (thesis Algorithm 2, literal)"},
             "summary": self.summary(),
             "timings_s": self.timings_s,
@@ -345,7 +391,8 @@ class Campaign:
             legacy_score=sk(t["legacy_score"])[:, 0].copy(), legacy_distance_m=sk(t["legacy_distance_m"]),
             legacy_area=sk(t["legacy_area"]), legacy_camera_score=sk(t["legacy_camera_score"]),
             legacy=LegacyTarget.from_dict(meta["legacy"]), total_weight=float(meta.get("total_weight", 1.0)), event_mode=str(meta.get("event_mode", "all")),
-            fingerprint=str(meta.get("fingerprint", "")), timings_s=dict(meta.get("timings_s", {})),
+            fingerprint=str(meta.get("fingerprint", "")), mode=str(meta.get("mode", "maxcover")),
+            views=int(meta.get("views", 2)), min_angle_deg=meta.get("min_angle_deg"), timings_s=dict(meta.get("timings_s", {})),
             name=outdir.name, matrix=mat,
         )
 
@@ -380,6 +427,10 @@ def run_campaign(
     outdir: str | Path | None = None,
     cache: bool = True,
     reporter=None,
+    rows=None,
+    mode: str = "maxcover",
+    views: int = 2,
+    min_angle_deg: float | None = None,
 ) -> Campaign:
     """Generate and score ``systems`` random k-camera systems.
 
@@ -394,7 +445,8 @@ def run_campaign(
     seed : int or None
         Seed of the positions and of the rows (default: the instance's run seed).
     points : int or None
-        Rows (default: the instance's run points); use the run's value to compare with a run.
+        Surface points requested, as ``camplace run --points`` (default: the instance's run points);
+        ignored when ``rows`` is given.
     k : int or None
         Cameras per system (default: the instance's k).
     orientations : int or None
@@ -412,11 +464,17 @@ def run_campaign(
     cache : bool
         Reuse / store the cameras' visibility matrix in the visibility cache.
     reporter : camplace._progress.Reporter or None
+    rows : camplace.visibility.TargetPoints or None
+        The matrix rows to score on, e.g. a run's ``points.csv`` (default: the rows of a run
+        with this ``seed`` and ``points``, :func:`camplace.pipeline.compute_points`).
+    mode, views, min_angle_deg
+        The objective that scores the systems (:func:`score_systems`; default maxcover).
 
     Returns
     -------
     Campaign
-        Deterministic for a given (instance, sampler, seed, points, k, aims).
+        Deterministic for a given (instance, sampler, seed, rows, k, aims); its ``n_points`` is
+        the number of rows.
     """
     from camplace._progress import Reporter
     from camplace.instance import resolve_instance
@@ -452,7 +510,7 @@ def run_campaign(
     t0 = time.perf_counter()
     with reporter.stage("sampling"):
         positions, aim_rows, rotations = _camera_poses(instance, sampler, systems * k, aims, seed)
-        pts = compute_points(instance, n_points, seed)
+        pts = compute_points(instance, n_points, seed) if rows is None else rows
         fingerprint = problem_fingerprint(instance, pts)
     timings["sampling"] = time.perf_counter() - t0
 
@@ -465,7 +523,8 @@ def run_campaign(
     with reporter.stage("score"):
         weights = event_weights(pts, instance, event_mode)
         cols = np.arange(systems * k).reshape(systems, k)
-        objective = score_systems(vis.matrix, weights, cols)
+        objective = score_systems(vis.matrix, weights, cols, mode=mode, views=views, min_angle_deg=min_angle_deg,
+                                  positions=positions, points=pts.positions)
         pattern = (vis.matrix > 0).astype(np.float64)
         cam_obj = np.asarray(pattern.T @ weights, dtype=np.float64).reshape(systems, k)
         target = legacy_target(instance, legacy_omega)
@@ -473,12 +532,12 @@ def run_campaign(
     timings["score"] = time.perf_counter() - t0
 
     camp = Campaign(
-        instance=instance.name, sampler=sampler, seed=seed, k=k, n_points=n_points,
+        instance=instance.name, sampler=sampler, seed=seed, k=k, n_points=len(pts),
         positions=positions.reshape(systems, k, 3), aims=aim_rows.reshape(systems, k, 3),
         rotations=rotations.reshape(systems, k, 3, 3), objective=objective, camera_objective=cam_obj,
         legacy_score=leg["delta"].sum(axis=1), legacy_distance_m=leg["distance"], legacy_area=leg["area"],
         legacy_camera_score=leg["delta"], legacy=target, total_weight=float(weights.sum()), event_mode=event_mode,
-        fingerprint=fingerprint, timings_s=timings, name=Path(outdir).name if outdir is not None else f"campaign-{sampler}",
+        fingerprint=fingerprint, mode=mode, views=int(views), min_angle_deg=min_angle_deg, timings_s=timings, name=Path(outdir).name if outdir is not None else f"campaign-{sampler}",
         matrix=vis.matrix,
     )
     if outdir is not None:
@@ -486,6 +545,34 @@ def run_campaign(
             camp.save(outdir)
     log.info("campaign %s: %d systems, objective median %.4f max %.4f", sampler, systems, float(np.median(objective)), float(objective.max()))
     return camp
+
+
+def campaign_for_run(run, *, systems: int, sampler: str = "uniform", legacy_omega: float = 0.0,
+                     outdir: str | Path | None = None, cache: bool = True, reporter=None) -> Campaign:
+    """A campaign comparable with a run: its instance, seed, rows, event mode, k and aim points.
+
+    Parameters
+    ----------
+    run : camplace.report.compare.RunData
+        The run folder's content (:func:`~camplace.report.compare.load_run_data`).
+    systems, sampler, legacy_omega, cache, reporter
+        As :func:`run_campaign`.
+    outdir : path or None
+        Campaign folder (default ``run.outdir / f"campaign-{sampler}"``).
+
+    Returns
+    -------
+    Campaign
+        Scored on exactly the run's rows (``points.csv``), so its fingerprint is the run's, with
+        the run's objective (:func:`scoring_of`).
+    """
+    sol = run.solution
+    outdir = Path(run.outdir) / f"campaign-{sampler}" if outdir is None else outdir
+    return run_campaign(
+        run.instance, systems=systems, sampler=sampler, seed=sol.seed, k=len(sol.cameras), aims=run.aims,
+        legacy_omega=legacy_omega, event_mode=getattr(sol, "event_mode", "all") or "all", outdir=outdir, cache=cache,
+        reporter=reporter, rows=run.points, **scoring_of(sol),
+    )
 
 
 def find_campaigns(outdir: str | Path) -> list[Path]:

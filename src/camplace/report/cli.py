@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Callable
 
 from camplace.errors import CamplaceError
+from camplace.names import EVENT_MODES, SAMPLERS
 
 EXIT_OK = 0
 
@@ -17,18 +18,20 @@ EXIT_OK = 0
 def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
     """Add the report verbs to ``subparsers``; returns {verb: handler}."""
     p = subparsers.add_parser("campaign", help="score N random k-camera systems with the solver's objective and the thesis's legacy score")
-    p.add_argument("instance", help="a built-in instance name or an instance .toml file (a run's OUTDIR/instance.toml)")
+    p.add_argument("instance", help="a run's output folder (takes its instance, seed, rows, k, aims and event mode), "
+                                    "a built-in instance name or an instance .toml file")
     p.add_argument("--systems", type=int, required=True, help="number of random systems N")
-    p.add_argument("--sampler", choices=["chaotic", "uniform", "sobol"], default="uniform", help="sampler of the camera positions (default uniform)")
-    p.add_argument("--seed", type=int, default=None, help="seed of the positions and of the rows (default: the instance's); use the run's to compare")
-    p.add_argument("--points", type=int, default=None, help="rows = target points (default: the instance's); use the run's to compare")
-    p.add_argument("--k", type=int, default=None, help="cameras per system (default: the instance's k)")
-    p.add_argument("--orientations", type=int, default=None, help="aim points; each camera aims at one at random (default: the instance's)")
-    p.add_argument("--event-mode", choices=["all", "peak"], default="all", dest="event_mode",
-                   help="row weights of the objective, as 'camplace run --event-mode' (default all); use the run's to compare")
+    p.add_argument("--sampler", choices=SAMPLERS, default="uniform", help="sampler of the camera positions (default uniform)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the positions and of the rows (default: the instance's; not with a run folder)")
+    p.add_argument("--points", type=int, default=None, help="surface points requested, as 'camplace run --points' (default: the instance's; not with a run folder)")
+    p.add_argument("--k", type=int, default=None, help="cameras per system (default: the instance's k; not with a run folder)")
+    p.add_argument("--orientations", type=int, default=None, help="aim points; each camera aims at one at random (default: the instance's; not with a run folder)")
+    p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
+                   help="row weights of the objective, as 'camplace run --event-mode' (default all; not with a run folder)")
     p.add_argument("--legacy-omega", type=float, default=0.0, dest="legacy_omega", help="Algorithm 2's camera angle, added to its FoV as given (default 0)")
     p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
-    p.add_argument("-o", "--out", type=Path, required=True, help="campaign folder (e.g. OUTDIR/campaign-uniform to appear in OUTDIR's report)")
+    p.add_argument("-o", "--out", type=Path, default=None,
+                   help="campaign folder (default with a run folder: OUTDIR/campaign-SAMPLER, which OUTDIR's report includes)")
 
     p = subparsers.add_parser("report", help="write OUTDIR/report.html: optimised system, campaigns, samplers, vision cones, validation")
     p.add_argument("outdir", type=Path, help="output folder of 'camplace run' (campaign folders inside it are included)")
@@ -60,13 +63,29 @@ def _csv_list(text: str, what: str) -> list[str]:
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
-    from camplace.report.campaign import run_campaign
+    from camplace.report.campaign import campaign_for_run, run_campaign
 
-    camp = run_campaign(
-        args.instance, systems=args.systems, sampler=args.sampler, seed=args.seed, points=args.points, k=args.k,
-        orientations=args.orientations, legacy_omega=args.legacy_omega, event_mode=args.event_mode, outdir=args.out, cache=not args.no_cache,
-        reporter=ConsoleReporter(),
-    )
+    source = Path(args.instance)
+    if source.is_dir():
+        from camplace.report.compare import load_run_data
+
+        given = [f"--{name.replace('_', '-')}" for name in ("seed", "points", "k", "orientations", "event_mode")
+                 if getattr(args, name) is not None]
+        if given:
+            raise CamplaceError(f"{', '.join(given)}: a run folder fixes them (its campaign must score the run's rows "
+                                f"with the run's k); drop them, or give an instance instead of {source}")
+        run = load_run_data(source)
+        camp = campaign_for_run(run, systems=args.systems, sampler=args.sampler, legacy_omega=args.legacy_omega,
+                                outdir=args.out, cache=not args.no_cache, reporter=ConsoleReporter())
+        args.out = args.out if args.out is not None else source / f"campaign-{args.sampler}"
+    else:
+        if args.out is None:
+            raise CamplaceError("--out: required with an instance (or give a run folder: 'camplace campaign OUTDIR --systems N')")
+        camp = run_campaign(
+            args.instance, systems=args.systems, sampler=args.sampler, seed=args.seed, points=args.points, k=args.k,
+            orientations=args.orientations, legacy_omega=args.legacy_omega, event_mode=args.event_mode or "all",
+            outdir=args.out, cache=not args.no_cache, reporter=ConsoleReporter(),
+        )
     s = camp.summary()
     o = s["objective"]
     print(f"{camp.n_systems} random {camp.k}-camera systems ({camp.sampler}, seed {camp.seed}): objective min {o['min']:.4f}, "

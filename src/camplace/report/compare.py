@@ -46,7 +46,7 @@ class RunData:
     instance : camplace.instance.Instance
     solution : camplace.pipeline.Solution
     points : camplace.visibility.TargetPoints
-        The rows (recomputed with :func:`camplace.pipeline.compute_points` from the run's seed/points).
+        The rows: the run's ``points.csv``.
     weights : (n_points,) float64
         The row weights the run's solver maximised (:func:`camplace.pipeline.event_weights` of its event mode).
     matrix : (n_points, n_candidates) scipy.sparse.csr_matrix
@@ -75,33 +75,32 @@ class RunData:
 
 
 def load_run_data(outdir: str | Path) -> RunData:
-    """Read a run folder: instance.toml, solution.json, candidates.csv, visibility.npz (rows recomputed).
+    """Read a run folder: instance.toml, solution.json, candidates.csv, points.csv and visibility.npz.
+
+    The rows are the run's own (``points.csv``, written with exact floats), so their number is the
+    matrix's row count and ``solution.json``'s ``n_points``.
 
     Raises
     ------
     CamplaceError
         When a file is missing or the matrix does not match the solution's sizes.
     """
-    import scipy.sparse as sp
-
-    from camplace.pipeline import compute_points, event_weights
+    from camplace.pipeline import event_weights
     from camplace.report.campaign import problem_fingerprint
     from camplace.sampling import CandidateSet
     from camplace.validation.workflow import load_run
+    from camplace.visibility import VisibilityMatrix
 
     outdir = Path(outdir)
     instance, solution = load_run(outdir)
+    vis = VisibilityMatrix.load(outdir)
+    matrix, points = vis.matrix, vis.points
     mpath = outdir / "visibility.npz"
-    try:
-        matrix = sp.load_npz(mpath).tocsr()
-    except (OSError, ValueError) as exc:
-        raise CamplaceError(f"{mpath}: cannot read the run's visibility matrix ({exc}); re-run 'camplace run ... -o {outdir}'") from None
     if matrix.shape != (solution.n_points, solution.n_candidates):
         raise CamplaceError(f"{mpath}: shape {matrix.shape} but solution.json says {solution.n_points} points x {solution.n_candidates} candidates (re-run)")
     cands = CandidateSet.load(outdir / "candidates.csv")
     if len(cands) != solution.n_candidates:
         raise CamplaceError(f"{outdir / 'candidates.csv'}: {len(cands)} candidates but solution.json says {solution.n_candidates} (re-run)")
-    points = compute_points(instance, solution.n_points, solution.seed)
     weights = event_weights(points, instance, getattr(solution, "event_mode", "all") or "all")
     return RunData(outdir, instance, solution, points, weights, matrix, cands, problem_fingerprint(instance, points))
 
@@ -152,7 +151,9 @@ class Comparison:
 
 
 def check_campaign(run: RunData, campaign) -> None:
-    """Raise a CamplaceError unless ``campaign`` was scored on the run's rows with the run's k."""
+    """Raise a CamplaceError unless ``campaign`` was scored on the run's rows with the run's k and objective."""
+    from camplace.report.campaign import scoring_of
+
     where = campaign.name or campaign.sampler
     sol = run.solution
     if campaign.k != len(sol.cameras):
@@ -160,11 +161,16 @@ def check_campaign(run: RunData, campaign) -> None:
     mode = getattr(sol, "event_mode", "all") or "all"
     if campaign.event_mode != mode:
         raise CamplaceError(f"{where}: scored with --event-mode {campaign.event_mode} but the run used {mode} (re-run 'camplace campaign ... --event-mode {mode}')")
+    want = scoring_of(sol)
+    got = {"mode": campaign.mode, "views": campaign.views, "min_angle_deg": campaign.min_angle_deg}
+    if got != want:
+        raise CamplaceError(f"{where}: scored with {got} but the run's objective is {want} "
+                            f"(re-run 'camplace campaign {run.outdir} --systems {campaign.n_systems} --sampler {campaign.sampler}')")
     if campaign.fingerprint != run.fingerprint:
         raise CamplaceError(
             f"{where}: scored on other rows than the run in {run.outdir} (campaign: {campaign.instance}, seed {campaign.seed}, "
-            f"{campaign.n_points} points; run: {sol.instance}, seed {sol.seed}, {sol.n_points} points); re-run "
-            f"'camplace campaign {run.outdir / 'instance.toml'} --seed {sol.seed} --points {sol.n_points} ...'"
+            f"{campaign.n_points} rows; run: {sol.instance}, seed {sol.seed}, {sol.n_points} rows); re-run "
+            f"'camplace campaign {run.outdir} --systems {campaign.n_systems} --sampler {campaign.sampler}'"
         )
 
 
@@ -196,7 +202,9 @@ def compare_with_campaigns(
     """
     import scipy.sparse as sp
 
-    from camplace.solver import coverage_weight, solve_maxcover
+    from camplace.report.campaign import scoring_of
+    from camplace.solver import solve
+    from camplace.solver.modes import mode_value
 
     if union not in ("auto", "always"):
         raise CamplaceError(f"--union: use auto or always, got {union!r}")
@@ -207,7 +215,10 @@ def compare_with_campaigns(
         check_campaign(run, c)
         if c.matrix is None:
             raise CamplaceError(f"{c.name}: the campaign's visibility matrix is not loaded (Campaign.load(..., matrix=True))")
-    run_obj = coverage_weight(run.matrix, w, sol.selected)
+    scoring = scoring_of(sol)
+    angle = scoring["min_angle_deg"] is not None
+    run_obj = mode_value(run.matrix, w, sol.selected, **scoring, positions=run.candidates.positions,
+                         points=run.points.positions)
     best = {c.name: float(c.objective.max()) for c in campaigns}
     top = max(best.values(), default=-np.inf)
 
@@ -216,18 +227,22 @@ def compare_with_campaigns(
         return {"source": source, "position": [float(x) for x in pos], "aim": [float(x) for x in aim],
                 "rotation": [[float(x) for x in r] for r in rot], "observed_weight": alone}
 
+    # the run's proof is about its own objective; a setcover run's cameras are compared by what they observe
+    proof = (float(sol.bound), float(sol.gap), sol.status) if sol.mode != "setcover" else (float(run_obj), 0.0, "feasible")
     if run_obj >= top - TIE and union == "auto":
         cams = [cam_rec(f"run candidate {c['candidate']}", c["position"], c.get("aim", c["position"]), c["rotation"],
                         run.matrix[:, int(c["candidate"])]) for c in sol.cameras]
         note = ("the run's system scores at least as well as every campaign system on the shared rows "
                 "(no re-solve needed)") if campaigns else "no campaign to compare with"
-        return Comparison("run", float(run_obj), float(sol.bound), float(sol.gap), sol.status, cams, float(run_obj), best,
+        return Comparison("run", float(run_obj), *proof, cams, float(run_obj), best,
                           bool(run_obj >= top - TIE), run.matrix.shape[1], time.perf_counter() - t0, note)
 
     blocks = [run.matrix] + [sp.csr_matrix(c.matrix) for c in campaigns]
     U = sp.hstack(blocks, format="csr")
     limit = run.instance.defaults.time_limit_s if time_limit_s is None else float(time_limit_s)
-    res = solve_maxcover(U, w, len(sol.cameras), engine=engine, time_limit_s=limit)
+    positions = np.concatenate([run.candidates.positions] + [c.positions.reshape(-1, 3) for c in campaigns])
+    res = solve(U, w, len(sol.cameras), **scoring, positions=positions if angle else None,
+                points=run.points.positions if angle else None, engine=engine, time_limit_s=limit)
     offsets = np.cumsum([0] + [b.shape[1] for b in blocks])
     cams = []
     for j in res.selected:

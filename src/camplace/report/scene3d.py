@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import html
 import logging
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -23,35 +22,10 @@ from camplace.scene3d import Scene3D, SceneCamera, SceneMesh, reach_depth
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_points", "system_columns", "run_scene", "scene3d_section"]
+__all__ = ["system_columns", "multiview_counted", "run_scene", "scene3d_section"]
 
 #: Positions and rotations equal within this are the same camera.
 SAME_POSE = 1e-9
-
-
-def run_points(run):
-    """The rows of the run's matrix: its ``points.csv`` when it matches the matrix, else the recomputed points.
-
-    Returns
-    -------
-    camplace.visibility.TargetPoints
-
-    Raises
-    ------
-    CamplaceError
-        When neither has as many rows as the matrix.
-    """
-    from camplace.visibility import TargetPoints
-
-    m = run.matrix.shape[0]
-    path = Path(run.outdir) / "points.csv"
-    if path.is_file():
-        pts = TargetPoints.load(path)
-        if len(pts) == m:
-            return pts
-    if len(run.points) == m:
-        return run.points
-    raise CamplaceError(f"{path}: {m} matrix rows but the points have another count (re-run 'camplace run ... -o {run.outdir}')")
 
 
 def _find_pose(positions: np.ndarray, rotations: np.ndarray, pos: np.ndarray, rot: np.ndarray) -> int | None:
@@ -104,22 +78,43 @@ def system_columns(run, comp=None, campaigns: Sequence = ()) -> tuple[list[dict]
     return cams, sp.hstack(cols, format="csc"), "the system re-solved over the union with the campaign cameras"
 
 
-def _multiview_counted(run, counts: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, str]:
-    """Rows the multiview objective credits (seen by >= views cameras) and a note on how sure that is."""
-    sol = run.solution
-    stats = getattr(sol, "solver_stats", {}) or {}
-    views = stats.get("views", (stats.get("engine_stats") or {}).get("views"))
-    known = views is not None
-    views = int(views) if known else 2
-    counted = counts >= views
-    credited = float(weights[counted].sum())
-    note = f"Multiview: points seen by at least {views} cameras count ({'from solution.json' if known else 'the default, as solution.json does not record it'})"
-    if abs(credited - float(sol.objective)) > 1e-9 * max(1.0, abs(float(sol.objective))):
-        note += (f"; they weigh {credited:.6f} but the objective is {float(sol.objective):.6f}, so the run also had a minimum "
-                 "angle between views, which solution.json does not record: not every point shown as counted counts.")
-    else:
-        note += f"; they weigh {credited:.6f}, the objective."
-    return counted, note
+def multiview_counted(points: np.ndarray, seen: np.ndarray, positions: np.ndarray, views: int,
+                      min_angle_deg: float | None = None) -> np.ndarray:
+    """The rows the multiview objective credits (as :func:`camplace.solver.mode_value`).
+
+    Parameters
+    ----------
+    points : (m, 3) float64
+        Row positions, metres.
+    seen : (m, k) bool
+        Which of the system's cameras observe each row.
+    positions : (k, 3) float64
+        The cameras' centres.
+    views : int
+        Cameras a row needs.
+    min_angle_deg : float or None
+        Two of them must see the row from directions at least this far apart (at the row).
+
+    Returns
+    -------
+    (m,) bool
+    """
+    seen = np.asarray(seen, dtype=bool)
+    ok = seen.sum(axis=1) >= int(views)
+    if min_angle_deg is None:
+        return ok
+    rows = np.flatnonzero(ok)
+    rays = np.asarray(positions, dtype=np.float64)[None, :, :] - np.asarray(points, dtype=np.float64)[rows, None, :]
+    rays /= np.maximum(np.linalg.norm(rays, axis=2, keepdims=True), 1e-300)
+    good = np.zeros(len(rows), dtype=bool)
+    k = seen.shape[1]
+    for a in range(k):
+        for b in range(a + 1, k):
+            both = seen[rows, a] & seen[rows, b]
+            ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", rays[:, a], rays[:, b]), -1.0, 1.0)))
+            good |= both & (ang >= float(min_angle_deg))
+    ok[rows] = good
+    return ok
 
 
 def _scene_cameras(records: Sequence[dict], sol, depth_points: np.ndarray) -> tuple[SceneCamera, ...]:
@@ -163,24 +158,30 @@ def run_scene(run, comp=None, campaigns: Sequence = ()) -> Scene3D:
     -------
     Scene3D
     """
+    from camplace.report.campaign import scoring_of
+
     inst, sol = run.instance, run.solution
-    pts = run_points(run)
+    pts = run.points
     n_frames = len(inst.frames)
     peak = int(getattr(sol, "peak_frame", 0) or 0)
     peak = peak if 0 <= peak < n_frames else 0
     records, cols, which = system_columns(run, comp, campaigns)
-    seen = cols > 0
-    counts_all = np.asarray(seen.sum(axis=1)).ravel().astype(np.int64)
+    seen = (cols > 0).toarray()
+    counts_all = seen.sum(axis=1).astype(np.int64)
     rows = np.flatnonzero(pts.frame == peak)
     tv, tf = inst.target_world(peak)
     depth_points = np.vstack([tv, pts.positions[rows]]) if len(rows) else tv
     cams = _scene_cameras(records, sol, depth_points)
     notes = [f"Cameras: {which}; frusta from the near limit to the depth that reaches the target (lens distortion ignored)."]
     counted = None
-    if getattr(sol, "mode", "maxcover") == "multiview":
-        counted_all, note = _multiview_counted(run, counts_all, run.weights if len(run.weights) == len(counts_all) else pts.weight)
+    scoring = scoring_of(sol)
+    if scoring["mode"] == "multiview":
+        views, angle = scoring["views"], scoring["min_angle_deg"]
+        counted_all = multiview_counted(pts.positions, seen, np.array([r["position"] for r in records]), views, angle)
         counted = counted_all[rows]
-        notes.append(note)
+        cond = f" and two of them see it from directions at least {angle:g} deg apart" if angle is not None else ""
+        notes.append(f"Multiview: a point counts when at least {views} of the chosen cameras observe it{cond}; the counted points "
+                     f"weigh {float(run.weights[counted_all].sum()):.6f} (the objective); legend entry 'counted by the objective'.")
     trajectory = labels = None
     if n_frames > 1:
         observed = counts_all > 0

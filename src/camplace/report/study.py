@@ -62,6 +62,8 @@ class SamplerStudy:
         The run's event mode (row weights).
     aims : list of (3,) lists
         Aim points of the candidates.
+    scoring : dict
+        The objective solved (:func:`~camplace.report.campaign.scoring_of` of the run).
     """
 
     fingerprint: str
@@ -74,6 +76,7 @@ class SamplerStudy:
     discrepancy_method: str = DISCREPANCY_METHOD
     event_mode: str = "all"
     aims: list = field(default_factory=list)
+    scoring: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, **{k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}}
@@ -96,16 +99,18 @@ class SamplerStudy:
             samplers=tuple(data["samplers"]), rows=list(data["rows"]), time_limit_s=float(data["time_limit_s"]),
             discrepancy_method=str(data.get("discrepancy_method", DISCREPANCY_METHOD)),
             event_mode=str(data.get("event_mode", "all")), aims=[list(map(float, a)) for a in data.get("aims", [])],
+            scoring=dict(data.get("scoring", {})),
         )
 
     def matches(self, fingerprint: str, seed: int, k: int, ladder: Sequence[int], samplers: Sequence[str],
-                event_mode: str = "all", aims: Sequence[Sequence[float]] | None = None) -> bool:
+                event_mode: str = "all", aims: Sequence[Sequence[float]] | None = None,
+                scoring: dict | None = None) -> bool:
         """True when this study was made with these settings."""
         same_aims = aims is None or np.array_equal(np.asarray(self.aims, dtype=np.float64).reshape(-1, 3),
                                                    np.asarray(aims, dtype=np.float64).reshape(-1, 3))
         return (self.fingerprint == fingerprint and self.seed == seed and self.k == k and same_aims
                 and tuple(self.ladder) == tuple(ladder) and tuple(self.samplers) == tuple(samplers)
-                and self.event_mode == event_mode)
+                and self.event_mode == event_mode and (scoring is None or self.scoring == scoring))
 
     def series(self, sampler: str, key: str) -> tuple[np.ndarray, np.ndarray]:
         """(n_positions, values of ``key``) of one sampler, in ladder order."""
@@ -146,7 +151,8 @@ def sampler_study(
     from camplace._progress import Reporter
     from camplace.pipeline import make_run_candidates, stage_seeds, visibility_stage
     from camplace.sampling import SAMPLERS, CandidateSet
-    from camplace.solver import solve_maxcover
+    from camplace.report.campaign import scoring_of
+    from camplace.solver import solve
 
     reporter = reporter or Reporter()
     sol, inst = run.solution, run.instance
@@ -165,6 +171,7 @@ def sampler_study(
     lo = np.asarray(inst.volume.min_m, dtype=np.float64)
     hi = np.asarray(inst.volume.max_m, dtype=np.float64)
     rows = []
+    scoring = scoring_of(sol)
     cand_seed = stage_seeds(sol.seed)[0]
     top = max(ladder)
     for s in samplers:
@@ -182,12 +189,15 @@ def sampler_study(
         with reporter.stage(f"solve {s}", total=len(ladder)) as advance:
             for n in ladder:
                 disc = float(qmc.discrepancy(unit[:n], method=DISCREPANCY_METHOD)) if n >= 2 else None
-                if same_as_run and n * a == sol.n_candidates:
+                if same_as_run and n * a == sol.n_candidates and scoring["mode"] == sol.mode:
                     rows.append({"sampler": s, "n_positions": n, "n_candidates": n * a, "objective": sol.objective,
                                  "bound": sol.bound, "gap": sol.gap, "status": sol.status, "engine": sol.engine,
                                  "time_s": float(sol.timings_s.get("solve", 0.0)), "discrepancy": disc, "source": "run"})
                 else:
-                    res = solve_maxcover(matrix[:, : n * a], run.weights, k, time_limit_s=limit)
+                    angle = scoring["min_angle_deg"] is not None
+                    res = solve(matrix[:, : n * a], run.weights, k, **scoring, time_limit_s=limit,
+                                positions=cands.positions[: n * a] if angle else None,
+                                points=run.points.positions if angle else None)
                     rows.append({"sampler": s, "n_positions": n, "n_candidates": n * a, "objective": res.objective,
                                  "bound": res.bound if np.isfinite(res.bound) else None,
                                  "gap": res.gap if np.isfinite(res.gap) else None, "status": res.status,
@@ -195,4 +205,4 @@ def sampler_study(
                 advance(1)
     mode = getattr(sol, "event_mode", "all") or "all"
     return SamplerStudy(run.fingerprint, int(sol.seed), k, ladder, tuple(samplers), rows, limit,
-                        event_mode=mode, aims=[[float(x) for x in a] for a in aims])
+                        event_mode=mode, aims=[[float(x) for x in a] for a in aims], scoring=scoring)

@@ -16,7 +16,7 @@ from scipy.stats import qmc
 
 from camplace.errors import CamplaceError
 
-SAMPLERS = ("chaotic", "uniform", "sobol")
+from camplace.names import SAMPLERS  # noqa: E402  (one list of the names)
 
 
 def logistic_orbits(x0: np.ndarray, n: int, *, burn_in: int = 1000, stride: int = 7, r: float = 4.0) -> np.ndarray:

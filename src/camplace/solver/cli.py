@@ -13,24 +13,25 @@ from pathlib import Path
 from typing import Any, Callable
 
 from camplace.errors import CamplaceError
+from camplace.names import ENGINES, EVENT_MODES, MODES, SETCOVER_ENGINES
 
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 3
 
-_MODES = ["maxcover", "quality", "multiview", "setcover"]
-_ENGINES = ["auto", "exact", "mip", "cpsat"]
 
 
 def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
     """Add the solver verbs to ``subparsers``; returns {verb: handler}."""
     p = subparsers.add_parser("solve", help="choose cameras on a stored visibility matrix (any mode, side constraints)")
     p.add_argument("source", type=Path, help="output folder of 'camplace run' or its visibility.npz")
-    p.add_argument("--mode", choices=_MODES, default="maxcover", help="formulation (default maxcover)")
-    p.add_argument("--k", type=int, default=None, help="number of new cameras (all modes but setcover)")
+    p.add_argument("--mode", choices=MODES, default="maxcover", help="formulation (default maxcover)")
+    p.add_argument("--k", type=int, default=None, help="number of new cameras (all modes but setcover; default: the run's k)")
+    p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
+                   help="row weights: all frames, or the maximum-likelihood frame alone (default: the run's, else all)")
     p.add_argument("--views", type=int, default=2, help="multiview: cameras needed per point (default 2)")
     p.add_argument("--min-angle", type=float, default=None, dest="min_angle", help="multiview: minimum angle between two views at a point, degrees")
     p.add_argument("--required-fraction", type=float, default=1.0, dest="required_fraction", help="setcover: fraction of the coverable weight to observe (default 1)")
-    p.add_argument("--engine", choices=_ENGINES, default="auto", help="solver engine (default auto)")
+    p.add_argument("--engine", choices=ENGINES, default="auto", help="solver engine (default auto)")
     p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
     p.add_argument("--fixed", default="", help="comma-separated candidate indices that are always kept")
     p.add_argument("--forbidden", default="", help="comma-separated candidate indices never chosen")
@@ -40,7 +41,7 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
     p.add_argument("file", type=Path, help="instance file")
     p.add_argument("--format", choices=["orlib", "gecco"], required=True, dest="fmt", help="file format")
-    p.add_argument("--engine", choices=["auto", "mip", "cpsat"], default="auto", help="solver engine (default auto = mip)")
+    p.add_argument("--engine", choices=SETCOVER_ENGINES, default="auto", help="solver engine (default auto = mip)")
     p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
     p.add_argument("--json", action="store_true", help="print one JSON object: cost, bound, status, time_s, selected")
     return {"solve": _cmd_solve, "setcover": _cmd_setcover}
@@ -116,6 +117,38 @@ def load_problem(source: Path) -> tuple[Any, Any, Any, Any]:
     return matrix, weights, positions, points
 
 
+def _run_defaults(source: Path) -> dict[str, Any]:
+    """``k`` (new cameras) and ``event_mode`` of the run whose folder holds the matrix, if any."""
+    folder = source if source.is_dir() else source.parent
+    path = folder / "solution.json"
+    if not path.is_file():
+        return {}
+    try:
+        sol = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise CamplaceError(f"{path}: cannot read ({exc}); re-run 'camplace run' or give --k") from None
+    opts = sol.get("options") or {}
+    k = opts.get("k")
+    if k is None and sol.get("mode") != "setcover" and isinstance(sol.get("cameras"), list):
+        k = len(sol["cameras"]) - len(opts.get("fixed") or [])
+    return {"k": k, "event_mode": sol.get("event_mode", "all"), "peak_frame": sol.get("peak_frame")}
+
+
+def _peak_weights(source: Path, weights: Any, peak: int | None) -> Any:
+    """points.csv weights restricted to the maximum-likelihood frame and rescaled to sum 1 (as run --event-mode peak).
+
+    ``peak`` is the run's ``peak_frame``; without a run, the frame of largest total weight.
+    """
+    import numpy as np
+
+    folder = source if source.is_dir() else source.parent
+    frames = _read_csv_columns(folder / "points.csv", ["frame"])["frame"].astype(np.int64)
+    if peak is None:
+        peak = int(np.argmax(np.bincount(frames, weights=weights)))
+    w = np.where(frames == peak, weights, 0.0)
+    return w / w.sum() if w.sum() > 0 else w
+
+
 def _cmd_solve(args: argparse.Namespace) -> int:
     from camplace._io import write_json_atomic
     from camplace.solver.modes import solve
@@ -123,8 +156,15 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     matrix, weights, positions, points = load_problem(args.source)
     if (args.min_distance is not None or args.min_angle is not None) and positions is None:
         raise CamplaceError(f"--min-distance/--min-angle need candidates.csv beside {args.source}")
+    run = _run_defaults(args.source)
+    if args.k is None and args.mode != "setcover":
+        args.k = run.get("k")
     if args.mode != "setcover" and args.k is None:
-        raise CamplaceError(f"--k: required for mode {args.mode}")
+        raise CamplaceError(f"--k: required for mode {args.mode} (no solution.json beside the matrix to take it from)")
+    if args.event_mode is None:
+        args.event_mode = run.get("event_mode", "all")
+    if args.event_mode == "peak":
+        weights = _peak_weights(args.source, weights, run.get("peak_frame"))
     res = solve(
         matrix, weights, args.k, mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
         positions=positions, points=points if args.min_angle is not None else None,
@@ -132,7 +172,17 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         forbidden=parse_index_list(args.forbidden, "forbidden"), min_distance_m=args.min_distance,
         engine=args.engine, time_limit_s=args.time_limit,
     )
-    write_json_atomic(args.out, res.to_dict())
+    out = res.to_dict()
+    # how the answer was asked for (the same record as solution.json's "options")
+    out["options"] = {
+        "mode": args.mode, "k": None if args.mode == "setcover" else args.k,
+        "views": args.views if args.mode == "multiview" else None, "min_angle_deg": args.min_angle,
+        "required_fraction": args.required_fraction if args.mode == "setcover" else None,
+        "fixed": sorted(parse_index_list(args.fixed, "fixed")), "forbidden": sorted(parse_index_list(args.forbidden, "forbidden")),
+        "min_distance_m": args.min_distance, "engine": args.engine, "time_limit_s": args.time_limit,
+        "event_mode": args.event_mode, "source": str(args.source),
+    }
+    write_json_atomic(args.out, out)
     total = float(weights.sum())
     what = "cost" if args.mode == "setcover" else "objective"
     frac = "" if args.mode == "setcover" or total <= 0 else f" ({100 * res.objective / total:.2f}% of the weight)"
