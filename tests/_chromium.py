@@ -145,7 +145,10 @@ SCENE_PROBE = """
     webgl: !!(c.getContext('webgl2') || c.getContext('webgl') || c.getContext('experimental-webgl'))}));
   const tag = document.getElementById(id + '-data');
   const r = gd.getBoundingClientRect();
-  return {found: true, ready: gd.dataset.ready === '1', canvases: canvases,
+  const lg = gd.querySelector('.legend');
+  const l = lg ? lg.getBoundingClientRect() : null;
+  return {found: true,
+          legend: l ? {x: l.left - r.left, y: l.top - r.top, width: l.width, height: l.height} : null, ready: gd.dataset.ready === '1', canvases: canvases,
           data: tag ? JSON.parse(tag.textContent) : null,
           traces: (gd._fullData || []).map(t => ({type: t.type, name: t.name, mode: t.mode || null, group: t.legendgroup || null,
                                                    visible: t.visible, n: t.x ? t.x.length : 0, faces: t.i ? t.i.length : 0})),
@@ -220,6 +223,16 @@ def png_colours(png: bytes) -> tuple[tuple[int, int], "object"]:
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
     assert img is not None, "not a PNG OpenCV can read"
     return (img.shape[1], img.shape[0]), img[:, :, ::-1]
+
+
+def without_legend(rgb, scene: dict):
+    """The scene screenshot with the legend's box painted white (its swatches share the colours of the plot)."""
+    out = rgb.copy()
+    box = scene.get("legend")
+    if box:
+        x0, y0 = max(0, int(box["x"]) - 2), max(0, int(box["y"]) - 2)
+        out[y0:int(box["y"] + box["height"]) + 2, x0:int(box["x"] + box["width"]) + 2] = 255
+    return out
 
 
 def distinct_colours(rgb) -> int:

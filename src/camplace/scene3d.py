@@ -583,19 +583,40 @@ def _trajectory_traces(go, scene: Scene3D) -> list:
     return traces
 
 
+def _focus(scene: Scene3D) -> np.ndarray | None:
+    """(3,) float64 what the view orbits around: the target's bounding-box centre (else the points')."""
+    for a in ((scene.target.vertices if scene.target is not None else None), scene.points):
+        if a is not None and len(a):
+            a = np.asarray(a, dtype=np.float64)
+            return (a.min(axis=0) + a.max(axis=0)) / 2.0
+    return None
+
+
 def _layout(go, scene: Scene3D, height_px: int):
-    """Axis ranges of :func:`view_bounds` at true proportions, legend on the right."""
+    """Axis ranges of :func:`view_bounds` at true proportions, legend on the right; the view orbits
+    the target and frames the chosen cameras."""
     lo, hi = view_bounds(scene)
     span = hi - lo
     ratio = np.maximum(span, 0.05 * span.max()) / span.max()
     axis = {"showbackground": True, "backgroundcolor": "#f6f7f9", "gridcolor": "#dde1e7", "zerolinecolor": "#c4cad3"}
     ax = {c: {**axis, "title": {"text": f"{c} (m)"}, "range": [float(lo[i]), float(hi[i])]} for i, c in enumerate("xyz")}
+    mid = (lo + hi) / 2.0
+
+    def norm(p: np.ndarray) -> np.ndarray:  # plotly's camera units: the box spans aspectratio, centred on 0
+        return (np.asarray(p, dtype=np.float64) - mid) / span * ratio
+
+    focus = _focus(scene)
+    centre = norm(focus) if focus is not None else np.zeros(3)
+    reach = [np.linalg.norm(norm(c.position) - centre) for c in scene.cameras]
+    dist = min(3.0 * max(reach, default=0.87), 2.6) or 2.17  # plotly frames its box (radius 0.87) from 2.17
+    eye = centre + dist * np.array([1.0, 1.0, 0.8]) / np.linalg.norm([1.0, 1.0, 0.8])
+    camera = {"center": dict(zip("xyz", centre.tolist(), strict=True)), "eye": dict(zip("xyz", eye.tolist(), strict=True))}
     return go.Layout(
         template="none", height=height_px, margin={"l": 0, "r": 0, "t": 10, "b": 0}, paper_bgcolor="#ffffff",
         font={"family": "system-ui, -apple-system, 'Segoe UI', Roboto, 'DejaVu Sans', sans-serif", "size": 12},
-        legend={"itemsizing": "constant", "font": {"size": 11}},
+        legend={"itemsizing": "constant", "font": {"size": 11}, "y": 0.93, "yanchor": "top"},  # below the mode bar
         scene={"aspectmode": "manual", "aspectratio": {c: float(r) for c, r in zip("xyz", ratio, strict=True)},
-               "xaxis": ax["x"], "yaxis": ax["y"], "zaxis": ax["z"]},
+               "xaxis": ax["x"], "yaxis": ax["y"], "zaxis": ax["z"], "camera": camera},
         hoverlabel={"namelength": -1},
     )
 

@@ -495,10 +495,15 @@ def validate_cameras(
         "detection": detection.to_dict(),
     }
     report = _finish_report(records, out, overlays, settings)
-    _write_cameras_scene(out, cameras.cameras, target, title=Path(cameras.source).name or "cameras", target_name=target_spec or "target",
+    _write_cameras_scene(out, cameras.cameras, target, title=Path(cameras.source).name or "cameras", target_name=_target_label(target_spec),
                          meta={"mode": "cameras", "cameras_file": cameras.source, "target": target_spec,
                                "photographed": [r["name"] for r in records]})
     return report
+
+
+def _target_label(spec: str) -> str:
+    """A short name for ``--target``: "box" or the mesh file's name."""
+    return "box" if spec.startswith("box:") else (Path(spec).name or "target")
 
 
 def _write_cameras_scene(out: Path, cameras, target, **scene_options) -> None:
