@@ -403,6 +403,43 @@ def stage_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequen
     return cand_seed, point_seed
 
 
+# Bytes a matrix row (target point) and a candidate pose cost before the matrix exists: the arrays
+# kept (positions, normals, frame, weight; position, aim, rotation) and the sampling temporaries.
+_ROW_BYTES = 200
+_POSE_BYTES = 400
+
+
+def check_input_memory(n_points: int, n_frames: int, n_poses: int = 0, memory_budget_gb: float | None = None) -> None:
+    """Stop with a one-line error when the rows and candidate poses alone would not fit the budget.
+
+    Parameters
+    ----------
+    n_points : int
+        Surface points requested (``--points``; split over ``n_frames`` frames, rounded up).
+    n_frames : int
+    n_poses : int
+        Candidate poses (positions x orientations).
+    memory_budget_gb : float or None
+        Budget in GiB (default: half the machine's memory, as the visibility stage).
+
+    Raises
+    ------
+    CamplaceError
+        Naming the option to lower, before anything is allocated.
+    """
+    from camplace.visibility.engine import available_memory_bytes
+
+    budget = available_memory_bytes() // 2 if memory_budget_gb is None else int(memory_budget_gb * 2**30)
+    rows = -(-int(n_points) // max(1, n_frames)) * max(1, n_frames)
+    need = rows * _ROW_BYTES + int(n_poses) * _POSE_BYTES
+    if need > budget:
+        what = "--points" if rows * _ROW_BYTES >= n_poses * _POSE_BYTES else "--candidates"
+        raise CamplaceError(
+            f"{what}: {rows:,} points and {n_poses:,} candidate poses need about {need / 2**30:.1f} GiB before the "
+            f"visibility matrix, over the {budget / 2**30:.1f} GiB budget (lower {what} or raise --memory-budget-gb)"
+        )
+
+
 def compute_points(instance, n_points: int | None = None, seed: int | None = None):
     """The matrix rows of a run with this seed (the same points ``run`` makes).
 
@@ -424,6 +461,7 @@ def compute_points(instance, n_points: int | None = None, seed: int | None = Non
         raise CamplaceError(f"--seed: must be >= 0, got {seed}")
     if n_points < 1:
         raise CamplaceError(f"--points: must be >= 1, got {n_points}")
+    check_input_memory(n_points, len(instance.frames))
     return make_target_points(instance, n_points, seed=stage_seeds(seed)[1])
 
 
@@ -544,6 +582,7 @@ def run(
     if time_limit_s <= 0:
         raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
 
+    check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
     options = run_options(
         mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction, fixed=fixed,
         forbidden=forbidden, min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,

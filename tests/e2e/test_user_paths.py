@@ -238,3 +238,18 @@ def test_render_validate_export(reported_run, tmp_path) -> None:
 
     scene = trimesh.load(exp / "cameras.glb")
     assert sum("frustum" in str(n).lower() or "camera" in str(n).lower() for n in scene.geometry) >= k
+
+
+@pytest.mark.parametrize("args,option", [
+    (["--points", "300000000"], "--points"),
+    (["--candidates", "5000000", "--memory-budget-gb", "1"], "--candidates"),
+])
+def test_sizes_beyond_memory_stop_before_allocating(args, option, tmp_path) -> None:
+    """A size the memory cannot hold is a one-line error up front (found on the way: 300 M points
+    were allocated for two minutes and then died of MemoryError, or of the OOM killer without a limit)."""
+    t0 = time.perf_counter()
+    proc = camplace("run", "comet-67p-bunker", "-o", str(tmp_path / "out"), *args, cwd=tmp_path, ok=(2,))
+    assert proc.stderr.startswith(f"error: {option}:") and "GiB" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert time.perf_counter() - t0 < 30
+    assert not (tmp_path / "out" / "solution.json").exists()

@@ -110,7 +110,8 @@ def test_campaign_on_other_rows_is_refused(tmp_path) -> None:
     run(inst, seed=4, candidates=20, points=300, outdir=out)
     rd = load_run_data(out)
     other = run_campaign(inst, systems=3, seed=5, points=300)
-    with pytest.raises(CamplaceError, match=r"--seed 4 --points 300"):
+    # the fix named is the one command that makes a matching campaign: from the run folder
+    with pytest.raises(CamplaceError, match=r"seed 5, 300 rows; run: .*seed 4, 300 rows.*'camplace campaign \S+run --systems 3"):
         compare_with_campaigns(rd, [other])
     k2 = run_campaign(inst, systems=3, seed=4, points=300, k=2)
     with pytest.raises(CamplaceError, match="k = 2"):
