@@ -132,14 +132,16 @@ def reported_run(request, tmp_path_factory) -> tuple[str, Path]:
 
 @pytest.mark.slow
 def test_run_with_report(reported_run, tmp_path) -> None:
-    from tests.report.test_report_html import open_in_chromium
+    from tests._chromium import open_in_chromium
+    from tests.report.test_report_html import check_scene_in_chromium
 
     name, out = reported_run
     sol = check_solution(out, "maxcover")
     html = (out / "report.html").read_text()
     assert "on the same matrix: <b>holds</b>" in html
-    page = open_in_chromium(out / "report.html", tmp_path / "report.png")
+    page = open_in_chromium(out / "report.html", tmp_path / "report.png", scene_id="scene3d", scene_screenshot=tmp_path / "scene3d.png")
     assert page["errors"] == []
+    check_scene_in_chromium(page, out / "report.html", tmp_path / "scene3d.png", len(sol["cameras"]))  # the 3D view
     url = (out / "report.html").resolve().as_uri()
     assert [u for u in page["requests"] if not (u == url or u.startswith("data:"))] == []
     for sampler in ("uniform", "chaotic"):

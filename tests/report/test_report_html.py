@@ -1,29 +1,22 @@
-"""report.html end to end, checked in a real headless Chromium through the DevTools protocol.
-
-Chromium is driven over ``--remote-debugging-pipe`` (file descriptors 3 and 4, NUL-separated JSON),
-so no port is opened and no third-party package is needed; its network is cut off (host resolver
-mapped to nothing, a dead proxy) and every request the page makes is recorded and must be the page
-itself or a ``data:`` URI.
+"""report.html end to end, checked in a real headless Chromium through the DevTools protocol
+(:mod:`tests._chromium`): its network is cut off and every request the page makes is recorded and
+must be the page itself or a ``data:`` URI; the 3D view must draw (WebGL on SwiftShader).
 """
 
 from __future__ import annotations
 
-import base64
 import copy
-import fcntl
 import inspect
 import json
 import os
 import re
-import select
 import shutil
-import subprocess
 import sys
-import tempfile
-import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import camplace.cli
 from camplace.instance import builtin_toml, parse_instance
@@ -31,139 +24,10 @@ from camplace.pipeline import run
 from camplace.report.build import BUNDLE_SAMPLERS, BUNDLE_SYSTEMS, run_report_bundle, write_report
 from camplace.report.campaign import Campaign
 from camplace.validation import render_run, validate_runs
+from tests._chromium import distinct_colours, external_requests, open_in_chromium, pixels_near, png_colours, without_legend
 
 NAME = "comet<&>\"q'"  # an instance name that must be escaped everywhere
-CHROMIUM_FLAGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--disable-extensions", "--disable-default-apps",
-    "--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9", "--proxy-bypass-list=<-loopback>",
-    "--remote-debugging-pipe",
-]
-
-
-def chromium_path() -> str:
-    """The Chromium executable, or fail saying how to install it (the CI installs it; never skip)."""
-    for cand in (os.environ.get("CAMPLACE_CHROMIUM"), "chromium", "chromium-browser", "google-chrome"):
-        if cand and shutil.which(cand):
-            return shutil.which(cand)
-    pytest.fail("Chromium is needed to check report.html in a real browser: install it with "
-                "'sudo apt-get install -y chromium' (Debian/Ubuntu) or set CAMPLACE_CHROMIUM=/path/to/chrome")
-
-
-class DevTools:
-    """A headless Chromium driven over the DevTools pipe."""
-
-    def __init__(self, exe: str, profile: str) -> None:
-        to_r, self.to_w = os.pipe()
-        self.from_r, from_w = os.pipe()
-        # move the child's ends above 10 so that placing them on 3 and 4 cannot clobber one another
-        hi_r, hi_w = fcntl.fcntl(to_r, fcntl.F_DUPFD, 10), fcntl.fcntl(from_w, fcntl.F_DUPFD, 10)
-        os.close(to_r)
-        os.close(from_w)
-
-        def child() -> None:  # Chromium reads commands on fd 3 and answers on fd 4
-            os.dup2(hi_r, 3)
-            os.dup2(hi_w, 4)
-
-        try:
-            self.proc = subprocess.Popen([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "about:blank"],
-                                         preexec_fn=child, pass_fds=(3, 4), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        finally:
-            os.close(hi_r)
-            os.close(hi_w)
-        self.buf = b""
-        self.next_id = 0
-        self.events: list[dict] = []
-
-    def _read(self, timeout: float) -> dict:
-        end = time.monotonic() + timeout
-        while b"\0" not in self.buf:
-            left = end - time.monotonic()
-            if left <= 0:
-                raise TimeoutError("Chromium did not answer in time")
-            ready, _, _ = select.select([self.from_r], [], [], left)
-            if ready:
-                chunk = os.read(self.from_r, 1 << 20)
-                if not chunk:
-                    raise RuntimeError("Chromium closed the DevTools pipe: " + self.proc.stderr.read().decode(errors="replace")[-2000:])
-                self.buf += chunk
-        msg, self.buf = self.buf.split(b"\0", 1)
-        return json.loads(msg)
-
-    def send(self, method: str, params: dict | None = None, session: str | None = None, timeout: float = 60) -> dict:
-        self.next_id += 1
-        msg = {"id": self.next_id, "method": method, "params": params or {}}
-        if session:
-            msg["sessionId"] = session
-        os.write(self.to_w, json.dumps(msg).encode() + b"\0")
-        while True:
-            m = self._read(timeout)
-            if m.get("id") == self.next_id:
-                if "error" in m:
-                    raise RuntimeError(f"{method}: {m['error']}")
-                return m.get("result", {})
-            self.events.append(m)
-
-    def wait_event(self, method: str, timeout: float = 60) -> dict:
-        for i, e in enumerate(self.events):
-            if e.get("method") == method:
-                return self.events.pop(i)
-        end = time.monotonic() + timeout
-        while True:
-            m = self._read(max(0.01, end - time.monotonic()))
-            if m.get("method") == method:
-                return m
-            self.events.append(m)
-
-    def close(self) -> None:
-        try:
-            self.send("Browser.close", timeout=10)
-        except Exception:  # noqa: BLE001 - closing anyway
-            pass
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        os.close(self.to_w)
-        os.close(self.from_r)
-
-
-def open_in_chromium(page: Path, screenshot: Path, width: int = 1200) -> dict:
-    """Load ``page``; return its images, console errors and requests; save a full-page screenshot."""
-    profile = tempfile.mkdtemp(prefix="camplace-chromium-")
-    dt = DevTools(chromium_path(), profile)
-    try:
-        tid = dt.send("Target.createTarget", {"url": "about:blank"})["targetId"]
-        sid = dt.send("Target.attachToTarget", {"targetId": tid, "flatten": True})["sessionId"]
-        for m in ("Runtime.enable", "Log.enable", "Page.enable", "Network.enable"):
-            dt.send(m, session=sid)
-        dt.send("Emulation.setDeviceMetricsOverride", {"width": width, "height": 900, "deviceScaleFactor": 1, "mobile": False}, session=sid)
-        dt.send("Page.navigate", {"url": page.resolve().as_uri()}, session=sid)
-        dt.wait_event("Page.loadEventFired")
-        expr = ("JSON.stringify({title: document.title, images: Array.from(document.images).map("
-                "i => ({alt: i.alt, complete: i.complete, w: i.naturalWidth, h: i.naturalHeight}))})")
-        info = json.loads(dt.send("Runtime.evaluate", {"expression": expr, "returnByValue": True}, session=sid)["result"]["value"])
-        height = dt.send("Page.getLayoutMetrics", session=sid)["cssContentSize"]["height"]
-        shot = dt.send("Page.captureScreenshot", {"format": "png", "captureBeyondViewport": True,
-                                                  "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}}, session=sid)
-        screenshot.write_bytes(base64.b64decode(shot["data"]))
-        dt.send("Runtime.evaluate", {"expression": "1"}, session=sid)  # flush pending events
-        errors, requests = [], []
-        for e in dt.events:
-            m, p = e.get("method"), e.get("params", {})
-            if m == "Runtime.exceptionThrown":
-                errors.append(p["exceptionDetails"].get("text", "exception"))
-            elif m == "Runtime.consoleAPICalled" and p.get("type") in ("error", "assert"):
-                errors.append(json.dumps(p.get("args"))[:300])
-            elif m == "Log.entryAdded" and p["entry"].get("level") == "error":
-                errors.append(p["entry"].get("text", "error"))
-            elif m == "Network.requestWillBeSent":
-                requests.append(p["request"]["url"])
-        return {"title": info["title"], "images": info["images"], "errors": errors, "requests": requests, "height": height}
-    finally:
-        dt.close()
-        shutil.rmtree(profile, ignore_errors=True)
+SCRIPT = re.compile(r"<script[^>]*>.*?</script>", re.S)
 
 
 def small_instance():
@@ -211,7 +75,16 @@ def test_report_content(outdir) -> None:
     # every user string escaped
     assert NAME not in text and "comet&lt;&amp;&gt;&quot;q&#x27;" in text
     assert "campaign-<b>" not in text and "campaign-&lt;b&gt;&amp;&#x27;x&#x27;" in text
-    assert "<script" not in text.lower() and "http://" not in text and "https://" not in text
+    # the only scripts are the 3D view's: its data tag, plotly.js and the plot; no URL outside plotly.js
+    scripts = SCRIPT.findall(text)
+    assert len(scripts) == 3
+    assert scripts[0].startswith("<script type='application/json' id='scene3d-data'>")
+    assert "Plotly" in scripts[1] and len(scripts[1]) > 1_000_000
+    assert "Plotly.newPlot" in scripts[2]
+    rest = SCRIPT.sub("", text)
+    assert "<script" not in rest.lower()
+    for part in (rest, scripts[0], scripts[2]):
+        assert "http://" not in part and "https://" not in part
     alts = re.findall(r'<img src="data:image/png;base64,[A-Za-z0-9+/=]+" alt="([^"]*)"', text)
     assert len(alts) == text.count("<img ")
     for c in ("campaign-chaotic", "campaign-uniform", "campaign-&lt;b&gt;&amp;&#x27;x&#x27;"):
@@ -230,18 +103,70 @@ def test_report_content(outdir) -> None:
     assert "light_curves.csv" in text
 
 
+def scene_data(page: Path) -> dict:
+    m = re.search(r"<script type='application/json' id='scene3d-data'>(.*?)</script>", page.read_text(), re.S)
+    assert m is not None
+    return json.loads(m.group(1))
+
+
+def test_scene3d_coverage_matches_the_matrix(outdir) -> None:
+    """Oracle: the coverage of each peak-frame row recounted from visibility.npz, points.csv and solution.json."""
+    d = scene_data(outdir / "report.html")
+    sol = json.loads((outdir / "solution.json").read_text())
+    assert d["system"] == "the run's system"  # no campaign system beat it (the report says the guarantee holds)
+    sel = [int(c["candidate"]) for c in sol["cameras"]]
+    M = sp.load_npz(outdir / "visibility.npz").tocsc()
+    frame = np.loadtxt(outdir / "points.csv", delimiter=",", skiprows=1)[:, 7].astype(int)
+    peak = sol["peak_frame"]
+    rows = np.flatnonzero(frame == peak)
+    counts = np.asarray((M[:, sel] > 0).sum(axis=1)).ravel()[rows]
+    assert d["n_cameras"] == len(d["cameras"]) == len(sel) == 3
+    for cam, rec in zip(d["cameras"], sol["cameras"], strict=True):
+        assert cam["position"] == pytest.approx(rec["position"], abs=1e-5)
+        assert cam["forward"] == pytest.approx(np.array(rec["rotation"])[:, 2], abs=1e-5)
+        assert rec["near_m"] < cam["depth_m"] <= rec["far_m"]
+    cov = d["coverage"]
+    assert cov["n_points"] == len(rows) > 0
+    assert cov["points"] == [int(np.sum(np.minimum(counts, 3) == c)) for c in range(4)]
+    assert cov["count"] == counts[cov["index"]].tolist()
+    assert d["frame"] == peak and d["n_frames"] == 2
+    centres = np.array(d["trajectory"]["centres"])
+    assert centres.shape == (2, 3) and centres[1] - centres[0] == pytest.approx([0.3, 0.0, 0.0], abs=1e-4)
+    # the best and the median system of each campaign (three campaign folders), muted
+    assert len(d["other_systems"]) == 6 and all(s["n_cameras"] == 3 for s in d["other_systems"])
+    assert sorted({s["name"].split(" ")[-3] for s in d["other_systems"]}) == ["best", "median"]
+
+
+def check_scene_in_chromium(res: dict, page: Path, shot: Path, n_cameras: int) -> None:
+    """The 3D view drew with WebGL, with ``n_cameras`` frusta and every drawn point, and its screenshot is not blank."""
+    sc = res["scene"]
+    assert sc["found"] and sc["ready"], sc
+    assert any(c["webgl"] and c["w"] > 100 and c["h"] > 100 for c in sc["canvases"])
+    d = sc["data"]  # read back from the page by the browser
+    assert d == scene_data(page) and d["n_cameras"] == n_cameras
+    frusta = [t for t in sc["traces"] if t["mode"] == "lines" and (t["group"] or "").startswith("camera")]
+    assert len(frusta) == n_cameras and all(t["visible"] is True for t in frusta)
+    drawn = [t for t in sc["traces"] if (t["name"] or "").startswith("seen by")]
+    assert len(drawn) == 4 and sum(t["n"] for t in drawn) == d["coverage"]["n_drawn"]
+    (w, h), rgb = png_colours(shot.read_bytes())
+    assert (w, h) == (round(sc["box"]["width"]), round(sc["box"]["height"]))
+    assert distinct_colours(rgb) > 300
+    # the coverage colours are drawn in the 3D canvas (legend masked): the most frequent class at least
+    top = int(np.argmax(d["coverage"]["points"]))
+    assert sc["legend"] is not None and pixels_near(without_legend(rgb, sc), d["coverage"]["colours"][top]) > 20
+
+
 def test_report_opens_in_chromium_without_errors(outdir, tmp_path) -> None:
-    shot = tmp_path / "report.png"
-    res = open_in_chromium(outdir / "report.html", shot)
+    shot, scene_shot = tmp_path / "report.png", tmp_path / "scene3d.png"
+    res = open_in_chromium(outdir / "report.html", shot, scene_id="scene3d", scene_screenshot=scene_shot)
     assert res["errors"] == []
     assert res["title"] == f"camplace report: {NAME}"
     n_img = (outdir / "report.html").read_text().count("<img ")
     assert len(res["images"]) == n_img >= 12
     bad = [i for i in res["images"] if not (i["complete"] and i["w"] > 0 and i["h"] > 0)]
     assert bad == []
-    page_url = (outdir / "report.html").resolve().as_uri()
-    external = [u for u in res["requests"] if not (u == page_url or u.startswith("data:"))]
-    assert external == []
+    assert external_requests(outdir / "report.html", res["requests"]) == []
+    check_scene_in_chromium(res, outdir / "report.html", scene_shot, 3)
     png = shot.read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
     w, h = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
@@ -249,6 +174,7 @@ def test_report_opens_in_chromium_without_errors(outdir, tmp_path) -> None:
     keep = os.environ.get("CAMPLACE_REPORT_SCREENSHOT")
     if keep:
         shutil.copy(shot, keep)
+        shutil.copy(scene_shot, Path(keep).with_suffix(".scene3d.png"))
 
 
 def test_report_verb_and_its_errors(outdir, tmp_path, monkeypatch, capsys) -> None:
@@ -277,3 +203,15 @@ def test_matrix_light_curves_without_csv(tmp_path) -> None:
     text = write_report(out, sampler_study=False).read_text()
     assert 'alt="light curves"' in text and "from the visibility matrix" in text
     assert "Validation has not run" in text
+
+
+def test_validate_runs_writes_the_3d_view(outdir) -> None:
+    """validate on a run folder draws its system (strong) and the random system (muted) around the target."""
+    d = scene_data(outdir / "validation" / "scene3d.html")
+    sol = json.loads((outdir / "solution.json").read_text())
+    assert d["kind"] == "validation" and d["mode"] == "runs" and d["frame"] == 0
+    assert d["n_cameras"] == 3
+    for cam, rec in zip(d["cameras"], sol["cameras"], strict=True):
+        assert cam["position"] == pytest.approx(rec["position"], abs=1e-5)
+    assert [(s["name"], s["n_cameras"]) for s in d["other_systems"]] == [("system 2", 3)]
+    assert d["occluders"][0]["name"] == "corridor" and d["coverage"]["n_points"] == 4000

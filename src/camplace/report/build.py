@@ -1,7 +1,8 @@
 """``report.html``: one self-contained page about a run, its campaigns, the samplers and validation.
 
-Everything is embedded (images as base64 ``data:`` URIs, CSS inline, no JavaScript), and a
-Content-Security-Policy forbids the page any other resource, so it opens offline in any browser.
+Everything is embedded (images as base64 ``data:`` URIs, CSS inline, the 3D view's plotly.js inline:
+:mod:`camplace.report.scene3d`), and a Content-Security-Policy forbids the page any other resource,
+so it opens offline in any browser.
 Every string that comes from a file or the user is escaped with :func:`html.escape`.
 """
 
@@ -50,7 +51,7 @@ figcaption{font-size:.85em;color:#4a5263;margin-top:3px}
 nav a{margin-right:12px}
 """
 
-CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
+CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'"  # scripts: the 3D view
 
 
 # --------------------------------------------------------------------------------------------------
@@ -605,6 +606,7 @@ def write_report(
     from camplace.report.campaign import Campaign, find_campaigns
     from camplace.report.compare import compare_with_campaigns, load_run_data
     from camplace.report.figures import require_matplotlib
+    from camplace.report.scene3d import scene3d_section
 
     require_matplotlib()
     reporter = reporter or Reporter()
@@ -622,6 +624,7 @@ def write_report(
         body = [
             _instance_section(run),
             _system_section(run, comp),
+            scene3d_section(run, comp, campaigns),
             camp_html,
             _sampler_section(run, study),
             _cones_section(run, comp, campaigns),
@@ -631,7 +634,7 @@ def write_report(
     sol = run.solution
     title = f"camplace report: {sol.instance or run.instance.name}"
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    nav = "".join(f"<a href='#{a}'>{t}</a>" for a, t in [("instance", "instance"), ("system", "optimised system"), ("campaigns", "campaigns"),
+    nav = "".join(f"<a href='#{a}'>{t}</a>" for a, t in [("instance", "instance"), ("system", "optimised system"), ("scene3d", "3D view"), ("campaigns", "campaigns"),
                                                             ("samplers", "samplers"), ("cones", "vision cones"), ("legacy", "legacy score"),
                                                             ("validation", "validation")])
     page = (

@@ -132,7 +132,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             detection=det, workers=args.workers,
         )
     print(report.summary())
-    print(f"wrote {args.out / 'validation.json'} and {len(report.figures)} figure(s)")
+    scene = args.out / "scene3d.html"
+    extra = f", {scene} (3D view)" if scene.is_file() else ""
+    print(f"wrote {args.out / 'validation.json'}{extra} and {len(report.figures)} figure(s)")
     return EXIT_OK
 
 

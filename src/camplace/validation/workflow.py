@@ -489,7 +489,8 @@ def validate_cameras(
     The target mask of each camera is the target mesh ray cast alone (no other geometry, no light);
     the prediction is Algorithm 3 run on that render (the target on black; against a black
     background render when the photo has a background photograph).
-    Writes ``validation.json`` and ``overlay.{camera}.png`` figures into ``out``.
+    Writes ``validation.json``, ``overlay.{camera}.png`` figures and ``scene3d.html`` (every
+    camera of ``cameras`` around the target, :mod:`camplace.validation.scene3d`) into ``out``.
 
     Returns
     -------
@@ -526,7 +527,23 @@ def validate_cameras(
         "manifest": None if manifest is None else str(manifest),
         "detection": detection.to_dict(),
     }
-    return _finish_report(records, out, overlays, settings)
+    report = _finish_report(records, out, overlays, settings)
+    _write_cameras_scene(out, cameras.cameras, target, title=Path(cameras.source).name or "cameras", target_name=_target_label(target_spec),
+                         meta={"mode": "cameras", "cameras_file": cameras.source, "target": target_spec,
+                               "photographed": [r["name"] for r in records]})
+    return report
+
+
+def _target_label(spec: str) -> str:
+    """A short name for ``--target``: "box" or the mesh file's name."""
+    return "box" if spec.startswith("box:") else (Path(spec).name or "target")
+
+
+def _write_cameras_scene(out: Path, cameras, target, **scene_options) -> None:
+    """``out/scene3d.html`` (skipped with a warning when plotly is missing)."""
+    from camplace.validation.scene3d import cameras_scene, write_scene3d
+
+    write_scene3d(out, cameras_scene(cameras, target, **scene_options))
 
 
 def _run_physical(outdir: str | Path, instance):
@@ -681,7 +698,14 @@ def validate_runs(
         "detection": detection.to_dict(),
         "render": settings.__dict__,
     }
-    return _finish_report(records, out, overlays, report_settings)
+    report = _finish_report(records, out, overlays, report_settings)
+    inst1, cams1 = systems[0]
+    em = _frame_emitters(inst1, frame)
+    _write_cameras_scene(out, cams1, inst1.target_world(frame), title=f"{exp}, frame {frame}", target_name=inst1.target.name,
+                         occluders=inst1.occluders_world(frame), emitters=None if em is None else em.positions_m,
+                         other_systems=[(f"system {s}", cams) for s, (_, cams) in enumerate(systems[1:], start=2)],
+                         seed=seed, meta={"mode": "runs", "runs": [str(d) for d in outdirs], "frame": frame})
+    return report
 
 
 # --------------------------------------------------------------------------------------------------
