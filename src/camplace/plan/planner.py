@@ -224,6 +224,7 @@ def solve_plan(
     engine: str = "auto",
     time_limit_s: float | None = None,
     exact: bool = True,
+    heuristic: bool = True,
     max_nonzeros: int = MODEL_MAX_NONZEROS,
     max_arcs: int = MODEL_MAX_ARCS,
 ) -> PlanResult:
@@ -240,6 +241,9 @@ def solve_plan(
         Wall-clock limit of the whole planner (the exact model gets what is left).
     exact : bool
         Try the exact model (False: heuristic and bounds only).
+    heuristic : bool
+        Look for an incumbent before the exact model (False: the exact model alone, over every pose;
+        for tests of the model).
     max_nonzeros, max_arcs : int
         Largest exact model attempted (estimated before building).
 
@@ -322,12 +326,12 @@ def solve_plan(
     # 4. heuristic incumbent
     t0 = time.perf_counter()
     starts: list[tuple[str, np.ndarray]] = []
-    if static_feasible:
+    if heuristic and static_feasible:
         starts.append(("static", static_plan))
-    greedy = insert_agents(problem, index)
+    greedy = insert_agents(problem, index) if heuristic else None
     if greedy is not None:
         starts.append(("insertion", greedy))
-    pooled = set_sequence_dp(problem, list(opt_sets) + [ref.candidates])
+    pooled = set_sequence_dp(problem, list(opt_sets) + [ref.candidates]) if heuristic else None
     if pooled is not None:
         starts.append(("set-sequence", pooled))
     best_plan, best_val, best_from = None, -math.inf, ""
