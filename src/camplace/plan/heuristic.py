@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from camplace.plan.model import PlanProblem, paths_from_sets, phase_value, sets_compatible, within
+from camplace.plan.model import PlanProblem, paths_from_sets, phase_value, sets_compatible, single_values, within
 
 __all__ = ["ReachIndex", "column_gains", "best_agent_path", "agent_ascent", "set_sequence_dp"]
 
@@ -107,6 +107,14 @@ def _group_best(problem: PlanProblem, values: np.ndarray) -> tuple[np.ndarray, n
     return values[cand], cand
 
 
+def _csc(problem: PlanProblem, p: int):
+    """Phase p's matrix in CSC form (cached on the problem; as large as the phase's matrix)."""
+    key = ("csc", p)
+    if key not in problem._cache:
+        problem._cache[key] = problem.matrices[p].tocsc()
+    return problem._cache[key]
+
+
 def column_gains(problem: PlanProblem, p: int, others: Sequence[int]) -> tuple[float, np.ndarray, np.ndarray]:
     """What each pose adds to phase p's value on top of the poses ``others``.
 
@@ -124,13 +132,15 @@ def column_gains(problem: PlanProblem, p: int, others: Sequence[int]) -> tuple[f
     cols = sorted({int(j) for j in others})
     rowlen = np.diff(q.indptr)
     extra = None
-    if cols:
-        sub = q[:, cols].tocsr()
-        count = np.diff(sub.indptr)
-    else:
-        sub, count = None, np.zeros(m, dtype=np.int64)
+    csc = _csc(problem, p)
+    count = np.zeros(m, dtype=np.int64)
+    best = np.zeros(m)
+    for j in cols:  # the others' rows, column by column (a CSC slice each: no scan of the whole matrix)
+        r = csc.indices[csc.indptr[j]:csc.indptr[j + 1]]
+        count[r] += 1
+        if problem.mode == "quality":
+            np.maximum.at(best, r, csc.data[csc.indptr[j]:csc.indptr[j + 1]])
     if problem.mode == "quality":
-        best = sub.max(axis=1).toarray().ravel() if sub is not None and sub.nnz else np.zeros(m)
         base = float(w @ best)
         contrib = np.repeat(w, rowlen) * np.maximum(q.data - np.repeat(best, rowlen), 0.0)
     elif problem.mode == "maxcover":
@@ -299,3 +309,32 @@ def set_sequence_dp(problem: PlanProblem, pool: Sequence[Sequence[int]], expired
         seq.append(int(arg[seq[-1]]))
     seq.reverse()
     return paths_from_sets(problem, [sets[i] for i in seq])
+
+
+def neighbourhood(problem: PlanProblem, plan: np.ndarray, extra_sets: Sequence[Sequence[int]], top: int) -> list[np.ndarray]:
+    """Poses of a restricted problem around a plan (large-neighbourhood search).
+
+    Per phase: every pose of the plan (any phase), of ``extra_sets``, the ``top`` best poses alone,
+    the ``top`` best additions to each agent's companions in that phase, and every other aim at the
+    positions of those poses.
+
+    Returns
+    -------
+    list of (n_p,) int64
+        Sorted candidate columns per phase.
+    """
+    base = set(int(j) for j in np.asarray(plan).ravel())
+    for s in extra_sets:
+        base |= {int(j) for j in s}
+    k, P = problem.k, problem.n_phases
+    out = []
+    for p in range(P):
+        chosen = set(base)
+        sv = single_values(problem, p)
+        chosen |= set(np.argsort(-sv, kind="stable")[:top].tolist())
+        for a in range(k):
+            _, gain, _ = column_gains(problem, p, np.delete(plan[:, p], a))
+            chosen |= set(np.argsort(-np.where(np.isfinite(gain), gain, -1.0), kind="stable")[:top].tolist())
+        at = np.isin(problem.pos_id, problem.pos_id[sorted(chosen)])
+        out.append(np.flatnonzero(at).astype(np.int64))
+    return out

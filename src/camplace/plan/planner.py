@@ -14,10 +14,13 @@
    optima: a feasible incumbent ``I``.
 5. **Exact model.** Any plan better than ``I`` holds, in each phase p, only poses j with
    ``F_p(j) + sum_{q != p} U_q > I``, where ``F_p(j) = min(U_p, U_p^(k-1) + single_p(j))`` bounds
-   every phase-p set holding j (``U_p^(k-1)``: the phase's optimum with k - 1 agents). The flow model
+   every phase-p set holding j (``U_p^(k-1)``: the phase's optimum with k - 1 agents; not in
+   multiview, whose engines are slow to give it). The flow model
    (:func:`camplace.plan.model.build_flow_model`) over the kept poses is solved with SCIP or CP-SAT
    (the incumbent as a hint) when its estimated size fits; its bound, or I if it is infeasible,
-   is then a bound on every plan.
+   is then a bound on every plan. When it is too large, a large-neighbourhood search solves it
+   restricted to poses around the incumbent (:func:`camplace.plan.heuristic.neighbourhood`) while
+   that improves; the bound is then the sum of the per-phase optima.
 
 ``status`` is "optimal" when the bound meets the objective (relative 1e-9), else "feasible".
 """
@@ -55,6 +58,9 @@ _OPT_TOL = 1e-9
 #: Largest exact model attempted: coverage nonzeros (before merging rows) and flow arcs.
 MODEL_MAX_NONZEROS = 1_500_000
 MODEL_MAX_ARCS = 1_000_000
+#: Large-neighbourhood search: first "top" poses per phase, and the time limit of one restricted solve.
+LNS_FIRST_TOP = 10
+LNS_SOLVE_MAX_S = 30.0
 
 
 def relative_gap(bound: float, objective: float) -> float:
@@ -362,33 +368,93 @@ def solve_plan(
     # 5. exact model over the poses that can still improve
     t0 = time.perf_counter()
     incumbent = best_val if best_plan is not None else -math.inf
-    U_less = np.zeros(P)
-    if k > 1 and math.isfinite(incumbent):
-        for p in range(P):
-            _, _, U_less[p], _ = _solve_phase(problem, p, k - 1, clock.share(0.1 / max(1, P - p)))
-    else:
-        U_less[:] = U if not math.isfinite(incumbent) else 0.0
-    kept = _kept_poses(problem, incumbent, U, U_less) if math.isfinite(incumbent) else \
-        [np.arange(problem.n_candidates) for _ in range(P)]
+    every = [np.arange(problem.n_candidates) for _ in range(P)]
+    kept, size = every, flow_model_size(problem, every)
+    fits = size["coverage_nonzeros"] <= max_nonzeros and size["flow_arcs"] <= max_arcs
+    rem = clock.remaining()
+    # prune by the per-pose bounds F_p(j): needs each phase's optimum with k - 1 agents, which the
+    # multiview engines do not give within short time limits (and their bound is weak there)
+    if not fits and math.isfinite(incumbent) and problem.mode != "multiview" and (rem is None or rem > 0.5 * float(clock.limit)):
+        U_less = np.zeros(P)
+        if k > 1:
+            for p in range(P):
+                _, _, U_less[p], _ = _solve_phase(problem, p, k - 1, clock.share(0.05 / max(1, P - p), minimum=0.2))
+        kept = _kept_poses(problem, incumbent, U, U_less)
+        stats["kept_poses"] = [int(kp.size) for kp in kept]
+        if any(kp.size < k for kp in kept):
+            # some phase cannot hold k poses of an improving plan: the incumbent is optimal
+            stats["exact"] = "no plan can beat the incumbent (a phase keeps fewer than k poses)"
+            timings["time_prune_s"] = time.perf_counter() - t0
+            return finish(best_plan, "heuristic", incumbent, "optimal")
+        size = flow_model_size(problem, kept)
     timings["time_prune_s"] = time.perf_counter() - t0
-    stats["kept_poses"] = [int(kp.size) for kp in kept]
-    if any(kp.size < k for kp in kept):
-        # some phase cannot hold k poses of an improving plan: the incumbent is optimal
-        stats["exact"] = "no plan can beat the incumbent (a phase keeps fewer than k poses)"
-        return finish(best_plan, "heuristic", incumbent if best_plan is not None else -math.inf,
-                      "optimal" if best_plan is not None else "infeasible")
-    size = flow_model_size(problem, kept)
     stats["model_size"] = size
+    backend = "mip" if engine == "auto" else engine
     if size["coverage_nonzeros"] > max_nonzeros or size["flow_arcs"] > max_arcs:
         stats["exact"] = (f"skipped: the model would have {size['coverage_nonzeros']:,} coverage nonzeros and "
                           f"{size['flow_arcs']:,} flow arcs (limits {max_nonzeros:,}, {max_arcs:,}); bound = sum of per-phase optima")
         log.info("plan: %s", stats["exact"])
-        return finish(best_plan, "heuristic", bound)
+        name = "heuristic"
+        if best_plan is not None and heuristic and not clock.expired():
+            t0 = time.perf_counter()
+            extra = list(opt_sets) + [ref.candidates]
+            plan, val, rounds = _lns(problem, index, best_plan, best_val, extra, U, backend, clock, max_nonzeros, max_arcs)
+            timings["time_lns_s"] = time.perf_counter() - t0
+            stats["lns"] = rounds
+            if val > best_val:
+                best_plan, best_val, name = plan, val, "lns"
+        return finish(best_plan, name, bound)
     if clock.expired():
         stats["exact"] = "skipped: no time left"
         return finish(best_plan, "heuristic", bound)
-    backend = "mip" if engine == "auto" else engine
     return _exact(problem, kept, U, best_plan, incumbent, backend, clock, stats, timings, finish)
+
+
+def _lns(problem, index, plan, value, extra_sets, U, backend, clock, max_nonzeros, max_arcs):
+    """Large-neighbourhood search: the exact model restricted to poses around the plan, re-solved
+    while it improves (the neighbourhood doubles when its optimum is the plan itself).
+
+    Returns (plan, objective, rounds); no bound (a restricted model bounds nothing).
+    """
+    from camplace.plan.heuristic import agent_ascent, neighbourhood
+    from camplace.solver._model import solve_model
+
+    top, rounds = LNS_FIRST_TOP, []
+    while not clock.expired():
+        kept = neighbourhood(problem, plan, extra_sets, top)
+        size = flow_model_size(problem, kept)
+        if size["coverage_nonzeros"] > max_nonzeros or size["flow_arcs"] > max_arcs:
+            break
+        fm = build_flow_model(problem, kept, U)
+        rem = clock.remaining()
+        out = solve_model(fm.model, backend, time_limit_s=LNS_SOLVE_MAX_S if rem is None else min(rem, LNS_SOLVE_MAX_S),
+                          hint=_hint(fm, plan))
+        found = None
+        if out.values is not None:
+            found = paths_from_sets(problem, [fm.kept[p][out.values[fm.x[p]] > 0.5] for p in range(problem.n_phases)])
+        val = plan_value(problem, found) if found is not None else -math.inf
+        improved = val > value * (1 + 1e-12) + 1e-15
+        rounds.append({"top": top, "poses": int(sum(kp.size for kp in kept)), "status": out.status, "objective": val,
+                       "improved": bool(improved)})
+        if improved:
+            plan, value = agent_ascent(problem, index, found, expired=clock.expired)
+        elif out.status == "optimal":
+            top *= 2
+        else:
+            break
+    return plan, value, rounds
+
+
+def _hint(fm, plan) -> dict[int, float] | None:
+    """The plan as a solver hint on the model's pose variables."""
+    if plan is None:
+        return None
+    hint = {}
+    for p in range(len(fm.kept)):
+        chosen = set(int(j) for j in plan[:, p])
+        for j, var in zip(fm.kept[p].tolist(), fm.x[p].tolist()):
+            hint[var] = 1.0 if j in chosen else 0.0
+    return hint
 
 
 def _exact(problem, kept, U, best_plan, incumbent, backend, clock, stats, timings, finish) -> PlanResult:
@@ -398,15 +464,8 @@ def _exact(problem, kept, U, best_plan, incumbent, backend, clock, stats, timing
     t0 = time.perf_counter()
     fm = build_flow_model(problem, kept, U)
     timings["time_model_build_s"] = time.perf_counter() - t0
-    hint = None
-    if best_plan is not None:
-        hint = {}
-        for p in range(problem.n_phases):
-            chosen = set(int(j) for j in best_plan[:, p])
-            for j, var in zip(fm.kept[p].tolist(), fm.x[p].tolist()):
-                hint[var] = 1.0 if j in chosen else 0.0
     t0 = time.perf_counter()
-    out = solve_model(fm.model, backend, time_limit_s=clock.remaining(), hint=hint)
+    out = solve_model(fm.model, backend, time_limit_s=clock.remaining(), hint=_hint(fm, best_plan))
     timings["time_model_solve_s"] = time.perf_counter() - t0
     stats["exact"] = {"backend": backend, "status": out.status, **fm.stats,
                       **{k: v for k, v in out.stats.items() if not str(k).startswith("time")}}
