@@ -158,3 +158,28 @@ def test_report_has_the_plan_section(run_dir):
     assert "id='plan'" in page and "Moving agents" in page
     section = page[page.index("id='plan'"):]
     assert section.count("<img src=\"data:image/png;base64,") >= 2
+
+
+@pytest.mark.slow
+def test_render_a_phase(run_dir, tmp_path):
+    doc = json.loads((run_dir / "plan.json").read_text())
+    frame = doc["phases"][1]["frames"][0]
+    assert main(["render", str(run_dir), "--phase", "1", "--frames", str(frame), "-o", str(tmp_path / "r"), "--workers", "1"]) == 0
+    rec = json.loads((tmp_path / "r" / "render.json").read_text())
+    assert [im["candidate"] for im in rec["images"]] == [ag["candidates"][1] for ag in doc["agents"]]
+    assert {im["frame"] for im in rec["images"]} == {frame}
+
+
+@pytest.mark.slow
+def test_run_plans_from_the_agents_table(tmp_path):
+    toml = tmp_path / "flyby.toml"
+    assert main(["init", "comet-flyby", "-o", str(toml)]) == 0
+    toml.write_text(toml.read_text() + "\n[agents]\nphase_starts_s = [0.0, 12.0, 24.0]\nspeed_m_s = 2.0\n")
+    out = tmp_path / "out"
+    assert main(["run", str(toml), "-o", str(out), *SMALL]) == 0
+    doc = json.loads((out / "plan.json").read_text())
+    assert [ph["start_s"] for ph in doc["phases"]] == [0.0, 12.0, 24.0] and doc["speed_m_s"] == 2.0
+    pos, *_ = _folder(out)
+    plan = np.array([ag["candidates"] for ag in doc["agents"]])
+    assert plan_violations(plan, pos, [0.0, 12.0, 24.0], 2.0) == []
+    assert doc["objective"] == pytest.approx(_recompute(out, doc), rel=1e-9)

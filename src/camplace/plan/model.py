@@ -189,6 +189,14 @@ def make_problem(
             raise CamplaceError(f"start positions: need one finite [x, y, z] per agent ({k}), got shape {start.shape}")
     if not (start_reach_m >= 0):
         raise CamplaceError("start reach must be >= 0")
+    # the phase blocks, and later their CSC copies (heuristic), each as large as the matrix
+    need = 2 * q.nnz * (q.data.itemsize + q.indices.itemsize) + 2 * (m + n_phases) * 8 + 3 * n * 8
+    from camplace.solver._common import memory_budget_bytes
+
+    budget = memory_budget_bytes()
+    if need > budget:
+        raise CamplaceError(f"plan: the phase copies of the visibility matrix need about {need / 2**30:.1f} GiB but only "
+                            f"{budget / 2**30:.1f} GiB may be used (fewer --points or --candidates)")
     mats, ws, rows = [], [], []
     for p in range(n_phases):
         r = np.flatnonzero(ph == p)

@@ -92,8 +92,14 @@ def paths_png(paths_m: np.ndarray, static_m: np.ndarray, track_m: np.ndarray, vo
             ax.plot([start_m[a, 0], xy[0, 0]], [start_m[a, 1], xy[0, 1]], ":", color=c, lw=1)
             ax.plot(start_m[a, 0], start_m[a, 1], "s", color=c, mfc="none", ms=6)
         ax.plot(xy[:, 0], xy[:, 1], "o-", color=c, ms=4, lw=1.5, label=f"agent {a}")
-        for p in range(xy.shape[0]):
-            ax.annotate(str(p), xy[p], textcoords="offset points", xytext=(4, 4), fontsize=7, color=c)
+        p = 0
+        while p < xy.shape[0]:  # one label per stay: "2" or "2-4"
+            q = p
+            while q + 1 < xy.shape[0] and np.allclose(paths_m[a, q + 1], paths_m[a, p]):
+                q += 1
+            ax.annotate(str(p) if q == p else f"{p}-{q}", xy[p], textcoords="offset points", xytext=(4, 4 + 7 * (a % 3)),
+                        fontsize=7, color=c)
+            p = q + 1
     ax.plot(static_m[:, 0], static_m[:, 1], "kx", ms=8, mew=2, label="static system")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
@@ -169,7 +175,9 @@ def plan_section(run) -> str:
         except (ValueError, TypeError) as exc:  # a malformed timeline must not stop the report
             log.warning("report: plan timeline figure skipped (%s)", exc)
     pos = run.candidates.positions
-    track = np.array([run.instance.target_centre(f) for f in range(len(run.instance.frames))])
+    from camplace.pipeline import event_centres  # the target and its emitters, weighted, per frame
+
+    track = event_centres(run.instance)
     start = np.asarray(doc["start_positions_m"], dtype=np.float64) if doc.get("start_positions_m") else None
     figs.append(_img(paths_png(pos[plan], pos[static] if static else np.zeros((0, 3)), track,
                                (run.instance.volume.min_m, run.instance.volume.max_m), "agents' paths, top view (labels: phase)",
