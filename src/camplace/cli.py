@@ -122,6 +122,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from camplace.solver.cli import parse_index_list
 
     instance = resolve_instance(args.instance, seed=args.seed)
+    from camplace.plan.cli import check_agent_options
+
+    check_agent_options(args, instance)  # moving agents: bad options fail before the run
     sol = run(
         instance,
         seed=args.seed,

@@ -139,6 +139,7 @@ def test_export_cameras_of_a_phase(run_dir, tmp_path):
     ["plan", "{d}", "--phases", "4", "--speed", "-1"],
     ["plan", "{d}", "--phases", "4", "--speed", "1", "--start-positions", "1,2"],
     ["plan", "{d}", "--phases", "4", "--speed", "1", "--mode", "setcover"],
+    ["plan", "{d}", "--phases", "4", "--speed", "1", "--start-time", "-1"],  # no start positions
     ["export-cameras", "{d}", "--phase", "7"],
 ])
 def test_bad_plan_input_is_a_one_line_error(run_dir, argv, capsys):
@@ -182,3 +183,10 @@ def test_run_plans_from_the_agents_table(tmp_path):
     plan = np.array([ag["candidates"] for ag in doc["agents"]])
     assert plan_violations(plan, pos, [0.0, 12.0, 24.0], 2.0) == []
     assert doc["objective"] == pytest.approx(_recompute(out, doc), rel=1e-9)
+
+
+def test_run_rejects_bad_agent_options_before_the_run(tmp_path, capsys):
+    out = tmp_path / "never"
+    assert main(["run", "comet-flyby", "-o", str(out), *SMALL, "--phases", "99", "--speed", "1"]) == 2
+    assert "--phases" in capsys.readouterr().err
+    assert not (out / "solution.json").exists()

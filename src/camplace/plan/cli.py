@@ -100,6 +100,18 @@ def plan_requested(args: argparse.Namespace, instance) -> bool:
     return given or getattr(instance, "agents", None) is not None
 
 
+def check_agent_options(args: argparse.Namespace, instance) -> None:
+    """``camplace run``: reject bad agent options before the run's work (the phases need the instance's frames)."""
+    if not plan_requested(args, instance):
+        return
+    from camplace.plan.workflow import agent_settings
+
+    _check(args)
+    k = args.k if getattr(args, "k", None) is not None else instance.k
+    agent_settings(instance, int(k), phases=args.phases, phase_starts_s=parse_times(args.phase_starts, "--phase-starts"),
+                   speed_m_s=args.speed, start_positions_m=parse_positions(args.start_positions), start_time_s=args.start_time)
+
+
 def _print(result, doc: dict, out: Path) -> None:
     if result.plan is None:
         print(f"{result.status}: no feasible plan (the agents cannot reach their first poses? check the start positions)")

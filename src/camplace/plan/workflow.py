@@ -83,6 +83,8 @@ def agent_settings(
             start_time_s = spec.start_time_s
     start = None
     t_start, r_start = None, math.inf
+    if start_positions_m is None and start_time_s is not None:
+        raise CamplaceError("--start-time: needs start positions (--start-positions or [agents] start_positions_m)")
     if start_positions_m is not None:
         start = np.asarray(start_positions_m, dtype=np.float64)
         if start.shape != (k, 3) or not np.all(np.isfinite(start)):
@@ -198,5 +200,9 @@ def plan_run_folder(
             "plan_timeline.csv": timeline_csv(result.plan, result.static_candidates, settings.phases, run.matrix, run.points,
                                               mode, int(views), times),
         }
-    write_plan(out if out is not None else outdir, doc, files)
+    dest = Path(out) if out is not None else Path(outdir)
+    if result.plan is None:  # no plan: no CSVs of an earlier plan left beside this plan.json
+        for name in ("plan.csv", "plan_light_curves.csv", "plan_timeline.csv"):
+            (dest / name).unlink(missing_ok=True)
+    write_plan(dest, doc, files)
     return result, doc
