@@ -80,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", action="store_true",
                    help="then run a uniform and a chaotic campaign of random systems and write OUTDIR/report.html")
     p.add_argument("--report-systems", type=int, default=200, dest="report_systems", help="systems per campaign (default 200)")
+    from camplace.plan.cli import add_agent_options
+
+    add_agent_options(p, for_run=True)
 
     p = sub.add_parser("visibility", help="compute the visibility matrix of given candidates")
     p.add_argument("instance", help="a built-in instance name or an instance .toml file")
@@ -103,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
 # and imports nothing heavy at module level.
-VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli", "camplace.solver.cli")
+VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli", "camplace.solver.cli", "camplace.plan.cli")
 
 
 def _verb_modules():
@@ -119,6 +122,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from camplace.solver.cli import parse_index_list
 
     instance = resolve_instance(args.instance, seed=args.seed)
+    from camplace.plan.cli import check_agent_options
+
+    check_agent_options(args, instance)  # moving agents: bad options fail before the run
     sol = run(
         instance,
         seed=args.seed,
@@ -157,6 +163,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
               f"peak frame {sol.peak_frame} coverage {100 * sol.peak_coverage:.2f}%")
     print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.npz, light_curves.csv, scene.ply")
     ok = sol.status in ("optimal", "feasible")
+    from camplace.plan.cli import plan_after_run, plan_requested
+
+    if ok and plan_requested(args, instance):
+        ok = plan_after_run(args, sol) == EXIT_OK
     if args.report and ok:
         from camplace.report import run_report_bundle
 

@@ -37,6 +37,7 @@ from camplace.instance.schema import (
     Light,
     Mesh,
     Occluder,
+    AgentsSpec,
     Pose,
     QualitySpec,
     RunDefaults,
@@ -55,9 +56,10 @@ MAX_POINTS = 10_000_000
 
 _TOP_KEYS = (
     "schema_version", "name", "k", "run", "camera", "volume", "light", "quality", "target", "occluders", "frames",
-    "physical", "transform",
+    "physical", "transform", "agents",
 )
 _RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s", "orientations")
+_AGENTS_KEYS = ("phases", "phase_starts_s", "speed_m_s", "start_positions_m", "start_time_s")
 _QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light")
 _EMITTER_KEYS = ("positions_m", "weights", "file")
 MAX_EMITTERS = 10_000_000
@@ -551,6 +553,7 @@ class _Parser:
             quality=quality,
             physical=self.passthrough(data, "physical"),
             transform=self.passthrough(data, "transform"),
+            agents=self.agents(self.table(data, "agents", "", required=False), k, len(frames)),
         )
 
     def passthrough(self, data: dict, key: str) -> dict | None:
@@ -569,6 +572,49 @@ class _Parser:
         except CamplaceError as exc:
             raise InstanceError(self.source, "", _one_line(str(exc))) from None
         return copy.deepcopy(table)
+
+    def agents(self, table: dict | None, k: int, n_frames: int) -> AgentsSpec | None:
+        """The ``[agents]`` table: phases (a count or start times), speed, optional start positions."""
+        if table is None:
+            return None
+        self.check_keys(table, _AGENTS_KEYS, "agents")
+        if ("phases" in table) == ("phase_starts_s" in table):
+            raise self.error("agents", "give exactly one of phases and phase_starts_s",
+                             "write phases = N (equal durations) or phase_starts_s = [t0, t1, ...]")
+        phases = starts = None
+        if "phases" in table:
+            phases = self.integer(table, "phases", "agents", ge=1, le=n_frames)
+        else:
+            value = table["phase_starts_s"]
+            if not isinstance(value, list) or not value:
+                raise self.error("agents.phase_starts_s", f"must be a non-empty array of times, got {_type_name(value)} {_show(value)}",
+                                 "write phase_starts_s = [0.0, 6.0, 12.0]")
+            starts = tuple(self._check_number(v, f"agents.phase_starts_s[{i}]") for i, v in enumerate(value))
+            if any(b <= a for a, b in zip(starts, starts[1:])):
+                raise self.error("agents.phase_starts_s", f"must be strictly increasing, got {_show(value)}", "sort the start times and drop repeats")
+            if len(starts) > n_frames:
+                raise self.error("agents.phase_starts_s", f"{len(starts)} phases but only {n_frames} frames", "give at most one phase per frame")
+        speed = self.number(table, "speed_m_s", "agents", required=True, ge=0.0, unit="m/s")
+        start_pos = None
+        if "start_positions_m" in table:
+            value = table["start_positions_m"]
+            if not isinstance(value, list) or len(value) != k:
+                raise self.error("agents.start_positions_m", f"must be an array of k = {k} positions [x, y, z], got {_type_name(value)} {_show(value)}",
+                                 f"write one [x, y, z] per agent ({k} in all)")
+            rows = []
+            for i, v in enumerate(value):
+                field = f"agents.start_positions_m[{i}]"
+                if not isinstance(v, list) or len(v) != 3:
+                    raise self.error(field, f"must be an array of 3 numbers [x, y, z], got {_type_name(v)} {_show(v)}", "write [x, y, z]")
+                rows.append(tuple(self._check_number(c, f"{field}[{j}]") for j, c in enumerate(v)))
+            start_pos = tuple(rows)
+        start_time = None
+        if "start_time_s" in table:
+            start_time = self.number(table, "start_time_s", "agents")
+            if starts is not None and not start_time < starts[0]:
+                raise self.error("agents.start_time_s", f"must be before the first phase start {starts[0]:g} s, got {start_time:g}",
+                                 "give an earlier start time")
+        return AgentsSpec(phases=phases, phase_starts_s=starts, speed_m_s=speed, start_positions_m=start_pos, start_time_s=start_time)
 
     def quality(self, table: dict) -> QualitySpec:
         self.check_keys(table, _QUALITY_KEYS, "quality")
@@ -921,6 +967,19 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
         table = getattr(instance, key)
         if table is not None:
             data[key] = copy.deepcopy(table)
+    agents = getattr(instance, "agents", None)
+    if agents is not None:
+        at: dict[str, Any] = {}
+        if agents.phases is not None:
+            at["phases"] = int(agents.phases)
+        else:
+            at["phase_starts_s"] = [float(t) for t in agents.phase_starts_s or ()]
+        at["speed_m_s"] = float(agents.speed_m_s)
+        if agents.start_positions_m is not None:
+            at["start_positions_m"] = [_vec(v) for v in agents.start_positions_m]
+        if agents.start_time_s is not None:
+            at["start_time_s"] = float(agents.start_time_s)
+        data["agents"] = at
     frames = []
     for i, f in enumerate(instance.frames):
         ft: dict[str, Any] = {

@@ -292,6 +292,34 @@ class RunDefaults:
     orientations: int = 1
 
 
+@dataclass(frozen=True)
+class AgentsSpec:
+    """Agents that move between the phases of the event (the ``[agents]`` table; see :mod:`camplace.plan`).
+
+    The event's frames are split into consecutive phases; each of the k agents holds one candidate
+    pose per phase and travels in a straight line between the starts of consecutive phases.
+
+    Attributes
+    ----------
+    phases : int or None
+        Number of phases of about equal duration (None when ``phase_starts_s`` is given).
+    phase_starts_s : tuple of float or None
+        Start times of the phases, seconds, strictly increasing (instead of ``phases``).
+    speed_m_s : float
+        Straight-line travel speed of every agent, m/s (>= 0); re-aiming is free.
+    start_positions_m : tuple of (x, y, z) or None
+        Where the k agents stand before the event (one row per agent), metres.
+    start_time_s : float or None
+        When they stand there (default: one phase duration before the first phase starts).
+    """
+
+    phases: int | None = None
+    phase_starts_s: tuple[float, ...] | None = None
+    speed_m_s: float = 0.0
+    start_positions_m: tuple[tuple[float, float, float], ...] | None = None
+    start_time_s: float | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class Instance:
     """A complete camera-placement problem.
@@ -318,6 +346,8 @@ class Instance:
     transform : dict or None
         The validated ``[transform]`` table: simulation-to-lab coordinate transform used by
         ``camplace export`` (see :mod:`camplace.validation.transform`).
+    agents : AgentsSpec or None
+        The ``[agents]`` table: agents that move between phases of the event (``camplace plan``).
     source : str
         The file (or ``builtin:<name>``) this instance was read from; used in error messages.
     """
@@ -335,6 +365,7 @@ class Instance:
     quality: QualitySpec = QualitySpec()
     physical: dict | None = None
     transform: dict | None = None
+    agents: AgentsSpec | None = None
 
     def frame_weights(self) -> np.ndarray:
         """(n_frames,) float64 frame likelihoods normalised to sum 1 (uniform if all are 0)."""

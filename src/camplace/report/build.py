@@ -631,12 +631,16 @@ def write_report(
             _legacy_section(run, comp, campaigns),
             _validation_section(run, comp),
         ]
+        from camplace.report.plan_section import plan_section  # moving agents: empty without plan.json
+
+        body.insert(2, plan_section(run))
     sol = run.solution
     title = f"camplace report: {sol.instance or run.instance.name}"
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     nav = "".join(f"<a href='#{a}'>{t}</a>" for a, t in [("instance", "instance"), ("system", "optimised system"), ("scene3d", "3D view"), ("campaigns", "campaigns"),
                                                             ("samplers", "samplers"), ("cones", "vision cones"), ("legacy", "legacy score"),
-                                                            ("validation", "validation")])
+                                                            ("validation", "validation")]
+                  + ([("plan", "moving agents")] if (outdir / "plan.json").is_file() else []))
     page = (
         "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"
         f"<meta http-equiv='Content-Security-Policy' content=\"{CSP}\">"

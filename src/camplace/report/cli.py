@@ -50,6 +50,7 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--experiment", default=None, help="experiment name in camera names (default: the instance name)")
     p.add_argument("--frustum-depth", type=float, default=None, dest="frustum_depth", help="GLB frustum depth, metres (default: distance to the aim point)")
     p.add_argument("-o", "--out", type=Path, default=None, help="output folder (default OUTDIR/export)")
+    p.add_argument("--phase", type=int, default=None, help="export the moving agents' poses of this phase of plan.json (default out: OUTDIR/export-phaseP)")
 
     return {"campaign": _cmd_campaign, "report": _cmd_report, "export-cameras": _cmd_export_cameras}
 
@@ -121,7 +122,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_export_cameras(args: argparse.Namespace) -> int:
     from camplace.report.export import export_cameras
 
-    paths = export_cameras(args.outdir, formats=args.formats, out=args.out, experiment=args.experiment, frustum_depth_m=args.frustum_depth)
+    paths = export_cameras(args.outdir, formats=args.formats, out=args.out, experiment=args.experiment, frustum_depth_m=args.frustum_depth,
+                           phase=args.phase)
     for p in paths:
         print(f"wrote {p}")
     return EXIT_OK

@@ -234,11 +234,15 @@ def glb_bytes(cameras, depths_m: Sequence[float], meshes: Sequence[tuple[str, np
     return bytes(data)
 
 
-def _solution_cameras(outdir: Path, experiment: str | None):
+def _solution_cameras(outdir: Path, experiment: str | None, phase: int | None = None):
     from camplace.validation.cameras import CameraSet
     from camplace.validation.workflow import load_run
 
     instance, solution = load_run(outdir)
+    if phase is not None:  # the moving agents' poses of that phase (plan.json)
+        from camplace.plan.io import phase_solution
+
+        solution, _ = phase_solution(outdir, solution, phase)
     cams = CameraSet.from_solution(solution, experiment=experiment or instance.name, system=1).cameras
     return instance, solution, cams
 
@@ -250,6 +254,7 @@ def export_cameras(
     out: str | Path | None = None,
     experiment: str | None = None,
     frustum_depth_m: float | None = None,
+    phase: int | None = None,
 ) -> list[Path]:
     """Write the chosen cameras of a run in the requested formats (see the module docstring).
 
@@ -265,6 +270,9 @@ def export_cameras(
         Experiment name in camera names (default: the instance name).
     frustum_depth_m : float or None
         GLB frustum depth (default: each camera's distance to its aim point, within near..far).
+    phase : int or None
+        Export the moving agents' poses of this phase of ``OUTDIR/plan.json`` instead of the run's
+        cameras (default out: ``OUTDIR/export-phaseP``).
 
     Returns
     -------
@@ -273,10 +281,10 @@ def export_cameras(
     """
     fmts = parse_formats(formats)
     outdir = Path(outdir)
-    dest = Path(out) if out is not None else outdir / "export"
+    dest = Path(out) if out is not None else outdir / ("export" if phase is None else f"export-phase{phase}")
     if frustum_depth_m is not None and not frustum_depth_m > 0:
         raise CamplaceError(f"--frustum-depth: must be > 0 metres, got {frustum_depth_m}")
-    instance, solution, cams = _solution_cameras(outdir, experiment)
+    instance, solution, cams = _solution_cameras(outdir, experiment, phase)
     recs = solution.cameras
     written: list[Path] = []
     cm = instance.camera
@@ -290,7 +298,8 @@ def export_cameras(
                       "fov_x_deg": cm.fov_x_deg, "fov_y_deg": cm.fov_y_deg,
                       "qvec": [float(x) for x in q], "tvec": [float(x) for x in t]})
             items.append(d)
-        doc = {"format": "json", "source": str(outdir / "solution.json"), "instance": solution.instance,
+        src = str(outdir / "solution.json") if phase is None else f"{outdir / 'plan.json'} phase {phase}"
+        doc = {"format": "json", "source": src, "instance": solution.instance,
                "frame": "simulation", "objective": solution.objective, "status": solution.status, "cameras": items}
         write_json_atomic(dest / "cameras.json", doc)
         written.append(dest / "cameras.json")

@@ -18,13 +18,14 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     """Add the validation verbs to ``subparsers``; returns {verb: handler}."""
     p = subparsers.add_parser("render", help="ray-cast each chosen camera's view: image, background and target mask PNGs")
     p.add_argument("outdir", type=Path, help="output folder of 'camplace run'")
-    p.add_argument("--frames", default="all", help="'all' (default) or frame numbers such as 0,3")
+    p.add_argument("--frames", default=None, help="'all' (default; with --phase: that phase's frames) or frame numbers such as 0,3")
     p.add_argument("--16bit", dest="bit16", action="store_true", help="write 16-bit PNGs (default 8-bit)")
     p.add_argument("-o", "--out", type=Path, default=None, help="folder for the images (default OUTDIR/render)")
     p.add_argument("--experiment", default=None, help="experiment name in file names (default: the instance name)")
     p.add_argument("--system", type=int, default=1, help="system number in file names (default 1)")
     p.add_argument("--emitters", type=Path, default=None, help="CSV of extra glowing emitters: x,y,z,brightness[,radius_m]")
     p.add_argument("--workers", type=int, default=None, help="render threads (default: all cores)")
+    p.add_argument("--phase", type=int, default=None, help="render the moving agents' poses of this phase of plan.json (default out: OUTDIR/render-phaseP)")
 
     p = subparsers.add_parser("validate", help="compare predicted target masks with (real or emulated) photographs")
     p.add_argument("outdirs", nargs="*", type=Path, help="output folders of 'camplace run' (one camera system each)")
@@ -72,6 +73,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
     if args.system < 1:
         raise CamplaceError(f"--system: must be >= 1, got {args.system}")
     emitters = GlowEmitters.load_csv(args.emitters) if args.emitters is not None else None
+    if args.phase is not None and args.out is None:
+        args.out = args.outdir / f"render-phase{args.phase}"
     manifest = render_run(
         args.outdir,
         frames=args.frames,
@@ -81,6 +84,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         out=args.out,
         emitters=emitters,
         workers=args.workers,
+        phase=args.phase,
     )
     out = args.out if args.out is not None else args.outdir / "render"
     for rec in manifest["images"]:

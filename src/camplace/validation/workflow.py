@@ -150,7 +150,7 @@ def _frame_emitters(instance, frame: int):
 def render_run(
     outdir: str | Path,
     *,
-    frames: str = "all",
+    frames: str | None = "all",
     bit_depth: int = 8,
     experiment: str | None = None,
     system: int = 1,
@@ -158,6 +158,7 @@ def render_run(
     settings=None,
     emitters: Any = None,
     workers: int | None = None,
+    phase: int | None = None,
 ) -> dict[str, Any]:
     """Render every chosen camera of a run in the chosen frames.
 
@@ -181,6 +182,9 @@ def render_run(
     emitters : optional
         Extra emitters for every frame (GlowEmitters); the frames' own emitters are always drawn.
     workers : int or None
+    phase : int or None
+        Render the moving agents' poses of this phase of ``OUTDIR/plan.json`` instead of the run's
+        cameras (frames default to the phase's; see :mod:`camplace.plan`).
 
     Returns
     -------
@@ -190,6 +194,12 @@ def render_run(
     from camplace.validation.render import RenderSettings, add_glow, as_glow, render_view, scene_for_frame, write_mask_png, write_png
 
     instance, solution = load_run(outdir)
+    if phase is not None:
+        from camplace.plan.io import phase_solution
+
+        solution, phase_frames = phase_solution(outdir, solution, phase)
+        frames = ",".join(str(f) for f in phase_frames) if frames is None else frames
+    frames = "all" if frames is None else frames
     settings = settings or RenderSettings()
     exp = experiment or instance.name
     out = Path(out) if out is not None else Path(outdir) / "render"
