@@ -131,11 +131,17 @@ def reported_run(request, tmp_path_factory) -> tuple[str, Path]:
 
 
 @pytest.mark.slow
-def test_run_with_report(reported_run) -> None:
+def test_run_with_report(reported_run, tmp_path) -> None:
+    from tests.report.test_report_html import open_in_chromium
+
     name, out = reported_run
     sol = check_solution(out, "maxcover")
     html = (out / "report.html").read_text()
     assert "on the same matrix: <b>holds</b>" in html
+    page = open_in_chromium(out / "report.html", tmp_path / "report.png")
+    assert page["errors"] == []
+    url = (out / "report.html").resolve().as_uri()
+    assert [u for u in page["requests"] if not (u == url or u.startswith("data:"))] == []
     for sampler in ("uniform", "chaotic"):
         camp = json.loads((out / f"campaign-{sampler}" / "campaign.json").read_text())
         assert camp["n_points"] == sol["n_points"]  # one meaning for the rows: the matrix rows

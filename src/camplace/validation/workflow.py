@@ -683,7 +683,7 @@ def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[s
             transform = run_table(outdir, "transform")
             transform_source = f"{outdir / 'instance.toml'}: [transform]"
             if transform is None:
-                raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table (add one or pass --transform FILE; see the README)")
+                raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table (add one or pass --transform FILE; see docs/validation.md)")
         tr = build_transform(parse_transform(transform, transform_source or "[transform]"))
     else:
         raise CamplaceError(f"--frame: must be physical or simulation, got {frame!r}")
