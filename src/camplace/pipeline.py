@@ -637,8 +637,9 @@ def run(
             save_instance(instance, outdir / "instance.toml", mesh_files=True)
             cands.save(outdir / "candidates.csv")
             t1 = time.perf_counter()
-            vis.save(outdir, matrix_format)
+            vis.save_matrix(outdir, matrix_format)
             timings["write.matrix"] = time.perf_counter() - t1
+            vis.points.save(outdir / "points.csv")
             write_text_atomic(outdir / "light_curves.csv", light_curves_csv(instance, vis, res.selected))
             timings["write"] = time.perf_counter() - t0
             # solution.json last: its presence means the run's outputs are complete

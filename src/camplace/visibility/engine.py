@@ -86,18 +86,21 @@ class VisibilityMatrix:
         return self.matrix.shape
 
     def save(self, outdir: str | Path, matrix_format: str = "cpm") -> Path:
-        """Write the matrix (``visibility.cpm``, or ``visibility.npz`` for ``scipy.sparse.load_npz``
-        with ``matrix_format="npz"``; see :mod:`camplace.visibility.store`) and ``points.csv``
-        atomically. Returns the matrix file."""
+        """Write the matrix (:meth:`save_matrix`) and ``points.csv`` atomically. Returns the matrix file."""
+        path = self.save_matrix(outdir, matrix_format)
+        self.points.save(Path(outdir) / "points.csv")
+        return path
+
+    def save_matrix(self, outdir: str | Path, matrix_format: str = "cpm") -> Path:
+        """Write ``visibility.cpm`` (or ``visibility.npz`` for ``scipy.sparse.load_npz`` with
+        ``matrix_format="npz"``; see :mod:`camplace.visibility.store`) atomically: a hard link to
+        the cache entry when there is one. Returns the file."""
         from camplace.visibility.store import save_matrix
 
-        outdir = Path(outdir)
         # the same meta as the cache entry (the pair counts), so a written file equals a linked one
         counts = {k: self.stats[k] for k in COUNT_KEYS if k in self.stats}
-        path = save_matrix(outdir, self.matrix, fmt=matrix_format, link_from=self.store_path,
+        return save_matrix(Path(outdir), self.matrix, fmt=matrix_format, link_from=self.store_path,
                            meta={"stats": counts} if counts else None)
-        self.points.save(outdir / "points.csv")
-        return path
 
     @classmethod
     def load(cls, outdir: str | Path) -> "VisibilityMatrix":
