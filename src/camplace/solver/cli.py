@@ -62,25 +62,28 @@ def parse_index_list(text: str, name: str) -> tuple[int, ...]:
 
 
 def _read_csv_columns(path: Path, columns: list[str]) -> dict[str, Any]:
-    import csv
+    """The named columns of a CSV file with a header line, as float64 arrays (numpy's C parser)."""
+    import warnings
 
     import numpy as np
 
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            missing = [c for c in columns if c not in (reader.fieldnames or [])]
+        with open(path, encoding="utf-8") as fh:
+            header = [h.strip() for h in fh.readline().strip().split(",")]
+            missing = [c for c in columns if c not in header]
             if missing:
                 raise CamplaceError(f"{path}: missing column(s) {', '.join(missing)}")
-            data: dict[str, list[float]] = {c: [] for c in columns}
-            for row in reader:
-                for c in columns:
-                    data[c].append(float(row[c]))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # "input contained no data"
+                data = np.loadtxt(fh, delimiter=",", usecols=[header.index(c) for c in columns], ndmin=2,
+                                  dtype=np.float64)
     except OSError as exc:
         raise CamplaceError(f"{path}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
         raise CamplaceError(f"{path}: bad number ({exc})") from None
-    return {c: np.asarray(v, dtype=np.float64) for c, v in data.items()}
+    if data.size == 0:
+        data = np.zeros((0, len(columns)))
+    return {c: np.ascontiguousarray(data[:, t]) for t, c in enumerate(columns)}
 
 
 def load_problem(source: Path) -> tuple[Any, Any, Any, Any]:

@@ -17,9 +17,9 @@ _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": Fal
 
 #: Set bits of every byte value.
 POPCOUNT = np.array([bin(v).count("1") for v in range(256)], dtype=np.int64)
-#: (256, 8) int64: the positions of the set bits of every byte value, ascending (then zeros).
+#: (256, 8) int32: the positions of the set bits of every byte value, ascending (then zeros).
 BIT_POSITIONS = np.array([[t for t in range(8) if v >> t & 1] + [0] * (8 - bin(v).count("1")) for v in range(256)],
-                         dtype=np.int64)
+                         dtype=np.int32)
 
 
 @numba.njit(**_JIT)
@@ -91,19 +91,25 @@ def bits_row_counts(bits, lo, hi, row_bytes, last_mask, popcount, counts):  # pr
 def bits_to_indices(bits, lo, hi, row_bytes, indptr, positions, popcount, indices):  # pragma: no cover - compiled
     """Column indices of rows ``lo:hi``, ascending within a row, at ``indptr[i]:indptr[i + 1]``.
 
+    A nonzero byte writes all 8 slots of its ``positions`` row and advances by its popcount
+    (branch-free); the slots past its bits are overwritten by the next byte, or belong to the
+    next row (written later by this call), so only the bytes whose 8 slots would pass
+    ``indptr[hi]`` (another thread's rows) take the exact loop.
+
     Parameters
     ----------
     bits : (m * row_bytes,) uint8
     lo, hi, row_bytes : int
     indptr : (m + 1,) int32 or int64
         From the row counts of :func:`bits_row_counts`.
-    positions : (256, 8) int64
+    positions : (256, 8) int32 or int64
         :data:`BIT_POSITIONS`.
     popcount : (256,) int64
         :data:`POPCOUNT`.
     indices : (nnz,) int32 or int64
         Output.
     """
+    end = np.int64(indptr[hi])
     for i in range(lo, hi):
         k = np.int64(indptr[i])
         base = i * row_bytes
@@ -113,6 +119,10 @@ def bits_to_indices(bits, lo, hi, row_bytes, indptr, positions, popcount, indice
                 continue
             col = b * 8
             c = popcount[v]
-            for t in range(c):
-                indices[k + t] = col + positions[v, t]
+            if k + 8 <= end:
+                for t in range(8):
+                    indices[k + t] = col + positions[v, t]
+            else:
+                for t in range(c):
+                    indices[k + t] = col + positions[v, t]
             k += c
