@@ -152,12 +152,16 @@ def _peak_weights(source: Path, weights: Any, peak: int | None) -> Any:
 
 def _cmd_solve(args: argparse.Namespace) -> int:
     import time
-
-    from camplace._io import write_json_atomic
-    from camplace.solver.modes import solve
+    from concurrent.futures import ThreadPoolExecutor
 
     t0 = time.perf_counter()
-    matrix, weights, positions, points = load_problem(args.source)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # the matrix decodes (GIL-free) while the solver's modules import
+        loading = pool.submit(load_problem, args.source)
+        from camplace._io import write_json_atomic
+        from camplace.solver.modes import solve
+
+        matrix, weights, positions, points = loading.result()
     load_s = time.perf_counter() - t0
     if (args.min_distance is not None or args.min_angle is not None) and positions is None:
         raise CamplaceError(f"--min-distance/--min-angle need candidates.csv beside {args.source}")
