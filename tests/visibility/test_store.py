@@ -206,3 +206,13 @@ def test_store_module_imports_no_embree() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
     assert out.stdout.strip() == "[]"
+
+
+def test_a_matrix_too_big_for_memory_stops_before_allocating(tmp_path: Path, monkeypatch) -> None:
+    a = random_csr(200, 100, 0.4, True)
+    path = store.save_visibility(tmp_path / "m.cpm", a)
+    # decoded: bits 200 * 13 + values 4 * nnz; CSR: 8 * nnz + 12 * 201 (int32 indices and indptr)
+    assert store.read_bytes_estimate(footer(path)) == 200 * 13 + 4 * a.nnz + 8 * a.nnz + 201 * 12
+    monkeypatch.setattr(store, "_physical_memory_bytes", lambda: 1000)
+    with pytest.raises(CamplaceError, match="needs about .* GiB, over this machine's"):
+        store.load_visibility(path)

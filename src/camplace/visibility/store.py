@@ -406,14 +406,16 @@ def _read_footer(buf) -> dict:
 
 def _read_section(buf, desc: dict, codec: str, data_end: int, workers: int) -> np.ndarray:
     dtype = np.dtype(desc["dtype"])
+    if dtype.kind not in "uif":
+        raise _Corrupt(f"section dtype {dtype}")
     count = int(desc["count"])
     shuffle = int(desc.get("shuffle", 0))
-    out = populated_empty(count, dtype)
-    raw_out = out.view(np.uint8)
     blocks = desc["blocks"]
     starts = np.cumsum([0] + [int(b[2]) for b in blocks])
-    if int(starts[-1]) != raw_out.size:
-        raise _Corrupt(f"blocks hold {int(starts[-1])} bytes, expected {raw_out.size}")
+    if int(starts[-1]) != count * dtype.itemsize or any(int(b[1]) > data_end for b in blocks):
+        raise _Corrupt(f"blocks hold {int(starts[-1])} bytes, expected {count * dtype.itemsize}")
+    out = populated_empty(count, dtype)
+    raw_out = out.view(np.uint8)
 
     def decode(t: int) -> None:
         offset, stored, raw_size, crc = (blocks[t] + [None])[:4]
@@ -515,6 +517,34 @@ def _open(path: Path):
     return buf, _read_footer(buf)
 
 
+def _physical_memory_bytes() -> int:
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return 8 << 30
+
+
+def read_bytes_estimate(footer: dict) -> int:
+    """Peak bytes to read a ``.cpm`` file: its decoded sections plus the CSR arrays."""
+    m, n = footer["shape"]
+    nnz = footer["nnz"]
+    idt = index_dtype((m, n), nnz)
+    sections = sum(int(d["count"]) * np.dtype(d["dtype"]).itemsize for d in footer["sections"].values())
+    return sections + nnz * (idt.itemsize + 4) + (m + 1) * (idt.itemsize + 8)
+
+
+def _check_memory(path: Path, footer: dict) -> None:
+    """Stop before allocating a matrix that cannot fit in this machine's memory."""
+    need = read_bytes_estimate(footer)
+    have = _physical_memory_bytes()
+    if need > 0.9 * have:
+        m, n = footer["shape"]
+        raise CamplaceError(
+            f"{path}: reading this {m:_} x {n:_} matrix ({footer['nnz']:_} pairs) needs about {need / 2**30:.1f} GiB, "
+            f"over this machine's {have / 2**30:.1f} GiB (read it on a machine with more memory)"
+        )
+
+
 def _corrupt_error(path: Path, exc: Exception) -> CamplaceError:
     return CamplaceError(f"{path}: truncated or corrupt visibility matrix ({exc}); {_FIX}")
 
@@ -545,6 +575,7 @@ def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None) -
             return _load_npz(path)
         buf, footer = _open(path)
         try:
+            _check_memory(path, footer)
             w = _workers(workers)
             arrays = {name: _read_section(buf, desc, footer["codec"], footer["_data_end"], w)
                       for name, desc in footer["sections"].items()}
