@@ -5,6 +5,7 @@ The small public API::
     import camplace
     inst = camplace.builtin("comet-67p-bunker")      # or camplace.load_instance("my.toml")
     sol = camplace.run(inst, seed=0, outdir="out")   # a Solution (status, objective, bound, gap, cameras)
+    A = camplace.load_visibility("out")              # the points x candidates matrix (scipy CSR, float32)
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ _LAZY = {
     "save_instance": "camplace.instance",
     "Solution": "camplace.pipeline",
     "run": "camplace.pipeline",
+    "load_visibility": "camplace.visibility.store",
 }
 
 
@@ -49,6 +51,7 @@ __all__ = [
     "__version__",
     "builtin",
     "load_instance",
+    "load_visibility",
     "run",
     "save_instance",
 ]

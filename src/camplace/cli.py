@@ -15,6 +15,8 @@ from pathlib import Path
 from camplace.errors import CamplaceError
 from camplace.names import ENGINES, EVENT_MODES, MODES, SAMPLERS
 
+MATRIX_FORMATS = ("cpm", "npz")  # camplace.visibility.store.MATRIX_FORMATS (not imported: startup time)
+
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 1
 EXIT_BAD_INPUT = 2
@@ -66,6 +68,8 @@ def _add_compute_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
     p.add_argument("--dask", default=None, metavar="ADDRESS", help="compute visibility on a Dask cluster: a scheduler address or local:N")
     p.add_argument("--memory-budget-gb", type=float, default=None, help="stop if the matrix would need more (default: half the RAM)")
+    p.add_argument("--matrix-format", choices=MATRIX_FORMATS, default="cpm", dest="matrix_format",
+                   help="matrix file: visibility.cpm (compact, fast; default) or visibility.npz (scipy.sparse.load_npz, zlib: slower, larger)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,6 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--points", type=int, default=None, help="number of target surface points")
     p.add_argument("--seed", type=int, default=None, help="random seed for the points")
     _add_compute_options(p)
+
+    p = sub.add_parser("convert-matrix", help="rewrite a folder's visibility matrix as visibility.npz (scipy) or visibility.cpm")
+    p.add_argument("source", type=Path, help="output folder of 'camplace run', 'visibility' or 'campaign', or a matrix file")
+    p.add_argument("--format", choices=MATRIX_FORMATS, required=True, dest="fmt", help="npz: scipy.sparse.load_npz; cpm: the compact store")
 
     sub.add_parser("instances", help="list the built-in instances")
 
@@ -148,6 +156,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         forbidden=parse_index_list(args.forbidden, "--forbidden"),
         min_distance_m=args.min_distance,
         required_fraction=args.required_fraction,
+        matrix_format=args.matrix_format,
     )
     print(
         f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
@@ -161,7 +170,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if len(instance.frames) > 1:
         print(f"  event mode {sol.event_mode}: expected coverage {100 * sol.expected_coverage:.2f}%, "
               f"peak frame {sol.peak_frame} coverage {100 * sol.peak_coverage:.2f}%")
-    print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.npz, light_curves.csv, scene.ply")
+    print(f"wrote {args.out}/solution.json, candidates.csv, points.csv, visibility.{args.matrix_format}, light_curves.csv, scene.ply")
     ok = sol.status in ("optimal", "feasible")
     from camplace.plan.cli import plan_after_run, plan_requested
 
@@ -191,9 +200,17 @@ def _cmd_visibility(args: argparse.Namespace) -> int:
     )
     args.out.mkdir(parents=True, exist_ok=True)
     write_ply(args.out / "scene.ply", frame_scene(instance, 0).triangles)
-    vis.save(args.out)
+    path = vis.save(args.out, args.matrix_format)
     print(f"{vis.matrix.shape[0]} points x {vis.matrix.shape[1]} candidates, {vis.matrix.nnz} observed pairs")
-    print(f"wrote {args.out}/visibility.npz, points.csv, scene.ply")
+    print(f"wrote {path}, points.csv, scene.ply")
+    return EXIT_OK
+
+
+def _cmd_convert_matrix(args: argparse.Namespace) -> int:
+    from camplace.visibility.store import convert_matrix
+
+    src, dst = convert_matrix(args.source, args.fmt)
+    print(f"{dst}: already in format {args.fmt}" if src == dst else f"wrote {dst} (removed {src})")
     return EXIT_OK
 
 
@@ -218,7 +235,8 @@ def _cmd_init(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"run": _cmd_run, "visibility": _cmd_visibility, "instances": _cmd_instances, "init": _cmd_init}
+COMMANDS = {"run": _cmd_run, "visibility": _cmd_visibility, "convert-matrix": _cmd_convert_matrix,
+            "instances": _cmd_instances, "init": _cmd_init}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -156,7 +156,7 @@ class Solution:
         }
 
     def save(self, outdir: str | Path) -> None:
-        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.npz) atomically."""
+        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.cpm) atomically."""
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
         if self.candidates is not None:
@@ -513,6 +513,7 @@ def run(
     forbidden: tuple[int, ...] = (),
     min_distance_m: float | None = None,
     required_fraction: float = 1.0,
+    matrix_format: str = "cpm",
 ) -> Solution:
     """Run the whole pipeline on an instance.
 
@@ -527,7 +528,7 @@ def run(
     orientations : int or None
         Poses per candidate position (default: the instance's ``run.orientations``).
     outdir : path or None
-        When given, write solution.json, candidates.csv, points.csv, visibility.npz and scene.ply there.
+        When given, write solution.json, candidates.csv, points.csv, visibility.cpm and scene.ply there.
     reporter : Reporter or None
         Progress display (silent by default).
     cache : bool
@@ -546,6 +547,9 @@ def run(
     views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction : optional
         Options of the formulation: existing cameras kept (``fixed`` column indices, added to the
         k new ones), candidates never used, a minimum distance between chosen cameras.
+    matrix_format : {"cpm", "npz"}
+        The matrix file in ``outdir``: ``visibility.cpm`` (:mod:`camplace.visibility.store`) or
+        ``visibility.npz`` (``scipy.sparse.load_npz``).
 
     Returns
     -------
@@ -581,6 +585,8 @@ def run(
         raise CamplaceError(f"--points: must be >= 1, got {n_points}")
     if time_limit_s <= 0:
         raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
+    if matrix_format not in ("cpm", "npz"):
+        raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
 
     check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
     options = run_options(
@@ -603,6 +609,7 @@ def run(
         instance, cands, pts, reporter=reporter, cache=cache, dask_address=dask_address, memory_budget_gb=memory_budget_gb
     )
     timings["visibility"] = time.perf_counter() - t0
+    timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 
     peak = peak_frame(instance)
     solve_w = event_weights(pts, instance, event_mode)
@@ -668,7 +675,10 @@ def run(
             write_ply(outdir / "scene.ply", frame_scene(instance, 0).triangles)
             save_instance(instance, outdir / "instance.toml", mesh_files=True)
             cands.save(outdir / "candidates.csv")
-            vis.save(outdir)
+            t1 = time.perf_counter()
+            vis.save_matrix(outdir, matrix_format)
+            timings["write.matrix"] = time.perf_counter() - t1
+            vis.points.save(outdir / "points.csv")
             write_text_atomic(outdir / "light_curves.csv", light_curves_csv(instance, vis, res.selected))
             timings["write"] = time.perf_counter() - t0
             # solution.json last: its presence means the run's outputs are complete

@@ -5,7 +5,8 @@ For each built-in instance (and the lab instance file) at reduced sizes: ``run``
 folder, ``campaign OUTDIR`` and ``report``. Each command runs as ``python -m camplace`` under an
 address-space limit (:data:`ADDRESS_SPACE_GB`), must exit 0 without a traceback, and its outputs
 must agree with each other: every objective is recomputed here, in plain numpy, from the folder's
-``visibility.npz``, ``points.csv`` and ``candidates.csv`` (an oracle independent of the solver).
+matrix (``visibility.cpm``, read by ``camplace.load_visibility``), ``points.csv`` and
+``candidates.csv`` (an oracle independent of the solver).
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
+
+from camplace.visibility.store import load_visibility
 
 ROOT = Path(__file__).resolve().parents[2]
 ADDRESS_SPACE_GB = 6
@@ -67,7 +69,7 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
 def folder_objective(outdir: Path, sol: dict) -> float:
     """The objective of ``sol``'s cameras, recomputed from ``outdir``'s files and ``sol['options']``."""
     opts = sol["options"]
-    q = sp.load_npz(outdir / "visibility.npz").tocsr()
+    q = load_visibility(outdir)
     pts = read_csv(outdir / "points.csv")
     w = pts["weight"].copy()
     assert q.shape[0] == len(w) == sol["n_points"]

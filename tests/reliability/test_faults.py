@@ -18,6 +18,7 @@ import camplace._io as cio
 from camplace.cli import main
 from camplace.instance import builtin
 from camplace.pipeline import run
+from camplace.visibility.store import load_visibility
 
 from .counts import COUNTS
 from .verify import verify_outputs
@@ -45,7 +46,7 @@ def wait_for_stage(proc: subprocess.Popen, line_start: str, timeout_s: float = 1
 
 
 def outputs_equal(a: Path, b: Path) -> None:
-    for name in ("candidates.csv", "points.csv", "visibility.npz", "light_curves.csv", "scene.ply"):
+    for name in ("candidates.csv", "points.csv", "visibility.cpm", "light_curves.csv", "scene.ply"):
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
     sa, sb = (json.loads((d / "solution.json").read_text()) for d in (a, b))
     sa.pop("timings_s"), sb.pop("timings_s")
@@ -78,8 +79,8 @@ def test_kill_during_visibility_then_resume(sig, reference: Path, tmp_path: Path
     assert not (out / "solution.json").exists()
     verify_outputs(out) if out.exists() else None
     # no cache entry, or a complete one
-    for entry in cache.rglob("*.npz"):
-        np.load(entry)["indptr"]
+    for entry in cache.rglob("*.cpm"):
+        load_visibility(entry)
     # the small run resumes cleanly into the same folder and equals an uninterrupted run
     assert main(["run", "comet-67p-bunker", "-o", str(out), *ARGS]) == 0
     verify_outputs(out)
@@ -141,7 +142,7 @@ def test_corrupt_cache_entry_is_recomputed(reference: Path, tmp_path: Path, monk
     cache = tmp_path / "cache"
     monkeypatch.setenv("CAMPLACE_CACHE_DIR", str(cache))
     assert main(["run", "comet-67p-bunker", "-o", str(tmp_path / "a"), *ARGS]) == 0
-    entries = list(cache.rglob("*.npz"))
+    entries = list(cache.rglob("*.cpm"))
     assert len(entries) == 1
     for garbage in (b"", b"PK\x03\x04 not a zip", entries[0].read_bytes()[:100]):
         entries[0].write_bytes(garbage)

@@ -6,14 +6,14 @@ import json
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 import trimesh
 
 from camplace.instance import load_instance
+from camplace.visibility.store import load_visibility
 
 from .counts import COUNTS
 
-KNOWN = ("solution.json", "candidates.csv", "points.csv", "visibility.npz", "light_curves.csv", "scene.ply", "instance.toml")
+KNOWN = ("solution.json", "candidates.csv", "points.csv", "visibility.cpm", "light_curves.csv", "scene.ply", "instance.toml")
 
 
 def verify_outputs(outdir: Path) -> int:
@@ -23,8 +23,8 @@ def verify_outputs(outdir: Path) -> int:
     assert not leftovers, f"temporary files left behind: {leftovers}"
     n = 0
     shape = None
-    if (outdir / "visibility.npz").exists():
-        shape = sp.load_npz(outdir / "visibility.npz").shape
+    if (outdir / "visibility.cpm").exists():
+        shape = load_visibility(outdir / "visibility.cpm").shape
         n += 1
     if (outdir / "candidates.csv").exists():
         c = np.loadtxt(outdir / "candidates.csv", delimiter=",", skiprows=1, ndmin=2)

@@ -18,6 +18,7 @@ from camplace.report.campaign import CAMPAIGN_COLUMNS, Campaign, problem_fingerp
 from camplace.report.compare import load_run_data
 from camplace.report.legacy import legacy_camera_scores, legacy_target
 from camplace.sampling import sample_positions
+from camplace.visibility.store import load_visibility
 
 SEED, POINTS = 3, 1500
 
@@ -51,7 +52,7 @@ def test_campaign_is_deterministic_per_seed(inst, camp, tmp_path) -> None:
     c2 = run_campaign(inst, systems=25, sampler="uniform", seed=SEED, points=POINTS, outdir=out2)
     for name in ("campaign.csv", "cameras.csv"):
         assert (out1 / name).read_bytes() == (out2 / name).read_bytes(), name
-    assert (sp.load_npz(out1 / "visibility.npz") != sp.load_npz(out2 / "visibility.npz")).nnz == 0
+    assert (load_visibility(out1) != load_visibility(out2)).nnz == 0
     np.testing.assert_array_equal(c1.objective, c2.objective)
     c3 = run_campaign(inst, systems=25, sampler="uniform", seed=SEED + 1, points=POINTS)
     assert not np.array_equal(c1.positions, c3.positions)
@@ -83,7 +84,7 @@ def test_positions_come_from_their_own_seed_stream(inst, camp) -> None:
 def test_objective_is_the_solver_objective_on_the_run_rows(inst, camp, tmp_path) -> None:
     c, out = camp
     pts = compute_points(inst, POINTS, SEED)
-    A = sp.load_npz(out / "visibility.npz")
+    A = load_visibility(out)
     assert A.shape == (POINTS, 25 * 3)
     for s in range(c.n_systems):
         assert c.objective[s] == pytest.approx(dense_coverage(A, pts.weight, range(3 * s, 3 * s + 3)), abs=1e-12)

@@ -17,10 +17,11 @@ from tests.solver._oracle import brute_force_mode, mode_objective
 def _folder(tmp_path, rng):
     m, n = 12, 7
     dense = (rng.random((m, n)) < 0.4) * rng.uniform(0.1, 1.0, (m, n))
+    dense = dense.astype(np.float32).astype(np.float64)  # matrices are float32 on disk and when read back
     w = rng.uniform(0.0, 1.0, m)
     pos = rng.normal(size=(n, 3)) * 3
     pts = rng.normal(size=(m, 3))
-    sp.save_npz(tmp_path / "visibility.npz", sp.csr_matrix(dense))
+    sp.save_npz(tmp_path / "visibility.npz", sp.csr_matrix(dense.astype(np.float32)))
     with open(tmp_path / "points.csv", "w") as fh:
         fh.write("index,x,y,z,nx,ny,nz,frame,weight\n")
         for i in range(m):

@@ -4,15 +4,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from camplace.cli import main
 from camplace.instance import builtin
 from camplace.pipeline import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, make_target_points
+from camplace.visibility import store
 from camplace.visibility.cache import entry_path, task_key
 from camplace.visibility.engine import make_task
+from camplace.visibility.store import load_visibility
 
 
 @pytest.fixture()
@@ -51,7 +52,7 @@ def test_interrupted_store_leaves_no_entry(problem, tmp_path: Path, monkeypatch)
     def boom(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(np, "savez", boom)
+    monkeypatch.setattr(store, "_write_file", boom)
     with pytest.raises(KeyboardInterrupt):
         compute_visibility(inst, cands, pts, cache_dir=tmp_path)
     monkeypatch.undo()
@@ -63,8 +64,8 @@ def test_visibility_verb_matches_run(tmp_path: Path) -> None:
     assert main(["run", "comet-67p-bunker", "-o", str(run_dir), "--candidates", "60", "--points", "800", "--seed", "4"]) == 0
     assert main(["visibility", "comet-67p-bunker", "--candidates", str(run_dir / "candidates.csv"),
                  "--points", "800", "--seed", "4", "--no-cache", "-o", str(vis_dir)]) == 0
-    a = sp.load_npz(run_dir / "visibility.npz")
-    b = sp.load_npz(vis_dir / "visibility.npz")
+    a = load_visibility(run_dir)
+    b = load_visibility(vis_dir)
     assert a.shape == b.shape and (a != b).nnz == 0
     assert (run_dir / "points.csv").read_bytes() == (vis_dir / "points.csv").read_bytes()
     assert (run_dir / "scene.ply").read_bytes() == (vis_dir / "scene.ply").read_bytes()

@@ -27,8 +27,10 @@ Output folder (:meth:`Campaign.save`):
     Settings, summary statistics, the legacy constants and the fingerprint of the scoring problem.
 ``cameras.csv``
     The poses, in the ``candidates.csv`` format (column ``s * k + c`` is camera c of system s).
-``visibility.npz``
-    The rows x cameras visibility matrix (float32 CSR), for re-solving with a run's candidates.
+``visibility.cpm``
+    The rows x cameras visibility matrix (float32 CSR; :func:`camplace.load_visibility` reads it,
+    ``camplace convert-matrix DIR --format npz`` turns it into a ``scipy.sparse.load_npz`` file),
+    for re-solving with a run's candidates.
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from camplace._io import write_json_atomic, write_text_atomic, write_with_atomic
+from camplace._io import write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
 from camplace.report.legacy import LegacyTarget, legacy_camera_scores, legacy_target
 
@@ -320,28 +322,29 @@ class Campaign:
             "summary": self.summary(),
             "timings_s": self.timings_s,
             "versions": versions(),
-            "files": ["campaign.csv", "campaign.json", "cameras.csv", "visibility.npz"],
+            "files": ["campaign.csv", "campaign.json", "cameras.csv", "visibility.cpm"],
         }
 
     def save(self, outdir: str | Path) -> Path:
-        """Write campaign.csv, cameras.csv, visibility.npz (when the matrix is held) and campaign.json atomically.
+        """Write campaign.csv, cameras.csv, visibility.cpm (when the matrix is held; see
+        :mod:`camplace.visibility.store`) and campaign.json atomically.
 
         ``campaign.json`` is written last: its presence means the campaign is complete.
         """
-        import scipy.sparse as sp
+        from camplace.visibility.store import save_matrix
 
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
         write_text_atomic(outdir / "campaign.csv", self.to_csv())
         self.candidates().save(outdir / "cameras.csv")
         if self.matrix is not None:
-            write_with_atomic(outdir / "visibility.npz", lambda p: sp.save_npz(p, sp.csr_matrix(self.matrix), compressed=True))
+            save_matrix(outdir, self.matrix)
         write_json_atomic(outdir / "campaign.json", self.to_dict())
         return outdir
 
     @classmethod
     def load(cls, outdir: str | Path, *, matrix: bool = False) -> "Campaign":
-        """Read a campaign folder (``matrix=True`` also reads visibility.npz)."""
+        """Read a campaign folder (``matrix=True`` also reads its matrix, visibility.cpm or visibility.npz)."""
         from camplace.sampling import CandidateSet
 
         outdir = Path(outdir)
@@ -371,13 +374,13 @@ class Campaign:
             raise CamplaceError(f"{outdir / 'cameras.csv'}: {len(cams)} cameras, expected {n * k} (re-run 'camplace campaign')")
         mat = None
         if matrix:
-            import scipy.sparse as sp
+            from camplace.visibility.store import load_visibility, matrix_path
 
-            mpath = outdir / "visibility.npz"
             try:
-                mat = sp.load_npz(mpath).tocsr()
-            except (OSError, ValueError) as exc:
-                raise CamplaceError(f"{mpath}: cannot read the campaign's visibility matrix ({exc}); re-run 'camplace campaign'") from None
+                mpath = matrix_path(outdir)
+            except CamplaceError as exc:
+                raise CamplaceError(f"{exc}; re-run 'camplace campaign'") from None
+            mat = load_visibility(mpath)
             if mat.shape != (int(meta["n_points"]), n * k):
                 raise CamplaceError(f"{mpath}: shape {mat.shape} does not match campaign.json (re-run 'camplace campaign')")
         def sk(a: np.ndarray) -> np.ndarray:

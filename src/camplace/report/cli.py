@@ -94,7 +94,7 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     rho = s["spearman_legacy_vs_objective"]
     print(f"legacy score: best system {s['best_legacy_system']} (objective {camp.objective[s['best_legacy_system'] - 1]:.4f}); "
           f"Spearman rho vs objective {'-' if rho is None else f'{rho:.3f}'}")
-    print(f"wrote {args.out}/campaign.csv, campaign.json, cameras.csv, visibility.npz")
+    print(f"wrote {args.out}/campaign.csv, campaign.json, cameras.csv, visibility.cpm")
     return EXIT_OK
 
 

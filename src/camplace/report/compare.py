@@ -3,7 +3,7 @@
 The guarantee the report states: **the optimised system scores at least as well as every campaign
 system on the same matrix.** Campaign cameras stand at fresh positions (not among the run's
 candidates), so :func:`compare_with_campaigns` works on the *union* matrix: the run's columns
-(``visibility.npz``) side by side with every campaign's columns, all on the run's rows (a campaign is
+(``visibility.cpm``) side by side with every campaign's columns, all on the run's rows (a campaign is
 accepted only when its :func:`~camplace.report.campaign.problem_fingerprint` equals the run's:
 same instance, seed and points, and when it used the run's event mode, i.e. the same row weights). Every system is scored there with the solver's objective
 (:func:`camplace.solver.coverage_weight`).
@@ -75,7 +75,8 @@ class RunData:
 
 
 def load_run_data(outdir: str | Path) -> RunData:
-    """Read a run folder: instance.toml, solution.json, candidates.csv, points.csv and visibility.npz.
+    """Read a run folder: instance.toml, solution.json, candidates.csv, points.csv and the matrix
+    (visibility.cpm or visibility.npz, :func:`camplace.visibility.store.load_visibility`).
 
     The rows are the run's own (``points.csv``, written with exact floats), so their number is the
     matrix's row count and ``solution.json``'s ``n_points``.
@@ -90,12 +91,13 @@ def load_run_data(outdir: str | Path) -> RunData:
     from camplace.sampling import CandidateSet
     from camplace.validation.workflow import load_run
     from camplace.visibility import VisibilityMatrix
+    from camplace.visibility.store import matrix_path
 
     outdir = Path(outdir)
     instance, solution = load_run(outdir)
     vis = VisibilityMatrix.load(outdir)
     matrix, points = vis.matrix, vis.points
-    mpath = outdir / "visibility.npz"
+    mpath = matrix_path(outdir)
     if matrix.shape != (solution.n_points, solution.n_candidates):
         raise CamplaceError(f"{mpath}: shape {matrix.shape} but solution.json says {solution.n_points} points x {solution.n_candidates} candidates (re-run)")
     cands = CandidateSet.load(outdir / "candidates.csv")

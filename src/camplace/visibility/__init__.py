@@ -1,17 +1,27 @@
-"""Visibility: which target points each candidate camera observes (Embree ray casting)."""
+"""Visibility: which target points each candidate camera observes (Embree ray casting).
 
-from camplace.visibility.engine import VisibilityMatrix, compute_visibility, frame_scene
-from camplace.visibility.points import TargetPoints, make_target_points, sample_surface
-from camplace.visibility.ply import write_ply
-from camplace.visibility.raycast import RayScene
+Everything is imported lazily (PEP 562): ``import camplace.visibility.store`` (the matrix files)
+loads neither Embree nor the engine's compiled kernels.
+"""
 
-__all__ = [
-    "RayScene",
-    "TargetPoints",
-    "VisibilityMatrix",
-    "compute_visibility",
-    "frame_scene",
-    "make_target_points",
-    "sample_surface",
-    "write_ply",
-]
+from __future__ import annotations
+
+from camplace._lazy import lazy_getattr
+
+_LAZY = {
+    "RayScene": "camplace.visibility.raycast",
+    "TargetPoints": "camplace.visibility.points",
+    "VisibilityMatrix": "camplace.visibility.engine",
+    "compute_visibility": "camplace.visibility.engine",
+    "frame_scene": "camplace.visibility.engine",
+    "make_target_points": "camplace.visibility.points",
+    "sample_surface": "camplace.visibility.points",
+    "write_ply": "camplace.visibility.ply",
+    "load_visibility": "camplace.visibility.store",
+    "save_visibility": "camplace.visibility.store",
+    "convert_matrix": "camplace.visibility.store",
+}
+
+__all__ = sorted(_LAZY)
+
+__getattr__ = lazy_getattr(__name__, _LAZY)

@@ -2,9 +2,11 @@
 
 The key hashes the engine version and the task's arrays (row points, normals, frames, lit mask,
 candidate poses, intrinsics, quality settings and every frame's triangles exactly as cast), so
-any change of instance, candidates or settings gives a new key. Entries are written atomically
-(temp file + rename): an interrupted run leaves no corrupt entry, and an unreadable entry is
-treated as a miss and rewritten.
+any change of instance, candidates or settings gives a new key. Entries are ``.cpm`` files of
+:mod:`camplace.visibility.store` (the engine's pair counts in their ``meta``), the same format as
+a run folder's ``visibility.cpm``, which is a hard link to the entry when the two share a file
+system (one copy on disk). Entries are written atomically (temp file + rename): an interrupted
+run leaves no corrupt entry, and an unreadable entry is treated as a miss and rewritten.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from camplace._io import write_with_atomic
+from camplace.errors import CamplaceError
 
 log = logging.getLogger(__name__)
 
@@ -55,40 +57,41 @@ def task_key(task) -> str:
 
 
 def entry_path(cache_dir: Path, key: str) -> Path:
-    return Path(cache_dir) / "visibility" / f"{key}.npz"
+    return Path(cache_dir) / "visibility" / f"{key}.cpm"
 
 
 def load(cache_dir: Path, key: str, shape: tuple[int, int]) -> tuple[sp.csr_matrix, dict] | None:
-    """The cached matrix and stats, or None on a miss or an unreadable entry."""
+    """The cached matrix and stats, or None on a miss or an unreadable entry (then removed)."""
+    from camplace.visibility.store import load_visibility, read_meta
+
     path = entry_path(cache_dir, key)
     if not path.exists():
         return None
     try:
-        with np.load(path, allow_pickle=False) as z:
-            matrix = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=tuple(z["shape"]))
-            stats = json.loads(str(z["stats"]))
-        if matrix.shape != shape or matrix.dtype != np.float32:
-            raise ValueError(f"shape {matrix.shape} dtype {matrix.dtype}, expected {shape} float32")
-        matrix.check_format(full_check=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable entry is a miss
+        stats = read_meta(path).get("stats", {})
+        matrix = load_visibility(path)
+        if matrix.shape != shape:
+            raise CamplaceError(f"shape {matrix.shape}, expected {shape}")
+    except CamplaceError as exc:  # any unreadable entry is a miss
         log.warning("visibility cache: ignoring unreadable entry %s (%s)", path, exc)
+        try:
+            path.unlink()
+        except OSError:
+            pass
         return None
     log.info("visibility cache: hit %s", path)
     return matrix, stats
 
 
-def store(cache_dir: Path, key: str, matrix: sp.csr_matrix, stats: dict) -> None:
-    """Write an entry atomically; a failure to write the cache is logged, never fatal."""
+def store(cache_dir: Path, key: str, matrix: sp.csr_matrix, stats: dict) -> Path | None:
+    """Write an entry atomically and return its path; a failure to write the cache is logged
+    (None), never fatal."""
+    from camplace.visibility.store import save_visibility
+
     path = entry_path(cache_dir, key)
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as fh:
-            np.savez(
-                fh, data=matrix.data, indices=matrix.indices, indptr=matrix.indptr,
-                shape=np.array(matrix.shape), stats=np.array(json.dumps(stats)),
-            )
-
     try:
-        write_with_atomic(path, write)
+        save_visibility(path, matrix, meta={"stats": stats})
     except OSError as exc:
         log.warning("visibility cache: could not write %s (%s)", path, exc)
+        return None
+    return path

@@ -30,9 +30,9 @@ from __future__ import annotations
 import functools
 import logging
 import math
-import mmap
 import os
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,11 +42,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import ConvexHull, QhullError
 
-from camplace._io import write_with_atomic
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.visibility.points import TargetPoints
 from camplace.visibility.raycast import RayScene
+from camplace.visibility.store import populated_empty
 
 log = logging.getLogger(__name__)
 
@@ -68,36 +68,54 @@ class VisibilityMatrix:
         The m rows.
     stats : dict
         Pair counts after each culling step.
+    store_path : Path or None
+        A ``.cpm`` file (the cache entry) that holds exactly this matrix: :meth:`save` hard-links
+        it instead of writing the matrix again.
+    timings_s : dict
+        Seconds spent in the cache: ``cache.load`` and / or ``cache.store``.
     """
 
     matrix: sp.csr_matrix
     points: TargetPoints
     stats: dict = field(default_factory=dict)
+    store_path: Path | None = None
+    timings_s: dict = field(default_factory=dict)
 
     @property
     def shape(self) -> tuple[int, int]:
         return self.matrix.shape
 
-    def save(self, outdir: str | Path) -> None:
-        """Write ``visibility.npz`` (for ``scipy.sparse.load_npz``) and ``points.csv`` atomically."""
-        outdir = Path(outdir)
-        write_with_atomic(outdir / "visibility.npz", lambda p: sp.save_npz(p, self.matrix, compressed=True))
-        self.points.save(outdir / "points.csv")
+    def save(self, outdir: str | Path, matrix_format: str = "cpm") -> Path:
+        """Write the matrix (:meth:`save_matrix`) and ``points.csv`` atomically. Returns the matrix file."""
+        path = self.save_matrix(outdir, matrix_format)
+        self.points.save(Path(outdir) / "points.csv")
+        return path
+
+    def save_matrix(self, outdir: str | Path, matrix_format: str = "cpm") -> Path:
+        """Write ``visibility.cpm`` (or ``visibility.npz`` for ``scipy.sparse.load_npz`` with
+        ``matrix_format="npz"``; see :mod:`camplace.visibility.store`) atomically: a hard link to
+        the cache entry when there is one. Returns the file."""
+        from camplace.visibility.store import save_matrix
+
+        # the same meta as the cache entry (the pair counts), so a written file equals a linked one
+        counts = {k: self.stats[k] for k in COUNT_KEYS if k in self.stats}
+        return save_matrix(Path(outdir), self.matrix, fmt=matrix_format, link_from=self.store_path,
+                           meta={"stats": counts} if counts else None)
 
     @classmethod
     def load(cls, outdir: str | Path) -> "VisibilityMatrix":
-        """Read ``visibility.npz`` and ``points.csv`` from a run's output folder."""
+        """Read the matrix (``visibility.cpm`` or ``visibility.npz``) and ``points.csv`` from a run's output folder."""
+        from camplace.visibility.store import load_visibility, matrix_path
+
         outdir = Path(outdir)
-        try:
-            matrix = sp.load_npz(outdir / "visibility.npz").tocsr()
-        except (OSError, ValueError) as exc:
-            raise CamplaceError(f"{outdir / 'visibility.npz'}: cannot read the visibility matrix ({exc})") from None
+        mpath = matrix_path(outdir)
+        matrix = load_visibility(mpath)
         points = TargetPoints.load(outdir / "points.csv")
         if matrix.shape[0] != len(points):
             raise CamplaceError(
-                f"{outdir}: visibility.npz has {matrix.shape[0]} rows but points.csv has {len(points)} (re-run)"
+                f"{outdir}: {mpath.name} has {matrix.shape[0]} rows but points.csv has {len(points)} (re-run)"
             )
-        return cls(matrix=matrix.astype(np.float32), points=points)
+        return cls(matrix=matrix, points=points)
 
 
 def _morton3(cell: np.ndarray) -> np.ndarray:
@@ -627,30 +645,6 @@ def chunk_plan(n_candidates: int, chunk_size: int, workers: int) -> list[tuple[i
     return plan
 
 
-_POPULATE_MIN_BYTES = 8 << 20
-
-
-def populated_empty(n: int, dtype) -> np.ndarray:
-    """``np.empty(n, dtype)`` whose pages are faulted in up front, in one ``mmap(MAP_POPULATE)`` call.
-
-    Writing a fresh array page by page costs a page fault per page; on virtual machines that hand
-    free memory back to the host (free-page reporting), each fault is far dearer (measured on the
-    2-core VM: 0.4-0.7 s for 332 MB by page faults, 0.1 s populated). Falls back to ``np.empty``
-    for small arrays and where ``MAP_POPULATE`` is not available. The mapping is released with the
-    array.
-    """
-    dtype = np.dtype(dtype)
-    nbytes = int(n) * dtype.itemsize
-    flag = getattr(mmap, "MAP_POPULATE", None)
-    if nbytes < _POPULATE_MIN_BYTES or flag is None:
-        return np.empty(n, dtype=dtype)
-    try:
-        buf = mmap.mmap(-1, nbytes, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | flag)
-    except (OSError, ValueError):  # pragma: no cover - e.g. no overcommit
-        return np.empty(n, dtype=dtype)
-    return np.frombuffer(buf, dtype=dtype, count=n)
-
-
 class _Arena(threading.local):
     """Per-thread bump allocator over populated slabs, for the chunk results."""
 
@@ -744,15 +738,19 @@ def compute_visibility(
     if chunk_size is None:
         chunk_size = default_chunk_size(task)
     key = None
+    timings: dict[str, float] = {}
     if cache_dir is not None:
         from camplace.visibility import cache
 
         key = cache.task_key(task)
+        t0 = time.perf_counter()
         hit = cache.load(Path(cache_dir), key, (len(points), n_cand))
+        timings["cache.load"] = time.perf_counter() - t0
         if hit is not None:
             if progress is not None:
                 progress(n_cand)
-            return VisibilityMatrix(matrix=hit[0], points=points, stats={**hit[1], "cache": "hit"})
+            return VisibilityMatrix(matrix=hit[0], points=points, stats={**hit[1], "cache": "hit"},
+                                    store_path=cache.entry_path(Path(cache_dir), key), timings_s=timings)
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
     starts = list(range(0, n_cand, chunk_size))
 
@@ -796,11 +794,15 @@ def compute_visibility(
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
     matrix, total = assemble(task, parts)
+    store_path = None
     if key is not None:
-        cache.store(Path(cache_dir), key, matrix, total)
+        t0 = time.perf_counter()
+        store_path = cache.store(Path(cache_dir), key, matrix, total)
+        timings["cache.store"] = time.perf_counter() - t0
         total = {**total, "cache": "miss"}
     log.info(
         "visibility: %d pairs, %d in range, %d in frustum, %d facing, %d observed",
         total["pairs"], total["in_range"], total["in_frustum"], total["facing"], total["observed"],
     )
-    return VisibilityMatrix(matrix=matrix, points=points, stats=total)
+    return VisibilityMatrix(matrix=matrix, points=points, stats=total, store_path=store_path,
+                            timings_s=timings)
