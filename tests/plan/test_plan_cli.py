@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+import camplace
 import pytest
 import scipy.sparse as sp
 
@@ -32,7 +34,7 @@ def _folder(outdir: Path):
     pts = _csv(outdir / "points.csv")
     frame = np.array([int(r["frame"]) for r in pts])
     weight = np.array([float(r["weight"]) for r in pts])
-    q = sp.load_npz(outdir / "visibility.npz").tocsr()
+    q = camplace.load_visibility(outdir).tocsr()
     return pos, frame, weight, q
 
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 
 import numpy as np
+
+import camplace
 import pytest
 import scipy.sparse as sp
 
@@ -27,7 +29,7 @@ def test_event_scene_shows_the_peak_frame_and_the_trajectory(flyby) -> None:
     sol = json.loads((flyby / "solution.json").read_text())
     table = np.loadtxt(flyby / "points.csv", delimiter=",", skiprows=1)
     xyz, normals, frame = table[:, 1:4], table[:, 4:7], table[:, 7].astype(int)
-    M = sp.load_npz(flyby / "visibility.npz").tocsc()
+    M = camplace.load_visibility(flyby).tocsc()
     sel = [int(c["candidate"]) for c in sol["cameras"]]
     peak = sol["peak_frame"]
     rows = np.flatnonzero(frame == peak)

@@ -79,7 +79,7 @@ class RunFolder:
 
 
 def load_run_folder(outdir: str | Path) -> RunFolder:
-    """Read instance.toml, solution.json, candidates.csv, points.csv and visibility.npz (like the report does).
+    """Read instance.toml, solution.json, candidates.csv, points.csv and the matrix (visibility.cpm or .npz, like the report does).
 
     Raises
     ------
@@ -100,7 +100,7 @@ def load_run_folder(outdir: str | Path) -> RunFolder:
     vis = VisibilityMatrix.load(outdir)
     cands = CandidateSet.load(outdir / "candidates.csv")
     if vis.matrix.shape[1] != len(cands):
-        raise CamplaceError(f"{outdir / 'candidates.csv'}: {len(cands)} candidates but visibility.npz has {vis.matrix.shape[1]} columns (re-run)")
+        raise CamplaceError(f"{outdir / 'candidates.csv'}: {len(cands)} candidates but the matrix has {vis.matrix.shape[1]} columns (re-run)")
     if vis.points.frame.size and int(vis.points.frame.max()) >= len(instance.frames):
         raise CamplaceError(f"{outdir / 'points.csv'}: frame {int(vis.points.frame.max())} but the instance has {len(instance.frames)} frames (re-run)")
     return RunFolder(outdir, instance, solution, cands, vis.matrix, vis.points)
