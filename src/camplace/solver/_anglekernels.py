@@ -3,9 +3,10 @@
 Rows are laid out in 64-row words as in :mod:`camplace.solver._bitkernels`; every word is a
 *block* of nearby points. A **cone** summarises where a camera (or a cluster of cameras) lies as
 seen from any point of a block: the directions point -> camera all lie within ``alpha`` radians
-of a unit ``axis``. Cones are stored as ``(ax, ay, az, alpha, cos alpha, sin alpha)`` float32
-(``alpha >= pi``: no information) and are inflated by small margins so that float32 storage never
-makes them too narrow.
+of a unit ``axis``. Cones are computed in float64 and stored in 8 bytes (int16 axis, half-angle
+in steps of pi / 2048 rounded up, widened by the axis rounding), so stored cones are never too
+narrow; the tests against the minimum angle read precomputed cosine tables
+(:func:`angle_tables`).
 
 For two cones at angle ``g`` between their axes, the angle at any point of the block between a
 ray to a camera of the first and a ray to a camera of the second lies in
@@ -28,156 +29,159 @@ from camplace.solver._bitkernels import _bits_weight, _ctz, _popcount, all_leave
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _PJIT = dict(_JIT, parallel=True)
 
-FULL_ALPHA = 3.2  # > pi: the cone says nothing
-_ALPHA_PAD = 2e-6  # radians added to every computed cone half-angle (float32 storage, rounding)
-_DOT_EPS = 1e-5  # margin on cosine comparisons: a doubtful block is "mixed", never misclassified
-_SELF_EPS = 1e-6
+ALPHA_STEPS = 2048  # cone half-angles are stored in steps of pi / ALPHA_STEPS, rounded up
+_STEP = math.pi / ALPHA_STEPS
+_Q = 32767.0  # unit axes are stored as int16 multiples of 1 / _Q
+_AXIS_ERR = 3e-5  # radians: the stored axis is within this of the true one (0.5 / _Q per component)
+_ALPHA_PAD = 1e-6  # radians added to every computed half-angle (rounding)
+_DOT_EPS = 1e-4  # margin on cosine comparisons (int16 axes): a doubtful block is "mixed"
 
 
 @numba.njit(**_JIT)
-def _set_cone(out, ax, ay, az, alpha):  # pragma: no cover - compiled
+def _store(ax, ay, az, alpha, out):  # pragma: no cover - compiled
+    """Quantise a cone (float64 unit axis, half-angle) into ``out`` (4,) int16, never narrower."""
     if alpha >= math.pi:
-        out[0] = 0.0
-        out[1] = 0.0
-        out[2] = 1.0
-        out[3] = FULL_ALPHA
-        out[4] = -1.0
-        out[5] = 0.0
+        out[0] = 0
+        out[1] = 0
+        out[2] = 0
+        out[3] = ALPHA_STEPS
         return
-    out[0] = ax
-    out[1] = ay
-    out[2] = az
-    out[3] = alpha
-    out[4] = math.cos(alpha)
-    out[5] = math.sin(alpha)
+    out[0] = np.int16(round(ax * _Q))
+    out[1] = np.int16(round(ay * _Q))
+    out[2] = np.int16(round(az * _Q))
+    out[3] = np.int16(min(ALPHA_STEPS, int(math.ceil((alpha + _AXIS_ERR + _ALPHA_PAD) / _STEP))))
+
+
+@numba.njit(**_JIT)
+def _merge(sc, a, b, v):  # pragma: no cover - compiled
+    """Smallest cone around cones ``a`` and ``b`` of ``sc`` ((N, 4) float64 rows: axis, half-angle),
+    written to row ``v``."""
+    a1 = sc[a, 3]
+    a2 = sc[b, 3]
+    if a1 >= math.pi or a2 >= math.pi:
+        sc[v, 3] = 4.0
+        return
+    x1, y1, z1 = sc[a, 0], sc[a, 1], sc[a, 2]
+    x2, y2, z2 = sc[b, 0], sc[b, 1], sc[b, 2]
+    dot = max(-1.0, min(1.0, x1 * x2 + y1 * y2 + z1 * z2))
+    g = math.acos(dot)
+    if g + a2 <= a1:
+        sc[v, 0], sc[v, 1], sc[v, 2], sc[v, 3] = x1, y1, z1, a1 + _ALPHA_PAD
+        return
+    if g + a1 <= a2:
+        sc[v, 0], sc[v, 1], sc[v, 2], sc[v, 3] = x2, y2, z2, a2 + _ALPHA_PAD
+        return
+    alpha = 0.5 * (g + a1 + a2)
+    if alpha >= math.pi - 1e-6 or g > math.pi - 1e-4:
+        sc[v, 3] = 4.0
+        return
+    t = alpha - a1  # the new axis turns from axis a towards axis b by t (0 < t < g)
+    px, py, pz = x2 - dot * x1, y2 - dot * y1, z2 - dot * z1
+    pn = math.sqrt(px * px + py * py + pz * pz)
+    if pn < 1e-12:
+        sc[v, 0], sc[v, 1], sc[v, 2], sc[v, 3] = x1, y1, z1, max(a1, a2) + g + _ALPHA_PAD
+        return
+    ct, st = math.cos(t), math.sin(t)
+    ax, ay, az = ct * x1 + st * px / pn, ct * y1 + st * py / pn, ct * z1 + st * pz / pn
+    an = math.sqrt(ax * ax + ay * ay + az * az)
+    sc[v, 0], sc[v, 1], sc[v, 2], sc[v, 3] = ax / an, ay / an, az / an, alpha + _ALPHA_PAD
 
 
 @numba.njit(**_PJIT)
-def leaf_cones(campos, centers, radius, slot, out):  # pragma: no cover - compiled
-    """Cones of single cameras on every block.
+def node_cones(campos, slot, left, right, centers, radius, out):  # pragma: no cover - compiled
+    """Cones of every node of a bisection tree on every block.
+
+    Per block (in parallel): each camera's cone from the block's bounding sphere (half-angle
+    ``asin(radius / distance)``), then, bottom-up, the smallest cone around the two children of
+    each inner node (float64), stored quantised.
 
     Parameters
     ----------
     campos : (n, 3) float64
         Camera positions.
+    slot : (n,) int64
+        Tree node of each camera (a leaf).
+    left, right : (N,) int64
+        The tree (children numbered after their parents; -1 at leaves). All -1: just the cameras.
     centers : (W, 3) float64, radius : (W,) float64
         Bounding spheres of the blocks' points (radius < 0: empty block).
-    slot : (n,) int64
-        Where camera ``c``'s cones go: ``out[slot[c]]``.
-    out : (N, W, 6) float32
-        Receives the cones.
+    out : (N, W, 4) int16
+        Receives ``(ax, ay, az)`` (units of 1 / 32767) and the half-angle in steps of
+        ``pi / ALPHA_STEPS`` (``ALPHA_STEPS``: no information).
     """
     n = campos.shape[0]
+    n_nodes = left.shape[0]
     n_words = centers.shape[0]
-    for c in prange(n):
-        o = out[slot[c]]
-        for wd in range(n_words):
-            if radius[wd] < 0:  # no point: any cone is right
-                _set_cone(o[wd], 0.0, 0.0, 1.0, 0.0)
+    for wd in prange(n_words):
+        sc = np.zeros((n_nodes, 4))
+        rho = radius[wd]
+        for c in range(n):
+            v = slot[c]
+            if rho < 0:  # no point: any cone is right
+                sc[v, 2] = 1.0
                 continue
             dx = campos[c, 0] - centers[wd, 0]
             dy = campos[c, 1] - centers[wd, 1]
             dz = campos[c, 2] - centers[wd, 2]
             d = math.sqrt(dx * dx + dy * dy + dz * dz)
-            rho = radius[wd]
             if d <= rho * (1.0 + 1e-9) + 1e-12:
-                _set_cone(o[wd], 0.0, 0.0, 1.0, 4.0)
+                sc[v, 3] = 4.0
                 continue
-            alpha = math.asin(min(1.0, rho / d)) + _ALPHA_PAD
-            _set_cone(o[wd], dx / d, dy / d, dz / d, alpha)
-
-
-@numba.njit(**_JIT)
-def _merge_into(c1, c2, out):  # pragma: no cover - compiled
-    """Smallest cone around two cones (up to the padding), written to ``out``."""
-    a1 = float(c1[3])
-    a2 = float(c2[3])
-    if a1 >= math.pi or a2 >= math.pi:
-        _set_cone(out, 0.0, 0.0, 1.0, 4.0)
-        return
-    x1, y1, z1 = float(c1[0]), float(c1[1]), float(c1[2])
-    x2, y2, z2 = float(c2[0]), float(c2[1]), float(c2[2])
-    n1 = math.sqrt(x1 * x1 + y1 * y1 + z1 * z1)
-    n2 = math.sqrt(x2 * x2 + y2 * y2 + z2 * z2)
-    x1, y1, z1 = x1 / n1, y1 / n1, z1 / n1
-    x2, y2, z2 = x2 / n2, y2 / n2, z2 / n2
-    dot = max(-1.0, min(1.0, x1 * x2 + y1 * y2 + z1 * z2))
-    g = math.acos(dot)
-    if g + a2 <= a1:
-        _set_cone(out, x1, y1, z1, a1 + _ALPHA_PAD)
-        return
-    if g + a1 <= a2:
-        _set_cone(out, x2, y2, z2, a2 + _ALPHA_PAD)
-        return
-    alpha = 0.5 * (g + a1 + a2)
-    if alpha >= math.pi - 1e-6 or g > math.pi - 1e-4:
-        _set_cone(out, 0.0, 0.0, 1.0, 4.0)
-        return
-    t = alpha - a1  # the new axis turns from axis 1 towards axis 2 by t (0 < t < g)
-    px, py, pz = x2 - dot * x1, y2 - dot * y1, z2 - dot * z1
-    pn = math.sqrt(px * px + py * py + pz * pz)
-    if pn < 1e-12:
-        _set_cone(out, x1, y1, z1, max(a1, a2) + g + _ALPHA_PAD)
-        return
-    ct, st = math.cos(t), math.sin(t)
-    ax, ay, az = ct * x1 + st * px / pn, ct * y1 + st * py / pn, ct * z1 + st * pz / pn
-    an = math.sqrt(ax * ax + ay * ay + az * az)
-    _set_cone(out, ax / an, ay / an, az / an, alpha + _ALPHA_PAD)
-
-
-@numba.njit(**_PJIT)
-def tree_cones(left, right, out):  # pragma: no cover - compiled
-    """Cones of the inner nodes of a bisection tree (:func:`camplace.solver._bitkernels.tree_shape`)
-    from those of its leaves, in place.
-
-    Parameters
-    ----------
-    left, right : (N,) int64
-        The tree (children are numbered after their parents; -1 at leaves).
-    out : (N, W, 6) float32
-        Node cones; the leaves' must be set.
-    """
-    n_nodes = left.shape[0]
-    n_words = out.shape[1]
-    for wd in prange(n_words):
+            sc[v, 0], sc[v, 1], sc[v, 2] = dx / d, dy / d, dz / d
+            sc[v, 3] = math.asin(min(1.0, rho / d)) + _ALPHA_PAD
         for v in range(n_nodes - 1, -1, -1):
             if left[v] >= 0:
-                _merge_into(out[left[v], wd], out[right[v], wd], out[v, wd])
+                _merge(sc, left[v], right[v], v)
+        for v in range(n_nodes):
+            _store(sc[v, 0], sc[v, 1], sc[v, 2], sc[v, 3], out[v, wd])
 
 
-@numba.njit(**_JIT)
-def _pair_state(c1, i1, c2, i2, wd, theta, cos_t, sin_t):  # pragma: no cover - compiled
+def angle_tables(theta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lookup tables over the summed half-angle steps ``s`` of two cones (``beta = s pi / ALPHA_STEPS``).
+
+    Returns
+    -------
+    possible : (2 ALPHA_STEPS + 1,) float64
+        ``cos(theta - beta)``: a pair may make the angle where the axes' cosine is at most this
+        (2.0 when ``beta >= theta``: always may).
+    always : (2 ALPHA_STEPS + 1,) float64
+        ``cos(theta + beta)``: every pair makes the angle where the axes' cosine is at most this
+        (-2.0 when ``theta + beta > pi``: never known).
+    self_ok : (ALPHA_STEPS + 1,) bool
+        Two cameras of one cone may make the angle (``2 alpha >= theta``).
+    """
+    beta = np.arange(2 * ALPHA_STEPS + 1) * _STEP
+    possible = np.where(beta >= theta, 2.0, np.cos(np.maximum(theta - beta, 0.0)))
+    always = np.where(theta + beta > math.pi, -2.0, np.cos(np.minimum(theta + beta, math.pi)))
+    self_ok = 2.0 * np.arange(ALPHA_STEPS + 1) * _STEP >= theta - 1e-9
+    return possible, always, self_ok
+
+
+@numba.njit(inline="always", **_JIT)
+def _dot(c1, i1, c2, i2, wd):  # pragma: no cover - compiled
+    return (float(c1[i1, wd, 0]) * float(c2[i2, wd, 0]) + float(c1[i1, wd, 1]) * float(c2[i2, wd, 1])
+            + float(c1[i1, wd, 2]) * float(c2[i2, wd, 2])) * (1.0 / (_Q * _Q))
+
+
+@numba.njit(inline="always", **_JIT)
+def _pair_state(c1, i1, c2, i2, wd, possible, always):  # pragma: no cover - compiled
     """0: no pair of the two clusters makes the angle anywhere in block ``wd``; 2: every pair does
     everywhere; 1: mixed (or unknown)."""
-    a1 = c1[i1, wd, 3]
-    a2 = c2[i2, wd, 3]
-    beta = float(a1) + float(a2)
-    dot = (float(c1[i1, wd, 0]) * c2[i2, wd, 0] + float(c1[i1, wd, 1]) * c2[i2, wd, 1]
-           + float(c1[i1, wd, 2]) * c2[i2, wd, 2])
-    cb = float(c1[i1, wd, 4]) * c2[i2, wd, 4] - float(c1[i1, wd, 5]) * c2[i2, wd, 5]
-    sb = float(c1[i1, wd, 5]) * c2[i2, wd, 4] + float(c1[i1, wd, 4]) * c2[i2, wd, 5]
-    if beta < theta and dot > cos_t * cb + sin_t * sb + _DOT_EPS:  # angle(axes) < theta - beta
+    s = np.int64(c1[i1, wd, 3]) + np.int64(c2[i2, wd, 3])
+    lim = possible[s]
+    if lim > 1.5:
+        return 1 if always[s] < -1.5 else (2 if _dot(c1, i1, c2, i2, wd) <= always[s] - _DOT_EPS else 1)
+    dot = _dot(c1, i1, c2, i2, wd)
+    if dot > lim + _DOT_EPS:
         return 0
-    if theta + beta <= math.pi and dot <= cos_t * cb - sin_t * sb - _DOT_EPS:  # angle(axes) >= theta + beta
-        return 2
-    return 1
+    return 2 if dot <= always[s] - _DOT_EPS else 1
 
 
-@numba.njit(**_JIT)
-def _possible(c1, i1, c2, i2, wd, theta, cos_t, sin_t):  # pragma: no cover - compiled
-    """False when no pair of the two clusters makes the angle anywhere in block ``wd``
-    (:func:`_pair_state` without the "always" case)."""
-    a1 = float(c1[i1, wd, 3])
-    a2 = float(c2[i2, wd, 3])
-    if a1 + a2 >= theta:
-        return True
-    dot = (float(c1[i1, wd, 0]) * c2[i2, wd, 0] + float(c1[i1, wd, 1]) * c2[i2, wd, 1]
-           + float(c1[i1, wd, 2]) * c2[i2, wd, 2])
-    c1c, c1s = float(c1[i1, wd, 4]), float(c1[i1, wd, 5])
-    c2c, c2s = float(c2[i2, wd, 4]), float(c2[i2, wd, 5])
-    cb = c1c * c2c - c1s * c2s
-    sb = c1s * c2c + c1c * c2s
-    return dot <= cos_t * cb + sin_t * sb + _DOT_EPS
+@numba.njit(inline="always", **_JIT)
+def _possible(c1, i1, c2, i2, wd, possible):  # pragma: no cover - compiled
+    """False when no pair of the two clusters makes the angle anywhere in block ``wd``."""
+    lim = possible[np.int64(c1[i1, wd, 3]) + np.int64(c2[i2, wd, 3])]
+    return lim > 1.5 or _dot(c1, i1, c2, i2, wd) <= lim + _DOT_EPS
 
 
 @numba.njit(**_JIT)
@@ -211,7 +215,7 @@ def _exact_bits(x, wd, pa, pb, pts, theta_deg, cos_t):  # pragma: no cover - com
 
 @numba.njit(**_JIT)
 def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes, last_mask,
-                    need, acc, gnode, gcnt, pw, exact, pts, theta, cos_t, sin_t, theta_deg):  # pragma: no cover - compiled
+                    need, acc, gnode, gcnt, pw, exact, pts, possible, always, self_ok, theta_deg, cos_t):  # pragma: no cover - compiled
     """Weight of the rows a node tuple cannot make count (stops once it reaches ``need``).
 
     A row counts when at least ``views`` chosen cameras (the tuple's and the fixed ones) observe it
@@ -225,15 +229,15 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
     ----------
     levels : (L, N, W) uint64
         Level bitsets of the tree nodes.
-    cones : (N, W, 6) float32
-        Node cones per block.
+    cones : (N, W, 4) int16
+        Node cones per block (:func:`node_cones`).
     nodes : (k,) int64
         The tuple (non-decreasing).
     lo : (N,) int64
         First column position of each node (a leaf's column).
     campos : (n, 3) float64
         Camera positions in tree order.
-    fbits : (r, W) uint64, fcones : (r, W, 6) float32, fpos : (r, 3) float64
+    fbits : (r, W) uint64, fcones : (r, W, 4) int16, fpos : (r, 3) float64
         Fixed cameras.
     fpair : (W,) uint64
         Rows where two fixed cameras make the angle.
@@ -243,8 +247,10 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
         Scratch.
     pts : (64 W, 3) float64
         Point of each row position.
-    theta : float
-        Minimum angle, radians (``cos_t``, ``sin_t`` its cosine and sine; ``theta_deg`` degrees).
+    possible, always, self_ok
+        :func:`angle_tables` of the minimum angle.
+    theta_deg, cos_t : float
+        The minimum angle in degrees, and its cosine.
     """
     n_words = levels.shape[2]
     n_levels = levels.shape[0]
@@ -275,7 +281,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                     continue
                 if gcnt[a] >= 2 and n_levels >= 2:
                     x = levels[1, va, ww] & ~ph
-                    if x and 2.0 * cones[va, ww, 3] >= theta - _SELF_EPS:
+                    if x and self_ok[cones[va, ww, 3]]:
                         ph |= x
                 for b in range(a + 1, ng):
                     vb = gnode[b]
@@ -283,10 +289,10 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                     if x == 0:
                         continue
                     if not exact:
-                        if _possible(cones, va, cones, vb, ww, theta, cos_t, sin_t):
+                        if _possible(cones, va, cones, vb, ww, possible):
                             ph |= x
                         continue
-                    s = _pair_state(cones, va, cones, vb, ww, theta, cos_t, sin_t)
+                    s = _pair_state(cones, va, cones, vb, ww, possible, always)
                     if s == 0:
                         continue
                     if s == 2:
@@ -298,10 +304,10 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                     if x == 0:
                         continue
                     if not exact:
-                        if _possible(cones, va, fcones, f, ww, theta, cos_t, sin_t):
+                        if _possible(cones, va, fcones, f, ww, possible):
                             ph |= x
                         continue
-                    s = _pair_state(cones, va, fcones, f, ww, theta, cos_t, sin_t)
+                    s = _pair_state(cones, va, fcones, f, ww, possible, always)
                     if s == 0:
                         continue
                     if s == 2:
@@ -341,7 +347,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
 
 @numba.njit(**_PJIT)
 def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
-           best, margin, colmax, fixed_colsum, pw, pts, theta, cos_t, sin_t, theta_deg):  # pragma: no cover - compiled
+           best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t):  # pragma: no cover - compiled
     """Split every tuple of ``front`` (F, k) once and bound the children.
 
     A child's bound is ``min((sum of its nodes' heaviest column weights + the fixed cameras'
@@ -376,8 +382,8 @@ def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcon
             is_leaf = all_leaves(child, lo, hi)
             exact[f] += is_leaf
             sf = angle_shortfall(levels, cones, child, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
-                                 mask, total - beat, acc, gnode, gcnt, pw, is_leaf, pts, theta, cos_t, sin_t,
-                                 theta_deg)
+                                 mask, total - beat, acc, gnode, gcnt, pw, is_leaf, pts, possible, always, self_ok,
+                                 theta_deg, cos_t)
             b = min(wcap, total - sf)
             if b <= beat:
                 continue

@@ -10,8 +10,8 @@ over the columns, depth-first in parallel batches), with the angle added to the 
 * **Blocks.** The countable rows are ordered spatially (recursive bisection of the points along
   their widest axis), so every 64-row word is a block of nearby points with a small bounding
   sphere.
-* **Cones.** For every tree node and block, a cone holds the directions from any point of the
-  block to any camera of the node (:mod:`camplace.solver._anglekernels`). Two nodes whose cones
+* **Cones.** For every tree node and block, a cone (8 bytes) holds the directions from any point
+  of the block to any camera of the node (:mod:`camplace.solver._anglekernels`). Two nodes whose cones
   are closer than the angle can form no valid pair on that block, so the rows only they observe
   twice cannot count there. A tuple's bound is the weight of the rows where some pair of its
   nodes (or a node and a fixed camera, or two fixed cameras) observes the row and may make the
@@ -26,7 +26,7 @@ over the columns, depth-first in parallel batches), with the angle added to the 
   and rows they already make count are a constant); forbidden cameras are left out.
 * **Incumbent.** Greedy from the heaviest columns plus 1-swap local search, with exact angles.
 * **Time limit.** On expiry the incumbent comes back with the largest bound still open.
-* **Memory.** :func:`angle_bytes` (column bitsets, the tree's level bitsets, 24 bytes of cone per
+* **Memory.** :func:`angle_bytes` (column bitsets, the tree's level bitsets, 8 bytes of cone per
   node and block, the open tuples) is checked against the budget before anything is allocated;
   :class:`~camplace.solver._common.OverBudget` is raised when it does not fit.
 """
@@ -39,6 +39,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
@@ -60,6 +61,7 @@ _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
 _CHUNK = 4096  # tuples per stack entry
 _BATCH = 1 << 14  # tuples expanded per parallel call
+_PAR_CHUNK = 16  # tuples a thread takes at a time
 _FRONTIER_MAX = 4_000_000  # open tuples at most
 _DEPTH_FIRST_OPEN = 1_000_000  # depth-first (newest chunks) while more tuples than this are open
 
@@ -89,15 +91,15 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int) -> int
     """Working memory of :func:`solve_angle` for ``rows`` countable rows and ``n_cols`` columns.
 
     The opposite-pairs layout can hold up to twice as many bit rows as countable rows; counted
-    here: the column bitsets and their ordered copy, ``min(views, k)`` level bitsets and a 24-byte
-    cone per tree node and 64-row block, the points of the layout, the pair matching's row bitsets
-    and the open tuples of the search.
+    here: the column bitsets and their ordered copy, ``min(views, k)`` level bitsets and an 8-byte
+    cone per tree node and 64-row block (and a float64 working copy per thread), the points of the
+    layout, the pair matching's row bitsets and the open tuples of the search.
     """
     words = (2 * int(rows) + 127) // 64 + 2
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
     levels = max(1, min(int(views), int(k)))
     bits = words * 8 * (2 * int(n_cols) + levels * nodes)
-    cones = nodes * words * 24
+    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS)
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
     frontier = (_FRONTIER_MAX + (k + 1) * _BATCH) * (8 * k + 16)
@@ -267,6 +269,96 @@ class _Incumbent:
                 if not improved:
                     break
             self.offer(sel)
+
+
+class _Tree:
+    """Everything the compiled search reads: the bisection tree over the useful free columns with
+    its level bitsets and cones, the fixed cameras, the layout's weights and points.
+
+    Parameters
+    ----------
+    q : (m, n) csr_matrix
+    pos : (n, 3), pts : (m, 3) float64
+    layout : _Layout
+    free, fixed : int64 arrays of column indices
+    colw : (n,) float64
+        Each column's weight on the search rows (layout units).
+    k, views : int
+    theta_deg : float
+    integer : bool
+        Integer layout weights (popcount sums).
+    lap : callable
+        Records the time of each setup step.
+    """
+
+    def __init__(self, q: sp.csr_matrix, pos: np.ndarray, pts: np.ndarray, layout: _Layout, free: np.ndarray,
+                 fixed: np.ndarray, colw: np.ndarray, k: int, views: int, theta_deg: float, integer: bool,
+                 lap: Any) -> None:
+        n = q.shape[1]
+        rows, lw = layout.rows, layout.weights
+        self.k, self.views, self.pw, self.lw, self.theta_deg = k, views, layout.pw, lw, theta_deg
+        self.total = float(lw.sum())
+        useful = free[colw[free] > 0]  # columns observing a search row, padded to k
+        if useful.size < k:
+            useful = np.concatenate([useful, free[colw[free] <= 0][: k - useful.size]])
+        cols = np.sort(useful)
+        col_map = np.full(n, -1, dtype=np.int64)
+        col_map[cols] = np.arange(cols.size)
+        with ctrl_c_deferred():
+            bits = K.build_bits(q.indptr, q.indices, q.data, rows, col_map, cols.size)
+            lap("bits")
+            perm = K.bisection_order(bits)
+            lap("order")
+            self.lo, self.hi, self.left, self.right, self.levels = K.build_tree(np.ascontiguousarray(bits[perm]),
+                                                                                min(views, k))
+        del bits
+        lap("tree")
+        n_words = self.levels.shape[2]
+        self.cols_ord = cols[perm]
+        self.pts, centers, radius = _blocks(rows, pts)
+        self.blocks = (centers, radius)
+        self.cones = np.empty((self.lo.shape[0], n_words, 4), dtype=np.int16)
+        slot = np.empty(cols.size, dtype=np.int64)
+        leaves = np.flatnonzero(self.left < 0)
+        slot[self.lo[leaves]] = leaves
+        fmap = np.full(n, -1, dtype=np.int64)
+        fmap[fixed] = np.arange(fixed.size)
+        self.campos = np.ascontiguousarray(pos[self.cols_ord])
+        self.fpos = np.ascontiguousarray(pos[fixed]).reshape(-1, 3)
+        with ctrl_c_deferred():
+            AK.node_cones(self.campos, slot, self.left, self.right, centers, radius, self.cones)
+            lap("cones")
+            self.fbits = K.build_bits(q.indptr, q.indices, q.data, rows, fmap, fixed.size)
+            self.fcones = np.empty((fixed.size, n_words, 4), dtype=np.int16)
+            none = np.full(fixed.size, -1, dtype=np.int64)
+            AK.node_cones(self.fpos, np.arange(fixed.size, dtype=np.int64), none, none, centers, radius, self.fcones)
+            self.fpair = AK.fixed_pairs(self.fbits, self.fpos, self.pts, theta_deg)
+        self.planes = K.weight_planes(lw) if integer else np.zeros((0, n_words), np.uint64)
+        self.mask = _last_mask(rows.size)
+        f = colw[self.cols_ord]
+        self.colmax = np.empty(self.lo.shape[0])
+        for v in range(self.lo.shape[0] - 1, -1, -1):
+            self.colmax[v] = f[self.lo[v]] if self.left[v] < 0 else max(self.colmax[self.left[v]],
+                                                                         self.colmax[self.right[v]])
+        self.fixed_colsum = float(colw[fixed].sum())
+        self.root = min(self.total, (float(np.sort(f)[-k:].sum()) + self.fixed_colsum) / views)
+        self.tables = AK.angle_tables(math.radians(theta_deg))
+        self.cos_t = math.cos(math.radians(theta_deg))
+
+    def expand(self, tup: np.ndarray, best: float, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+        """Children of the tuples ``tup`` (F, k) and their bounds (:func:`_anglekernels.expand`)."""
+        possible, always, self_ok = self.tables
+        with ctrl_c_deferred(), numba.parallel_chunksize(_PAR_CHUNK):  # dynamic: evaluations vary in cost
+            children, value, leaf, n_made, n_exact = AK.expand(
+                tup, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
+                self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
+                margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
+                self.cos_t)
+        return children, value, leaf, int(n_made), int(n_exact)
+
+    def columns(self, nodes: np.ndarray) -> tuple[int, ...]:
+        """Original columns of a tuple of leaves, sorted."""
+        return tuple(sorted(int(self.cols_ord[self.lo[x]]) for x in nodes))
 
 
 class _Frontier:
@@ -446,59 +538,14 @@ def solve_angle(
     if layout is None:
         layout = _plain_layout(search, wu, pts, seen)
     lap("layout")
-    rows, lw, pw = layout.rows, layout.weights, layout.pw
-    total = float(lw.sum())
-    # columns: the free ones observing a search row (padded to k)
-    useful = free[colw[free] > 0]
-    if useful.size < k:
-        useful = np.concatenate([useful, free[colw[free] <= 0][: k - useful.size]])
-    cols = np.sort(useful)
-    col_map = np.full(n, -1, dtype=np.int64)
-    col_map[cols] = np.arange(cols.size)
-    with ctrl_c_deferred():
-        bits = K.build_bits(q.indptr, q.indices, q.data, rows, col_map, cols.size)
-        lap("bits")
-        perm = K.bisection_order(bits)
-        lap("order")
-        lo, hi, left, right, levels = K.build_tree(np.ascontiguousarray(bits[perm]), min(views, k))
-    del bits
-    lap("tree")
-    n_words = levels.shape[2]
-    cols_ord = cols[perm]
-    lpts, centers, radius = _blocks(rows, pts)
-    cones = np.empty((lo.shape[0], n_words, 6), dtype=np.float32)
-    slot = np.empty(cols.size, dtype=np.int64)
-    leaves = np.flatnonzero(left < 0)
-    slot[lo[leaves]] = leaves
-    fmap = np.full(n, -1, dtype=np.int64)
-    fmap[fixed] = np.arange(fixed.size)
-    with ctrl_c_deferred():
-        AK.leaf_cones(pos[cols_ord], centers, radius, slot, cones)
-        AK.tree_cones(left, right, cones)
-        lap("cones")
-        fbits = K.build_bits(q.indptr, q.indices, q.data, rows, fmap, fixed.size)
-        fcones = np.empty((fixed.size, n_words, 6), dtype=np.float32)
-        AK.leaf_cones(pos[fixed], centers, radius, np.arange(fixed.size, dtype=np.int64), fcones)
-        fpair = AK.fixed_pairs(fbits, pos[fixed], lpts, theta_deg)
-    planes = K.weight_planes(lw) if unit is not None else np.zeros((0, n_words), np.uint64)
-    mask = _last_mask(rows.size)
-    f = colw[cols_ord]
-    colmax = np.empty(lo.shape[0])
-    for v in range(lo.shape[0] - 1, -1, -1):
-        colmax[v] = f[lo[v]] if left[v] < 0 else max(colmax[left[v]], colmax[right[v]])
-    fixed_colsum = float(colw[fixed].sum())
-    theta = math.radians(theta_deg)
-    ct, st = math.cos(theta), math.sin(theta)
-    campos = np.ascontiguousarray(pos[cols_ord])
-    fpos = np.ascontiguousarray(pos[fixed]).reshape(-1, 3)
-    stats.update({"bit_rows": int(rows.size), "words": int(n_words), "pair_words": int(pw), "cols": int(cols.size),
-                  "time_setup_s": deadline.elapsed()})
+    tree = _Tree(q, pos, pts, layout, free, fixed, colw, k, views, theta_deg, unit is not None, lap)
+    stats.update({"bit_rows": int(layout.rows.size), "words": int(tree.levels.shape[2]), "pair_words": int(layout.pw),
+                  "cols": int(tree.cols_ord.size), "time_setup_s": deadline.elapsed()})
 
-    # the incumbent in layout units: its value on the search rows
+    # the incumbent (in layout units: its value on the search rows), then best-first search
     best = inc.best
     best_set = inc.best_set
-    root = min(total, (float(np.sort(f)[-k:].sum()) + fixed_colsum) / views)
-    front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([root]))
+    front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]))
     evaluated = batches = exact_evals = 0
     status, open_bound = "optimal", -math.inf
     while front.n_open:
@@ -511,26 +558,23 @@ def solve_angle(
         if tup.shape[0] == 0:
             continue
         batches += 1
-        with ctrl_c_deferred():
-            children, value, leaf, n_made, n_exact = AK.expand(
-                tup, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, lw, planes, mask,
-                total, best, margin, colmax, fixed_colsum, pw, lpts, theta, ct, st, theta_deg)
-        evaluated += int(n_made)
-        exact_evals += int(n_exact)
+        children, value, leaf, n_made, n_exact = tree.expand(tup, best, margin)
+        evaluated += n_made
+        exact_evals += n_exact
         top = best_leaf(children, value, leaf)
         if top is not None and top[0] > best:
-            best, best_set = top[0], tuple(sorted(int(cols_ord[lo[x]]) for x in top[1]))
+            best, best_set = top[0], tree.columns(top[1])
             log.debug("angle: incumbent %.9g %s", const + best * scale, best_set)
         front.push(children, value, leaf, best + margin)
     bound = max(best, open_bound)
     if bound <= best + margin:
         status, bound = "optimal", best
-    stats.update({"search": "opposite pairs" if pw > 0 else "blocks", "bound_evaluations": int(evaluated),
-                  "exact_evaluations": int(exact_evals),
-                  "batches": batches, "peak_open": int(front.peak), "depth_first_batches": front.lifo_batches, "time_search_s": deadline.elapsed() - stats["time_setup_s"],
-                  "incumbent_calls": inc.calls})
+    stats.update({"search": "opposite pairs" if layout.pw > 0 else "blocks", "bound_evaluations": int(evaluated),
+                  "exact_evaluations": int(exact_evals), "batches": batches, "peak_open": int(front.peak),
+                  "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
+                  "time_search_s": deadline.elapsed() - stats["time_setup_s"]})
     log.info("angle: k=%d views=%d angle %.3g deg on %d rows x %d columns, %s value %.9g bound %.9g, %d bound "
-             "evaluations, %.3f s", k, views, theta_deg, rows.size, cols.size, status, const + best * scale,
+             "evaluations, %.3f s", k, views, theta_deg, layout.rows.size, tree.cols_ord.size, status, const + best * scale,
              const + bound * scale, evaluated, deadline.elapsed())
     return AngleOutcome(best_set, status, const + bound * scale, stats)
 
