@@ -529,3 +529,19 @@ def column_weights(indptr, indices, data, rows, w_rows, n):  # pragma: no cover 
             if data[p] > 0:
                 out[indices[p]] += w_rows[i]
     return out
+
+
+@numba.njit(**_JIT)
+def selected_pattern(indptr, indices, data, rows, cols, n):  # pragma: no cover - compiled
+    """(r, s) bool: which of the columns ``cols`` observe (value > 0) each of the rows ``rows``."""
+    where = np.full(n, -1, dtype=np.int64)
+    for t in range(cols.shape[0]):
+        where[cols[t]] = t
+    out = np.zeros((rows.shape[0], cols.shape[0]), dtype=np.bool_)
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for p in range(indptr[r], indptr[r + 1]):
+            t = where[indices[p]]
+            if t >= 0 and data[p] > 0:
+                out[i, t] = True
+    return out

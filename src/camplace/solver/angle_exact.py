@@ -36,6 +36,7 @@ from __future__ import annotations
 import heapq
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -60,7 +61,9 @@ _INCUMBENT_SHARE = 0.1  # greedy + swaps stop after this share of the time limit
 _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
 _CHUNK = 4096  # tuples per stack entry
-_BATCH = 1 << 14  # tuples expanded per parallel call
+_BATCH = 1 << 14  # tuples expanded per parallel call, at most ...
+_BATCH_MIN = 256  # ... and at least
+_BATCH_S = 0.5  # seconds a batch should take (the deadline is checked between batches)
 _PAR_CHUNK = 16  # tuples a thread takes at a time
 _FRONTIER_MAX = 4_000_000  # open tuples at most
 _DEPTH_FIRST_OPEN = 1_000_000  # depth-first (newest chunks) while more tuples than this are open
@@ -547,6 +550,7 @@ def solve_angle(
     best_set = inc.best_set
     front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]))
     evaluated = batches = exact_evals = 0
+    batch = min(_BATCH, _BATCH_MIN)
     status, open_bound = "optimal", -math.inf
     while front.n_open:
         if deadline.expired() or front.n_open > _FRONTIER_MAX:
@@ -554,11 +558,16 @@ def solve_angle(
             open_bound = front.top()
             stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
             break
-        tup = front.pop_batch(_BATCH, best + margin)
+        tup = front.pop_batch(batch, best + margin)
         if tup.shape[0] == 0:
             continue
         batches += 1
+        t_batch = time.perf_counter()
         children, value, leaf, n_made, n_exact = tree.expand(tup, best, margin)
+        # next batch: about _BATCH_S seconds, and at most a quarter of the time left
+        per = (time.perf_counter() - t_batch) / tup.shape[0]
+        want = _BATCH_S if deadline.remaining() is None else min(_BATCH_S, 0.25 * (deadline.remaining() or 0.0))
+        batch = int(min(_BATCH, max(_BATCH_MIN, want / max(per, 1e-9))))
         evaluated += n_made
         exact_evals += n_exact
         top = best_leaf(children, value, leaf)

@@ -63,7 +63,7 @@ import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
-from camplace.solver._anglekernels import count_bad_pairs
+from camplace.solver._anglekernels import count_bad_pairs, selected_pattern
 from camplace.solver._common import (
     OverBudget, check_engine_and_limit, coverage_weight, memory_budget, memory_budget_bytes, selected_row_stats,
 )
@@ -248,14 +248,28 @@ def mode_value(
         return float(w @ vmax)
     ok = count >= int(views)
     if min_angle_deg is not None:
-        seen = q[:, cols].toarray() > 0
+        rows = np.flatnonzero(ok)
+        data = q.data.view(np.uint8) if q.data.dtype.kind == "b" else q.data
+        with ctrl_c_deferred():
+            seen = selected_pattern(q.indptr, q.indices, data, rows, np.asarray(cols, dtype=np.int64), n)
         pos = _coords(positions, n, "positions", "camera positions")[cols]
-        pts = _coords(points, m, "points", "point positions")
-        for i in np.flatnonzero(ok):
-            s = np.flatnonzero(seen[i])
-            good = _angle_ok_pairs(pts[i], pos[s], min_angle_deg)
-            ok[i] = bool(np.any(np.triu(good, 1)))
+        pts = _coords(points, m, "points", "point positions")[rows]
+        paired = np.zeros(rows.size, dtype=bool)
+        for a in range(len(cols)):  # the rule of _angle_ok_pairs, for every row and pair of cameras at once
+            da = _unit_rays(pts, pos[a])
+            for b in range(a + 1, len(cols)):
+                db = _unit_rays(pts, pos[b])
+                dot = da[:, 0] * db[:, 0] + da[:, 1] * db[:, 1] + da[:, 2] * db[:, 2]
+                ang = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
+                paired |= seen[:, a] & seen[:, b] & (ang >= float(min_angle_deg))
+        ok[rows] = paired
     return float(w[ok].sum())
+
+
+def _unit_rays(pts: np.ndarray, cam: np.ndarray) -> np.ndarray:
+    """(r, 3) unit vectors point -> camera (zero vectors stay zero)."""
+    d = cam[None, :] - pts
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
 
 
 # ----------------------------------------------------------------------------------------------
