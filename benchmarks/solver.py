@@ -13,6 +13,7 @@ Usage::
     PYTHONPATH=src python benchmarks/solver.py --skip-mip --repeat 3 --blas-threads 1
     PYTHONPATH=src python benchmarks/solver.py --modes                 # issue-8 mode targets, sphere
     PYTHONPATH=src python benchmarks/solver.py --modes multiview quality --source bunker
+    PYTHONPATH=src python benchmarks/solver.py --modes multiview-angle --source bunker-all   # issue 16
     PYTHONPATH=src python benchmarks/solver.py --quality-engines     # min-Gram vs quantised tree
 
 ``--modes`` runs the issue's mode targets (maxcover 10,000 x 50,000; multiview and quality
@@ -43,17 +44,21 @@ from camplace.solver import SolverResult, solve_maxcover  # noqa: E402
 from camplace.solver._synthetic import structured_instance  # noqa: E402
 from camplace.solver.modes import solve  # noqa: E402
 
-# Issue 8 targets: (mode, candidates, points, time limit s, target)
+# Issue 8 targets: (mode, candidates, points, time limit s, target); "multiview-angle" is multiview
+# with a 20 degree minimum triangulation angle (issue 16; comet-67p-bunker sources only)
 MODE_RUNS: list[tuple[str, int, int, float, str]] = [
     ("maxcover", 10000, 50000, 120.0, "proven optimal <= 10 s"),
     ("multiview", 1000, 20000, 60.0, "proven optimal <= 60 s"),
     ("quality", 1000, 20000, 60.0, "proven optimal <= 60 s"),
     ("multiview", 10000, 50000, 120.0, "gap <= 0.5 % within 120 s"),
     ("quality", 10000, 50000, 120.0, "gap <= 0.5 % within 120 s"),
+    ("multiview-angle", 2000, 10000, 60.0, "proven optimal <= 60 s, peak RSS <= 4 GB"),
+    ("multiview-angle", 10000, 50000, 120.0, "gap <= 1 % within 120 s, peak RSS <= 12 GB"),
 ]
+MIN_ANGLE_DEG = 20.0
 
 
-def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int, lit: bool = True):
+def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int, lit: bool = True, geometry: bool = False):
     """A comet-67p-bunker visibility matrix (cached): chaotic candidates aimed at the comet.
 
     ``lit=True`` (the issue's matrices: "bilobed comet in the corridor, lit side only") counts only
@@ -61,7 +66,8 @@ def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int, lit: bool = Tr
     which makes ``multiview`` nearly flat (of three cameras seeing a convex body from afar, about
     half the surface is seen by at least two, whichever three they are).
     For ``quality`` the instance is switched to graded quality (resolution x incidence, max 80 deg),
-    since the built-in's binary matrix would make it plain max coverage.
+    since the built-in's binary matrix would make it plain max coverage. ``geometry=True`` also
+    returns the camera positions (n, 3) and point positions (m, 3).
     """
     import dataclasses
 
@@ -79,6 +85,8 @@ def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int, lit: bool = Tr
     pts = compute_points(inst, m_pts, seed)
     cands = make_candidates("chaotic", n_cams, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=stage_seeds(seed)[0])
     vis = compute_visibility(inst, cands, pts, cache_dir=default_cache_dir())
+    if geometry:  # camera and point positions too (the angle)
+        return vis.matrix, pts.weight, cands.positions, pts.positions
     return vis.matrix, pts.weight
 
 
@@ -86,19 +94,36 @@ def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere")
     """The issue-8 mode benchmarks (one line per run) on the 'sphere' structured instance or on
     comet-67p-bunker matrices (``source="bunker"``: lit side only; ``"bunker-all"``: every surface
     point)."""
+    import resource
+
     for mode, n_cams, m_pts, limit, target in MODE_RUNS:
         if only and mode not in only:
             continue
+        angle = mode == "multiview-angle"
+        geo: dict[str, Any] = {}
+        if angle and not source.startswith("bunker"):
+            print(f"   {mode}: needs --source bunker or bunker-all (camera and point positions)")
+            continue
         if source.startswith("bunker"):
-            matrix, weights = builtin_matrix(mode, n_cams, m_pts, seed, lit=source == "bunker")
+            got = builtin_matrix("multiview" if angle else mode, n_cams, m_pts, seed, lit=source == "bunker",
+                                 geometry=angle)
+            matrix, weights = got[0], got[1]
+            if angle:
+                geo = {"min_angle_deg": MIN_ANGLE_DEG, "positions": got[2], "points": got[3]}
         else:
             matrix, weights = structured_instance(m_pts, n_cams, seed=seed)
         t = time.perf_counter()
-        res = solve(matrix, weights, k, mode=mode, views=2, time_limit_s=limit)
+        cpu = time.process_time()
+        res = solve(matrix, weights, k, mode="multiview" if angle else mode, views=2, time_limit_s=limit, **geo)
         wall = time.perf_counter() - t
+        extra = ""
+        if angle:
+            es = res.stats.get("engine_stats", {})
+            extra = (f" cpu {time.process_time() - cpu:.1f} s, {es.get('bound_evaluations', 0)} bound evaluations, "
+                     f"peak RSS so far {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GB")
         print(
             f"   {source} {mode:9s} {n_cams:5d}x{m_pts:6d} k={k}: {wall:7.2f} s {res.engine:5s} {_fmt_result(res)}  "
-            f"(limit {limit:.0f} s; target: {target})"
+            f"(limit {limit:.0f} s; target: {target}){extra}"
         )
         sys.stdout.flush()
 

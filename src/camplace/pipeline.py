@@ -536,7 +536,8 @@ def run(
     dask_address : str or None
         Compute the visibility matrix on a Dask cluster (scheduler address or ``local:N``).
     memory_budget_gb : float or None
-        Stop before computing a visibility matrix estimated to need more memory (default: half the RAM).
+        Stop before computing a visibility matrix estimated to need more memory (default: half the RAM);
+        also caps the solver's engines and models (which otherwise use 60 % of the memory available).
     event_mode : {"all", "peak"}
         ``all`` maximises the expected coverage over all frames (weights P(t)); ``peak`` places the
         cameras for the maximum-likelihood frame alone (the thesis's PS01).
@@ -622,6 +623,7 @@ def run(
             points=pts.positions if geometric else None, required_fraction=required_fraction,
             fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
             engine=engine, time_limit_s=time_limit_s,
+            memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
         )
     timings["solve"] = time.perf_counter() - t0
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)

@@ -248,21 +248,31 @@ def test_stereo_time_limit_keeps_a_valid_bound() -> None:
 
 
 def test_too_large_model_is_not_built(monkeypatch) -> None:
-    """Past the model-size limit the greedy answer comes back with a valid bound, before any
-    memory goes into a model."""
+    """Past the memory budget (model size estimated before building) the greedy answer comes back
+    with a valid bound under ``auto``, and an explicitly requested engine is a one-line error;
+    either way no memory goes into a model."""
     import camplace.solver.modes as modes
 
     rng = np.random.default_rng(7)
     dense = (rng.random((30, 8)) < 0.4) * rng.uniform(0.1, 1.0, (30, 8))
     w = rng.uniform(0.0, 1.0, 30)
-    monkeypatch.setattr(modes, "_MODEL_MAX_NNZ", 0)
+    monkeypatch.setattr(modes, "model_bytes", lambda *a: 1 << 60)
+
+    def never(*args, **kwargs):
+        raise AssertionError("the model was built")
+
+    monkeypatch.setattr(modes, "_build_model", never)
     for mode in ("quality", "multiview"):
-        res = solve(dense, w, 3, mode=mode, views=3, engine="mip")
+        res = solve(dense, w, 5, mode=mode, views=3)  # auto with k = 5: the SCIP model
         assert res.stats["model_build"].startswith("skipped")
-        best = brute_force_mode(dense, w, 3, mode, views=3)
+        assert "memory_fallback" in res.stats
+        best = brute_force_mode(dense, w, 5, mode, views=3)
         assert res.objective == pytest.approx(mode_objective(dense, w, res.selected, mode, views=3))
         assert_ge(res.bound, best, what=f"{mode} cheap bound vs optimum")
         assert_le(res.objective, best, what=f"{mode} greedy objective vs optimum")
+        with pytest.raises(CamplaceError) as ei:
+            solve(dense, w, 3, mode=mode, views=3, engine="mip")
+        assert "\n" not in str(ei.value)
 
 
 def test_setcover_fraction_cpsat_regression() -> None:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -15,8 +17,8 @@ from camplace.errors import CamplaceError
 from camplace.solver import _bitkernels as _bk
 from camplace.solver.presolve import as_pattern, check_weights
 
-__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline", "memory_budget_bytes", "greedy_swap",
-           "best_leaf", "push_chunks"]
+__all__ = ["EngineOutcome", "coverage_weight", "selected_row_stats", "Deadline", "memory_budget_bytes", "memory_budget",
+           "OverBudget", "greedy_swap", "best_leaf", "push_chunks"]
 
 MEMORY_FRACTION = 0.6  # an engine's working memory may use this share of the memory available at its start
 _FALLBACK_AVAILABLE = 4 << 30  # assumed when the platform does not say
@@ -119,12 +121,66 @@ def greedy_swap(scores: Callable[[list[int]], np.ndarray], start: Sequence[int],
     return sel
 
 
+class OverBudget(Exception):
+    """An engine or model would need more memory than the budget (raised before allocating).
+
+    Attributes
+    ----------
+    need, budget : int
+        Estimated and allowed bytes.
+    what : str
+        The engine or model, e.g. ``"the angle engine"``.
+    """
+
+    def __init__(self, need: int, budget: int, what: str) -> None:
+        self.need, self.budget, self.what = int(need), int(budget), what
+        super().__init__(self.message)
+
+    @property
+    def message(self) -> str:
+        """One line: what needs how much, and how much may be used."""
+        return (f"{self.what} needs about {self.need / 2**30:.1f} GiB for this instance but only "
+                f"{self.budget / 2**30:.1f} GiB may be used")
+
+
+_BUDGET_CAP: contextvars.ContextVar[int | None] = contextvars.ContextVar("camplace_memory_budget", default=None)
+
+
+@contextlib.contextmanager
+def memory_budget(cap_bytes: int | None) -> Iterator[None]:
+    """Within this context :func:`memory_budget_bytes` is at most ``cap_bytes`` (None: the
+    enclosing cap, if any, stays).
+
+    Parameters
+    ----------
+    cap_bytes : int or None
+        The user's budget (``--memory-budget-gb``), in bytes.
+    """
+    if cap_bytes is not None and not cap_bytes > 0:
+        raise CamplaceError(f"the memory budget must be > 0 bytes, got {cap_bytes!r}")
+    outer = _BUDGET_CAP.get()
+    cap = outer if cap_bytes is None else int(cap_bytes) if outer is None else min(outer, int(cap_bytes))
+    token = _BUDGET_CAP.set(cap)
+    try:
+        yield
+    finally:
+        _BUDGET_CAP.reset(token)
+
+
 def memory_budget_bytes() -> int:
-    """Bytes an engine may allocate: :data:`MEMORY_FRACTION` of the memory available now.
+    """Bytes an engine may allocate: :data:`MEMORY_FRACTION` of the memory available now, and at
+    most the cap of an enclosing :func:`memory_budget` (the user's ``--memory-budget-gb``).
 
     Read from ``MemAvailable`` in ``/proc/meminfo`` (Linux), else from ``os.sysconf``; 4 GiB
     is assumed when neither says.
     """
+    free = _available_fraction()
+    cap = _BUDGET_CAP.get()
+    return free if cap is None else min(cap, free)
+
+
+def _available_fraction() -> int:
+    """:data:`MEMORY_FRACTION` of the memory available now (bytes)."""
     avail = None
     try:
         with open("/proc/meminfo", encoding="ascii") as fh:

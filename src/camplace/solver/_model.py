@@ -21,12 +21,40 @@ import numpy as np
 from camplace.errors import CamplaceError
 from camplace.solver._common import Deadline
 
-__all__ = ["Row", "LinearModel", "ModelOutcome", "solve_model"]
+__all__ = ["Row", "LinearModel", "ModelOutcome", "solve_model", "model_bytes"]
 
 log = logging.getLogger(__name__)
 
 _CPSAT_TOTAL = 2.0**50  # total of the integer CP-SAT objective coefficients (non-integral objective)
 _OPT_TOL = 1e-9  # relative gap under which a result counts as optimal
+
+
+# Peak bytes per variable, per constraint and per nonzero of a model: this module's Python rows,
+# the protocol buffer and the solver's own copy. Measured with OR-Tools 9.15 (peak RSS of 3 s
+# solves of 10^5..10^6 rows / variables): SCIP about 2.7 kB a variable, 1.7 kB a row, 150 B a
+# nonzero; CP-SAT (2 workers) 0.9 kB, 1.1 kB and 60 B.
+_MODEL_BYTES = {"mip": (2800, 1700, 150), "cpsat": (900, 1100, 70)}
+_MODEL_SEARCH_FACTOR = 1.5  # longer searches (LP, tree, cuts) grow beyond the measured peaks
+_MODEL_BASE_BYTES = 100 << 20
+
+
+def model_bytes(backend: str, n_vars: int, n_rows: int, nnz: int) -> int:
+    """Estimated peak memory of building and solving a model of this size.
+
+    Parameters
+    ----------
+    backend : {"mip", "cpsat"}
+    n_vars, n_rows, nnz : int
+        Variables, constraints and constraint nonzeros.
+
+    Returns
+    -------
+    int
+        Bytes.
+    """
+    per_var, per_row, per_nnz = _MODEL_BYTES["cpsat" if backend == "cpsat" else "mip"]
+    raw = per_var * float(n_vars) + per_row * float(n_rows) + per_nnz * float(nnz)
+    return int(_MODEL_SEARCH_FACTOR * raw) + _MODEL_BASE_BYTES
 
 
 @dataclass(frozen=True)

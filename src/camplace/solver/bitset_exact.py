@@ -78,10 +78,12 @@ _FRONTIER_MAX = 5_000_000  # open tuples at most in that search (about 40 bytes 
 _PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False, "parallel": True}
 
 
-def bitset_bytes(m: int, n: int, levels: int) -> int:
+def bitset_bytes(m: int, n: int, levels: int, k: int = BITSET_MAX_K) -> int:
     """Approximate working memory for ``m`` reduced rows and ``n`` columns: the column bitsets,
-    their ordered copy and ``levels`` level bitsets per tree node (2 n - 1 nodes)."""
-    return n * ((m + 63) // 64) * 8 * (2 + 2 * max(1, levels))
+    their ordered copy and ``levels`` level bitsets per tree node (2 n - 1 nodes), and the open
+    tuples of ``k`` nodes (the search stack, or the opposite-pairs frontier)."""
+    tuples = (_STACK + _FRONTIER_MAX + (k + 1) * _BATCH) * (8 * k + 8)
+    return n * ((m + 63) // 64) * 8 * (2 + 2 * max(1, levels)) + tuples
 
 
 def _last_mask(m: int) -> np.uint64:
@@ -204,7 +206,7 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
         rows[:n_pairs][o], rows[64 * pw : 64 * pw + n_pairs][o], lw[:n_pairs][o])
     o = 128 * pw + np.argsort(seen[rows[128 * pw :]], kind="stable")
     rows[128 * pw :], lw[128 * pw :] = rows[o], lw[o]
-    need = bitset_bytes(rows.size, pre.shape[1], min(views, pre.k))
+    need = bitset_bytes(rows.size, pre.shape[1], min(views, pre.k), pre.k)
     if need > memory_budget_bytes():
         stats["opposite_pairs"]["skipped"] = f"layout bitsets need {need / 2**30:.1f} GiB"
         return None

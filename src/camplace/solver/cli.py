@@ -36,6 +36,8 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--fixed", default="", help="comma-separated candidate indices that are always kept")
     p.add_argument("--forbidden", default="", help="comma-separated candidate indices never chosen")
     p.add_argument("--min-distance", type=float, default=None, dest="min_distance", help="minimum distance between chosen cameras, metres")
+    p.add_argument("--memory-budget-gb", type=float, default=None, dest="memory_budget_gb",
+                   help="memory the solver may use (default: 60%% of the memory available); larger models fall back or stop")
     p.add_argument("-o", "--out", type=Path, required=True, help="solution JSON to write")
 
     p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
@@ -174,12 +176,15 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         args.event_mode = run.get("event_mode", "all")
     if args.event_mode == "peak":
         weights = _peak_weights(args.source, weights, run.get("peak_frame"))
+    if args.memory_budget_gb is not None and not args.memory_budget_gb > 0:
+        raise CamplaceError(f"--memory-budget-gb: must be > 0, got {args.memory_budget_gb}")
     res = solve(
         matrix, weights, args.k, mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
         positions=positions, points=points if args.min_angle is not None else None,
         required_fraction=args.required_fraction, fixed=parse_index_list(args.fixed, "fixed"),
         forbidden=parse_index_list(args.forbidden, "forbidden"), min_distance_m=args.min_distance,
         engine=args.engine, time_limit_s=args.time_limit,
+        memory_budget_bytes=None if args.memory_budget_gb is None else int(args.memory_budget_gb * 2**30),
     )
     out = res.to_dict()
     out["timings_s"] = {**(out.get("timings_s") or {}), "load": load_s, "solve": res.time_s}

@@ -5,27 +5,19 @@ from __future__ import annotations
 import logging
 import numbers
 import time
-from typing import Any, Callable
+from typing import Any
 
 from camplace.errors import CamplaceError
 from camplace.names import ENGINES
-from camplace.solver._common import EngineOutcome, check_engine_and_limit, coverage_weight
+from camplace.solver._common import check_engine_and_limit, coverage_weight
+from camplace.solver._dispatch import run_maxcover_engine
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
-from camplace.solver.bitset_exact import solve_bitset
-from camplace.solver.ortools_engine import solve_cpsat, solve_mip
 from camplace.solver.presolve import canonical_csr, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
 
 __all__ = ["solve_maxcover"]
 
 log = logging.getLogger(__name__)
-
-_ENGINE_FUNCS: dict[str, Callable[..., EngineOutcome]] = {
-    "exact": solve_bitset,
-    "mip": solve_mip,
-    "cpsat": solve_cpsat,
-}
-
 
 def _check_k(k: Any, n: int) -> int:
     if isinstance(k, bool) or not isinstance(k, numbers.Integral):
@@ -85,7 +77,8 @@ def solve_maxcover(
     pre = presolve(pattern, w, k)
     name = engine if engine != "auto" else ("exact" if k <= EXACT_MAX_K else "mip")
     remaining = None if time_limit_s is None else max(1e-3, float(time_limit_s) - (time.perf_counter() - t0))
-    out = _ENGINE_FUNCS[name](pre, time_limit_s=remaining)
+    fallback: dict[str, Any] = {}
+    name, out = run_maxcover_engine(name, engine, pre, remaining, fallback)
 
     selected = pre.original_columns(out.selected) if out.selected else ()
     if selected and len(selected) != k:
@@ -111,6 +104,7 @@ def solve_maxcover(
         "presolve": dict(pre.stats),
         "engine_stats": dict(out.stats),
         "engine_bound": float(out.bound),
+        **fallback,
     }
     elapsed = time.perf_counter() - t0
     log.info(

@@ -61,9 +61,15 @@ from typing import Any, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
-from camplace.solver._common import check_engine_and_limit, coverage_weight, memory_budget_bytes, selected_row_stats
-from camplace.solver._model import LinearModel, solve_model
+from camplace.solver._anglekernels import count_bad_pairs, selected_pattern
+from camplace.solver._common import (
+    OverBudget, check_engine_and_limit, coverage_weight, memory_budget, memory_budget_bytes, selected_row_stats,
+)
+from camplace.solver._dispatch import memory_fallback, run_maxcover_engine
+from camplace.solver._model import LinearModel, model_bytes, solve_model
+from camplace.solver.angle_exact import solve_angle
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
 from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
 from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
@@ -72,11 +78,10 @@ from camplace.solver.quality_exact import (
     QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, min_gram_cost, quality_exact_bytes, solve_quality_exact,
 )
 from camplace.solver.quality_tree import quality_tree_bytes, solve_quality_tree
-from camplace.solver.ortools_engine import solve_cpsat, solve_mip
 from camplace.solver.presolve import as_pattern, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
 
-__all__ = ["MODES", "solve", "mode_value", "conflict_pairs"]
+__all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +97,8 @@ _TREE_FIRST_S = 30.0  # without a time limit
 _TREE_FIRST_SHARE = 0.25
 _TREE_FIRST_MIN_S = 2.0
 _GREEDY_BLOCK_NNZ = 4_000_000  # matrix entries per column block in the greedy heuristic
-_MODEL_MAX_NNZ = 40_000_000  # larger SCIP / CP-SAT models exhaust memory (about 100 bytes a nonzero)
+_MODEL_BYTES_PER_ROW_MIN = 1000  # no model row costs less (see camplace.solver._model.model_bytes)
+_CONFLICT_PAIR_BYTES = 200  # a conflicting pair: its array row, the greedy's adjacency sets, temporaries
 
 
 # ----------------------------------------------------------------------------------------------
@@ -146,6 +152,18 @@ def _coords(arr: Any, rows: int, name: str, what: str) -> np.ndarray:
     if a.shape != (rows, 3) or not np.all(np.isfinite(a)):
         raise CamplaceError(f"{name} must be a finite ({rows}, 3) array of {what}, got shape {a.shape}")
     return a
+
+
+def conflict_count(positions: np.ndarray, min_distance_m: float) -> int:
+    """Upper bound on the number of candidate pairs closer than ``min_distance_m`` (pairs at most
+    that far apart), counted without listing them."""
+    from scipy.spatial import cKDTree
+
+    n = positions.shape[0]
+    if n < 2 or min_distance_m <= 0:
+        return 0
+    tree = cKDTree(positions)
+    return max(0, (int(tree.count_neighbors(tree, float(min_distance_m))) - n) // 2)
 
 
 def conflict_pairs(positions: np.ndarray, min_distance_m: float) -> np.ndarray:
@@ -230,14 +248,28 @@ def mode_value(
         return float(w @ vmax)
     ok = count >= int(views)
     if min_angle_deg is not None:
-        seen = q[:, cols].toarray() > 0
+        rows = np.flatnonzero(ok)
+        data = q.data.view(np.uint8) if q.data.dtype.kind == "b" else q.data
+        with ctrl_c_deferred():
+            seen = selected_pattern(q.indptr, q.indices, data, rows, np.asarray(cols, dtype=np.int64), n)
         pos = _coords(positions, n, "positions", "camera positions")[cols]
-        pts = _coords(points, m, "points", "point positions")
-        for i in np.flatnonzero(ok):
-            s = np.flatnonzero(seen[i])
-            good = _angle_ok_pairs(pts[i], pos[s], min_angle_deg)
-            ok[i] = bool(np.any(np.triu(good, 1)))
+        pts = _coords(points, m, "points", "point positions")[rows]
+        paired = np.zeros(rows.size, dtype=bool)
+        for a in range(len(cols)):  # the rule of _angle_ok_pairs, for every row and pair of cameras at once
+            da = _unit_rays(pts, pos[a])
+            for b in range(a + 1, len(cols)):
+                db = _unit_rays(pts, pos[b])
+                dot = da[:, 0] * db[:, 0] + da[:, 1] * db[:, 1] + da[:, 2] * db[:, 2]
+                ang = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
+                paired |= seen[:, a] & seen[:, b] & (ang >= float(min_angle_deg))
+        ok[rows] = paired
     return float(w[ok].sum())
+
+
+def _unit_rays(pts: np.ndarray, cam: np.ndarray) -> np.ndarray:
+    """(r, 3) unit vectors point -> camera (zero vectors stay zero)."""
+    d = cam[None, :] - pts
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -316,6 +348,12 @@ def _greedy(
     return tuple(sorted(chosen))
 
 
+def _expand_bytes(expanded_nnz: float, levels: int) -> int:
+    """Memory of :func:`_expand_levels`: its index arrays and CSR (24 bytes an entry) and a small
+    array per level row (at most one per entry of the matrix)."""
+    return int(24 * expanded_nnz + 150 * levels)
+
+
 def _expand_levels(q: sp.csr_matrix, w: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
     """Level rows of the quality reformulation: (sum_i L_i, n) 0/1 pattern and their weights."""
     indptr_out = [0]
@@ -360,6 +398,7 @@ def solve(
     min_distance_m: float | None = None,
     engine: str = "auto",
     time_limit_s: float | None = None,
+    memory_budget_bytes: int | None = None,
 ) -> SolverResult:
     """Choose cameras under one of the formulations (see the module docstring).
 
@@ -392,6 +431,9 @@ def solve(
     engine : {"auto", "exact", "mip", "cpsat"}
     time_limit_s : float, optional
         Wall-clock limit; on expiry the best solution found is returned with its gap.
+    memory_budget_bytes : int, optional
+        Cap on the memory any engine or model may use (``--memory-budget-gb``); engines also stay
+        within :data:`~camplace.solver._common.MEMORY_FRACTION` of the memory available.
 
     Returns
     -------
@@ -406,6 +448,18 @@ def solve(
     CamplaceError
         On malformed input or an impossible request (one line).
     """
+    with memory_budget(memory_budget_bytes):
+        return _solve(matrix, weights, k, mode=mode, views=views, min_angle_deg=min_angle_deg, positions=positions,
+                      points=points, costs=costs, required_fraction=required_fraction, fixed=fixed, forbidden=forbidden,
+                      min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s)
+
+
+def _solve(
+    matrix: Any, weights: Any, k: int | None, *, mode: str, views: int, min_angle_deg: float | None, positions: Any,
+    points: Any, costs: Any, required_fraction: float, fixed: Sequence[int], forbidden: Sequence[int],
+    min_distance_m: float | None, engine: str, time_limit_s: float | None,
+) -> SolverResult:
+    """:func:`solve` within the memory budget."""
     t0 = time.perf_counter()
     if mode not in MODES:
         raise CamplaceError(f"unknown mode {mode!r} (choose one of {', '.join(MODES)})")
@@ -424,12 +478,21 @@ def solve(
     if positions is not None:
         pos = _coords(positions, n, "positions", "camera positions")
     conflicts = np.zeros((0, 2), dtype=np.int64)
+    too_many: OverBudget | None = None  # conflicting pairs that would not fit in memory
     if min_distance_m is not None:
         if not (float(min_distance_m) >= 0.0):
             raise CamplaceError(f"min_distance_m must be >= 0, got {min_distance_m!r}")
         if pos is None:
             raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
-        conflicts = conflict_pairs(pos, float(min_distance_m))
+        n_pairs = conflict_count(pos, float(min_distance_m))
+        need, budget = n_pairs * _CONFLICT_PAIR_BYTES, memory_budget_bytes()
+        if need > budget:
+            too_many = OverBudget(need, budget, f"min_distance_m={float(min_distance_m):g} ({n_pairs} candidate pairs "
+                                                "closer than that)")
+            if engine != "auto" or mode == "setcover":
+                raise CamplaceError(f"{too_many.message}; lower min_distance_m or use fewer candidates")
+        else:
+            conflicts = conflict_pairs(pos, float(min_distance_m))
     pts = None
     if min_angle_deg is not None:
         if mode != "multiview":
@@ -445,6 +508,10 @@ def solve(
         views = int(views)
         if min_angle_deg is not None and views < 2:
             raise CamplaceError("min_angle_deg needs views >= 2")
+    if too_many is not None:
+        assert pos is not None and min_distance_m is not None
+        return _spaced_fallback(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, forbidden_t,
+                                float(min_distance_m), engine, too_many, t0)
 
     fixed_set = set(fixed_t)
     banned = set(forbidden_t)
@@ -464,6 +531,7 @@ def solve(
     if mode == "setcover":
         if k is not None:
             raise CamplaceError("mode 'setcover' chooses the number of cameras itself: do not give k")
+        _check_setcover_memory(q, w, free_cols, conflicts, engine)
         ctx = _setcover(q, w, costs, required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0)
     else:
         if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
@@ -584,25 +652,33 @@ def _cover_modes(
             s = np.diff(resid.indptr).astype(np.float64)
             est = float(np.sum(s * (s + 1) / 2))
             stats["quality_expanded_nnz_estimate"] = est
-            if est <= _QUALITY_EXPAND_MAX:
+            if est <= _QUALITY_EXPAND_MAX and _expand_bytes(est, resid.nnz) <= budget:
                 expanded = _expand_levels(resid, resid_w)
             else:
                 _too_big(engine, stats, quality_tree_bytes(m, nf, resid.nnz), budget)
     multiview_ok = mode == "multiview" and min_angle_deg is None and not fixed_t and conflicts.shape[0] == 0
-    if engine == "exact" and not (exact_ok or multiview_ok):
+    angle_ok = mode == "multiview" and min_angle_deg is not None and conflicts.shape[0] == 0
+    if engine == "exact" and not (exact_ok or multiview_ok or angle_ok):
         raise CamplaceError(
             "the exact engine solves maxcover and quality without min_distance_m, and multiview without fixed "
-            "cameras, minimum angle or minimum distance; use engine mip or cpsat"
+            "cameras or minimum distance (with or without a minimum angle); use engine mip or cpsat"
         )
     name = engine
     if engine == "auto":
         name = "exact" if (exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None)) or (
-            multiview_ok and k <= EXACT_MAX_K) else "mip"
+            (multiview_ok or angle_ok) and k <= EXACT_MAX_K) else "mip"
+
+    if name == "exact" and angle_ok:
+        got = _angle_engine(q, w, k, views, min_angle_deg, pos, pts, fixed_t, free_cols, engine, t0, time_limit_s,
+                            value, stats)
+        if got is not None:
+            return got
+        name = "mip"
 
     if name == "exact" and multiview_ok:
         pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
         mp, np_ = pre.shape
-        need = bitset_bytes(mp, np_, min(views, k))
+        need = bitset_bytes(mp, np_, min(views, k), k)
         if need > budget:
             _too_big(engine, stats, need, budget)
             name = "mip"
@@ -620,11 +696,7 @@ def _cover_modes(
         # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
         pat, pw = (resid, resid_w) if mode == "maxcover" else (expanded if expanded is not None else _expand_levels(resid, resid_w))
         pre = presolve(pat, pw, k)
-        if name == "exact" and bitset_bytes(pre.shape[0], pre.shape[1], 1) > budget:
-            _too_big(engine, stats, bitset_bytes(pre.shape[0], pre.shape[1], 1), budget)
-            name = "mip"
-        funcs = {"exact": solve_bitset, "mip": solve_mip, "cpsat": solve_cpsat}
-        out = funcs[name](pre, time_limit_s=_remaining(t0, time_limit_s))
+        name, out = run_maxcover_engine(name, engine, pre, _remaining(t0, time_limit_s), stats)
         new = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
         sel = tuple(sorted(set(fixed_t) | set(new))) if new else None
         objective = value(sel) if sel else fixed_value
@@ -647,12 +719,25 @@ def _cover_modes(
     hint_sel = None
     if hint_local is not None:
         hint_sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in hint_local}))
-    size = int(resid.nnz if mode != "multiview" else qf.nnz)
+    budget = memory_budget_bytes()
+    size = _model_size(q, resid, resid_w, w, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts,
+                       budget)
+    need = model_bytes(name, *size)
+    stats["model_estimate"] = {"variables": size[0], "rows": size[1], "nonzeros": size[2], "bytes": need}
     try:
-        if size > _MODEL_MAX_NNZ:
-            log.warning("%s: the SCIP / CP-SAT model would have about %d nonzeros (over %d); returning the greedy "
-                        "answer with a cheap bound", mode, size, _MODEL_MAX_NNZ)
-            raise _BuildTimeout(f"skipped: the model would have about {size} nonzeros (over {_MODEL_MAX_NNZ})")
+        if need > budget:
+            exc = OverBudget(need, budget, f"the {'SCIP' if name == 'mip' else 'CP-SAT'} model of mode {mode}")
+            if engine == name:
+                raise CamplaceError(f"{exc.message}; use fewer candidates / points"
+                                    + (", or engine exact" if angle_ok else ""))
+            if angle_ok:  # auto with k > 4: the angle engine still gives a valid bound at the time limit
+                memory_fallback(exc, engine, name, stats, "falling back to the exact angle engine")
+                got = _angle_engine(q, w, k, views, min_angle_deg, pos, pts, fixed_t, free_cols, engine, t0,
+                                    time_limit_s, value, stats)
+                if got is not None:
+                    return got
+            memory_fallback(exc, engine, name, stats, "returning the greedy answer with a cheap bound")
+            raise _BuildTimeout(f"skipped: {exc.message}")
         model, x, wmax, const = _build_model(q, resid, resid_w, w, base, k, mode, views, min_angle_deg, pos, pts,
                                              fixed_t, free_cols, conflicts, fixed_value, t0, time_limit_s)
     except _BuildTimeout as exc:
@@ -719,6 +804,25 @@ def _quality_engines(
     return sel, status, objective, bound, "exact", stats
 
 
+def _angle_engine(
+    q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float | None, pos: np.ndarray | None,
+    pts: np.ndarray | None, fixed_t: tuple[int, ...], free_cols: np.ndarray, engine: str, t0: float,
+    time_limit_s: float | None, value: Any, stats: dict[str, Any],
+) -> tuple[Any, str, float, float, str, dict[str, Any]] | None:
+    """The exact angle engine (:mod:`camplace.solver.angle_exact`); None when it does not fit in
+    memory and ``auto`` may fall back (``exact`` requested: a one-line error)."""
+    assert pos is not None and pts is not None and min_angle_deg is not None
+    try:
+        out = solve_angle(q, w, k, views, float(min_angle_deg), pos, pts, np.asarray(fixed_t, dtype=np.int64),
+                          free_cols, time_limit_s=_remaining(t0, time_limit_s), budget_bytes=memory_budget_bytes())
+    except OverBudget as exc:
+        _too_big(engine, stats, exc.need, exc.budget)
+        return None
+    sel = tuple(sorted(set(fixed_t) | set(out.selected)))
+    stats["engine_stats"] = dict(out.stats)
+    return sel, out.status, value(sel), float(out.bound), "exact", stats
+
+
 def _too_big(engine: str, stats: dict[str, Any], need: int, budget: int) -> None:
     """The exact engine would need more memory than is free: an error when it was asked for,
     otherwise a logged fallback to the general model (recorded in ``stats``)."""
@@ -732,6 +836,130 @@ def _too_big(engine: str, stats: dict[str, Any], need: int, budget: int) -> None
 
 class _BuildTimeout(Exception):
     """The time limit passed while the general model was being built."""
+
+
+class _NearCandidates:
+    """``adj[j]``: the free candidates closer than ``dmin`` to free candidate ``j``, found with a k-d
+    tree when asked (the greedy's conflicts without listing every pair)."""
+
+    def __init__(self, pos_free: np.ndarray, dmin: float) -> None:
+        from scipy.spatial import cKDTree
+
+        self.pos, self.dmin, self.tree = pos_free, dmin, cKDTree(pos_free)
+
+    def __getitem__(self, j: int) -> list[int]:
+        near = np.asarray(self.tree.query_ball_point(self.pos[j], self.dmin), dtype=np.int64)
+        d = np.linalg.norm(self.pos[near] - self.pos[j], axis=1)
+        return [int(b) for b in near[(d < self.dmin) & (near != j)]]
+
+
+def _spaced_fallback(
+    q: sp.csr_matrix, w: np.ndarray, k: Any, mode: str, views: int, min_angle_deg: float | None, pos: np.ndarray,
+    points: np.ndarray | None, fixed: Sequence[int], forbidden: Sequence[int], dmin: float, engine: str,
+    exc: OverBudget, t0: float,
+) -> SolverResult:
+    """Too many conflicting pairs to list: the greedy answer (spacing checked with a k-d tree) and the
+    cheap bound, which ignores the spacing and so stays valid."""
+    m, n = q.shape
+    if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral) or int(k) < 0:
+        raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
+    k = int(k)
+    fixed_t = _index_set(fixed, n, "fixed")
+    banned = set(_index_set(forbidden, n, "forbidden"))
+    near = _NearCandidates(pos, dmin)
+    for f in fixed_t:
+        for b in near[f]:
+            if b in fixed_t:
+                raise CamplaceError(f"fixed cameras {f} and {b} are closer than min_distance_m={dmin}")
+            banned.add(b)
+    free = np.ones(n, dtype=bool)
+    free[list(set(fixed_t) | banned)] = False
+    free_cols = np.flatnonzero(free)
+    if k > free_cols.size:
+        raise CamplaceError(f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
+                            "(lower k, or forbid/fix fewer cameras)")
+    pts = points
+    qf = q[:, free_cols].tocsr()
+    fx = list(fixed_t)
+    if mode == "maxcover":
+        base = ((np.diff(q[:, fx].tocsr().indptr) > 0) if fx else np.zeros(m, dtype=bool)).astype(np.float64)
+        gw = np.where(base > 0, 0.0, w)
+    elif mode == "quality":
+        base = q[:, fx].max(axis=1).toarray().ravel() if fx else np.zeros(m)
+        gw = w
+    else:
+        base = np.asarray((q[:, fx] > 0).sum(axis=1)).ravel().astype(np.float64) if fx else np.zeros(m)
+        gw = w
+    msg = f"{exc.message}; returning the greedy answer with a bound that ignores the spacing"
+    log.warning("%s", msg)
+    local = _greedy(qf.tocsc(), gw, mode, views, base, k, np.ones(free_cols.size, dtype=bool),
+                    _NearCandidates(pos[free_cols], dmin)) if k else ()
+    sel = None if local is None else tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in local}))
+    bound = _cheap_bound(q, qf, w, base, k, mode, views)
+    objective = mode_value(q, w, sel, mode=mode, views=views, min_angle_deg=min_angle_deg, positions=pos,
+                           points=pts) if sel else 0.0
+    status = "feasible" if sel is not None else "unknown"
+    gap = relative_gap(max(bound, objective), objective) if sel is not None else math.inf
+    stats = {"memory_fallback": msg, "mode": mode, "engine_requested": engine, "fixed": list(fixed_t),
+             "forbidden": list(_index_set(forbidden, n, "forbidden")), "new": [j for j in (sel or ()) if j not in fixed_t],
+             "rows_in": int(m), "cols_in": int(n), "k": k}
+    return SolverResult(selected=tuple(sel or ()), status=status, objective=float(objective),
+                        bound=float(max(bound, objective)), gap=float(gap), engine="mip",
+                        time_s=time.perf_counter() - t0, stats=jsonable(stats))
+
+
+def _check_setcover_memory(q: sp.csr_matrix, w: np.ndarray, free_cols: np.ndarray, conflicts: np.ndarray,
+                           engine: str) -> None:
+    """One-line error before building a set-cover model that would not fit in memory (there is no
+    cheaper engine to fall back to)."""
+    backend = "cpsat" if engine == "cpsat" else "mip"
+    cnt, _ = selected_row_stats(q, free_cols)
+    rows = int(np.count_nonzero((w > 0) & (cnt > 0)))
+    entries = int(cnt.sum())
+    n_conf = int(conflicts.shape[0])
+    need = model_bytes(backend, free_cols.size + rows, rows + 1 + n_conf, entries + rows + 2 * n_conf)
+    budget = memory_budget_bytes()
+    if need > budget:
+        exc = OverBudget(need, budget, f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} set-cover model")
+        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
+
+
+def _model_size(
+    q: sp.csr_matrix, resid: sp.csr_matrix, resid_w: np.ndarray, w: np.ndarray, mode: str, views: int,
+    min_angle_deg: float | None, pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, conflicts: np.ndarray, budget: int,
+) -> tuple[int, int, int]:
+    """Variables, rows and nonzeros of the model :func:`_build_model` would build (upper bounds),
+    computed without building it. With the angle, the pairs of observers closer than the angle (one
+    row each) are counted per point, stopping once the model could not fit in ``budget`` anyway.
+    """
+    nf = free_cols.size
+    n_conf = int(conflicts.shape[0])
+    n_vars, n_rows, nnz = nf, 1 + n_conf, nf + 2 * n_conf
+    if mode in ("maxcover", "quality"):
+        cnt = np.diff(resid.indptr)
+        live = (resid_w > 0) & (cnt > 0)
+        entries = int(cnt[live].sum())
+        rows = int(live.sum()) if mode == "maxcover" else entries  # quality: a row per distinct level
+        return n_vars + rows, n_rows + rows, nnz + entries + (rows if mode == "maxcover" else 2 * rows)
+    allowed = np.zeros(q.shape[1], dtype=bool)
+    allowed[free_cols] = True
+    allowed[list(fixed_t)] = True
+    nobs, _ = selected_row_stats(q, np.flatnonzero(allowed))
+    live = np.flatnonzero((w > 0) & (nobs >= views))
+    s = nobs[live].astype(np.int64)
+    n_vars += len(fixed_t)
+    if pts is None:
+        return n_vars + live.size, n_rows + live.size, nnz + int(s.sum()) + live.size
+    assert pos is not None
+    limit = budget // _MODEL_BYTES_PER_ROW_MIN
+    data = q.data.view(np.uint8) if q.data.dtype.kind == "b" else q.data
+    with ctrl_c_deferred():
+        bad = int(count_bad_pairs(q.indptr, q.indices, data, live.astype(np.int64), allowed, pos, pts,
+                                  float(min_angle_deg or 0.0), limit))
+    extra = int(views > 2)
+    return (n_vars + int((s + 1).sum()), n_rows + int((s + 1 + extra).sum()) + bad,
+            nnz + int((3 * s + 1 + extra * (s + 1)).sum()) + 2 * bad)
 
 
 def _cheap_bound(q: sp.csr_matrix, qf: sp.csr_matrix, w: np.ndarray, base: np.ndarray, k: int, mode: str, views: int) -> float:

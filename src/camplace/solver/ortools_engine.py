@@ -26,11 +26,11 @@ from typing import Any
 import numpy as np
 
 from camplace.errors import CamplaceError
-from camplace.solver._common import Deadline, EngineOutcome, greedy_incumbent
-from camplace.solver._model import _int_objective, run_cpsat
+from camplace.solver._common import Deadline, EngineOutcome, OverBudget, greedy_incumbent, memory_budget_bytes
+from camplace.solver._model import _int_objective, model_bytes, run_cpsat
 from camplace.solver.presolve import Presolved
 
-__all__ = ["solve_mip", "solve_cpsat"]
+__all__ = ["solve_mip", "solve_cpsat", "maxcover_model_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +80,23 @@ def _integer_weights(pre: Presolved) -> tuple[np.ndarray, float, float]:
     return _int_objective(np.asarray(pre.weights, dtype=np.float64))
 
 
+def maxcover_model_bytes(pre: Presolved, backend: str) -> int:
+    """Estimated peak memory of the max-coverage model of ``pre`` (``backend`` "mip" or "cpsat"),
+    from the sizes alone (the reduced matrix is not built): n + m variables, m + 1 rows and at most
+    the source rows' entries plus m + n nonzeros."""
+    m, n = pre.shape
+    a, rows, _ = pre.source
+    nnz = int(np.diff(a.indptr)[rows].sum()) if rows.size else 0
+    return model_bytes(backend, n + m, m + 1, nnz + m + n)
+
+
+def _check_memory(pre: Presolved, backend: str) -> None:
+    """Raise :class:`OverBudget` before building a model that would not fit in memory."""
+    need, budget = maxcover_model_bytes(pre, backend), memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, "the SCIP model" if backend == "mip" else "the CP-SAT model")
+
+
 def _value(pre: Presolved, sel: tuple[int, ...]) -> float:
     """Weight covered by reduced columns ``sel`` on the reduced instance."""
     if not sel:
@@ -109,12 +126,18 @@ def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOut
     -------
     EngineOutcome
         Reduced column indices, status, SCIP's best bound (original weight units) and stats.
+
+    Raises
+    ------
+    OverBudget
+        When :func:`maxcover_model_bytes` exceeds the memory budget (before anything is built).
     """
     from ortools.linear_solver import linear_solver_pb2, pywraplp
 
     triv = _trivial(pre)
     if triv is not None:
         return triv
+    _check_memory(pre, "mip")
     deadline = Deadline(time_limit_s)
     m, n = pre.shape
     k = pre.k
@@ -215,12 +238,18 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
     EngineOutcome
         Reduced column indices, status, bound (original weight units, including the rounding
         error of the integer weights) and stats.
+
+    Raises
+    ------
+    OverBudget
+        When :func:`maxcover_model_bytes` exceeds the memory budget (before anything is built).
     """
     from ortools.sat.python import cp_model
 
     triv = _trivial(pre)
     if triv is not None:
         return triv
+    _check_memory(pre, "cpsat")
     deadline = Deadline(time_limit_s)
     m, n = pre.shape
     k = pre.k

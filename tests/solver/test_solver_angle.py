@@ -1,0 +1,342 @@
+"""The exact angle engine (multiview with ``min_angle_deg``) against enumeration, its time limit, and
+the memory estimates that make every engine / model fall back (or stop) before allocating."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import camplace.solver.angle_exact as ae
+import camplace.solver.modes as modes
+from camplace.errors import CamplaceError
+from camplace.solver import solve_maxcover
+from camplace.solver._common import memory_budget, memory_budget_bytes
+from camplace.solver.modes import solve
+from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective
+
+_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+_TINY = 4096  # bytes: no engine or model fits
+
+
+# ---- oracle: every camera set, angles from arctan2 (independent of the solver's formula) -------
+
+
+def _pair_ok(dense: np.ndarray, pos: np.ndarray, pts: np.ndarray, angle_deg: float) -> np.ndarray:
+    """(m, n, n) bool: both cameras observe the point and their rays make at least the angle."""
+    u = pos[None, :, :] - pts[:, None, :]
+    cross = np.linalg.norm(np.cross(u[:, :, None, :], u[:, None, :, :]), axis=3)
+    dot = np.einsum("iad,ibd->iab", u, u)
+    ang = np.degrees(np.arctan2(cross, dot))
+    obs = dense > 0
+    good = (ang >= angle_deg) & obs[:, :, None] & obs[:, None, :]
+    good[:, np.arange(pos.shape[0]), np.arange(pos.shape[0])] = False
+    return good
+
+
+def _enumerate(dense, w, pos, pts, k, views, angle_deg, fixed=(), forbidden=()) -> tuple[float, np.ndarray]:
+    """Best value over every k new cameras, and the value of each set (vectorised enumeration)."""
+    good = _pair_ok(dense, pos, pts, angle_deg)
+    obs = dense > 0
+    free = [j for j in range(dense.shape[1]) if j not in fixed and j not in forbidden]
+    vals = []
+    for new in itertools.combinations(free, k):
+        cols = list(fixed) + list(new)
+        cnt = obs[:, cols].sum(axis=1)
+        pair = good[:, cols][:, :, cols].any(axis=(1, 2))
+        vals.append(float(w[(cnt >= views) & pair].sum()))
+    vals = np.asarray(vals)
+    return float(vals.max()), vals
+
+
+def _value(dense, w, pos, pts, cols, views, angle_deg) -> float:
+    good = _pair_ok(dense, pos, pts, angle_deg)
+    cols = list(cols)
+    cnt = (dense[:, cols] > 0).sum(axis=1)
+    return float(w[(cnt >= views) & good[:, cols][:, :, cols].any(axis=(1, 2))].sum())
+
+
+def _sphere_instance(m: int, n: int, seed: int, spread: float = 1.0):
+    """Points on a unit sphere, cameras around it at 2..6 units; a camera observes the points facing
+    it (and in its field of view when ``spread < 1``)."""
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(m, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pos = d * rng.uniform(2.0, 6.0, size=(n, 1))
+    ray = pos[None, :, :] - pts[:, None, :]
+    facing = np.einsum("id,ijd->ij", pts, ray) > 0
+    cos_fov = np.einsum("jd,ijd->ij", d, ray) / np.linalg.norm(ray, axis=2)  # camera axis -d, ray to it
+    seen = facing & (cos_fov >= 1.0 - spread)
+    w = rng.integers(1, 4, size=m).astype(float) if seed % 2 else np.full(m, 1.0 / m)
+    return seen.astype(float), w, pos, pts
+
+
+# ---- exactness --------------------------------------------------------------------------------
+
+
+@st.composite
+def _small(draw):
+    n = draw(st.integers(2, 9))
+    m = draw(st.integers(1, 18))
+    rng = np.random.default_rng(draw(st.integers(0, 2**31 - 1)))
+    density = draw(st.sampled_from([0.3, 0.6, 0.9]))
+    dense = (rng.random((m, n)) < density) * rng.uniform(0.1, 1.0, size=(m, n))
+    if draw(st.booleans()) and n >= 3:
+        dense[:, 1] = dense[:, 0]
+    w = rng.integers(0, 4, size=m).astype(float) if draw(st.booleans()) else rng.uniform(0.0, 1.0, size=m)
+    pos = rng.normal(size=(n, 3)) * 3.0
+    if draw(st.booleans()) and n >= 3:
+        pos[2] = pos[0]  # two poses at one position: they never make an angle
+    pts = rng.normal(size=(m, 3))
+    return dense, w, pos, pts
+
+
+@settings(max_examples=60, **_SETTINGS)
+@given(inst=_small(), data=st.data())
+def test_angle_engine_equals_enumeration(inst, data) -> None:
+    dense, w, pos, pts = inst
+    n = dense.shape[1]
+    views = data.draw(st.integers(2, 3))
+    angle = data.draw(st.sampled_from([0.0, 17.3, 41.9, 88.1]))
+    fixed = tuple(sorted(data.draw(st.sets(st.integers(0, n - 1), max_size=2))))
+    forbidden = tuple(sorted(data.draw(st.sets(st.integers(0, n - 1), max_size=2)) - set(fixed)))
+    free = n - len(fixed) - len(forbidden)
+    if free < 1:
+        return
+    k = data.draw(st.integers(1, min(3, free)))
+    res = solve(dense, w, k, mode="multiview", views=views, min_angle_deg=angle, positions=pos, points=pts,
+                fixed=fixed, forbidden=forbidden, engine="exact")
+    best = brute_force_mode(dense, w, k, "multiview", views=views, min_angle_deg=angle, pos=pos, pts=pts,
+                            fixed=fixed, forbidden=forbidden)
+    tol = 1e-9 * max(1.0, float(w.sum()))
+    assert res.engine == "exact" and res.status == "optimal"
+    sel = res.selected
+    assert set(fixed) <= set(sel) and not set(forbidden) & set(sel) and len(sel) == len(set(sel)) == len(fixed) + k
+    assert res.objective == pytest.approx(mode_objective(dense, w, sel, "multiview", views, angle, pos, pts), abs=tol)
+    assert res.objective == pytest.approx(best, abs=tol)
+    assert res.bound == res.objective
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_angle_engine_structured_equals_enumeration(seed) -> None:
+    """Several 64-row blocks, opposite points (cameras around a sphere), fixed and forbidden cameras."""
+    dense, w, pos, pts = _sphere_instance(300, 16, seed, spread=1.0 if seed < 2 else 0.03)
+    angle = (20.0, 35.0, 12.5, 50.0)[seed]
+    fixed = ((), (3,), (), (5,))[seed]
+    forbidden = ((), (7, 8), (1,), ())[seed]
+    k = 3 if not fixed else 2
+    best, _ = _enumerate(dense, w, pos, pts, k, 2, angle, fixed, forbidden)
+    res = solve(sp.csr_matrix(dense), w, k, mode="multiview", views=2, min_angle_deg=angle, positions=pos, points=pts,
+                fixed=fixed, forbidden=forbidden, engine="auto")
+    assert res.engine == "exact" and res.status == "optimal"
+    assert set(fixed) <= set(res.selected) and not set(forbidden) & set(res.selected)
+    assert res.objective == pytest.approx(best, rel=1e-9)
+    assert _value(dense, w, pos, pts, res.selected, 2, angle) == pytest.approx(best, rel=1e-9)
+    es = res.stats["engine_stats"]
+    assert es["words"] >= 5
+    if seed < 2:
+        assert es["search"] == "opposite pairs"  # cameras all around: many opposite points
+
+
+def test_angle_engine_three_views() -> None:
+    dense, w, pos, pts = _sphere_instance(200, 12, 5)
+    best, _ = _enumerate(dense, w, pos, pts, 4, 3, 25.0)
+    res = solve(dense, w, 4, mode="multiview", views=3, min_angle_deg=25.0, positions=pos, points=pts, engine="exact")
+    assert res.status == "optimal"
+    assert res.objective == pytest.approx(best, rel=1e-9)
+
+
+# ---- time limit -------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def medium():
+    dense, w, pos, pts = _sphere_instance(400, 36, 11)
+    best, vals = _enumerate(dense, w, pos, pts, 3, 2, 20.0)
+    return dense, w, pos, pts, best
+
+
+@pytest.mark.parametrize("checks", [0, 1, 2, 5, 9])
+def test_angle_engine_interrupted_keeps_a_valid_bound(monkeypatch, medium, checks) -> None:
+    dense, w, pos, pts, best = medium
+    monkeypatch.setattr(ae, "Deadline", ExpiringDeadline)
+    monkeypatch.setattr(ae, "_BATCH", 4)
+    monkeypatch.setattr(ae, "_CHUNK", 2)
+    ExpiringDeadline.checks = checks
+    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
+    v = _value(dense, w, pos, pts, res.selected, 2, 20.0)
+    assert res.objective == pytest.approx(v, rel=1e-9)
+    assert res.bound >= best * (1 - 1e-9) and best >= v * (1 - 1e-9)
+    assert res.status in ("optimal", "feasible")
+    if res.status == "optimal":
+        assert v == pytest.approx(best, rel=1e-9)
+
+
+def test_angle_engine_tiny_time_limit(medium) -> None:
+    dense, w, pos, pts, best = medium
+    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact",
+                time_limit_s=1e-6)
+    assert res.status in ("optimal", "feasible") and len(res.selected) == 3
+    assert res.bound >= best * (1 - 1e-9) >= res.objective * (1 - 1e-9) - 1e-12
+    assert res.objective == pytest.approx(_value(dense, w, pos, pts, res.selected, 2, 20.0), rel=1e-9)
+
+
+def test_angle_engine_frontier_cap_keeps_a_valid_bound(monkeypatch, medium) -> None:
+    dense, w, pos, pts, best = medium
+    monkeypatch.setattr(ae, "_FRONTIER_MAX", 3)
+    monkeypatch.setattr(ae, "_DEPTH_FIRST_OPEN", 2)
+    monkeypatch.setattr(ae, "_CHUNK", 2)
+    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
+    assert res.bound >= best * (1 - 1e-9) >= res.objective * (1 - 1e-9) - 1e-12
+
+
+# ---- memory: estimates before allocating ------------------------------------------------------
+
+
+def _forbid(monkeypatch, module, name: str) -> None:
+    def boom(*args, **kwargs):
+        raise AssertionError(f"{name} allocated despite the memory budget")
+
+    monkeypatch.setattr(module, name, boom)
+
+
+def test_budget_context_caps_the_budget() -> None:
+    free = memory_budget_bytes()
+    with memory_budget(_TINY):
+        assert memory_budget_bytes() == _TINY
+        with memory_budget(None), memory_budget(2 * _TINY):  # nested caps only tighten
+            assert memory_budget_bytes() == _TINY
+    with memory_budget(None):
+        assert memory_budget_bytes() > _TINY
+    assert memory_budget_bytes() > _TINY and abs(memory_budget_bytes() - free) < free
+    with pytest.raises(CamplaceError):
+        with memory_budget(0):
+            pass
+
+
+def test_angle_model_estimate_counts_the_conflict_rows() -> None:
+    """The SCIP model's size is known before it is built: witness variables and one row per pair
+    of observers closer than the angle."""
+    dense, w, pos, pts = _sphere_instance(80, 10, 4)
+    q = sp.csr_matrix(dense)
+    free = np.arange(10)
+    good = _pair_ok(dense, pos, pts, 30.0)
+    obs = dense > 0
+    s = obs.sum(axis=1)
+    live = (w > 0) & (s >= 2)
+    a, b = np.triu_indices(10, 1)
+    bad = int((obs[:, a] & obs[:, b] & ~good[:, a, b]).sum(axis=1)[live].sum())
+    n_vars, n_rows, nnz = modes._model_size(q, q, w, w, "multiview", 2, 30.0, pos, pts, (), free,
+                                            np.zeros((0, 2), dtype=np.int64), 1 << 40)
+    assert n_vars == 10 + int((s[live] + 1).sum())
+    assert n_rows == 1 + int((s[live] + 1).sum()) + bad
+    assert nnz == 10 + int((3 * s[live] + 1).sum()) + 2 * bad
+    model, *_ = modes._build_model(q, q, w, w, np.zeros(80), 3, "multiview", 2, 30.0, pos, pts, (), free,
+                                   np.zeros((0, 2), dtype=np.int64), 0.0, 0.0, None)
+    assert model.n_vars <= n_vars and len(model.rows) <= n_rows  # points without any good pair are skipped
+    assert sum(r.idx.size for r in model.rows) <= nnz
+
+
+def test_angle_model_over_budget_falls_back_without_building(monkeypatch) -> None:
+    dense, w, pos, pts = _sphere_instance(120, 9, 6)
+    _forbid(monkeypatch, modes, "_build_model")
+    _forbid(monkeypatch, ae.K, "build_bits")
+    best = brute_force_mode(dense, w, 5, "multiview", min_angle_deg=30.0, pos=pos, pts=pts)
+    res = solve(dense, w, 5, mode="multiview", min_angle_deg=30.0, positions=pos, points=pts,
+                memory_budget_bytes=_TINY)  # auto, k = 5: SCIP, then the angle engine, then greedy
+    assert res.status == "feasible" and "memory_fallback" in res.stats
+    assert "GiB" in res.stats["memory_fallback"]
+    assert res.bound >= best * (1 - 1e-9) >= res.objective * (1 - 1e-9) - 1e-12
+    assert res.objective == pytest.approx(mode_objective(dense, w, res.selected, "multiview", 2, 30.0, pos, pts))
+    for engine in ("mip", "cpsat", "exact"):
+        with pytest.raises(CamplaceError) as ei:
+            solve(dense, w, 3, mode="multiview", min_angle_deg=30.0, positions=pos, points=pts, engine=engine,
+                  memory_budget_bytes=_TINY)
+        assert "\n" not in str(ei.value) and "GiB" in str(ei.value)
+
+
+def test_angle_engine_over_budget_auto_uses_the_model(monkeypatch) -> None:
+    """k = 3: the angle engine does not fit in the budget, the (small) SCIP model does."""
+    dense, w, pos, pts = _sphere_instance(60, 8, 7)
+    _forbid(monkeypatch, ae.K, "build_bits")
+    monkeypatch.setattr(ae, "angle_bytes", lambda *a: 1 << 50)
+    res = solve(dense, w, 3, mode="multiview", min_angle_deg=25.0, positions=pos, points=pts)
+    best = brute_force_mode(dense, w, 3, "multiview", min_angle_deg=25.0, pos=pos, pts=pts)
+    assert res.engine == "mip" and "memory_fallback" in res.stats
+    assert res.status == "optimal" and res.objective == pytest.approx(best)
+
+
+@pytest.mark.parametrize("mode", ["maxcover", "quality", "multiview"])
+def test_general_models_over_budget_fall_back_or_stop(monkeypatch, mode) -> None:
+    rng = np.random.default_rng(8)
+    dense = (rng.random((50, 10)) < 0.4) * rng.uniform(0.1, 1.0, (50, 10))
+    w = rng.uniform(0.0, 1.0, 50)
+    pos = rng.normal(size=(10, 3)) * 3
+    _forbid(monkeypatch, modes, "_build_model")
+    assert modes.conflict_pairs(pos, 3.0).shape[0] > 0  # the general model (with conflict rows)
+    best = brute_force_mode(dense, w, 3, mode, fixed=(8,), pos=pos, dmin=3.0)
+    res = solve(dense, w, 3, mode=mode, fixed=(8,), positions=pos, min_distance_m=3.0, memory_budget_bytes=_TINY)
+    assert "GiB" in res.stats["memory_fallback"]
+    assert res.status == "feasible" or (res.status == "optimal" and res.objective == pytest.approx(best))
+    assert all(np.linalg.norm(pos[a] - pos[b]) >= 3.0 for a, b in itertools.combinations(res.selected, 2))
+    assert res.bound >= best * (1 - 1e-9) >= res.objective * (1 - 1e-9) - 1e-12
+    with pytest.raises(CamplaceError) as ei:
+        solve(dense, w, 3, mode=mode, fixed=(8,), positions=pos, min_distance_m=3.0, engine="mip",
+              memory_budget_bytes=_TINY)
+    assert "\n" not in str(ei.value) and "GiB" in str(ei.value)
+
+
+def test_maxcover_engines_over_budget(monkeypatch) -> None:
+    from ortools.linear_solver import linear_solver_pb2
+    from ortools.sat.python import cp_model
+
+    import camplace.solver.bitset_exact as be
+
+    rng = np.random.default_rng(9)
+    dense = (rng.random((60, 12)) < 0.3).astype(float)
+    w = rng.uniform(0.0, 1.0, 60)
+    _forbid(monkeypatch, be, "_State")
+    _forbid(monkeypatch, linear_solver_pb2, "MPModelProto")
+    _forbid(monkeypatch, cp_model, "CpModel")
+    best = brute_force_mode(dense, w, 3, "maxcover")
+    for api in (solve, solve_maxcover):
+        with memory_budget(_TINY):
+            res = api(dense, w, 3)
+        assert res.status == "feasible" and "memory_fallback" in str(res.stats)
+        assert res.bound >= best * (1 - 1e-9) >= res.objective * (1 - 1e-9) - 1e-12
+        for engine in ("exact", "mip", "cpsat"):
+            with memory_budget(_TINY), pytest.raises(CamplaceError) as ei:
+                api(dense, w, 3, engine=engine)
+            assert "\n" not in str(ei.value) and "GiB" in str(ei.value)
+
+
+def test_conflicts_over_budget_fall_back_with_spacing(monkeypatch) -> None:
+    rng = np.random.default_rng(10)
+    dense = (rng.random((40, 30)) < 0.3).astype(float)
+    w = rng.uniform(0.0, 1.0, 40)
+    pos = rng.uniform(0.0, 10.0, size=(30, 3))
+    _forbid(monkeypatch, modes, "conflict_pairs")
+    res = solve(dense, w, 3, positions=pos, min_distance_m=4.0, memory_budget_bytes=_TINY)
+    assert "memory_fallback" in res.stats and res.status == "feasible"
+    sel = res.selected
+    assert all(np.linalg.norm(pos[a] - pos[b]) >= 4.0 for a, b in itertools.combinations(sel, 2))
+    best = brute_force_mode(dense, w, 3, "maxcover", pos=pos, dmin=4.0)
+    assert res.bound >= best * (1 - 1e-9) >= res.objective * (1 - 1e-9) - 1e-12
+    for kw in (dict(engine="mip"), dict(mode="setcover", k=None)):
+        k = kw.pop("k", 3)
+        with pytest.raises(CamplaceError) as ei:
+            solve(dense, w, k, positions=pos, min_distance_m=4.0, memory_budget_bytes=_TINY, **kw)
+        assert "\n" not in str(ei.value) and "min_distance_m" in str(ei.value)
+
+
+def test_setcover_over_budget_stops() -> None:
+    dense = np.eye(6)
+    with pytest.raises(CamplaceError) as ei:
+        solve(dense, np.ones(6), mode="setcover", memory_budget_bytes=_TINY)
+    assert "\n" not in str(ei.value) and "GiB" in str(ei.value)
