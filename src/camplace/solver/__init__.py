@@ -22,6 +22,9 @@ This package imports no geometry code: it only sees matrices.
 
 from __future__ import annotations
 
+import sys
+import types
+
 from camplace._lazy import lazy_getattr
 from camplace.names import ENGINES, MODES
 
@@ -39,5 +42,22 @@ _LAZY = {
 }
 
 __getattr__ = lazy_getattr(__name__, _LAZY)
+
+
+class _Package(types.ModuleType):
+    """This package, where importing the submodule ``presolve`` does not hide the function ``presolve``.
+
+    Python binds an imported submodule as an attribute of its package; the function of the same
+    name is then found by the lazy ``__getattr__`` instead (``camplace.solver.presolve`` stays the
+    module in ``sys.modules`` for ``from camplace.solver.presolve import ...``).
+    """
+
+    def __setattr__(self, name: str, value) -> None:
+        if name == "presolve" and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
 
 __all__ = ["ENGINES", "MODES", *sorted(_LAZY)]
