@@ -696,7 +696,7 @@ def _cover_modes(
         # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
         pat, pw = (resid, resid_w) if mode == "maxcover" else (expanded if expanded is not None else _expand_levels(resid, resid_w))
         pre = presolve(pat, pw, k)
-        name, out = run_maxcover_engine(name, engine, pre, _remaining(t0, time_limit_s), stats)
+        name, out = run_maxcover_engine(name, engine, pre, _remaining(t0, time_limit_s), stats, budget)
         new = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
         sel = tuple(sorted(set(fixed_t) | set(new))) if new else None
         objective = value(sel) if sel else fixed_value
