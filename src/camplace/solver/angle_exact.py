@@ -50,7 +50,7 @@ from camplace.solver import _bitkernels as K
 from camplace.solver._common import Deadline, OverBudget, best_leaf
 from camplace.solver.pair_cap import match_opposite, opposite_pair_bytes
 
-__all__ = ["AngleOutcome", "angle_bytes", "solve_angle"]
+__all__ = ["AngleOutcome", "angle_bytes", "greedy_angle", "solve_angle"]
 
 log = logging.getLogger(__name__)
 
@@ -427,6 +427,30 @@ class _Frontier:
         lifo = self.n_open + cv.shape[0] > _DEPTH_FIRST_OPEN
         for c0 in range(0, cv.shape[0], _CHUNK):
             self._add(ch[c0 : c0 + _CHUNK], cv[c0 : c0 + _CHUNK], lifo)
+
+
+def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
+                 pts: np.ndarray, fixed: np.ndarray, free: np.ndarray, *,
+                 time_limit_s: float | None = None) -> tuple[int, ...]:
+    """Greedy plus 1-swap choice of ``k`` new cameras with exact angles (the angle engine's
+    incumbent alone), in O(m + n) memory besides the matrix: the fallback when nothing else fits.
+
+    Parameters are those of :func:`solve_angle`; the swaps stop at ``time_limit_s``.
+
+    Returns
+    -------
+    tuple of int
+        The new cameras (original column indices, sorted).
+    """
+    deadline = Deadline(time_limit_s)
+    fixed = np.asarray(fixed, dtype=np.int64)
+    free = np.asarray(free, dtype=np.int64)
+    wu = np.where(w > 0, w, 0.0)
+    with ctrl_c_deferred():
+        colw = AK.column_weights(q.indptr, q.indices, q.data, np.arange(q.shape[0], dtype=np.int64), wu, q.shape[1])
+    inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline, deadline.limit)
+    inc.run(k, colw)
+    return inc.best_set
 
 
 def solve_angle(
