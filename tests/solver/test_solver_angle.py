@@ -190,7 +190,8 @@ def test_angle_engine_tiny_time_limit(medium) -> None:
 def test_angle_engine_frontier_cap_keeps_a_valid_bound(monkeypatch, medium) -> None:
     dense, w, pos, pts, best = medium
     monkeypatch.setattr(ae, "_FRONTIER_MAX", 3)
-    monkeypatch.setattr(ae, "_DEPTH_FIRST_OPEN", 2)
+    monkeypatch.setattr(ae, "_FRONTIER_MIN", 3)
+    monkeypatch.setattr(ae, "_DEPTH_FIRST_SHARE", 0.7)
     monkeypatch.setattr(ae, "_CHUNK", 2)
     res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
     assert res.bound >= best * (1 - 1e-9) >= res.objective * (1 - 1e-9) - 1e-12
@@ -340,3 +341,14 @@ def test_setcover_over_budget_stops() -> None:
     with pytest.raises(CamplaceError) as ei:
         solve(dense, np.ones(6), mode="setcover", memory_budget_bytes=_TINY)
     assert "\n" not in str(ei.value) and "GiB" in str(ei.value)
+
+
+def test_angle_engine_sizes_its_frontier_to_the_budget(medium) -> None:
+    """Under a tight budget the engine still runs, with fewer open tuples allowed."""
+    dense, w, pos, pts, best = medium
+    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact",
+                memory_budget_bytes=40 << 20)
+    es = res.stats["engine_stats"]
+    assert ae._FRONTIER_MIN <= es["open_tuples_max"] < ae._FRONTIER_MAX
+    assert es["memory_estimate_bytes"] <= 40 << 20
+    assert res.status == "optimal" and res.objective == pytest.approx(best, rel=1e-9)

@@ -122,7 +122,14 @@ def test_memory_guard(monkeypatch, mode) -> None:
     rng = np.random.default_rng(11)
     dense = (rng.random((40, 10)) < 0.5) * rng.uniform(0.05, 1.0, (40, 10))
     w = rng.uniform(0.0, 1.0, 40)
-    monkeypatch.setattr(modes, "memory_budget_bytes", lambda: 0)
+    import camplace.solver._dispatch as dispatch
+
+    def huge(*args, **kwargs):  # the exact engines' estimates (models are checked separately)
+        return 1 << 60
+
+    for mod, name in [(modes, "bitset_bytes"), (modes, "stereo_bytes"), (modes, "quality_tree_bytes"),
+                      (modes, "quality_exact_bytes"), (dispatch, "bitset_bytes")]:
+        monkeypatch.setattr(mod, name, huge)
     monkeypatch.setattr(modes, "_QUALITY_EXPAND_MAX", -1)  # quality: the tree engine would be next
     with pytest.raises(CamplaceError, match="GiB") as err:
         solve(dense, w, 3, mode=mode, engine="exact")

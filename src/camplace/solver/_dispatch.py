@@ -42,8 +42,10 @@ def memory_fallback(exc: OverBudget, requested: str, name: str, stats: dict[str,
 
 
 def run_maxcover_engine(name: str, requested: str, pre: Presolved, time_limit_s: float | None,
-                        stats: dict[str, Any]) -> tuple[str, EngineOutcome]:
-    """Run engine ``name`` ("exact", "mip" or "cpsat") on ``pre`` within the memory budget.
+                        stats: dict[str, Any], budget: int | None = None) -> tuple[str, EngineOutcome]:
+    """Run engine ``name`` ("exact", "mip" or "cpsat") on ``pre`` within the memory budget
+    (``budget`` bytes for the exact engine, default :func:`memory_budget_bytes`; the models check
+    their own).
 
     Returns
     -------
@@ -56,9 +58,10 @@ def run_maxcover_engine(name: str, requested: str, pre: Presolved, time_limit_s:
         tried.add(name)
         try:
             if name == "exact":
-                need, budget = bitset_bytes(pre.shape[0], pre.shape[1], 1, pre.k), memory_budget_bytes()
-                if need > budget:
-                    raise OverBudget(need, budget, "the exact engine")
+                need = bitset_bytes(pre.shape[0], pre.shape[1], 1, pre.k)
+                have = memory_budget_bytes() if budget is None else budget
+                if need > have:
+                    raise OverBudget(need, have, "the exact engine")
             return name, _FUNCS[name](pre, time_limit_s=time_limit_s)
         except OverBudget as exc:
             nxt = next((e for e in ("exact", "mip") if e not in tried), None)

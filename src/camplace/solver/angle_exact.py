@@ -50,7 +50,7 @@ from camplace.solver import _bitkernels as K
 from camplace.solver._common import Deadline, OverBudget, best_leaf
 from camplace.solver.pair_cap import match_opposite, opposite_pair_bytes
 
-__all__ = ["AngleOutcome", "angle_bytes", "solve_angle"]
+__all__ = ["AngleOutcome", "angle_bytes", "greedy_angle", "solve_angle"]
 
 log = logging.getLogger(__name__)
 
@@ -65,8 +65,9 @@ _BATCH = 1 << 14  # tuples expanded per parallel call, at most ...
 _BATCH_MIN = 256  # ... and at least
 _BATCH_S = 0.5  # seconds a batch should take (the deadline is checked between batches)
 _PAR_CHUNK = 16  # tuples a thread takes at a time
-_FRONTIER_MAX = 4_000_000  # open tuples at most
-_DEPTH_FIRST_OPEN = 1_000_000  # depth-first (newest chunks) while more tuples than this are open
+_FRONTIER_MAX = 4_000_000  # open tuples at most (fewer when the memory budget is tight) ...
+_FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not run
+_DEPTH_FIRST_SHARE = 0.25  # depth-first (newest chunks) while more than this share of the cap is open
 
 
 @dataclass(frozen=True)
@@ -90,13 +91,14 @@ class AngleOutcome:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
-def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int) -> int:
+def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_tuples: int = _FRONTIER_MIN) -> int:
     """Working memory of :func:`solve_angle` for ``rows`` countable rows and ``n_cols`` columns.
 
     The opposite-pairs layout can hold up to twice as many bit rows as countable rows; counted
     here: the column bitsets and their ordered copy, ``min(views, k)`` level bitsets and an 8-byte
     cone per tree node and 64-row block (and a float64 working copy per thread), the points of the
-    layout, the pair matching's row bitsets and the open tuples of the search.
+    layout, the pair matching's row bitsets and ``open_tuples`` open tuples of the search (which
+    stops there, with a valid bound).
     """
     words = (2 * int(rows) + 127) // 64 + 2
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
@@ -105,8 +107,13 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int) -> int
     cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS)
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
-    frontier = (_FRONTIER_MAX + (k + 1) * _BATCH) * (8 * k + 16)
+    frontier = (int(open_tuples) + (k + 1) * _BATCH) * _tuple_bytes(k)
     return int(bits + cones + points + match + frontier + 64 * rows)
+
+
+def _tuple_bytes(k: int) -> int:
+    """Bytes per open tuple of ``k`` nodes (nodes and bound, and a copy while chunks are formed)."""
+    return 2 * (8 * k + 8)
 
 
 def _spatial_order(xyz: np.ndarray) -> np.ndarray:
@@ -367,9 +374,10 @@ class _Tree:
 class _Frontier:
     """Open node tuples in chunks: best-first (a heap on each chunk's largest bound, so the
     reported bound falls as the search goes), depth-first from the newest chunks while more than
-    :data:`_DEPTH_FIRST_OPEN` tuples are open (memory)."""
+    ``depth_first_open`` tuples are open (memory)."""
 
-    def __init__(self, tuples: np.ndarray, bounds: np.ndarray) -> None:
+    def __init__(self, tuples: np.ndarray, bounds: np.ndarray, depth_first_open: int) -> None:
+        self.depth_first_open = depth_first_open
         self.heap: list[tuple[float, int, np.ndarray, np.ndarray]] = []
         self.lifo: list[tuple[float, np.ndarray, np.ndarray]] = []
         self.seq = 0
@@ -424,9 +432,33 @@ class _Frontier:
         ch, cv = children[keep], value[keep]
         idx = np.argsort(cv, kind="stable")
         ch, cv = ch[idx], cv[idx]
-        lifo = self.n_open + cv.shape[0] > _DEPTH_FIRST_OPEN
+        lifo = self.n_open + cv.shape[0] > self.depth_first_open
         for c0 in range(0, cv.shape[0], _CHUNK):
             self._add(ch[c0 : c0 + _CHUNK], cv[c0 : c0 + _CHUNK], lifo)
+
+
+def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
+                 pts: np.ndarray, fixed: np.ndarray, free: np.ndarray, *,
+                 time_limit_s: float | None = None) -> tuple[int, ...]:
+    """Greedy plus 1-swap choice of ``k`` new cameras with exact angles (the angle engine's
+    incumbent alone), in O(m + n) memory besides the matrix: the fallback when nothing else fits.
+
+    Parameters are those of :func:`solve_angle`; the swaps stop at ``time_limit_s``.
+
+    Returns
+    -------
+    tuple of int
+        The new cameras (original column indices, sorted).
+    """
+    deadline = Deadline(time_limit_s)
+    fixed = np.asarray(fixed, dtype=np.int64)
+    free = np.asarray(free, dtype=np.int64)
+    wu = np.where(w > 0, w, 0.0)
+    with ctrl_c_deferred():
+        colw = AK.column_weights(q.indptr, q.indices, q.data, np.arange(q.shape[0], dtype=np.int64), wu, q.shape[1])
+    inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline, deadline.limit)
+    inc.run(k, colw)
+    return inc.best_set
 
 
 def solve_angle(
@@ -504,10 +536,13 @@ def solve_angle(
     const = float(w[ok_fixed].sum())
     lap("rows")
     search = np.flatnonzero((w > 0) & ~ok_fixed & (seen >= views) & (seen_free > 0))
-    need = angle_bytes(search.size, free.size, fixed.size, k, views)
-    stats.update({"rows": int(search.size), "memory_estimate_bytes": need})
+    need = angle_bytes(search.size, free.size, fixed.size, k, views, _FRONTIER_MIN)
     if need > budget_bytes:
         raise OverBudget(need, budget_bytes, "the angle engine")
+    # as many open tuples as the budget allows (the search stops there with a valid bound)
+    cap = int(max(_FRONTIER_MIN, min(_FRONTIER_MAX, _FRONTIER_MIN + (budget_bytes - need) // _tuple_bytes(k))))
+    need = angle_bytes(search.size, free.size, fixed.size, k, views, cap)
+    stats.update({"rows": int(search.size), "memory_estimate_bytes": need, "open_tuples_max": cap})
     pos_w = w[w > 0]
     unit = float(pos_w[0]) if pos_w.size and np.all(pos_w == pos_w[0]) else None
     wu = np.zeros(m)
@@ -548,12 +583,12 @@ def solve_angle(
     # the incumbent (in layout units: its value on the search rows), then best-first search
     best = inc.best
     best_set = inc.best_set
-    front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]))
+    front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap))
     evaluated = batches = exact_evals = 0
     batch = min(_BATCH, _BATCH_MIN)
     status, open_bound = "optimal", -math.inf
     while front.n_open:
-        if deadline.expired() or front.n_open > _FRONTIER_MAX:
+        if deadline.expired() or front.n_open > cap:
             status = "feasible"
             open_bound = front.top()
             stats["stopped"] = "time limit" if deadline.expired() else "open tuples"

@@ -69,7 +69,7 @@ from camplace.solver._common import (
 )
 from camplace.solver._dispatch import memory_fallback, run_maxcover_engine
 from camplace.solver._model import LinearModel, model_bytes, solve_model
-from camplace.solver.angle_exact import solve_angle
+from camplace.solver.angle_exact import greedy_angle, solve_angle
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
 from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
 from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
@@ -696,7 +696,7 @@ def _cover_modes(
         # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
         pat, pw = (resid, resid_w) if mode == "maxcover" else (expanded if expanded is not None else _expand_levels(resid, resid_w))
         pre = presolve(pat, pw, k)
-        name, out = run_maxcover_engine(name, engine, pre, _remaining(t0, time_limit_s), stats)
+        name, out = run_maxcover_engine(name, engine, pre, _remaining(t0, time_limit_s), stats, budget)
         new = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
         sel = tuple(sorted(set(fixed_t) | set(new))) if new else None
         objective = value(sel) if sel else fixed_value
@@ -743,6 +743,13 @@ def _cover_modes(
     except _BuildTimeout as exc:
         stats["model_build"] = (str(exc) or "interrupted by the time limit") + ": greedy answer, cheap bound"
         bound = _cheap_bound(q, qf, w, base, k, mode, views)
+        if angle_ok:  # the greedy above ignores the angle; this one counts it (O(m + n) memory)
+            assert pos is not None and pts is not None and min_angle_deg is not None
+            new = greedy_angle(q, w, k, views, float(min_angle_deg), pos, pts, np.asarray(fixed_t, dtype=np.int64),
+                               free_cols, time_limit_s=_remaining(t0, time_limit_s))
+            cand = tuple(sorted(set(fixed_t) | set(new)))
+            if hint_sel is None or value(cand) > value(hint_sel):
+                hint_sel = cand
         if hint_sel is None:
             return None, "unknown", fixed_value, bound, name, stats
         return hint_sel, "feasible", value(hint_sel), bound, name, stats
