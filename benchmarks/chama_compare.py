@@ -200,7 +200,7 @@ def build_matrix(workdir: Path, focal_mm: float, far_m: float, candidates: int, 
     toml.write_text(text)
     subprocess.run(
         [*camplace, "run", str(toml), "-o", str(run_dir), "--candidates", str(candidates),
-         "--points", str(points), "--seed", str(seed)],
+         "--points", str(points), "--seed", str(seed), "--matrix-format", "npz"],  # Chama's side reads it with scipy
         check=True, capture_output=True, text=True,
     )
     return run_dir

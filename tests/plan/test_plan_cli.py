@@ -1,7 +1,7 @@
 """``camplace run --phases --speed``, ``camplace plan``, the plan files, and the --phase hooks, end to end.
 
 Every number is re-derived here from the folder alone: feasibility from ``candidates.csv`` positions
-and the phases' start times, the objective from ``visibility.npz`` and ``points.csv``.
+and the phases' start times, the objective from ``visibility.cpm`` and ``points.csv``.
 """
 
 from __future__ import annotations

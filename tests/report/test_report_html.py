@@ -112,7 +112,7 @@ def scene_data(page: Path) -> dict:
 
 
 def test_scene3d_coverage_matches_the_matrix(outdir) -> None:
-    """Oracle: the coverage of each peak-frame row recounted from visibility.npz, points.csv and solution.json."""
+    """Oracle: the coverage of each peak-frame row recounted from visibility.cpm, points.csv and solution.json."""
     d = scene_data(outdir / "report.html")
     sol = json.loads((outdir / "solution.json").read_text())
     assert d["system"] == "the run's system"  # no campaign system beat it (the report says the guarantee holds)

@@ -1,5 +1,5 @@
 """The report's 3D view of an event built-in (comet-flyby: 36 frames, a coma of emitter points),
-checked against a recount from the run folder's own files (visibility.npz, points.csv, solution.json)."""
+checked against a recount from the run folder's own files (visibility.cpm, points.csv, solution.json)."""
 
 from __future__ import annotations
 

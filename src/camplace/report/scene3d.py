@@ -1,7 +1,7 @@
 """The report's 3D view of a run: occluders, the target coloured by coverage, the chosen cameras.
 
 :func:`run_scene` turns a run folder's data (instance.toml, solution.json, candidates.csv,
-points.csv, visibility.npz, as read by :func:`camplace.report.compare.load_run_data`) into a
+points.csv, visibility.cpm, as read by :func:`camplace.report.compare.load_run_data`) into a
 :class:`camplace.scene3d.Scene3D`; :func:`scene3d_section` is the report's HTML section.
 
 Coverage of a point = how many of the optimised system's cameras observe it, read from the
