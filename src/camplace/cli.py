@@ -14,6 +14,7 @@ from pathlib import Path
 
 from camplace.errors import CamplaceError
 from camplace.names import ENGINES, EVENT_MODES, MODES, SAMPLERS
+from camplace.robust_cli import add_robust_options, print_oos, spec_from_args, wrap_solve
 
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 1
@@ -80,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", action="store_true",
                    help="then run a uniform and a chaotic campaign of random systems and write OUTDIR/report.html")
     p.add_argument("--report-systems", type=int, default=200, dest="report_systems", help="systems per campaign (default 200)")
+    add_robust_options(p)
 
     p = sub.add_parser("visibility", help="compute the visibility matrix of given candidates")
     p.add_argument("instance", help="a built-in instance name or an instance .toml file")
@@ -98,6 +100,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in _verb_modules():
         COMMANDS.update(module.register(sub, _add_run_options))
+    add_robust_options(sub.choices["solve"])
+    COMMANDS["solve"] = wrap_solve(COMMANDS["solve"])
     return parser
 
 
@@ -142,11 +146,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
         forbidden=parse_index_list(args.forbidden, "--forbidden"),
         min_distance_m=args.min_distance,
         required_fraction=args.required_fraction,
+        robust=spec_from_args(instance, args),
     )
     print(
         f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
         f"({sol.mode} objective {sol.objective:.6f}, bound {sol.bound:.6f}, gap {100 * sol.gap:.3f}%, engine {sol.engine})"
     )
+    if sol.robust is not None:
+        print_oos(sol.robust)
     for note in sol.warnings:
         print(f"warning: {note}", file=sys.stderr)
     for cam in sol.cameras:
