@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 
 #: Formulations a robust run supports (setcover minimises cameras; there is nothing to average).
 ROBUST_MODES = ("maxcover", "quality", "multiview")
-_STACK_BYTES_PER_NNZ = 30  # matrix (8) + restack (int64 rows, int32 cols, float32 values, CSR copy)
+_STACK_BYTES_PER_NNZ = 26  # the wide matrix as built (10), its key (8) and the stacked copy (8)
 
 
 def make_spec(
@@ -130,7 +130,7 @@ def stack_scenarios(matrix: sp.spmatrix, n: int, scenarios: int) -> sp.csr_matri
 
     Parameters
     ----------
-    matrix : (m, S * n) scipy.sparse matrix
+    matrix : (m, S * n) scipy.sparse matrix (CSR is used as it is)
         Column ``s * n + j``: candidate ``j`` installed as in scenario ``s``.
     n : int
         Candidates.
@@ -140,20 +140,45 @@ def stack_scenarios(matrix: sp.spmatrix, n: int, scenarios: int) -> sp.csr_matri
     Returns
     -------
     (S * m, n) scipy.sparse.csr_matrix
-        Row ``s * m + i``, column ``j`` holds ``matrix[i, s * n + j]`` (same dtype). Built from the
-        sparse entries by index arithmetic; nothing dense is allocated.
+        Row ``s * m + i``, column ``j`` holds ``matrix[i, s * n + j]`` (same dtype).
+
+    Notes
+    -----
+    Index arithmetic on the sparse entries, nothing dense: in a canonical CSR row the entries of
+    scenario ``s`` (columns ``s * n .. s * n + n - 1``) are one contiguous run, found for every row
+    at once by a binary search on the global key ``row * S * n + column``; the output is then
+    gathered scenario by scenario. Peak extra memory: about 16 bytes an entry (the key, then
+    the output) plus 16 bytes an entry of one scenario.
     """
-    coo = matrix.tocoo()
-    m = matrix.shape[0]
-    if matrix.shape[1] != n * scenarios:
-        raise CamplaceError(f"matrix has {matrix.shape[1]} columns, expected {scenarios} x {n}")
-    col = np.asarray(coo.col, dtype=np.int64)
-    s, j = np.divmod(col, n)
-    row = s * m + np.asarray(coo.row, dtype=np.int64)
-    del col, s
-    out = sp.csr_matrix((coo.data, (row, j.astype(np.int32))), shape=(scenarios * m, n))
-    out.sum_duplicates()
-    return out
+    a = matrix.tocsr() if matrix.format != "csr" else matrix
+    if not a.has_canonical_format:
+        a = a.copy()
+        a.sum_duplicates()
+    m = a.shape[0]
+    S = int(scenarios)
+    if a.shape[1] != n * S:
+        raise CamplaceError(f"matrix has {a.shape[1]} columns, expected {S} x {n}")
+    width = np.int64(n) * S
+    key = np.repeat(np.arange(m, dtype=np.int64) * width, np.diff(a.indptr))
+    key += a.indices
+    starts = np.arange(m, dtype=np.int64)[:, None] * width + np.arange(S + 1, dtype=np.int64)[None, :] * n
+    bounds = np.searchsorted(key, starts)  # (m, S + 1): run of scenario s in row i = bounds[i, s]:bounds[i, s + 1]
+    del key, starts
+    counts = np.diff(bounds, axis=1)  # (m, S)
+    indptr = np.zeros(S * m + 1, dtype=np.int64)
+    np.cumsum(counts.T.ravel(), out=indptr[1:])
+    data = np.empty(a.nnz, dtype=a.data.dtype)
+    index_type = np.int32 if n < 2**31 else np.int64
+    indices = np.empty(a.nnz, dtype=index_type)
+    for s in range(S):
+        lo, hi = int(indptr[s * m]), int(indptr[(s + 1) * m])
+        gather = np.repeat(bounds[:, s] - indptr[s * m:(s + 1) * m], counts[:, s])
+        gather += np.arange(lo, hi, dtype=np.int64)
+        data[lo:hi] = a.data[gather]
+        indices[lo:hi] = a.indices[gather] - s * n
+    if indptr[-1] < 2**31:
+        indptr = indptr.astype(np.int32)
+    return sp.csr_matrix((data, indices, indptr), shape=(S * m, n))
 
 
 def _compute(instance, poses: CandidateSet, pts, *, cache: bool, memory_budget_bytes: int | None, reporter, label: str):
