@@ -564,7 +564,7 @@ def run(
     if robust is not None:
         from camplace.robust import check_request, spec_record
 
-        check_request(robust, mode, min_angle_deg)
+        check_request(robust, mode, min_angle_deg, engine)
         options["robust"] = spec_record(robust)
     timings: dict[str, float] = {}
     cand_seed, _ = stage_seeds(seed)

@@ -115,8 +115,10 @@ def spec_record(spec: RobustSpec | None) -> dict[str, Any] | None:
     return None if spec is None else {k: (float(v) if isinstance(v, float) else v) for k, v in asdict(spec).items()}
 
 
-def check_request(spec: RobustSpec, mode: str, min_angle_deg: float | None) -> None:
+def check_request(spec: RobustSpec, mode: str, min_angle_deg: float | None, engine: str = "auto") -> None:
     """One-line errors for robust requests this version cannot serve."""
+    if spec.objective == "p10" and engine not in ("auto", "mip") and not spec.zero:
+        raise CamplaceError(f"--robust-objective p10: engine {engine} does not apply (the p10 model runs on SCIP: use --engine auto or mip)")
     if mode not in ROBUST_MODES:
         raise CamplaceError(f"--pose-error: mode {mode} is not supported (robust runs use {', '.join(ROBUST_MODES)})")
     if min_angle_deg is not None and not spec.zero:
@@ -356,7 +358,7 @@ def robust_stage(
     """
     timings = {} if timings is None else timings
     mode, views = options["mode"], options.get("views") or 2
-    check_request(spec, mode, options.get("min_angle_deg"))
+    check_request(spec, mode, options.get("min_angle_deg"), options.get("engine", "auto"))
     record: dict[str, Any] = {
         "settings": spec_record(spec),
         "seed_streams": {"in_sample": IN_SAMPLE_STREAM, "out_of_sample": OUT_OF_SAMPLE_STREAM},

@@ -89,7 +89,7 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     }
     from camplace.robust import check_request, spec_record
 
-    check_request(spec, args.mode, args.min_angle)
+    check_request(spec, args.mode, args.min_angle, args.engine)
     options["robust"] = spec_record(spec)
     geometric = args.min_distance is not None or args.min_angle is not None
     nominal = solve(
