@@ -46,7 +46,7 @@ def bunker():
 
 def _scenario_poses(cands: CandidateSet, s: int, seed: int, sigma=SIGMA, stream=IN_SAMPLE_STREAM, scenarios=4) -> CandidateSet:
     """Scenario s of every candidate, built here from the draws (not by perturb_poses)."""
-    z = pose_draws(seed, range(len(cands)), scenarios, stream)[:, s, :]
+    z = pose_draws(seed, range(len(cands)), scenarios, stream, antithetic=stream == IN_SAMPLE_STREAM)[:, s, :]
     pos = cands.positions + sigma[0] * z[:, :3]
     rot = np.stack([cands.rotations[j] @ Rotation.from_rotvec(np.radians(sigma[1]) * z[j, 3:]).as_matrix()
                     for j in range(len(cands))])
@@ -95,6 +95,13 @@ def test_perturb_layout_seed_and_subset() -> None:
         turn = rot[2].T @ a.rotations[s * 6 + 2]
         assert np.allclose(Rotation.from_matrix(turn).as_rotvec(), np.radians(5.0) * z[s, 3:], atol=1e-10)
         assert np.allclose(a.positions[s * 6 + 2] - pos[2], 0.1 * z[s, :3], atol=1e-12)
+
+
+def test_antithetic_pairs() -> None:
+    plain = pose_draws(3, [0, 5], 5)
+    anti = pose_draws(3, [0, 5], 5, antithetic=True)
+    assert np.array_equal(anti[:, 0::2], plain[:, :3])  # the first ceil(S/2) draws of the same stream
+    assert np.array_equal(anti[:, 1::2], -plain[:, :2])
 
 
 def test_rotation_error_statistics() -> None:

@@ -13,7 +13,11 @@ angle of the turn, ``|w|``, then follows a Maxwell distribution with mean ``1.60
 
 Draws: candidate ``j`` has its own stream ``SeedSequence(seed, spawn_key=(stream, j))`` from which
 its ``S`` scenarios take ``(S, 6)`` standard normals (3 position, then 3 rotation numbers per
-scenario). The draws of one candidate therefore do not depend on the other candidates nor on how
+scenario). With ``antithetic`` (the in-sample scenarios of a robust run) only ``ceil(S / 2)`` rows
+are drawn and scenario ``2t + 1`` is the mirror ``-z`` of scenario ``2t`` (a standard variance
+reduction: every scenario is still an exact draw of the model, and the errors of different cameras
+stay independent, but a camera's average over its S installations no longer depends on the sign
+luck of its draws, which would otherwise decide the choice among many near-equal candidates). The draws of one candidate therefore do not depend on the other candidates nor on how
 many there are, every candidate is perturbed independently of the others in each scenario, and a
 camera shared by two systems is perturbed identically in both (common random numbers). A different
 ``stream`` (the run's in-sample scenarios use 2, the out-of-sample check 3) gives fresh scenarios.
@@ -38,7 +42,8 @@ IN_SAMPLE_STREAM = 2
 OUT_OF_SAMPLE_STREAM = 3
 
 
-def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int = IN_SAMPLE_STREAM) -> np.ndarray:
+def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int = IN_SAMPLE_STREAM,
+               antithetic: bool = False) -> np.ndarray:
     """Standard normal draws of the pose errors of some candidates.
 
     Parameters
@@ -52,6 +57,8 @@ def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int
         S, the installations drawn per candidate.
     stream : int
         Which family of scenarios (:data:`IN_SAMPLE_STREAM`, :data:`OUT_OF_SAMPLE_STREAM`).
+    antithetic : bool
+        Scenario ``2t + 1`` is ``-`` scenario ``2t``.
 
     Returns
     -------
@@ -62,7 +69,12 @@ def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int
     out = np.empty((len(idx), int(scenarios), 6), dtype=np.float64)
     for t, j in enumerate(idx):
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(stream), j)))
-        out[t] = rng.standard_normal((int(scenarios), 6))
+        if antithetic:
+            half = rng.standard_normal(((int(scenarios) + 1) // 2, 6))
+            out[t, 0::2] = half
+            out[t, 1::2] = -half[: int(scenarios) // 2]
+        else:
+            out[t] = rng.standard_normal((int(scenarios), 6))
     return out
 
 
@@ -75,6 +87,7 @@ def perturb_poses(
     *,
     seed: int,
     stream: int = IN_SAMPLE_STREAM,
+    antithetic: bool = False,
 ) -> CandidateSet:
     """The installed poses of some candidates in S sampled installations.
 
@@ -91,6 +104,8 @@ def perturb_poses(
         component (degrees).
     seed, stream : int
         See :func:`pose_draws`.
+    antithetic : bool
+        Mirrored scenario pairs (see :func:`pose_draws`).
 
     Returns
     -------
@@ -100,7 +115,7 @@ def perturb_poses(
     """
     idx = np.arange(len(cands)) if candidates is None else np.asarray(list(candidates), dtype=np.int64)
     c, s_count = len(idx), int(scenarios)
-    z = pose_draws(seed, idx, s_count, stream)  # (c, S, 6)
+    z = pose_draws(seed, idx, s_count, stream, antithetic)  # (c, S, 6)
     z = np.swapaxes(z, 0, 1)  # (S, c, 6): scenario-major
     pos0 = cands.positions[idx]
     rot0 = cands.rotations[idx]
