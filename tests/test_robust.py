@@ -46,7 +46,7 @@ def bunker():
 
 def _scenario_poses(cands: CandidateSet, s: int, seed: int, sigma=SIGMA, stream=IN_SAMPLE_STREAM, scenarios=4) -> CandidateSet:
     """Scenario s of every candidate, built here from the draws (not by perturb_poses)."""
-    z = pose_draws(seed, range(len(cands)), scenarios, stream, antithetic=stream == IN_SAMPLE_STREAM)[:, s, :]
+    z = pose_draws(seed, range(len(cands)), scenarios, stream, design="sobol" if stream == IN_SAMPLE_STREAM else "iid")[:, s, :]
     pos = cands.positions + sigma[0] * z[:, :3]
     rot = np.stack([cands.rotations[j] @ Rotation.from_rotvec(np.radians(sigma[1]) * z[j, 3:]).as_matrix()
                     for j in range(len(cands))])
@@ -97,11 +97,19 @@ def test_perturb_layout_seed_and_subset() -> None:
         assert np.allclose(a.positions[s * 6 + 2] - pos[2], 0.1 * z[s, :3], atol=1e-12)
 
 
-def test_antithetic_pairs() -> None:
-    plain = pose_draws(3, [0, 5], 5)
-    anti = pose_draws(3, [0, 5], 5, antithetic=True)
-    assert np.array_equal(anti[:, 0::2], plain[:, :3])  # the first ceil(S/2) draws of the same stream
-    assert np.array_equal(anti[:, 1::2], -plain[:, :2])
+def test_sobol_design_is_normal_and_per_candidate() -> None:
+    """Each candidate's Sobol scenarios are N(0, 1) in every coordinate, and two candidates differ."""
+    from scipy import stats
+
+    z = pose_draws(3, [0, 5], 256, design="sobol")
+    assert z.shape == (2, 256, 6)
+    for c in range(2):
+        for d in range(6):
+            assert stats.kstest(z[c, :, d], "norm").pvalue > 1e-3
+    assert not np.allclose(z[0], z[1])
+    assert np.array_equal(pose_draws(3, [5], 256, design="sobol")[0], z[1])
+    # an S that is not a power of two takes the first S points of the next power
+    assert np.array_equal(pose_draws(3, [5], 200, design="sobol")[0], z[1, :200])
 
 
 def test_rotation_error_statistics() -> None:

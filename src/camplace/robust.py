@@ -208,8 +208,8 @@ def scenario_matrix(
         The run's instance, nominal candidates and points (rows).
     spec : RobustSpec
     seed, stream : int
-        Scenario draws (:func:`camplace.sampling.perturb.pose_draws`): the in-sample stream in
-        antithetic pairs, any other plain independent draws.
+        Scenario draws (:func:`camplace.sampling.perturb.pose_draws`): the in-sample stream as a
+        scrambled Sobol design per candidate, any other as independent draws.
     columns : sequence of int or None
         Candidates to perturb (None: all); column t of the result is ``columns[t]``.
     scenarios : int or None
@@ -237,7 +237,7 @@ def scenario_matrix(
                 f"(budget {budget / 2**30:.1f} GiB); lower --scenarios, --candidates or --points, or raise --memory-budget-gb"
             )
     poses = perturb_poses(cands, columns, s_count, spec.position_sigma_m, spec.rotation_sigma_deg, seed=seed, stream=stream,
-                          antithetic=stream == IN_SAMPLE_STREAM)
+                          design="sobol" if stream == IN_SAMPLE_STREAM else "iid")
     wide = _compute(instance, poses, pts, cache=cache, memory_budget_bytes=budget, reporter=reporter,
                     label="robust visibility" if stream == IN_SAMPLE_STREAM else "out-of-sample visibility")
     return stack_scenarios(wide, c, s_count)

@@ -13,11 +13,14 @@ angle of the turn, ``|w|``, then follows a Maxwell distribution with mean ``1.60
 
 Draws: candidate ``j`` has its own stream ``SeedSequence(seed, spawn_key=(stream, j))`` from which
 its ``S`` scenarios take ``(S, 6)`` standard normals (3 position, then 3 rotation numbers per
-scenario). With ``antithetic`` (the in-sample scenarios of a robust run) only ``ceil(S / 2)`` rows
-are drawn and scenario ``2t + 1`` is the mirror ``-z`` of scenario ``2t`` (a standard variance
-reduction: every scenario is still an exact draw of the model, and the errors of different cameras
-stay independent, but a camera's average over its S installations no longer depends on the sign
-luck of its draws, which would otherwise decide the choice among many near-equal candidates). The draws of one candidate therefore do not depend on the other candidates nor on how
+scenario). The in-sample scenarios of a robust run use a randomised quasi-Monte Carlo design
+instead (``design="sobol"``): candidate j's S scenarios are the first S points of a scrambled Sobol
+sequence in 6 dimensions (scipy.stats.qmc, scrambled from the same stream) mapped to normals by
+the inverse normal CDF. Each scenario is still an exact draw of the model and the errors of
+different cameras stay independent (each candidate has its own scramble), but a camera's average
+over its S installations is far less noisy than with independent draws, and that noise is what the
+optimiser would otherwise exploit among many near-equal candidates (the winner's curse).
+The draws of one candidate therefore do not depend on the other candidates nor on how
 many there are, every candidate is perturbed independently of the others in each scenario, and a
 camera shared by two systems is perturbed identically in both (common random numbers). A different
 ``stream`` (the run's in-sample scenarios use 2, the out-of-sample check 3) gives fresh scenarios.
@@ -30,10 +33,12 @@ from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.special import ndtri
+from scipy.stats import qmc
 
 from camplace.sampling.candidates import CandidateSet
 
-__all__ = ["IN_SAMPLE_STREAM", "OUT_OF_SAMPLE_STREAM", "pose_draws", "perturb_poses"]
+__all__ = ["DESIGNS", "IN_SAMPLE_STREAM", "OUT_OF_SAMPLE_STREAM", "pose_draws", "perturb_poses"]
 
 #: ``spawn_key`` stream of the scenarios a robust run optimises over (0 and 1 are the candidate and
 #: point streams of :func:`camplace.pipeline.stage_seeds`).
@@ -42,8 +47,11 @@ IN_SAMPLE_STREAM = 2
 OUT_OF_SAMPLE_STREAM = 3
 
 
+DESIGNS = ("iid", "sobol")
+
+
 def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int = IN_SAMPLE_STREAM,
-               antithetic: bool = False) -> np.ndarray:
+               design: str = "iid") -> np.ndarray:
     """Standard normal draws of the pose errors of some candidates.
 
     Parameters
@@ -57,8 +65,8 @@ def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int
         S, the installations drawn per candidate.
     stream : int
         Which family of scenarios (:data:`IN_SAMPLE_STREAM`, :data:`OUT_OF_SAMPLE_STREAM`).
-    antithetic : bool
-        Scenario ``2t + 1`` is ``-`` scenario ``2t``.
+    design : {"iid", "sobol"}
+        Independent normals, or a scrambled Sobol design per candidate (see the module docstring).
 
     Returns
     -------
@@ -69,12 +77,14 @@ def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int
     out = np.empty((len(idx), int(scenarios), 6), dtype=np.float64)
     for t, j in enumerate(idx):
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(stream), j)))
-        if antithetic:
-            half = rng.standard_normal(((int(scenarios) + 1) // 2, 6))
-            out[t, 0::2] = half
-            out[t, 1::2] = -half[: int(scenarios) // 2]
-        else:
+        if design == "sobol":
+            m = max(0, math.ceil(math.log2(max(1, int(scenarios)))))
+            u = qmc.Sobol(d=6, scramble=True, seed=rng).random_base2(m)[: int(scenarios)]
+            out[t] = ndtri(np.clip(u, 1e-12, 1.0 - 1e-12))
+        elif design == "iid":
             out[t] = rng.standard_normal((int(scenarios), 6))
+        else:
+            raise ValueError(f"unknown design {design!r} (use one of {', '.join(DESIGNS)})")
     return out
 
 
@@ -87,7 +97,7 @@ def perturb_poses(
     *,
     seed: int,
     stream: int = IN_SAMPLE_STREAM,
-    antithetic: bool = False,
+    design: str = "iid",
 ) -> CandidateSet:
     """The installed poses of some candidates in S sampled installations.
 
@@ -104,8 +114,8 @@ def perturb_poses(
         component (degrees).
     seed, stream : int
         See :func:`pose_draws`.
-    antithetic : bool
-        Mirrored scenario pairs (see :func:`pose_draws`).
+    design : {"iid", "sobol"}
+        See :func:`pose_draws`.
 
     Returns
     -------
@@ -115,7 +125,7 @@ def perturb_poses(
     """
     idx = np.arange(len(cands)) if candidates is None else np.asarray(list(candidates), dtype=np.int64)
     c, s_count = len(idx), int(scenarios)
-    z = pose_draws(seed, idx, s_count, stream, antithetic)  # (c, S, 6)
+    z = pose_draws(seed, idx, s_count, stream, design)  # (c, S, 6)
     z = np.swapaxes(z, 0, 1)  # (S, c, 6): scenario-major
     pos0 = cands.positions[idx]
     rot0 = cands.rotations[idx]
