@@ -15,8 +15,9 @@ Draws: candidate ``j`` has its own stream ``SeedSequence(seed, spawn_key=(stream
 its ``S`` scenarios take ``(S, 6)`` standard normals (3 position, then 3 rotation numbers per
 scenario). The in-sample scenarios of a robust run use a randomised quasi-Monte Carlo design
 instead (``design="sobol"``): candidate j's S scenarios are the first S points of a scrambled Sobol
-sequence in 6 dimensions (scipy.stats.qmc, scrambled from the same stream) mapped to normals by
-the inverse normal CDF. Each scenario is still an exact draw of the model and the errors of
+sequence in 6 dimensions (scipy.stats.qmc, scrambled from the same stream) in a random order of
+its own, mapped to normals by the inverse normal CDF. (Without the shuffle the scrambles of one
+base sequence agree on leading digits point by point, which would pair the cameras' errors.) Each scenario is still an exact draw of the model and the errors of
 different cameras stay independent (each candidate has its own scramble), but a camera's average
 over its S installations is far less noisy than with independent draws, and that noise is what the
 optimiser would otherwise exploit among many near-equal candidates (the winner's curse).
@@ -80,7 +81,9 @@ def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int
         if design == "sobol":
             m = max(0, math.ceil(math.log2(max(1, int(scenarios)))))
             u = qmc.Sobol(d=6, scramble=True, seed=rng).random_base2(m)[: int(scenarios)]
-            out[t] = ndtri(np.clip(u, 1e-12, 1.0 - 1e-12))
+            # scrambles of one base sequence share its leading digits point by point: shuffled per
+            # candidate, so that the cameras of one scenario are paired at random (independent)
+            out[t] = ndtri(np.clip(u[rng.permutation(len(u))], 1e-12, 1.0 - 1e-12))
         elif design == "iid":
             out[t] = rng.standard_normal((int(scenarios), 6))
         else:
