@@ -378,3 +378,25 @@ def test_scenarios_are_physical_installations() -> None:
         actual = perturb_camera(cam, phys, rng)
         assert np.allclose(actual.position, out.positions[j], atol=1e-12)
         assert np.allclose(actual.rotation, out.rotations[j], atol=1e-12)
+
+
+@pytest.mark.parametrize("mode", ["maxcover", "multiview"])
+def test_p10_swap_search_ends_in_a_swap_local_optimum(mode) -> None:
+    from camplace.solver.robust_p10 import _swap_search
+
+    rng = np.random.default_rng(7)
+    m, n, S, k = 15, 12, 10, 3
+    stacked = sp.random(S * m, n, density=0.3, random_state=rng, format="csr", dtype=np.float32)
+    w = rng.uniform(0.1, 1.0, m)
+
+    def p10(sel):
+        return order_p10(scenario_values(stacked, w, S, sel, mode=mode, views=2))
+
+    start = (0, 1, 2)
+    sel, value, _ = _swap_search(stacked, w, S, start, mode=mode, views=2, fixed=set(), banned=np.zeros(n, bool),
+                                 conflicts=None, deadline=None)
+    assert value == pytest.approx(p10(sel), rel=1e-12) and value >= p10(start) - 1e-12
+    for out in sel:
+        for j in set(range(n)) - set(sel):
+            swapped = sorted(set(sel) - {out} | {j})
+            assert p10(swapped) <= value + 1e-9
