@@ -100,8 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in _verb_modules():
         COMMANDS.update(module.register(sub, _add_run_options))
-    add_robust_options(sub.choices["solve"])
-    COMMANDS["solve"] = wrap_solve(COMMANDS["solve"])
+    if "solve" in COMMANDS and "solve" in sub.choices:
+        add_robust_options(sub.choices["solve"])
+        COMMANDS["solve"] = wrap_solve(COMMANDS["solve"])
     return parser
 
 
