@@ -4,6 +4,7 @@ Run from the repository root::
 
     PYTHONPATH=src python benchmarks/robust.py [--candidates 1000] [--points 5000] [--scenarios 16]
         [--eval-scenarios 128] [--pose-error 0.1,5] [--time-limit 120] [--only bunker|volcano] [--json FILE]
+        [--memory-budget-gb 6]
 
 Cases: comet-67p-bunker multiview (views = 2, k = 3) and volcanic-eruption maxcover (k = 3), each
 with position sigma 0.10 m per axis and rotation sigma 5 degrees (the ``[physical]`` model).
@@ -40,7 +41,7 @@ def one_case(name: str, args: argparse.Namespace) -> dict:
     t0 = time.perf_counter()
     sol = run(
         instance, candidates=args.candidates, points=args.points, mode=case["mode"], views=case["views"],
-        time_limit_s=args.time_limit, robust=spec, cache=not args.no_cache,
+        time_limit_s=args.time_limit, robust=spec, cache=not args.no_cache, memory_budget_gb=args.memory_budget_gb,
     )
     wall = time.perf_counter() - t0
     r = sol.robust
@@ -87,6 +88,8 @@ def main() -> None:
     ap.add_argument("--time-limit", type=float, default=120.0, dest="time_limit")
     ap.add_argument("--only", choices=sorted(CASES), default=None)
     ap.add_argument("--no-cache", action="store_true", dest="no_cache")
+    ap.add_argument("--memory-budget-gb", type=float, default=6.0, dest="memory_budget_gb",
+                    help="stop (one line) before a matrix would need more (default 6)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     records = []
