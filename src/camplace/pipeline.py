@@ -88,8 +88,8 @@ class Solution:
         Every option that shaped the answer, as asked for (:func:`run_options`): ``mode``, ``k``,
         ``views``, ``min_angle_deg``, ``required_fraction``, ``fixed``, ``forbidden``,
         ``min_distance_m``, ``engine``, ``time_limit_s``, ``event_mode``, ``sampler``, ``seed``,
-        ``candidates``, ``points``, ``orientations``. With ``points.csv`` and the matrix they
-        recompute the objective from the folder alone.
+        ``candidates``, ``points``, ``orientations`` (and ``robust``, the settings of a robust run).
+        With ``points.csv`` and the matrix they recompute the objective from the folder alone.
     robust : dict or None
         Robust runs (``[robust]``, ``--pose-error``): settings, the sampled objective of the chosen
         system and of the nominal optimum, and both on fresh installations
