@@ -14,6 +14,7 @@ from pathlib import Path
 
 from camplace.errors import CamplaceError
 from camplace.names import ENGINES, EVENT_MODES, MODES, SAMPLERS
+from camplace.robust_cli import add_robust_options, print_oos, spec_from_args, wrap_solve
 
 MATRIX_FORMATS = ("cpm", "npz")  # camplace.visibility.store.MATRIX_FORMATS (not imported: startup time)
 
@@ -87,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     from camplace.plan.cli import add_agent_options
 
     add_agent_options(p, for_run=True)
+    add_robust_options(p)
 
     p = sub.add_parser("visibility", help="compute the visibility matrix of given candidates")
     p.add_argument("instance", help="a built-in instance name or an instance .toml file")
@@ -109,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in _verb_modules():
         COMMANDS.update(module.register(sub, _add_run_options))
+    if "solve" in COMMANDS and "solve" in sub.choices:
+        add_robust_options(sub.choices["solve"])
+        COMMANDS["solve"] = wrap_solve(COMMANDS["solve"])
     return parser
 
 
@@ -157,11 +162,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
         min_distance_m=args.min_distance,
         required_fraction=args.required_fraction,
         matrix_format=args.matrix_format,
+        robust=spec_from_args(instance, args),
     )
     print(
         f"{sol.status}: {sol.k} cameras observe {100 * sol.coverage_fraction:.2f}% of the event "
         f"({sol.mode} objective {sol.objective:.6f}, bound {sol.bound:.6f}, gap {100 * sol.gap:.3f}%, engine {sol.engine})"
     )
+    if sol.robust is not None:
+        print_oos(sol.robust)
     for note in sol.warnings:
         print(f"warning: {note}", file=sys.stderr)
     for cam in sol.cameras:

@@ -15,3 +15,5 @@ SETCOVER_ENGINES: tuple[str, ...] = ("auto", "mip", "cpsat")
 SAMPLERS: tuple[str, ...] = ("chaotic", "uniform", "sobol")
 #: Row weightings over the event's frames (:func:`camplace.pipeline.event_weights`).
 EVENT_MODES: tuple[str, ...] = ("all", "peak")
+#: Robust objectives over sampled installations (``[robust] objective``, ``--robust-objective``).
+ROBUST_OBJECTIVES: tuple[str, ...] = ("mean", "p10")

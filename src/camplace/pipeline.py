@@ -88,8 +88,13 @@ class Solution:
         Every option that shaped the answer, as asked for (:func:`run_options`): ``mode``, ``k``,
         ``views``, ``min_angle_deg``, ``required_fraction``, ``fixed``, ``forbidden``,
         ``min_distance_m``, ``engine``, ``time_limit_s``, ``event_mode``, ``sampler``, ``seed``,
-        ``candidates``, ``points``, ``orientations``. With ``points.csv`` and the matrix they
-        recompute the objective from the folder alone.
+        ``candidates``, ``points``, ``orientations`` (and ``robust``, the settings of a robust run).
+        With ``points.csv`` and the matrix they recompute the objective from the folder alone.
+    robust : dict or None
+        Robust runs (``[robust]``, ``--pose-error``): settings, the sampled objective of the chosen
+        system and of the nominal optimum, and both on fresh installations
+        (:func:`camplace.robust.robust_stage`). ``objective``/``bound``/``gap`` are then those of the
+        robust objective; the coverage figures are the chosen system's at the nominal poses.
     candidates, visibility : optional
         The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
     """
@@ -118,6 +123,7 @@ class Solution:
     peak_coverage: float = 0.0
     points_requested: int = 0
     options: dict = field(default_factory=dict)
+    robust: dict | None = None
     candidates: CandidateSet | None = field(default=None, repr=False)
     visibility: VisibilityMatrix | None = field(default=None, repr=False)
 
@@ -153,6 +159,7 @@ class Solution:
             "peak_coverage": self.peak_coverage,
             "points_requested": self.points_requested,
             "options": self.options,
+            **({"robust": self.robust} if self.robust is not None else {}),
         }
 
     def save(self, outdir: str | Path) -> None:
@@ -514,6 +521,7 @@ def run(
     min_distance_m: float | None = None,
     required_fraction: float = 1.0,
     matrix_format: str = "cpm",
+    robust=None,
 ) -> Solution:
     """Run the whole pipeline on an instance.
 
@@ -551,6 +559,9 @@ def run(
     matrix_format : {"cpm", "npz"}
         The matrix file in ``outdir``: ``visibility.cpm`` (:mod:`camplace.visibility.store`) or
         ``visibility.npz`` (``scipy.sparse.load_npz``).
+    robust : RobustSpec or None
+        Optimise against installation error (:mod:`camplace.robust`); default: the instance's
+        ``[robust]`` table, if any.
 
     Returns
     -------
@@ -595,6 +606,12 @@ def run(
         forbidden=forbidden, min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
         event_mode=event_mode, sampler=sampler, seed=seed, candidates=n_cand, points=n_points, orientations=orientations,
     )
+    robust = instance.robust if robust is None else robust
+    if robust is not None:
+        from camplace.robust import check_request, spec_record
+
+        check_request(robust, mode, min_angle_deg, engine)
+        options["robust"] = spec_record(robust)
     timings: dict[str, float] = {}
     cand_seed, _ = stage_seeds(seed)
 
@@ -626,6 +643,14 @@ def run(
             memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
         )
     timings["solve"] = time.perf_counter() - t0
+    robust_record = None
+    if robust is not None:
+        from camplace.robust import robust_stage
+
+        res, robust_record = robust_stage(
+            instance, cands, pts, vis.matrix, solve_w, res, robust, options, seed=seed, cache=cache, reporter=reporter,
+            memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30), timings=timings,
+        )
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
     k = len(res.selected) if (mode == "setcover" or fixed) else k
 
@@ -665,6 +690,7 @@ def run(
         peak_coverage=float(pts.weight[observed & in_peak].sum() / max(pts.weight[in_peak].sum(), 1e-300)),
         points_requested=n_points,
         options=options,
+        robust=robust_record,
         candidates=cands,
         visibility=vis,
     )

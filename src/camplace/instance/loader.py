@@ -26,6 +26,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 from camplace._io import write_bytes_atomic, write_text_atomic
 from camplace.errors import InstanceError
 from camplace.instance import procedural
+from camplace.names import ROBUST_OBJECTIVES
 from camplace.instance.schema import (
     SAMPLERS,
     SCHEMA_VERSION,
@@ -40,6 +41,7 @@ from camplace.instance.schema import (
     AgentsSpec,
     Pose,
     QualitySpec,
+    RobustSpec,
     RunDefaults,
     Volume,
 )
@@ -56,10 +58,12 @@ MAX_POINTS = 10_000_000
 
 _TOP_KEYS = (
     "schema_version", "name", "k", "run", "camera", "volume", "light", "quality", "target", "occluders", "frames",
-    "physical", "transform", "agents",
+    "physical", "transform", "agents", "robust",
 )
 _RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s", "orientations")
 _AGENTS_KEYS = ("phases", "phase_starts_s", "speed_m_s", "start_positions_m", "start_time_s")
+_ROBUST_KEYS = ("position_sigma_m", "rotation_sigma_deg", "scenarios", "objective", "eval_scenarios")
+MAX_SCENARIOS = 4096
 _QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light")
 _EMITTER_KEYS = ("positions_m", "weights", "file")
 MAX_EMITTERS = 10_000_000
@@ -554,6 +558,7 @@ class _Parser:
             physical=self.passthrough(data, "physical"),
             transform=self.passthrough(data, "transform"),
             agents=self.agents(self.table(data, "agents", "", required=False), k, len(frames)),
+            robust=self.robust(data),
         )
 
     def passthrough(self, data: dict, key: str) -> dict | None:
@@ -615,6 +620,24 @@ class _Parser:
                 raise self.error("agents.start_time_s", f"must be before the first phase start {starts[0]:g} s, got {start_time:g}",
                                  "give an earlier start time")
         return AgentsSpec(phases=phases, phase_starts_s=starts, speed_m_s=speed, start_positions_m=start_pos, start_time_s=start_time)
+
+    def robust(self, data: dict) -> RobustSpec | None:
+        """The ``[robust]`` table (None when absent)."""
+        table = self.table(data, "robust", "", required=False)
+        if table is None:
+            return None
+        self.check_keys(table, _ROBUST_KEYS, "robust")
+        d = RobustSpec()
+        objective = self.string(table, "objective", "robust", default=d.objective)
+        if objective not in ROBUST_OBJECTIVES:
+            raise self.error("robust.objective", f"unknown objective {_show(objective)}", f"use one of {', '.join(ROBUST_OBJECTIVES)}")
+        return RobustSpec(
+            position_sigma_m=self.number(table, "position_sigma_m", "robust", default=d.position_sigma_m, ge=0.0, unit="metres"),
+            rotation_sigma_deg=self.number(table, "rotation_sigma_deg", "robust", default=d.rotation_sigma_deg, ge=0.0, le=90.0, unit="degrees"),
+            scenarios=self.integer(table, "scenarios", "robust", default=d.scenarios, ge=1, le=MAX_SCENARIOS),
+            objective=objective,
+            eval_scenarios=self.integer(table, "eval_scenarios", "robust", default=d.eval_scenarios, ge=1, le=MAX_SCENARIOS),
+        )
 
     def quality(self, table: dict) -> QualitySpec:
         self.check_keys(table, _QUALITY_KEYS, "quality")
@@ -962,6 +985,12 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             "required_px_per_m": float(q.required_px_per_m),
             "max_incidence_deg": float(q.max_incidence_deg),
             "require_light": bool(q.require_light),
+        }
+    if instance.robust is not None:
+        r = instance.robust
+        data["robust"] = {
+            "position_sigma_m": float(r.position_sigma_m), "rotation_sigma_deg": float(r.rotation_sigma_deg),
+            "scenarios": int(r.scenarios), "objective": r.objective, "eval_scenarios": int(r.eval_scenarios),
         }
     for key in ("physical", "transform"):
         table = getattr(instance, key)

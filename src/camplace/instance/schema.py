@@ -320,6 +320,45 @@ class AgentsSpec:
     start_time_s: float | None = None
 
 
+from camplace.names import ROBUST_OBJECTIVES  # noqa: E402  (one list of the names)
+
+
+@dataclass(frozen=True)
+class RobustSpec:
+    """Installation (pose) error the placement is optimised against (the ``[robust]`` table).
+
+    Each candidate gets ``scenarios`` perturbed poses: position ``+ N(0, position_sigma_m^2 I)``
+    and rotation ``R @ Exp(w)`` with ``w ~ N(0, rotation_sigma_deg^2 I)`` (a rotation vector in the
+    camera frame), the same model as ``[physical]`` (see :mod:`camplace.sampling.perturb`).
+
+    Attributes
+    ----------
+    position_sigma_m : float
+        Standard deviation of the placement error per axis, metres (>= 0).
+    rotation_sigma_deg : float
+        Standard deviation of each rotation-vector component, degrees (>= 0).
+    scenarios : int
+        Sampled installations S the objective averages over (>= 1).
+    objective : {"mean", "p10"}
+        ``mean``: expected objective over the scenarios; ``p10``: the value reached in at least
+        90 % of them (an order statistic, see :func:`camplace.robust.p10`).
+    eval_scenarios : int
+        Fresh installations (another seed) on which the chosen and the nominal systems are
+        compared out of sample.
+    """
+
+    position_sigma_m: float = 0.0
+    rotation_sigma_deg: float = 0.0
+    scenarios: int = 32
+    objective: str = "mean"
+    eval_scenarios: int = 128
+
+    @property
+    def zero(self) -> bool:
+        """True when there is no pose error (every scenario is the nominal installation)."""
+        return self.position_sigma_m == 0.0 and self.rotation_sigma_deg == 0.0
+
+
 @dataclass(frozen=True, eq=False)
 class Instance:
     """A complete camera-placement problem.
@@ -343,6 +382,8 @@ class Instance:
     physical : dict or None
         The validated ``[physical]`` table: the emulated physical camera used by validation when
         there are no photographs (see :mod:`camplace.validation.physical`).
+    robust : RobustSpec or None
+        The ``[robust]`` table (None when absent): pose error the placement is optimised against.
     transform : dict or None
         The validated ``[transform]`` table: simulation-to-lab coordinate transform used by
         ``camplace export`` (see :mod:`camplace.validation.transform`).
@@ -366,6 +407,7 @@ class Instance:
     physical: dict | None = None
     transform: dict | None = None
     agents: AgentsSpec | None = None
+    robust: RobustSpec | None = None
 
     def frame_weights(self) -> np.ndarray:
         """(n_frames,) float64 frame likelihoods normalised to sum 1 (uniform if all are 0)."""

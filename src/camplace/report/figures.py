@@ -21,6 +21,7 @@ __all__ = [
     "cones_png",
     "legacy_scatter_png",
     "light_curves_png",
+    "robust_png",
 ]
 
 SAMPLER_COLOURS = {"chaotic": "#d62728", "sobol": "#2ca02c", "uniform": "#1f77b4"}
@@ -87,6 +88,36 @@ def histogram_png(values: np.ndarray, optimised: float, title: str, *, run_objec
     ax.set_ylabel("systems")
     ax.set_title(plain(title), fontsize=10)
     ax.legend(fontsize=8, loc="upper left")
+    return _png(fig)
+
+
+def robust_png(values: dict[str, Sequence[float]], title: str, *, xlabel: str = "objective (observed weight)") -> bytes:
+    """Overlaid histograms of systems' objectives over sampled installations, means and 10th percentiles marked.
+
+    Parameters
+    ----------
+    values : dict of str to (S,) float64
+        Per system (``robust``, ``nominal``) its objective in each installation.
+    title : str
+    """
+    from camplace.solver.robust_p10 import order_p10
+
+    colours = {"robust": OPT_COLOUR, "nominal": "#1f77b4"}
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in values.items() if len(v)}
+    fig = _figure(6.4, 3.4)
+    ax = fig.add_subplot()
+    allv = np.concatenate(list(arrays.values())) if arrays else np.zeros(1)
+    lo, hi = float(allv.min()), float(allv.max())
+    bins = np.linspace(lo, hi + 1e-12, 31) if hi > lo else 10
+    for name, v in arrays.items():
+        c = colours.get(name, "#7f7f7f")
+        ax.hist(v, bins=bins, color=c, alpha=0.45, edgecolor="white", label=f"{name} system ({len(v)} installations)")
+        ax.axvline(float(v.mean()), color=c, lw=2.0, label=f"{name} mean {v.mean():.4f}")
+        ax.axvline(order_p10(v), color=c, lw=1.4, ls="--", label=f"{name} 10th percentile {order_p10(v):.4f}")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("installations")
+    ax.set_title(plain(title), fontsize=10)
+    ax.legend(fontsize=7, loc="upper left")
     return _png(fig)
 
 

@@ -1,0 +1,135 @@
+"""Command-line options of robust placement (``run`` and ``solve``: ``--pose-error``, ``--scenarios``,
+``--robust-objective``) and the robust ``solve`` of a stored run.
+
+Imports nothing heavy at module level.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Callable
+
+from camplace.errors import CamplaceError
+from camplace.names import ROBUST_OBJECTIVES
+
+EXIT_OK = 0
+EXIT_NO_SOLUTION = 1
+
+
+def add_robust_options(p: argparse.ArgumentParser) -> None:
+    """The robust options of ``run`` and ``solve``."""
+    p.add_argument("--pose-error", default=None, dest="pose_error", metavar="POS_M,ROT_DEG",
+                   help="optimise for cameras installed off by this much: position sigma per axis (m) and rotation "
+                        "sigma (deg), e.g. 0.1,5 (default: the instance's [robust] table; 0,0 = nominal)")
+    p.add_argument("--scenarios", type=int, default=None, help="sampled installations per candidate (default 32)")
+    p.add_argument("--robust-objective", choices=ROBUST_OBJECTIVES, default=None, dest="robust_objective",
+                   help="mean: expected objective (default); p10: the value reached in 90%% of installations")
+
+
+def spec_from_args(instance, args: argparse.Namespace):
+    """The RobustSpec of a run (instance table overridden by the options), or None."""
+    from camplace.robust import make_spec
+
+    return make_spec(getattr(instance, "robust", None), args.pose_error, args.scenarios, args.robust_objective)
+
+
+def wants_robust(args: argparse.Namespace) -> bool:
+    """True when a ``solve`` command line asks for a robust solve."""
+    return any(getattr(args, name, None) is not None for name in ("pose_error", "scenarios", "robust_objective"))
+
+
+def wrap_solve(handler: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """``solve``: the robust solve when a robust option is given, else ``handler``."""
+
+    def run(args: argparse.Namespace) -> int:
+        return cmd_solve_robust(args) if wants_robust(args) else handler(args)
+
+    return run
+
+
+def cmd_solve_robust(args: argparse.Namespace) -> int:
+    """``camplace solve RUN_DIR --pose-error P,R``: robust re-solve of a stored run (needs its folder)."""
+    import numpy as np
+
+    from camplace._io import write_json_atomic
+    from camplace.instance import load_instance
+    from camplace.robust import robust_stage
+    from camplace.sampling import CandidateSet
+    from camplace.solver.cli import _run_defaults, parse_index_list
+    from camplace.solver.modes import solve
+    from camplace.visibility import VisibilityMatrix
+
+    folder: Path = args.source if args.source.is_dir() else args.source.parent
+    for name in ("instance.toml", "candidates.csv", "points.csv", "visibility.npz"):
+        if not (folder / name).is_file():
+            raise CamplaceError(f"{folder / name}: missing (a robust solve re-casts rays: give the -o folder of 'camplace run')")
+    instance = load_instance(folder / "instance.toml")
+    spec = spec_from_args(instance, args)
+    run = _run_defaults(folder)
+    k = args.k if args.k is not None else run.get("k")
+    if k is None:
+        raise CamplaceError(f"--k: required (no solution.json in {folder} to take it from)")
+    event_mode = args.event_mode or run.get("event_mode", "all")
+    cands = CandidateSet.load(folder / "candidates.csv")
+    vis = VisibilityMatrix.load(folder)
+    pts = vis.points
+    weights = pts.weight
+    if event_mode == "peak":
+        from camplace.pipeline import event_weights
+
+        weights = event_weights(pts, instance, "peak")
+    seed = _run_seed(folder, instance.defaults.seed)
+    fixed, forbidden = parse_index_list(args.fixed, "fixed"), parse_index_list(args.forbidden, "forbidden")
+    options = {
+        "mode": args.mode, "k": int(k), "views": args.views if args.mode == "multiview" else None,
+        "min_angle_deg": args.min_angle, "required_fraction": None, "fixed": sorted(fixed), "forbidden": sorted(forbidden),
+        "min_distance_m": args.min_distance, "engine": args.engine, "time_limit_s": args.time_limit,
+        "event_mode": event_mode, "source": str(args.source),
+    }
+    from camplace.robust import check_request, spec_record
+
+    check_request(spec, args.mode, args.min_angle, args.engine)
+    options["robust"] = spec_record(spec)
+    geometric = args.min_distance is not None or args.min_angle is not None
+    nominal = solve(
+        vis.matrix, weights, int(k), mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
+        positions=cands.positions if geometric else None, points=pts.positions if args.min_angle is not None else None,
+        fixed=fixed, forbidden=forbidden, min_distance_m=args.min_distance, engine=args.engine, time_limit_s=args.time_limit,
+    )
+    res, record = robust_stage(instance, cands, pts, vis.matrix, np.asarray(weights, dtype=np.float64), nominal, spec, options,
+                               seed=seed)
+    out = res.to_dict()
+    out["options"] = options
+    out["robust"] = record
+    write_json_atomic(args.out, out)
+    _print_summary(res, record)
+    print(f"wrote {args.out}")
+    return EXIT_OK if res.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
+
+
+def _run_seed(folder: Path, default: int) -> int:
+    """The seed of the run in ``folder`` (its solution.json), else ``default``."""
+    import json
+
+    try:
+        return int(json.loads((folder / "solution.json").read_text()).get("seed", default))
+    except (OSError, ValueError, TypeError):
+        return int(default)
+
+
+def _print_summary(res, record: dict) -> None:
+    s = record["settings"]
+    print(f"{res.status}: robust {s['objective']} objective {res.objective:.6f}, bound {res.bound:.6g}, gap {100 * res.gap:.3f}%, "
+          f"engine {res.engine} (pose error {s['position_sigma_m']:g} m, {s['rotation_sigma_deg']:g} deg, {s['scenarios']} scenarios)")
+    print(f"  cameras: {', '.join(str(j) for j in res.selected)}")
+    print_oos(record)
+
+
+def print_oos(record: dict) -> None:
+    """Two lines: both systems' objective on fresh installations."""
+    oos = record.get("out_of_sample") or {}
+    n = (record.get("settings") or {}).get("eval_scenarios")
+    for name in ("robust", "nominal"):
+        if name in oos:
+            print(f"  {name:>7} system on {n} fresh installations: mean {oos[name]['mean']:.6f}, 10th percentile {oos[name]['p10']:.6f}")
