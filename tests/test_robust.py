@@ -400,3 +400,22 @@ def test_p10_swap_search_ends_in_a_swap_local_optimum(mode) -> None:
         for j in set(range(n)) - set(sel):
             swapped = sorted(set(sel) - {out} | {j})
             assert p10(swapped) <= value + 1e-9
+
+
+def test_instance_table_drives_the_run_and_the_report(tmp_path) -> None:
+    """[robust] in the instance makes a robust run by default; the report shows both distributions."""
+    pytest.importorskip("matplotlib")
+    from camplace.report.build import write_report
+
+    inst = parse_instance(_robust_data(position_sigma_m=0.1, rotation_sigma_deg=5.0, scenarios=4, eval_scenarios=8), "x.toml")
+    out = tmp_path / "run"
+    sol = run(inst, candidates=30, points=300, k=2, time_limit_s=60, outdir=out)
+    assert sol.robust["settings"] == {"position_sigma_m": 0.1, "rotation_sigma_deg": 5.0, "scenarios": 4,
+                                      "objective": "mean", "eval_scenarios": 8}
+    html = write_report(out, sampler_study=False).read_text()
+    assert "Installation error" in html
+    section = html[html.index("id='robust'"):]
+    section = section[:section.index("<h2", 5)] if "<h2" in section[5:] else section
+    assert "data:image/png;base64," in section
+    for name in ("robust", "nominal"):
+        assert f"{sol.robust['out_of_sample'][name]['mean']:.6f}" in section
