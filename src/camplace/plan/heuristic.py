@@ -151,7 +151,8 @@ def column_gains(problem: PlanProblem, p: int, others: Sequence[int]) -> tuple[f
         base = float(w[count >= views].sum())
         contrib = np.repeat(np.where(count == views - 1, w, 0.0), rowlen)
         extra = np.repeat(np.where(count < views - 1, w * (count + 1) / views, 0.0), rowlen)
-    gain = np.bincount(q.indices, weights=contrib, minlength=n)
+    # float64 even for a phase without entries (np.bincount of nothing returns integers)
+    gain = np.bincount(q.indices, weights=contrib, minlength=n).astype(np.float64)
     score = gain if extra is None else gain + _TIE * np.bincount(q.indices, weights=extra, minlength=n)
     if cols:
         gain[cols] = -np.inf
