@@ -668,7 +668,8 @@ def _cover_modes(
         name = "exact" if (exact_ok and k <= EXACT_MAX_K and (mode == "maxcover" or expanded is not None)) or (
             (multiview_ok or angle_ok) and k <= EXACT_MAX_K) else "mip"
 
-    if name == "exact" and angle_ok:
+    angle_tried = name == "exact" and angle_ok
+    if angle_tried:
         got = _angle_engine(q, w, k, views, min_angle_deg, pos, pts, fixed_t, free_cols, engine, t0, time_limit_s,
                             value, stats)
         if got is not None:
@@ -730,7 +731,7 @@ def _cover_modes(
             if engine == name:
                 raise CamplaceError(f"{exc.message}; use fewer candidates / points"
                                     + (", or engine exact" if angle_ok else ""))
-            if angle_ok:  # auto with k > 4: the angle engine still gives a valid bound at the time limit
+            if angle_ok and not angle_tried:  # auto, k > 4: the angle engine gives a valid bound at the limit
                 memory_fallback(exc, engine, name, stats, "falling back to the exact angle engine")
                 got = _angle_engine(q, w, k, views, min_angle_deg, pos, pts, fixed_t, free_cols, engine, t0,
                                     time_limit_s, value, stats)
