@@ -61,9 +61,11 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     from camplace.visibility import VisibilityMatrix
 
     folder: Path = args.source if args.source.is_dir() else args.source.parent
-    for name in ("instance.toml", "candidates.csv", "points.csv", "visibility.npz"):
+    for name in ("instance.toml", "candidates.csv", "points.csv"):
         if not (folder / name).is_file():
             raise CamplaceError(f"{folder / name}: missing (a robust solve re-casts rays: give the -o folder of 'camplace run')")
+    if not ((folder / "visibility.cpm").is_file() or (folder / "visibility.npz").is_file()):
+        raise CamplaceError(f"{folder}: no visibility.cpm or visibility.npz (a robust solve re-casts rays: give the -o folder of 'camplace run')")
     instance = load_instance(folder / "instance.toml")
     spec = spec_from_args(instance, args)
     run = _run_defaults(folder)
