@@ -33,13 +33,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from camplace.solver._bitkernels import _ctz
-
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 # ist slots
-IT, NSEL, NUNC, LADD, LREM, BEST_IT, IMPROVED, CLOCK, WORK, BEST_WORK = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
-N_IST = 10
+IT, NSEL, NUNC, LADD, LREM, BEST_IT, IMPROVED, WORK, BEST_WORK = 0, 1, 2, 3, 4, 5, 6, 7, 8
+N_IST = 9
 # fst slots
 COST, COVW, BEST_COST = 0, 1, 2
 N_FST = 3
@@ -212,7 +210,7 @@ def _unc_del(i, unc, uncpos, ist):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc,
+def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
             uncpos, ist, fst):  # pragma: no cover - compiled
     """Put column ``j`` into the solution and update every score incrementally."""
     x[j] = 1
@@ -222,12 +220,9 @@ def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stam
     fst[COST] += cost[j]
     score[j] = -score[j]
     stamp[j] = ist[IT]
-    ist[CLOCK] += 1
     ist[WORK] += cptr[j + 1] - cptr[j]
-    clock = ist[CLOCK]
     for p in range(cptr[j], cptr[j + 1]):
         i = crow[p]
-        rt[i] = clock
         c = cov[i]
         if c == 0:
             fst[COVW] += roww[i]
@@ -244,7 +239,7 @@ def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stam
 
 
 @numba.njit(**_JIT)
-def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc,
+def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
                uncpos, ist, fst):  # pragma: no cover - compiled
     """Take column ``j`` out of the solution and update every score incrementally."""
     x[j] = 0
@@ -257,13 +252,9 @@ def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, s
     fst[COST] -= cost[j]
     score[j] = -score[j]
     stamp[j] = ist[IT]
-    ist[CLOCK] += 1
     ist[WORK] += cptr[j + 1] - cptr[j]
-    clock = ist[CLOCK]
-    rem[j] = clock
     for p in range(cptr[j], cptr[j + 1]):
         i = crow[p]
-        rt[i] = clock
         c = cov[i] - 1
         cov[i] = c
         csum[i] -= j
@@ -298,50 +289,25 @@ def _pick_remove(tabu, cost, score, stamp, sel, ist):  # pragma: no cover - comp
 
 
 @numba.njit(**_JIT)
-def _can_add(k, cptr, crow, rem, rt):  # pragma: no cover - compiled
-    """Configuration checking: ``k`` may come back once a column sharing a row with it has
-    changed since ``k`` was removed (a row's ``rt`` is the clock of its last change)."""
-    if rem[k] < 0:
-        return True
-    for p in range(cptr[k], cptr[k + 1]):
-        if rt[crow[p]] > rem[k]:
-            return True
-    return False
-
-
-@numba.njit(**_JIT)
-def _pick_add(i, budget, cptr, crow, rptr, rcol, cost, score, stamp, rem, rt):  # pragma: no cover - compiled
+def _pick_add(i, tabu, budget, rptr, rcol, cost, score, stamp, ist):  # pragma: no cover - compiled
     """Column covering row ``i`` with the largest gain per unit cost (ties: the older), among
-    those cheaper than ``budget`` if any, and among those configuration checking allows if any
-    (checked lazily, only for a column that would become the choice)."""
+    those cheaper than ``budget`` if any; ``tabu`` only if it is the only one."""
+    ist[WORK] += rptr[i + 1] - rptr[i]
     best = -1
     br = 0.0
     fits = False
-    cc = False
     for q in range(rptr[i], rptr[i + 1]):
         k = rcol[q]
+        if k == tabu and rptr[i + 1] - rptr[i] > 1:
+            continue
         f = cost[k] < budget
+        if best >= 0 and fits and not f:
+            continue
         r = score[k] / cost[k]
-        if best >= 0:
-            if fits and not f:
-                continue
-            if f == fits:
-                r_better = r > br or (r == br and stamp[k] < stamp[best])
-                if cc and not r_better:
-                    continue
-                ok = _can_add(k, cptr, crow, rem, rt)
-                if cc and not ok:
-                    continue
-                if not cc and not ok and not r_better:
-                    continue
-            else:
-                ok = _can_add(k, cptr, crow, rem, rt)
-        else:
-            ok = _can_add(k, cptr, crow, rem, rt)
-        best = k
-        br = r
-        fits = f
-        cc = ok
+        if best < 0 or (f and not fits) or r > br or (r == br and stamp[k] < stamp[best]):
+            best = k
+            br = r
+            fits = f
     return best
 
 
@@ -362,7 +328,7 @@ def _covered_weight(cov, roww):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def greedy(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc, uncpos,
+def greedy(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
            ist, fst):  # pragma: no cover - compiled
     """Greedy cover from the empty solution (largest penalty gain per unit cost first), then drop
     redundant columns, dearest first. The state must be the empty solution with its scores."""
@@ -379,9 +345,9 @@ def greedy(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
                 br = r
         if best < 0:
             break
-        add_col(best, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc,
+        add_col(best, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
                 uncpos, ist, fst)
-    prune(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc, uncpos, ist, fst)
+    prune(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos, ist, fst)
 
 
 @numba.njit(**_JIT)
@@ -395,7 +361,7 @@ def _unique_weight(j, cptr, crow, cov, roww):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def prune(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc, uncpos,
+def prune(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
           ist, fst):  # pragma: no cover - compiled
     """Remove redundant columns of S, dearest first (ties: the higher index), while S stays
     feasible (full cover: a column is redundant when no row depends on it alone)."""
@@ -428,7 +394,7 @@ def prune(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, sta
         else:
             redundant = _covered_weight(cov, roww) - _unique_weight(j, cptr, crow, cov, roww) >= need
         if redundant:
-            remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos,
+            remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos,
                        unc, uncpos, ist, fst)
 
 
@@ -521,20 +487,21 @@ def _best_swap(i, budget, cptr, crow, rptr, rcol, cost, cov, csum, pw, score, st
 
 
 @numba.njit(**_JIT)
-def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc, uncpos,
-           best, ist, fst, rng, steps, target, stop_it, patience, mode, max_cand):  # pragma: no cover - compiled
-    """Row-weighting local search (RWLS of Gao, Weise and Li 2015, with costs through
-    gain / cost ratios) for ``steps`` iterations.
+def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
+           best, ist, fst, rng, steps, target, stop_it, patience, max_cand):  # pragma: no cover - compiled
+    """Row-weighting local search for ``steps`` iterations (after RWLS of Gao, Weise and Li 2015, with
+    the joint swap move of fontanf/setcoveringsolver and costs).
 
     One iteration: if S is feasible, it becomes the best when cheaper, and its column of smallest
-    loss is removed. Otherwise a swap: remove columns of smallest loss per cost (not the one
-    just added) while S plus the cheapest column would not be cheaper than the best (unicost: one
-    column, as in RWLS), then add the column of largest gain per cost covering a random uncovered
-    row (one that keeps S cheaper than the best if there is one, making room otherwise; one that
-    configuration checking allows if there is one: a removed column comes back only after a
-    column sharing a row with it has changed), and raise by 1 the penalty of every uncovered row (partial
-    covers: of one random uncovered row). Stops early when the best cost reaches ``target`` or the iteration
-    count reaches ``stop_it``.
+    loss per cost is removed. Otherwise, with equal costs: draw a random uncovered row and make
+    the best joint move of :func:`_best_swap` (add a column covering it and remove one, S staying
+    one column smaller than the best). With costs (or when no joint move fits): remove columns of
+    smallest loss per cost (not the one just added) while S plus the cheapest column would not be
+    cheaper than the best, add the column of largest gain per cost covering a random uncovered row
+    (not the one just removed; one that keeps S cheaper than the best if any), and make room for it
+    if needed. Then raise by 1 the penalty of every uncovered row (partial covers: of one random
+    uncovered row). Stops early when the best cost reaches ``target``, the iteration count
+    ``stop_it`` or on patience.
 
     Returns
     -------
@@ -545,8 +512,10 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
         plus the work it took to find it, else 0.
     """
     cmin = np.inf
+    unit = True
     for j in range(cost.shape[0]):
         cmin = min(cmin, cost[j])
+        unit = unit and cost[j] == cost[0]
     ov = np.zeros(cost.shape[0])
     order_buf = np.empty(cost.shape[0])
     for _ in range(steps):
@@ -563,7 +532,7 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
             if ist[NSEL] == 0:
                 return 1  # the empty set is feasible: nothing cheaper exists
             j = _pick_remove(-1, cost, score, stamp, sel, ist)
-            remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos,
+            remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos,
                        unc, uncpos, ist, fst)
             continue
         if ist[NUNC] == 0:  # partial cover, drifted incremental weight: resynchronise
@@ -571,48 +540,45 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
             if fst[COVW] < need:
                 return 3
             continue
-        if mode >= 1:
+        if unit:
+            # unit costs: the best joint move (S keeps one column fewer than the best)
             i = unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))]
             k, j = _best_swap(i, fst[BEST_COST] - tol - fst[COST], cptr, crow, rptr, rcol, cost, cov, csum, pw, score,
                               stamp, sel, ist, ov, order_buf, max_cand)
-            if k >= 0:
-                add_col(k, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos,
-                        unc, uncpos, ist, fst)
-                ist[LADD] = k
-                if j >= 0:
-                    remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel,
-                               selpos, unc, uncpos, ist, fst)
-                    ist[LREM] = j
-                if mode == 1 or j < 0:
-                    for t in range(ist[NUNC]):
-                        _bump(unc[t], rptr, rcol, pw, score, 1.0, ist)
-                else:
-                    for p in range(cptr[j], cptr[j + 1]):
-                        r = crow[p]
-                        if cov[r] == 0:
-                            _bump(r, rptr, rcol, pw, score, max(1.0, 100.0 / (rptr[r + 1] - rptr[r])), ist)
-                continue
-        # make room: remove columns (not the one just added) while even the cheapest column
-        # would not leave S cheaper than the best (unicost: one removal, as in RWLS)
-        while ist[NSEL] > 0 and fst[COST] + cmin >= fst[BEST_COST] - tol:
-            j = _pick_remove(ist[LADD], cost, score, stamp, sel, ist)
-            remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos,
-                       unc, uncpos, ist, fst)
-            ist[LREM] = j
-        i = unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))]
-        k = _pick_add(i, fst[BEST_COST] - tol - fst[COST], cptr, crow, rptr, rcol, cost, score, stamp, rem, rt)
-        while ist[NSEL] > 0 and fst[COST] + cost[k] >= fst[BEST_COST] - tol:
-            j = _pick_remove(ist[LADD], cost, score, stamp, sel, ist)
-            remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos,
-                       unc, uncpos, ist, fst)
-        add_col(k, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, rem, rt, sel, selpos, unc,
-                uncpos, ist, fst)
-        ist[LADD] = k
+        else:
+            k = -1
+        if k >= 0:
+            add_col(k, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
+                    ist, fst)
+            ist[LADD] = k
+            if j >= 0:
+                remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
+                           uncpos, ist, fst)
+                ist[LREM] = j
+        else:
+            # costs (or no joint move fits): make room while even the cheapest column would not leave
+            # S cheaper than the best, add the column of largest gain per cost covering a random
+            # uncovered row (not the one just removed), make room for it if needed
+            while ist[NSEL] > 0 and fst[COST] + cmin >= fst[BEST_COST] - tol:
+                j = _pick_remove(ist[LADD], cost, score, stamp, sel, ist)
+                remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
+                           uncpos, ist, fst)
+                ist[LREM] = j
+            i = unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))]
+            k = _pick_add(i, ist[LREM], fst[BEST_COST] - tol - fst[COST], rptr, rcol, cost, score, stamp, ist)
+            while ist[NSEL] > 0 and fst[COST] + cost[k] >= fst[BEST_COST] - tol:
+                j = _pick_remove(ist[LADD], cost, score, stamp, sel, ist)
+                remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
+                           uncpos, ist, fst)
+            add_col(k, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
+                    ist, fst)
+            ist[LADD] = k
         if need < 0:
             for t in range(ist[NUNC]):
                 _bump(unc[t], rptr, rcol, pw, score, 1.0, ist)
         elif ist[NUNC] > 0:
-            _bump(unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))], rptr, rcol, pw, score, 1.0, ist)
+            _bump(unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))], rptr, rcol, pw, score, 1.0,
+                  ist)
     return 0
 
 

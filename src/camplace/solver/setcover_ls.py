@@ -58,8 +58,19 @@ _LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit and a model to follow: the sea
 _LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
 # without a time limit the search stops after this many iterations without improvement, plus
 # the iterations it took to find the best (it keeps going while improvements keep coming)
+MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
+# patience of the search, in work units (score updates; about 1e8 to 1e9 a second): 2,000 per
+# nonzero of the reduced matrix, between these limits; a tenth of it before SCIP / CP-SAT (the
+# search resumes with the full patience if they stop without a proof)
+PATIENCE_PER_NNZ = 2000
+PATIENCE_WORK_MIN = 1_000_000
 PATIENCE_WORK = 500_000_000
-PATIENCE_WORK_BEFORE_MODEL = 50_000_000  # before SCIP / CP-SAT (the search resumes if they find no proof)
+
+
+def patience_work(nnz: int, before_model: bool = False) -> int:
+    """Work without improvement after which the search stops (see :data:`PATIENCE_PER_NNZ`)."""
+    p = int(min(max(PATIENCE_PER_NNZ * nnz, PATIENCE_WORK_MIN), PATIENCE_WORK))
+    return p // 10 if before_model else p
 
 
 # ----------------------------------------------------------------------------------------------
@@ -321,9 +332,7 @@ class LocalSearch:
         Reduced columns of a cover to start from instead of the greedy one.
     """
 
-    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None, mode: int = 1,
-                 max_cand: int = 16) -> None:
-        self.mode = int(mode)
+    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None, max_cand: int = MAX_CANDIDATES) -> None:
         self.max_cand = int(max_cand)
         m, n = red.shape
         self.red = red
@@ -338,8 +347,6 @@ class LocalSearch:
         col_of = np.repeat(np.arange(n), np.diff(red.cptr))
         self.score = np.bincount(col_of, weights=self.pw[red.crow], minlength=n).astype(np.float64)
         self.stamp = np.zeros(n, dtype=np.int64)
-        self.rem = np.full(n, -1, dtype=np.int64)
-        self.rt = np.zeros(m, dtype=np.int64)
         self.sel = np.zeros(n, dtype=np.int32)
         self.selpos = np.full(n, -1, dtype=np.int32)
         self.unc = np.arange(m, dtype=np.int32)
@@ -371,7 +378,7 @@ class LocalSearch:
     def _args(self) -> tuple:
         r = self.red
         return (r.cptr, r.crow, r.rptr, r.rcol, r.cost, r.roww, self.need, self.x, self.cov, self.csum, self.pw,
-                self.score, self.stamp, self.rem, self.rt, self.sel, self.selpos, self.unc, self.uncpos, self.ist, self.fst)
+                self.score, self.stamp, self.sel, self.selpos, self.unc, self.uncpos, self.ist, self.fst)
 
     def feasible(self) -> bool:
         """True when the current solution is a cover."""
@@ -427,8 +434,8 @@ class LocalSearch:
                 return "time"
             c0 = time.perf_counter()
             with ctrl_c_deferred():
-                code = K.search(*args[:19], self.best, self.ist, self.fst, self.rng, chunk, float(target), stop_it,
-                                pat, self.mode, self.max_cand)
+                code = K.search(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target), stop_it,
+                                pat, self.max_cand)
             dt = time.perf_counter() - c0
             if code:
                 return {1: "target", 2: "iterations", 3: "stuck", 4: "patience"}[code]
@@ -649,7 +656,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it, the local
         search at most half of what is left when a model follows (all of it otherwise), the model
         the rest. The search stops earlier when it meets the bound, or on patience: once the work
-        since its best cover exceeds :data:`PATIENCE_WORK` plus the work it took to find it.
+        since its best cover exceeds :func:`patience_work` plus the work it took to find it.
     seed : int
         Seed of the local search.
     max_iterations : int, optional
@@ -694,7 +701,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     ls_limit = None if rem is None else rem * (_LS_SHARE_BEFORE_MODEL if backend else 0.95)
     patience = None
     if max_iterations is None:
-        patience = PATIENCE_WORK_BEFORE_MODEL if backend else PATIENCE_WORK
+        patience = patience_work(red.nnz, before_model=backend is not None)
     why = ls.run(max_iterations=max_iterations, time_limit_s=ls_limit, target=lb, patience=patience)
     sel_r = ls.best_cover()
     cost_r = float(red.cost[sel_r].sum())
@@ -727,7 +734,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
             # was (with the full patience, counted from its best so far)
             ls.ist[K.BEST_WORK] = max(int(ls.ist[K.BEST_WORK]), int(ls.ist[K.WORK]) // 2)
             why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else 0.95 * rem,
-                         target=bound_r, patience=None if max_iterations is not None else PATIENCE_WORK)
+                         target=bound_r, patience=None if max_iterations is not None else patience_work(red.nnz))
             sel2 = ls.best_cover()
             cost2 = float(red.cost[sel2].sum())
             if cost2 < cost_r - 1e-9 * max(1.0, abs(cost_r)):
