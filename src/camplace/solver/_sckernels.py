@@ -25,7 +25,9 @@ Local-search state (arrays, updated in place):
 ``best`` (n,) int8
     The cheapest feasible solution seen.
 ``ist`` int64: [iteration, |S|, uncovered rows, last added, last removed, iteration of the best,
-improvements]; ``fst`` float64: [cost of S, covered row weight, cost of the best]; ``rng`` uint64 [1].
+improvements, work, work at the best]; ``fst`` float64: [cost of S, covered row weight, cost of
+the best]; ``rng`` uint64 [1]. Work counts the inner-loop steps (score updates, candidates), a
+measure of effort that does not depend on the machine.
 """
 
 from __future__ import annotations

@@ -11,20 +11,32 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    merged. Repeated until nothing changes. Subset tests run on bitsets (compiled), candidates
    taken from an item's rarest element.
 2. **Local search** (:class:`LocalSearch`): greedy (best gain per cost) plus redundancy removal,
-   then the row-weighting local search of Gao, Weise and Li (RWLS, 2015) with a tabu rule
-   (the column just added is not removed next, the one just removed not added back) instead of
-   configuration checking and gain / cost ratios for weighted costs. Scores are incremental: a move
-   only touches the rows whose coverage changes between 0, 1 and 2 (the only coverer of a row is
-   kept as the sum of its coverers' indices). Fully deterministic for a seed and an iteration
-   budget; a time limit (checked between compiled chunks) makes the result depend on speed.
+   then row-weighting local search after RWLS (Gao, Weise and Li 2015): every row has a penalty
+   weight, raised by 1 for every uncovered row after each move, and a column's score is the
+   penalty it would cover (outside the solution) or leave uncovered (inside). Whenever the
+   solution covers everything it is recorded and its least useful column removed, so the search
+   always looks for a cover one column cheaper than the best. With equal costs a move is the best
+   joint swap of fontanf/setcoveringsolver: add one of the columns covering a random uncovered row
+   and remove one column, chosen together (the overlap of the two counts), candidates tried by
+   decreasing gain with an exact cut-off; with costs, RWLS moves with gain / cost ratios.
+   Tabu: the column just added is not removed next, the one just removed not added back; ties go
+   to the column unchanged for longest. Scores are incremental: a move only touches the rows
+   whose coverage changes between 0, 1 and 2 (the only coverer of a row is kept as the sum of
+   its coverers' indices). The search stops at an iteration budget, a time limit, the bound, or
+   on patience, counted in work units (score updates), not seconds: a seed and an iteration
+   budget (or no time limit) give the same answer on any machine; a time limit (checked between
+   compiled chunks) makes it depend on speed.
 3. **Lower bound** (:func:`lagrangian_bound`): subgradient optimisation of the Lagrangian
    relaxation of the covering rows (Beasley 1990), rounded up for integral costs; it also stops
    the local search once the two meet (the cover is then optimal).
-4. **Exact model**: SCIP (``mip``) or CP-SAT (``cpsat``) on the reduced instance, given the local
-   search cover as a hint (start) and ``cost <= its cost`` as a cutoff row; the cheaper cover and the
-   larger bound of the two are kept. ``auto`` runs SCIP only when the reduced model is small
-   (:data:`AUTO_MODEL_NNZ`); otherwise the local search answer comes back with the Lagrangian bound
-   (status ``feasible`` and its gap unless the two meet).
+4. **Exact model**: SCIP (``mip``) or CP-SAT (``cpsat``) on the reduced instance, started from
+   the local search cover (a hint: SCIP takes it as its incumbent and cuts off everything not
+   cheaper; CP-SAT also gets the row ``cost <= its cost``). The cheaper cover and the larger bound
+   are kept; if the model stops on the time limit without a proof, the search resumes. ``auto``
+   runs SCIP only when the reduced instance is small (:data:`AUTO_MODEL_NNZ`): otherwise the local
+   search answer comes back with the Lagrangian bound (status ``feasible`` and its gap unless the
+   two meet). Its memory is estimated first (:func:`model_bytes`); a model that would not fit is
+   skipped with a warning (``stats["memory_fallback"]``).
 """
 
 from __future__ import annotations
@@ -44,7 +56,7 @@ from camplace.solver import _sckernels as K
 from camplace.solver._common import memory_budget_bytes
 
 __all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "CoverOutcome",
-           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes"]
+           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "model_bytes", "patience_work"]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +68,7 @@ _LAG_PATIENCE = 10
 _LAG_MAX_ITERS = 3000
 _LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit and a model to follow: the search's share of the time left
 _LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
+_MODEL_SHARE = 0.5  # share of the time left for SCIP / CP-SAT (the search resumes after it)
 # without a time limit the search stops after this many iterations without improvement, plus
 # the iterations it took to find the best (it keeps going while improvements keep coming)
 MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
@@ -589,6 +602,12 @@ def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: s
     return sel, out.status, bound, stats
 
 
+def model_bytes(nnz: int, m: int, n: int) -> int:
+    """Approximate peak memory of the SCIP / CP-SAT model of a reduced instance (Python rows, the
+    model proto and the solver's copy; measured about 300 bytes a nonzero)."""
+    return 300 * int(nnz) + 2000 * (int(m) + int(n))
+
+
 def _is_cover(red: CoverReduction, sel: np.ndarray) -> bool:
     m, n = red.shape
     if m == 0:
@@ -655,7 +674,8 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     time_limit_s : float, optional
         Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it, the local
         search at most half of what is left when a model follows (all of it otherwise), the model
-        the rest. The search stops earlier when it meets the bound, or on patience: once the work
+        half of what is then left; if the model stops without a proof, the search resumes for the
+        rest. The search stops earlier when it meets the bound, or on patience: once the work
         since its best cover exceeds :func:`patience_work` plus the work it took to find it.
     seed : int
         Seed of the local search.
@@ -712,9 +732,17 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     bound_r = min(lb, cost_r)
     name = "local-search"
     proven = cost_r <= lb + 1e-9 * max(1.0, abs(cost_r))
+    if not proven and backend is not None and model_bytes(red.nnz, mr, nr) > memory_budget_bytes():
+        msg = (f"the {backend} model of the reduced {mr} x {nr} instance ({red.nnz} nonzeros) would need about "
+               f"{model_bytes(red.nnz, mr, nr) / 2**30:.1f} GiB; kept the local-search cover and its bound")
+        log.warning("setcover: %s", msg)
+        stats["memory_fallback"] = msg
+        backend = None
     if not proven and backend is not None:
         name = backend
-        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, left())
+        rem = left()
+        model_limit = None if rem is None else _MODEL_SHARE * rem
+        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, model_limit)
         stats["model"] = mstats
         if msel is not None and _is_cover(red, msel):
             mcost = float(red.cost[msel].sum())
