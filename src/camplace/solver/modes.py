@@ -22,7 +22,11 @@ Modes (``Q`` is the (m, n) points x candidates matrix, values in (0, 1], > 0 mea
     minimise the cost of ``S`` (``costs``, default 1 each; fixed cameras cost nothing) such that
     every coverable point of positive weight is observed (or, with ``required_fraction < 1``,
     that fraction of the coverable weight). Points no allowed camera observes are reported as
-    uncoverable in ``stats``. ``objective`` is the cost and ``bound`` a LOWER bound.
+    uncoverable in ``stats``. ``objective`` is the cost and ``bound`` a LOWER bound. Solved by
+    :mod:`camplace.solver.setcover_ls` (reductions, local search, Lagrangian bound; ``auto`` then
+    runs SCIP on small reduced instances, ``mip`` / ``cpsat`` always; engine ``local-search`` in
+    the result when no model ran); with ``min_distance_m`` conflicts, by the SCIP / CP-SAT model
+    directly. ``seed`` and ``iterations`` set the local search.
 
 Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted in ``k``),
 ``forbidden`` (never chosen) and ``min_distance_m`` (chosen cameras, fixed included, pairwise at

@@ -68,7 +68,7 @@ _LAG_PATIENCE = 10
 _LAG_MAX_ITERS = 3000
 _LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit and a model to follow: the search's share of the time left
 _LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
-_MODEL_SHARE = 0.5  # share of the time left for SCIP / CP-SAT (the search resumes after it)
+_MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resumes after it)
 # without a time limit the search stops after this many iterations without improvement, plus
 # the iterations it took to find the best (it keeps going while improvements keep coming)
 MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
@@ -159,9 +159,11 @@ class CoverReduction:
 
 def cover_bytes(m: int, n: int, nnz: int) -> int:
     """Working memory of the reductions and the local search for an (m, n) matrix with ``nnz``
-    nonzeros: two index copies of the matrix plus per-row and per-column state (the bitsets of
-    the subset tests are checked separately, :data:`BITSET_MAX_BYTES`)."""
-    return 3 * (8 * nnz + 8 * (m + n)) + 64 * (m + n)
+    nonzeros: during the first reduction round a row-major and a column-major copy (12 bytes a
+    nonzero each), their int32 indices and the next, smaller, copy (about 44 bytes a nonzero in
+    all), plus per-row and per-column state (the bitsets of the subset tests are checked
+    separately, :data:`BITSET_MAX_BYTES`)."""
+    return 48 * int(nnz) + 128 * (int(m) + int(n))
 
 
 def _lists(a: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -674,8 +676,8 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     time_limit_s : float, optional
         Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it, the local
         search at most half of what is left when a model follows (all of it otherwise), the model
-        half of what is then left; if the model stops without a proof, the search resumes for the
-        rest. The search stops earlier when it meets the bound, or on patience: once the work
+        three quarters of what is then left; if the model stops without a proof, the search resumes
+        for the rest. The search stops earlier when it meets the bound, or on patience: once the work
         since its best cover exceeds :func:`patience_work` plus the work it took to find it.
     seed : int
         Seed of the local search.
