@@ -121,7 +121,7 @@ def test_min_distance_equals_enumeration(mode, engine, data) -> None:
     _check_max(res, best, dense, w, k, mode, fixed, forbidden, pos=pos, dmin=dmin)
 
 
-@pytest.mark.parametrize("engine", ["mip", "cpsat"])
+@pytest.mark.parametrize("engine", ["auto", "mip", "cpsat"])
 @settings(max_examples=30, **_SETTINGS)
 @given(data=st.data())
 def test_setcover_equals_enumeration(engine, data) -> None:

@@ -43,9 +43,16 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
     p.add_argument("file", type=Path, help="instance file")
     p.add_argument("--format", choices=["orlib", "gecco"], required=True, dest="fmt", help="file format")
-    p.add_argument("--engine", choices=SETCOVER_ENGINES, default="auto", help="solver engine (default auto = mip)")
+    p.add_argument("--engine", choices=SETCOVER_ENGINES, default="auto",
+                   help="auto: local search + Lagrangian bound, then SCIP on small reduced instances; mip / cpsat: "
+                        "always that model after the local search (default auto)")
     p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
-    p.add_argument("--json", action="store_true", help="print one JSON object: cost, bound, status, time_s, selected")
+    p.add_argument("--unicost", action="store_true", help="ignore the file's column costs (every column costs 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the local search (default 0)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="iteration budget of the local search (with it and no time limit the answer is reproducible)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object: cost, bound, status, time_s, selected, engine, uncoverable_rows")
     return {"solve": _cmd_solve, "setcover": _cmd_setcover}
 
 
@@ -215,8 +222,11 @@ def _cmd_setcover(args: argparse.Namespace) -> int:
     from camplace.solver.modes import solve
 
     inst = read_cover(args.file, args.fmt)
-    res = solve(inst.matrix, np.ones(inst.matrix.shape[0]), mode="setcover", costs=inst.costs, engine=args.engine,
-                time_limit_s=args.time_limit)
+    if args.iterations is not None and args.iterations < 1:
+        raise CamplaceError(f"--iterations: must be a positive number of iterations, got {args.iterations}")
+    costs = np.ones(inst.matrix.shape[1]) if args.unicost else inst.costs
+    res = solve(inst.matrix, np.ones(inst.matrix.shape[0]), mode="setcover", costs=costs, engine=args.engine,
+                time_limit_s=args.time_limit, seed=args.seed, iterations=args.iterations)
     unc = int(res.stats.get("uncoverable_points", 0))
     if args.json:
         out = {
@@ -225,10 +235,12 @@ def _cmd_setcover(args: argparse.Namespace) -> int:
             "status": res.status,
             "time_s": res.time_s,
             "selected": list(res.selected),
+            "engine": res.engine,
             "uncoverable_rows": unc,
         }
         print(json.dumps(out))
     else:
         print(f"{inst.name}: {res.status}, cost {res.objective:g}, lower bound {res.bound:g}, "
-              f"{len(res.selected)} columns, {res.time_s:.2f} s" + (f", {unc} uncoverable rows" if unc else ""))
+              f"{len(res.selected)} columns, engine {res.engine}, {res.time_s:.2f} s"
+              + (f", {unc} uncoverable rows" if unc else ""))
     return EXIT_OK if res.status in ("optimal", "feasible") else EXIT_NO_SOLUTION

@@ -22,7 +22,11 @@ Modes (``Q`` is the (m, n) points x candidates matrix, values in (0, 1], > 0 mea
     minimise the cost of ``S`` (``costs``, default 1 each; fixed cameras cost nothing) such that
     every coverable point of positive weight is observed (or, with ``required_fraction < 1``,
     that fraction of the coverable weight). Points no allowed camera observes are reported as
-    uncoverable in ``stats``. ``objective`` is the cost and ``bound`` a LOWER bound.
+    uncoverable in ``stats``. ``objective`` is the cost and ``bound`` a LOWER bound. Solved by
+    :mod:`camplace.solver.setcover_ls` (reductions, local search, Lagrangian bound; ``auto`` then
+    runs SCIP on small reduced instances, ``mip`` / ``cpsat`` always; engine ``local-search`` in
+    the result when no model ran); with ``min_distance_m`` conflicts, by the SCIP / CP-SAT model
+    directly. ``seed`` and ``iterations`` set the local search.
 
 Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted in ``k``),
 ``forbidden`` (never chosen) and ``min_distance_m`` (chosen cameras, fixed included, pairwise at
@@ -80,6 +84,7 @@ from camplace.solver.quality_exact import (
 from camplace.solver.quality_tree import quality_tree_bytes, solve_quality_tree
 from camplace.solver.presolve import as_pattern, check_weights, presolve
 from camplace.solver.result import SolverResult, jsonable, relative_gap
+from camplace.solver.setcover_ls import solve_cover
 
 __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
 
@@ -399,6 +404,8 @@ def solve(
     engine: str = "auto",
     time_limit_s: float | None = None,
     memory_budget_bytes: int | None = None,
+    seed: int = 0,
+    iterations: int | None = None,
 ) -> SolverResult:
     """Choose cameras under one of the formulations (see the module docstring).
 
@@ -434,6 +441,11 @@ def solve(
     memory_budget_bytes : int, optional
         Cap on the memory any engine or model may use (``--memory-budget-gb``); engines also stay
         within :data:`~camplace.solver._common.MEMORY_FRACTION` of the memory available.
+    seed : int
+        setcover: seed of the local search (:mod:`camplace.solver.setcover_ls`).
+    iterations : int, optional
+        setcover: iteration budget of the local search; with it and no time limit the answer is
+        fully deterministic (with a time limit it depends on the machine's speed).
 
     Returns
     -------
@@ -532,7 +544,8 @@ def _solve(
         if k is not None:
             raise CamplaceError("mode 'setcover' chooses the number of cameras itself: do not give k")
         _check_setcover_memory(q, w, free_cols, conflicts, engine)
-        ctx = _setcover(q, w, costs, required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0)
+        ctx = _setcover(q, w, costs, required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0,
+                        seed, iterations)
     else:
         if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
             raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
@@ -1071,11 +1084,17 @@ def _build_model(
 def _setcover(
     q: sp.csr_matrix, w: np.ndarray, costs: Any, required_fraction: float, fixed_t: tuple[int, ...],
     free_cols: np.ndarray, conflicts: np.ndarray, engine: str, time_limit_s: float | None, t0: float,
+    seed: int = 0, iterations: int | None = None,
 ) -> tuple[Any, str, float, float, str, dict[str, Any]]:
-    """Minimum-cost cover. Returns (selected, status, cost, lower bound, engine, stats)."""
+    """Minimum-cost cover. Returns (selected, status, cost, lower bound, engine, stats).
+
+    Without minimum-distance conflicts: :func:`camplace.solver.setcover_ls.solve_cover`
+    (reductions, local search, Lagrangian bound, then SCIP / CP-SAT with the local-search cover as
+    hint and cutoff where it applies). With conflicts: the SCIP / CP-SAT model directly.
+    """
     m, n = q.shape
     if engine == "exact":
-        raise CamplaceError("the exact engine does not solve setcover; use engine mip or cpsat (auto: mip)")
+        raise CamplaceError("the exact engine does not solve setcover; use engine auto, mip or cpsat")
     name = "mip" if engine == "auto" else engine
     c = np.ones(n) if costs is None else np.asarray(costs, dtype=np.float64)
     if c.shape != (n,) or not np.all(np.isfinite(c)) or np.any(c < 0):
@@ -1087,7 +1106,10 @@ def _setcover(
     allowed = np.zeros(n, dtype=bool)
     allowed[free_cols] = True
     allowed[list(fixed_t)] = True
-    obs_allowed = np.diff(pat[:, np.flatnonzero(allowed)].tocsr().indptr) > 0
+    if allowed.all():  # no column copy of a large matrix when every camera may be used
+        obs_allowed = np.diff(pat.indptr) > 0
+    else:
+        obs_allowed = np.diff(pat[:, np.flatnonzero(allowed)].tocsr().indptr) > 0
     pos_w = w > 0
     unc = pos_w & ~obs_allowed
     coverable_w = float(w[pos_w & obs_allowed].sum())
@@ -1101,19 +1123,27 @@ def _setcover(
     credit = float(w[covered_f & pos_w].sum())
     need = frac * coverable_w - credit
     rows = pos_w & obs_allowed & ~covered_f
-    sub = pat[:, free_cols].tocsr()[rows]
+    sub = (pat if free_cols.size == n else pat[:, free_cols].tocsr())[rows]
     sw = w[rows]
 
-    def finish(sel_free: Sequence[int], status: str, bound: float) -> tuple[Any, str, float, float, str, dict[str, Any]]:
+    def finish(sel_free: Sequence[int], status: str, bound: float,
+               used: str = name) -> tuple[Any, str, float, float, str, dict[str, Any]]:
         sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in sel_free}))
         cov = coverage_weight(pat, w, sel) if sel else 0.0
         stats["covered_fraction"] = cov / coverable_w if coverable_w > 0 else 1.0
         stats["covered_weight"] = cov
         cost = float(sum(c[j] for j in sel if j not in set(fixed_t)))
-        return sel, status, cost, bound, name, stats
+        return sel, status, cost, bound, used, stats
 
     if sub.shape[0] == 0 or need <= 1e-12 * max(coverable_w, 1e-300):
         return finish((), "optimal", 0.0)
+    if conflicts.size == 0:
+        out = solve_cover(sub, c[free_cols], sw if frac < 1.0 else None, need if frac < 1.0 else None, engine=engine,
+                          time_limit_s=_remaining(t0, time_limit_s), seed=seed, max_iterations=iterations)
+        stats["setcover"] = out.stats
+        if out.selected is None:
+            return None, "unknown", math.nan, out.bound, out.engine, stats
+        return finish(out.selected, out.status, out.bound, out.engine)
     model = LinearModel(maximize=False)
     nf = free_cols.size
     x = model.add_vars(nf, obj=c[free_cols])

@@ -1,0 +1,200 @@
+"""The set-cover engine (:mod:`camplace.solver.setcover_ls`) against enumeration and published optima.
+
+Oracles: exhaustive enumeration of column subsets (small random instances, full and partial
+covers, unit / integer / fractional costs) and the proven optima of the OR-Library instances and
+the best known size of GECCO 2020 AC_01 in ``../shared/data``.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from camplace.errors import CamplaceError
+from camplace.solver import setcover_ls as S
+from camplace.solver.formats import read_gecco, read_orlib
+from camplace.solver.modes import solve
+from tests._floats import assert_ge, assert_le
+
+_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+
+
+@st.composite
+def covers(draw, max_n: int = 9, max_m: int = 16):
+    """(dense 0/1 (m, n) with every row covered, costs (n,), row weights (m,) > 0, need or None)."""
+    n = draw(st.integers(1, max_n))
+    m = draw(st.integers(1, max_m))
+    rng = np.random.default_rng(draw(st.integers(0, 2**31 - 1)))
+    dense = rng.random((m, n)) < draw(st.sampled_from([0.15, 0.3, 0.6]))
+    if draw(st.booleans()) and n >= 3:
+        dense[:, 1] = dense[:, 0]  # duplicate column
+    if draw(st.booleans()) and m >= 3:
+        dense[1] = dense[0] | dense[2]  # a superset row
+    dense = dense[dense.any(axis=1)]
+    if dense.shape[0] == 0:
+        dense = np.ones((1, n), dtype=bool)
+    kind = draw(st.sampled_from(["unit", "int", "float", "zero"]))
+    costs = {"unit": np.ones(n), "int": rng.integers(1, 6, n).astype(float),
+             "float": rng.uniform(0.1, 2.0, n), "zero": rng.integers(0, 3, n).astype(float)}[kind]
+    w = rng.uniform(0.1, 1.0, dense.shape[0])
+    frac = draw(st.sampled_from([None, None, 0.5, 0.8]))
+    need = None if frac is None else frac * float(w.sum())
+    return dense, costs, w, need
+
+
+def enumerate_cover(dense: np.ndarray, costs: np.ndarray, w: np.ndarray, need: float | None) -> float:
+    """Cheapest column subset covering every row (or row weight >= need), by enumeration."""
+    n = dense.shape[1]
+    best = np.inf
+    for r in range(n + 1):
+        for cols in itertools.combinations(range(n), r):
+            hit = dense[:, list(cols)].any(axis=1)
+            ok = hit.all() if need is None else float(w[hit].sum()) >= need * (1 - 1e-12)
+            if ok:
+                best = min(best, float(costs[list(cols)].sum()))
+    return best
+
+
+def _reduced_dense(red: S.CoverReduction) -> np.ndarray:
+    return red.csr().toarray() > 0
+
+
+def _covers(dense: np.ndarray, w: np.ndarray, need: float | None, cols) -> bool:
+    hit = dense[:, list(cols)].any(axis=1) if len(cols) else np.zeros(dense.shape[0], dtype=bool)
+    return bool(hit.all()) if need is None else float(w[hit].sum()) >= need * (1 - 1e-12)
+
+
+@settings(max_examples=80, **_SETTINGS)
+@given(inst=covers())
+def test_reduction_keeps_the_optimum(inst) -> None:
+    dense, costs, w, need = inst
+    best = enumerate_cover(dense, costs, w, need)
+    red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), costs, None if need is None else w, need)
+    assert np.all(costs[red.forced] == 0) or need is None  # partial covers only force free columns
+    assert np.all(red.cost > 0)
+    rd = _reduced_dense(red)
+    assert rd.shape == red.shape
+    if red.shape[0] == 0 or (red.partial and red.need <= 0):
+        reduced_best = 0.0
+    else:
+        reduced_best = enumerate_cover(rd, red.cost, red.roww, red.need if red.partial else None)
+    assert reduced_best + red.forced_cost == pytest.approx(best, rel=1e-9)
+    # the reduced columns map back to input columns that cover the same rows of the reduced rows
+    for j, col in enumerate(red.columns):
+        assert costs[col] == red.cost[j]
+
+
+@settings(max_examples=80, **_SETTINGS)
+@given(inst=covers(), seed=st.integers(0, 3))
+def test_local_search_and_bound_bracket_the_optimum(inst, seed) -> None:
+    dense, costs, w, need = inst
+    best = enumerate_cover(dense, costs, w, need)
+    red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), costs, None if need is None else w, need)
+    if red.shape[0] == 0 or (red.partial and red.need <= 0):
+        return
+    sel, cost, stats = S.local_search(red, seed=seed, max_iterations=3000)
+    cols = red.input_columns(sel)
+    assert _covers(dense, w, need, cols)
+    assert float(costs[list(cols)].sum()) == pytest.approx(cost + red.forced_cost, rel=1e-9, abs=1e-12)
+    assert_ge(cost + red.forced_cost, best, what="local search cost vs optimum")
+    lb, _ = S.lagrangian_bound(red, cost)
+    assert_le(lb + red.forced_cost, best, what="Lagrangian bound vs optimum")
+
+
+@pytest.mark.parametrize("model_nnz", [0, S.AUTO_MODEL_NNZ])
+@settings(max_examples=40, **_SETTINGS)
+@given(inst=covers())
+def test_solve_cover_auto_equals_enumeration(model_nnz, inst) -> None:
+    """auto with SCIP after the search proves the optimum; without it (large-instance path) the
+    answer is a valid cover, its bound a valid lower bound, and 'optimal' only when it is."""
+    dense, costs, w, need = inst
+    best = enumerate_cover(dense, costs, w, need)
+    old = S.AUTO_MODEL_NNZ
+    S.AUTO_MODEL_NNZ = model_nnz
+    try:
+        out = S.solve_cover(sp.csr_matrix(dense.astype(float)), costs, None if need is None else w, need,
+                            max_iterations=2000)
+    finally:
+        S.AUTO_MODEL_NNZ = old
+    assert _covers(dense, w, need, out.selected)
+    assert out.cost == pytest.approx(float(costs[list(out.selected)].sum()), rel=1e-12, abs=1e-12)
+    assert_ge(out.cost, best)
+    assert_le(out.bound, best)
+    if model_nnz:
+        assert out.status == "optimal"
+        assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
+    elif out.status == "optimal":
+        assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
+
+
+def test_same_seed_and_iterations_same_answer_in_any_number_of_calls() -> None:
+    rng = np.random.default_rng(5)
+    dense = rng.random((300, 400)) < 0.03
+    dense = dense[dense.any(axis=1)]
+    red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(400))
+    a = S.LocalSearch(red, seed=7)
+    a.run(max_iterations=4000)
+    b = S.LocalSearch(red, seed=7)
+    for stop in (1, 17, 1000, 4000):  # the same iterations in four calls
+        b.run(max_iterations=stop)
+    assert a.iterations == b.iterations == 4000
+    assert np.array_equal(a.best, b.best) and np.array_equal(a.x, b.x)
+    assert np.array_equal(a.pw, b.pw) and np.array_equal(a.score, b.score)
+    small = dense[:40, :60]  # small enough for SCIP to prove quickly after the search
+    small = small[small.any(axis=1)]
+    r1 = solve(small, np.ones(small.shape[0]), mode="setcover", seed=3, iterations=3000)
+    r2 = solve(small, np.ones(small.shape[0]), mode="setcover", seed=3, iterations=3000)
+    assert r1.selected == r2.selected and r1.objective == r2.objective
+
+
+def test_memory_estimate_stops_with_one_line(monkeypatch) -> None:
+    monkeypatch.setattr(S, "memory_budget_bytes", lambda: 1000)
+    with pytest.raises(CamplaceError) as ei:
+        solve(np.eye(20), np.ones(20), mode="setcover")
+    assert "\n" not in str(ei.value) and "GiB" in str(ei.value)
+
+
+def _shared() -> list[tuple[str, float]]:
+    with open(DATA / "setcover" / "known_optima.csv", newline="") as fh:
+        rows = [(r["file"], float(r["weighted_BKS"])) for r in csv.DictReader(fh)]
+    return rows + [("AC_01", float((DATA / "camera_placement" / "AC_01_best_known_solution.txt").read_text().split()[0]))]
+
+
+@pytest.mark.parametrize("name,best", _shared())
+def test_local_search_alone_reaches_the_published_optimum(name: str, best: float) -> None:
+    """Every shared instance (weighted OR-Library, unicost AC_01): the search alone, seed 0 and an
+    iteration budget (so the outcome does not depend on the machine), finds the optimum; the
+    Lagrangian bound stays below it."""
+    inst = read_gecco(DATA / "camera_placement" / "AC_01_cover.txt") if name == "AC_01" else \
+        read_orlib(DATA / "setcover" / name)
+    red = S.reduce_cover(inst.matrix, inst.costs)
+    ls = S.LocalSearch(red, seed=0)
+    ls.run(max_iterations=2_000_000, target=best - red.forced_cost)
+    sel = ls.best_cover()
+    cols = red.input_columns(sel)
+    assert bool(np.all(np.diff(inst.matrix[:, list(cols)].tocsr().indptr) > 0))
+    assert float(inst.costs[list(cols)].sum()) == best
+    lb, _ = S.lagrangian_bound(red, ls.best_cost)
+    assert lb + red.forced_cost <= best
+
+
+def test_model_too_big_for_memory_falls_back_to_the_search(monkeypatch) -> None:
+    rng = np.random.default_rng(2)
+    dense = rng.random((30, 12)) < 0.3
+    dense = dense[dense.any(axis=1)]
+    best = enumerate_cover(dense, np.ones(12), np.ones(dense.shape[0]), None)
+    monkeypatch.setattr(S, "model_bytes", lambda nnz, m, n: 1 << 60)
+    monkeypatch.setattr(S, "lagrangian_bound", lambda red, upper, **kw: (0.0, {}))  # no proof without the model
+    res = solve(dense, np.ones(dense.shape[0]), mode="setcover", engine="mip", iterations=2000)
+    assert "memory_fallback" in res.stats["setcover"] and "\n" not in res.stats["setcover"]["memory_fallback"]
+    assert res.engine == "local-search"
+    assert _covers(dense, np.ones(dense.shape[0]), None, res.selected)
+    assert res.objective >= best and res.bound <= best
