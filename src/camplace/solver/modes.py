@@ -463,13 +463,14 @@ def solve(
     with memory_budget(memory_budget_bytes):
         return _solve(matrix, weights, k, mode=mode, views=views, min_angle_deg=min_angle_deg, positions=positions,
                       points=points, costs=costs, required_fraction=required_fraction, fixed=fixed, forbidden=forbidden,
-                      min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s)
+                      min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s, seed=seed,
+                      iterations=iterations)
 
 
 def _solve(
     matrix: Any, weights: Any, k: int | None, *, mode: str, views: int, min_angle_deg: float | None, positions: Any,
     points: Any, costs: Any, required_fraction: float, fixed: Sequence[int], forbidden: Sequence[int],
-    min_distance_m: float | None, engine: str, time_limit_s: float | None,
+    min_distance_m: float | None, engine: str, time_limit_s: float | None, seed: int = 0, iterations: int | None = None,
 ) -> SolverResult:
     """:func:`solve` within the memory budget."""
     t0 = time.perf_counter()
