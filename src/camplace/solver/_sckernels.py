@@ -490,7 +490,7 @@ def _best_swap(i, budget, cptr, crow, rptr, rcol, cost, cov, csum, pw, score, st
 
 @numba.njit(**_JIT)
 def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
-           best, ist, fst, rng, steps, target, stop_it, patience, max_cand):  # pragma: no cover - compiled
+           best, ist, fst, rng, steps, target, stop_it, patience, max_cand, joint):  # pragma: no cover - compiled
     """Row-weighting local search for ``steps`` iterations (after RWLS of Gao, Weise and Li 2015, with
     the joint swap move of fontanf/setcoveringsolver and costs).
 
@@ -514,7 +514,7 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
         plus the work it took to find it, else 0.
     """
     cmin = np.inf
-    unit = True
+    unit = joint
     for j in range(cost.shape[0]):
         cmin = min(cmin, cost[j])
         unit = unit and cost[j] == cost[0]

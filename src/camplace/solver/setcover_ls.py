@@ -32,11 +32,12 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
 4. **Exact model**: SCIP (``mip``) or CP-SAT (``cpsat``) on the reduced instance, started from
    the local search cover (a hint: SCIP takes it as its incumbent and cuts off everything not
    cheaper; CP-SAT also gets the row ``cost <= its cost``). The cheaper cover and the larger bound
-   are kept; if the model stops on the time limit without a proof, the search resumes. ``auto``
-   runs SCIP only when the reduced instance is small (:data:`AUTO_MODEL_NNZ`): otherwise the local
-   search answer comes back with the Lagrangian bound (status ``feasible`` and its gap unless the
-   two meet). Its memory is estimated first (:func:`model_bytes`); a model that would not fit is
-   skipped with a warning (``stats["memory_fallback"]``).
+   are kept; without a proof, the search resumes. ``auto`` runs SCIP only when the reduced
+   instance is small (:data:`AUTO_MODEL_NNZ`) and the gap is one it can close (one column with
+   equal costs, :data:`AUTO_MODEL_GAP` of the cost otherwise); otherwise the local search answer
+   comes back with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
+   Its memory is estimated first (:func:`model_bytes`); a model that would not fit is skipped with
+   a warning (``stats["memory_fallback"]``).
 """
 
 from __future__ import annotations
@@ -60,13 +61,14 @@ __all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lag
 
 log = logging.getLogger(__name__)
 
-AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros
+AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros ...
+AUTO_MODEL_GAP = 0.25  # ... and (unequal costs) a gap up to this share of the cost (equal costs: one column)
 BITSET_MAX_BYTES = 1 << 30  # a subset reduction is skipped when its bitsets would need more
 _REDUCE_ROUNDS = 20
 _CHUNK_S = 0.02  # target seconds per compiled local-search call (the clock is read in between)
 _LAG_PATIENCE = 10
 _LAG_MAX_ITERS = 3000
-_LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit and a model to follow: the search's share of the time left
+_LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit: the first search's share of the time left at most
 _LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
 _MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resumes after it)
 # without a time limit the search stops after this many iterations without improvement, plus
@@ -347,8 +349,10 @@ class LocalSearch:
         Reduced columns of a cover to start from instead of the greedy one.
     """
 
-    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None, max_cand: int = MAX_CANDIDATES) -> None:
+    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None, max_cand: int = MAX_CANDIDATES,
+                 joint: bool = True) -> None:
         self.max_cand = int(max_cand)
+        self.joint = bool(joint)
         m, n = red.shape
         self.red = red
         self.x = np.zeros(n, dtype=np.int8)
@@ -450,7 +454,7 @@ class LocalSearch:
             c0 = time.perf_counter()
             with ctrl_c_deferred():
                 code = K.search(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target), stop_it,
-                                pat, self.max_cand)
+                                pat, self.max_cand, self.joint)
             dt = time.perf_counter() - c0
             if code:
                 return {1: "target", 2: "iterations", 3: "stuck", 4: "patience"}[code]
@@ -627,6 +631,27 @@ def _is_cover(red: CoverReduction, sel: np.ndarray) -> bool:
 # ----------------------------------------------------------------------------------------------
 
 
+def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) -> tuple[str | None, str]:
+    """The model to run after the first search (or None) and, if none, why.
+
+    ``mip`` / ``cpsat``: always. ``auto``: SCIP when the reduced instance has at most
+    :data:`AUTO_MODEL_NNZ` nonzeros and the gap is one a MIP can close: at most one column with
+    equal costs (the LP bound of a unicost cover is flat, so a wider gap is out of reach), at most
+    :data:`AUTO_MODEL_GAP` of the cost otherwise.
+    """
+    if engine in ("mip", "cpsat"):
+        return engine, ""
+    if red.nnz > AUTO_MODEL_NNZ:
+        return None, f"reduced instance has {red.nnz} nonzeros (auto runs SCIP up to {AUTO_MODEL_NNZ})"
+    gap = upper - lower
+    if red.cost.size and np.all(red.cost == red.cost[0]):
+        if gap > red.cost[0] * (1.0 + 1e-9):
+            return None, f"gap {gap:g} of more than one column with equal costs (SCIP would not close it)"
+    elif gap > AUTO_MODEL_GAP * upper:
+        return None, f"gap {gap:g} over {AUTO_MODEL_GAP:.0%} of the cost (SCIP would not close it)"
+    return "mip", ""
+
+
 @dataclass(frozen=True)
 class CoverOutcome:
     """Answer of :func:`solve_cover` (input column indices).
@@ -670,15 +695,15 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     need : float, optional
         Weight a partial cover must reach; None: cover every row.
     engine : {"auto", "mip", "cpsat"}
-        ``auto``: SCIP after the local search only when the reduced instance has at most
-        :data:`AUTO_MODEL_NNZ` nonzeros; ``mip`` / ``cpsat``: always (unless the local search
-        cover is proven optimal by the bound).
+        ``auto``: SCIP after the first search when :func:`_model_choice` says it can close the
+        gap; ``mip`` / ``cpsat``: always (unless the bound already proves the cover optimal).
     time_limit_s : float, optional
-        Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it, the local
-        search at most half of what is left when a model follows (all of it otherwise), the model
-        three quarters of what is then left; if the model stops without a proof, the search resumes
-        for the rest. The search stops earlier when it meets the bound, or on patience: once the work
-        since its best cover exceeds :func:`patience_work` plus the work it took to find it.
+        Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it; the first
+        search stops on a short patience (:func:`patience_work`) or after half of what is left;
+        the model gets three quarters of what is then left; if there is still no proof, the
+        search goes on until the time limit. Without a time limit the second search stops on the
+        full patience: once the work since its best cover exceeds :func:`patience_work` plus the
+        work it took to find it.
     seed : int
         Seed of the local search.
     max_iterations : int, optional
@@ -714,17 +739,10 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     ls = LocalSearch(red, seed=seed)
     rem = left()
     lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost, time_limit_s=None if rem is None else _LAG_SHARE * rem)
-    backend = None
-    if engine in ("mip", "cpsat"):
-        backend = engine
-    elif engine == "auto" and red.nnz <= AUTO_MODEL_NNZ:
-        backend = "mip"
+    # first search: short patience, at most half the time left (the whole budget with an iteration budget)
     rem = left()
-    ls_limit = None if rem is None else rem * (_LS_SHARE_BEFORE_MODEL if backend else 0.95)
-    patience = None
-    if max_iterations is None:
-        patience = patience_work(red.nnz, before_model=backend is not None)
-    why = ls.run(max_iterations=max_iterations, time_limit_s=ls_limit, target=lb, patience=patience)
+    why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else _LS_SHARE_BEFORE_MODEL * rem,
+                 target=lb, patience=None if max_iterations is not None else patience_work(red.nnz, before_model=True))
     sel_r = ls.best_cover()
     cost_r = float(red.cost[sel_r].sum())
     ls_stats = {"greedy_cost": ls.greedy_cost + red.forced_cost, "cost": cost_r + red.forced_cost,
@@ -734,17 +752,20 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     bound_r = min(lb, cost_r)
     name = "local-search"
     proven = cost_r <= lb + 1e-9 * max(1.0, abs(cost_r))
+    backend, why_not = _model_choice(engine, red, cost_r, lb)
     if not proven and backend is not None and model_bytes(red.nnz, mr, nr) > memory_budget_bytes():
         msg = (f"the {backend} model of the reduced {mr} x {nr} instance ({red.nnz} nonzeros) would need about "
                f"{model_bytes(red.nnz, mr, nr) / 2**30:.1f} GiB; kept the local-search cover and its bound")
         log.warning("setcover: %s", msg)
         stats["memory_fallback"] = msg
         backend = None
+    if not proven and backend is None and why_not:
+        stats["model_skipped"] = why_not
     if not proven and backend is not None:
         name = backend
         rem = left()
-        model_limit = None if rem is None else _MODEL_SHARE * rem
-        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, model_limit)
+        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend,
+                                                     None if rem is None else _MODEL_SHARE * rem)
         stats["model"] = mstats
         if msel is not None and _is_cover(red, msel):
             mcost = float(red.cost[msel].sum())
@@ -758,21 +779,21 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         elif math.isfinite(mbound):
             bound_r = max(bound_r, min(mbound, cost_r))
         proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
-        rem = left()
-        if not proven and why in ("patience", "time") and (rem is None or rem > 0.05 * float(time_limit_s)):
-            # the model stopped on the time limit without a proof: the search goes on from where it
-            # was (with the full patience, counted from its best so far)
-            ls.ist[K.BEST_WORK] = max(int(ls.ist[K.BEST_WORK]), int(ls.ist[K.WORK]) // 2)
-            why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else 0.95 * rem,
-                         target=bound_r, patience=None if max_iterations is not None else patience_work(red.nnz))
-            sel2 = ls.best_cover()
-            cost2 = float(red.cost[sel2].sum())
-            if cost2 < cost_r - 1e-9 * max(1.0, abs(cost_r)):
-                sel_r, cost_r = sel2, cost2
-                proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
-            ls_stats.update({"cost": float(red.cost[sel2].sum()) + red.forced_cost, "iterations": ls.iterations,
-                             "best_iteration": ls.best_iteration, "work": int(ls.ist[K.WORK]),
-                             "stopped_by": why, "resumed_after_model": True})
+    rem = left()
+    if not proven and why in ("patience", "time") and (rem is None or rem > 0.02 * float(time_limit_s)):
+        # the search goes on from where it was: until the time limit when there is one, else with
+        # the full patience counted from now
+        ls.ist[K.BEST_WORK] = max(int(ls.ist[K.BEST_WORK]), int(ls.ist[K.WORK]) // 2)
+        why = ls.run(time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
+                     patience=None if rem is not None else patience_work(red.nnz))
+        sel2 = ls.best_cover()
+        cost2 = float(red.cost[sel2].sum())
+        if cost2 < cost_r - 1e-9 * max(1.0, abs(cost_r)):
+            sel_r, cost_r = sel2, cost2
+            proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
+        ls_stats.update({"cost": cost2 + red.forced_cost, "iterations": ls.iterations,
+                         "best_iteration": ls.best_iteration, "work": int(ls.ist[K.WORK]), "stopped_by": why,
+                         "resumed": True})
     sel = _prune_input(pattern, c, weights, need, red.input_columns(sel_r))
     cost = float(c[list(sel)].sum())
     bound = min(bound_r + red.forced_cost, cost)
