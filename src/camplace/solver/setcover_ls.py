@@ -33,8 +33,8 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    the local search cover (a hint: SCIP takes it as its incumbent and cuts off everything not
    cheaper; CP-SAT also gets the row ``cost <= its cost``). The cheaper cover and the larger bound
    are kept; without a proof, the search resumes. ``auto`` runs SCIP only when the reduced
-   instance is small (:data:`AUTO_MODEL_NNZ`) and the gap is one it can close (one column with
-   equal costs, :data:`AUTO_MODEL_GAP` of the cost otherwise); otherwise the local search answer
+   instance is small (:data:`AUTO_MODEL_NNZ`) and, with equal costs, the gap is at most two columns
+   (the LP bound of a unicost cover is flat: SCIP closes no wider gap); otherwise the search answer
    comes back with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
    Its memory is estimated first (:func:`model_bytes`); a model that would not fit is skipped with
    a warning (``stats["memory_fallback"]``).
@@ -62,7 +62,7 @@ __all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lag
 log = logging.getLogger(__name__)
 
 AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros ...
-AUTO_MODEL_GAP = 0.25  # ... and (unequal costs) a gap up to this share of the cost (equal costs: one column)
+AUTO_MODEL_GAP_COLUMNS = 2  # ... and, with equal costs, a gap to the Lagrangian bound of this many columns
 BITSET_MAX_BYTES = 1 << 30  # a subset reduction is skipped when its bitsets would need more
 _REDUCE_ROUNDS = 20
 _CHUNK_S = 0.02  # target seconds per compiled local-search call (the clock is read in between)
@@ -71,12 +71,10 @@ _LAG_MAX_ITERS = 3000
 _LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit: the first search's share of the time left at most
 _LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
 _MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resumes after it)
-# without a time limit the search stops after this many iterations without improvement, plus
-# the iterations it took to find the best (it keeps going while improvements keep coming)
 MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
 # patience of the search, in work units (score updates; about 1e8 to 1e9 a second): 2,000 per
-# nonzero of the reduced matrix, between these limits; a tenth of it before SCIP / CP-SAT (the
-# search resumes with the full patience if they stop without a proof)
+# nonzero of the reduced matrix, between these limits; a tenth of it for the first search (the one
+# before SCIP / CP-SAT may run)
 PATIENCE_PER_NNZ = 2000
 PATIENCE_WORK_MIN = 1_000_000
 PATIENCE_WORK = 500_000_000
@@ -300,9 +298,10 @@ def reduce_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray 
                   "forced_cols": int(fc.size), "time_s": time.perf_counter() - t0})
     log.info("setcover reduction: %dx%d (%d nnz) -> %dx%d (%d nnz), %d forced, in %.2f s", m, n, a.nnz,
              sub.shape[0], sub.shape[1], sub.nnz, fc.size, stats["time_s"])
-    return CoverReduction(cptr=cptr, crow=crow, rptr=rptr, rcol=rcol, cost=cost[cols].copy(), roww=roww.astype(np.float64),
-                          need=max(left, 0.0) if partial else -1.0, columns=cols.astype(np.int64), forced=fc,
-                          forced_cost=float(cost[fc].sum()), shape_in=(int(m), int(n)), stats=stats)
+    return CoverReduction(cptr=cptr, crow=crow, rptr=rptr, rcol=rcol, cost=cost[cols].copy(),
+                          roww=roww.astype(np.float64), need=max(left, 0.0) if partial else -1.0,
+                          columns=cols.astype(np.int64), forced=fc, forced_cost=float(cost[fc].sum()),
+                          shape_in=(int(m), int(n)), stats=stats)
 
 
 def _merge_identical_rows(sub: sp.csr_matrix, roww: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -349,8 +348,8 @@ class LocalSearch:
         Reduced columns of a cover to start from instead of the greedy one.
     """
 
-    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None, max_cand: int = MAX_CANDIDATES,
-                 joint: bool = True) -> None:
+    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None,
+                 max_cand: int = MAX_CANDIDATES, joint: bool = True) -> None:
         self.max_cand = int(max_cand)
         self.joint = bool(joint)
         m, n = red.shape
@@ -635,20 +634,18 @@ def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) 
     """The model to run after the first search (or None) and, if none, why.
 
     ``mip`` / ``cpsat``: always. ``auto``: SCIP when the reduced instance has at most
-    :data:`AUTO_MODEL_NNZ` nonzeros and the gap is one a MIP can close: at most one column with
-    equal costs (the LP bound of a unicost cover is flat, so a wider gap is out of reach), at most
-    :data:`AUTO_MODEL_GAP` of the cost otherwise.
+    :data:`AUTO_MODEL_NNZ` nonzeros and, with equal costs, the gap to the Lagrangian bound is at
+    most :data:`AUTO_MODEL_GAP_COLUMNS` columns: the LP bound of a unicost cover is flat (the
+    Lagrangian one a little below it), so SCIP closes no wider gap, and the time is better spent
+    searching.
     """
     if engine in ("mip", "cpsat"):
         return engine, ""
     if red.nnz > AUTO_MODEL_NNZ:
         return None, f"reduced instance has {red.nnz} nonzeros (auto runs SCIP up to {AUTO_MODEL_NNZ})"
     gap = upper - lower
-    if red.cost.size and np.all(red.cost == red.cost[0]):
-        if gap > red.cost[0] * (1.0 + 1e-9):
-            return None, f"gap {gap:g} of more than one column with equal costs (SCIP would not close it)"
-    elif gap > AUTO_MODEL_GAP * upper:
-        return None, f"gap {gap:g} over {AUTO_MODEL_GAP:.0%} of the cost (SCIP would not close it)"
+    if red.cost.size and np.all(red.cost == red.cost[0]) and gap > AUTO_MODEL_GAP_COLUMNS * red.cost[0] * (1 + 1e-9):
+        return None, f"equal costs and a gap of {gap / red.cost[0]:g} columns (SCIP would not close it)"
     return "mip", ""
 
 
@@ -738,7 +735,8 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         return CoverOutcome(sel, "optimal", cost, cost, "local-search", stats)
     ls = LocalSearch(red, seed=seed)
     rem = left()
-    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost, time_limit_s=None if rem is None else _LAG_SHARE * rem)
+    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost,
+                                               time_limit_s=None if rem is None else _LAG_SHARE * rem)
     # first search: short patience, at most half the time left (the whole budget with an iteration budget)
     rem = left()
     why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else _LS_SHARE_BEFORE_MODEL * rem,
