@@ -193,7 +193,7 @@ def test_model_too_big_for_memory_falls_back_to_the_search(monkeypatch) -> None:
     dense = rng.random((30, 12)) < 0.3
     dense = dense[dense.any(axis=1)]
     best = enumerate_cover(dense, np.ones(12), np.ones(dense.shape[0]), None)
-    monkeypatch.setattr(S, "model_bytes", lambda nnz, m, n: 1 << 60)
+    monkeypatch.setattr(S, "cover_model_bytes", lambda red, backend: 1 << 60)
     monkeypatch.setattr(S, "lagrangian_bound", lambda red, upper, **kw: (0.0, {}))  # no proof without the model
     res = solve(dense, np.ones(dense.shape[0]), mode="setcover", engine="mip", iterations=2000)
     assert "memory_fallback" in res.stats["setcover"] and "\n" not in res.stats["setcover"]["memory_fallback"]

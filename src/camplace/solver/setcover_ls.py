@@ -36,8 +36,8 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    instance is small (:data:`AUTO_MODEL_NNZ`) and, with equal costs, the gap is at most two columns
    (the LP bound of a unicost cover is flat: SCIP closes no wider gap); otherwise the search answer
    comes back with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
-   Its memory is estimated first (:func:`model_bytes`); a model that would not fit is skipped with
-   a warning (``stats["memory_fallback"]``).
+   Its memory is estimated first (:func:`cover_model_bytes`); a model that would not fit is skipped
+   with a warning (``stats["memory_fallback"]``).
 """
 
 from __future__ import annotations
@@ -54,10 +54,10 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver import _sckernels as K
-from camplace.solver._common import memory_budget_bytes
+from camplace.solver._common import OverBudget, memory_budget_bytes
 
 __all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "CoverOutcome",
-           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "model_bytes", "patience_work"]
+           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work"]
 
 log = logging.getLogger(__name__)
 
@@ -161,9 +161,9 @@ def cover_bytes(m: int, n: int, nnz: int) -> int:
     """Working memory of the reductions and the local search for an (m, n) matrix with ``nnz``
     nonzeros: during the first reduction round a row-major and a column-major copy (12 bytes a
     nonzero each), their int32 indices and the next, smaller, copy (about 44 bytes a nonzero in
-    all), plus per-row and per-column state (the bitsets of the subset tests are checked
-    separately, :data:`BITSET_MAX_BYTES`)."""
-    return 48 * int(nnz) + 128 * (int(m) + int(n))
+    all), plus per-row and per-column state and a fixed 16 MiB for temporaries (the bitsets of
+    the subset tests are checked separately, :data:`BITSET_MAX_BYTES`)."""
+    return 48 * int(nnz) + 128 * (int(m) + int(n)) + (16 << 20)
 
 
 def _lists(a: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -607,10 +607,15 @@ def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: s
     return sel, out.status, bound, stats
 
 
-def model_bytes(nnz: int, m: int, n: int) -> int:
-    """Approximate peak memory of the SCIP / CP-SAT model of a reduced instance (Python rows, the
-    model proto and the solver's copy; measured about 300 bytes a nonzero)."""
-    return 300 * int(nnz) + 2000 * (int(m) + int(n))
+def cover_model_bytes(red: CoverReduction, backend: str) -> int:
+    """Estimated peak memory of the SCIP / CP-SAT model of a reduced instance
+    (:func:`camplace.solver._model.model_bytes`)."""
+    from camplace.solver._model import model_bytes
+
+    m, n = red.shape
+    if red.partial:  # a y variable per row, y_i in each covering row, the weight row
+        return model_bytes(backend, n + m, m + 1, red.nnz + 2 * m)
+    return model_bytes(backend, n, m + 1, red.nnz + n)
 
 
 def _is_cover(red: CoverReduction, sel: np.ndarray) -> bool:
@@ -721,9 +726,8 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     need_bytes = cover_bytes(m, n, int(pattern.nnz))
     budget = memory_budget_bytes()
     if need_bytes > budget:
-        raise CamplaceError(f"setcover needs about {need_bytes / 2**30:.1f} GiB for a {m} x {n} matrix with "
-                            f"{pattern.nnz} nonzeros but only {budget / 2**30:.1f} GiB may be used; use fewer "
-                            "candidates or points")
+        exc = OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)")
+        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
     c = np.asarray(costs, dtype=np.float64)
     red = reduce_cover(pattern, c, weights, need)
     stats: dict[str, Any] = {"reduction": dict(red.stats)}
@@ -751,9 +755,10 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     name = "local-search"
     proven = cost_r <= lb + 1e-9 * max(1.0, abs(cost_r))
     backend, why_not = _model_choice(engine, red, cost_r, lb)
-    if not proven and backend is not None and model_bytes(red.nnz, mr, nr) > memory_budget_bytes():
-        msg = (f"the {backend} model of the reduced {mr} x {nr} instance ({red.nnz} nonzeros) would need about "
-               f"{model_bytes(red.nnz, mr, nr) / 2**30:.1f} GiB; kept the local-search cover and its bound")
+    if not proven and backend is not None and cover_model_bytes(red, backend) > memory_budget_bytes():
+        msg = (f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} model of the reduced {mr} x {nr} instance "
+               f"({red.nnz} nonzeros) would need about {cover_model_bytes(red, backend) / 2**30:.1f} GiB but only "
+               f"{memory_budget_bytes() / 2**30:.1f} GiB may be used; kept the local-search cover and its bound")
         log.warning("setcover: %s", msg)
         stats["memory_fallback"] = msg
         backend = None
