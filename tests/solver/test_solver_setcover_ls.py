@@ -109,30 +109,32 @@ def test_local_search_and_bound_bracket_the_optimum(inst, seed) -> None:
     assert_le(lb + red.forced_cost, best, what="Lagrangian bound vs optimum")
 
 
-@pytest.mark.parametrize("model_nnz", [0, S.AUTO_MODEL_NNZ])
-@settings(max_examples=40, **_SETTINGS)
+@pytest.mark.parametrize("engine", ["mip", "cpsat", "auto", "search-only"])
+@settings(max_examples=30, **_SETTINGS)
 @given(inst=covers())
-def test_solve_cover_auto_equals_enumeration(model_nnz, inst) -> None:
-    """auto with SCIP after the search proves the optimum; without it (large-instance path) the
-    answer is a valid cover, its bound a valid lower bound, and 'optimal' only when it is."""
+def test_solve_cover_equals_enumeration(engine, inst) -> None:
+    """mip / cpsat (SCIP or CP-SAT after the search) prove the optimum; auto and the search alone
+    (the large-instance path) return a valid cover and a valid lower bound, 'optimal' only when it is."""
     dense, costs, w, need = inst
     best = enumerate_cover(dense, costs, w, need)
     old = S.AUTO_MODEL_NNZ
-    S.AUTO_MODEL_NNZ = model_nnz
+    if engine == "search-only":
+        S.AUTO_MODEL_NNZ = 0
     try:
         out = S.solve_cover(sp.csr_matrix(dense.astype(float)), costs, None if need is None else w, need,
-                            max_iterations=2000)
+                            engine="auto" if engine == "search-only" else engine, max_iterations=2000)
     finally:
         S.AUTO_MODEL_NNZ = old
     assert _covers(dense, w, need, out.selected)
     assert out.cost == pytest.approx(float(costs[list(out.selected)].sum()), rel=1e-12, abs=1e-12)
     assert_ge(out.cost, best)
     assert_le(out.bound, best)
-    if model_nnz:
+    if engine in ("mip", "cpsat"):
         assert out.status == "optimal"
+    if out.status == "optimal":
         assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
-    elif out.status == "optimal":
-        assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
+    if engine == "search-only":
+        assert out.engine == "local-search"
 
 
 def test_same_seed_and_iterations_same_answer_in_any_number_of_calls() -> None:
@@ -191,7 +193,7 @@ def test_model_too_big_for_memory_falls_back_to_the_search(monkeypatch) -> None:
     dense = rng.random((30, 12)) < 0.3
     dense = dense[dense.any(axis=1)]
     best = enumerate_cover(dense, np.ones(12), np.ones(dense.shape[0]), None)
-    monkeypatch.setattr(S, "model_bytes", lambda nnz, m, n: 1 << 60)
+    monkeypatch.setattr(S, "cover_model_bytes", lambda red, backend: 1 << 60)
     monkeypatch.setattr(S, "lagrangian_bound", lambda red, upper, **kw: (0.0, {}))  # no proof without the model
     res = solve(dense, np.ones(dense.shape[0]), mode="setcover", engine="mip", iterations=2000)
     assert "memory_fallback" in res.stats["setcover"] and "\n" not in res.stats["setcover"]["memory_fallback"]

@@ -284,7 +284,8 @@ def _pick_remove(tabu, cost, score, stamp, sel, ist):  # pragma: no cover - comp
         if j == tabu and ist[NSEL] > 1:
             continue
         r = score[j] / cost[j]
-        if best < 0 or r > br or (r == br and (cost[j] > cost[best] or (cost[j] == cost[best] and stamp[j] < stamp[best]))):
+        if best < 0 or r > br or (r == br and (cost[j] > cost[best]
+                                               or (cost[j] == cost[best] and stamp[j] < stamp[best]))):
             best = j
             br = r
     return best
@@ -435,8 +436,9 @@ def _best_swap(i, budget, cptr, crow, rptr, rcol, cost, cov, csum, pw, score, st
     Adding ``k`` gains ``score[k]``; removing ``j`` afterwards loses ``-score[j]`` minus ``ov[j]``,
     the penalty of the rows only ``j`` covers that ``k`` covers too. Candidates ``k`` are tried by
     decreasing gain and the scan stops once no gain can beat the best move (a move's change is at
-    least ``-score[k]``), or after ``max_cand`` candidates. The column just added (``ist[LADD]``) is not removed and the one just
-    removed (``ist[LREM]``) not added, unless nothing else is possible.
+    least ``-score[k]``), or after ``max_cand`` candidates. The column just added (``ist[LADD]``)
+    is not removed and the one just removed (``ist[LREM]``) not added, unless nothing else is
+    possible.
 
     Returns
     -------
@@ -490,7 +492,7 @@ def _best_swap(i, budget, cptr, crow, rptr, rcol, cost, cov, csum, pw, score, st
 
 @numba.njit(**_JIT)
 def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
-           best, ist, fst, rng, steps, target, stop_it, patience, max_cand):  # pragma: no cover - compiled
+           best, ist, fst, rng, steps, target, stop_it, patience, max_cand, joint):  # pragma: no cover - compiled
     """Row-weighting local search for ``steps`` iterations (after RWLS of Gao, Weise and Li 2015, with
     the joint swap move of fontanf/setcoveringsolver and costs).
 
@@ -514,7 +516,7 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
         plus the work it took to find it, else 0.
     """
     cmin = np.inf
-    unit = True
+    unit = joint
     for j in range(cost.shape[0]):
         cmin = min(cmin, cost[j])
         unit = unit and cost[j] == cost[0]

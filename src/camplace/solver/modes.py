@@ -544,7 +544,8 @@ def _solve(
     if mode == "setcover":
         if k is not None:
             raise CamplaceError("mode 'setcover' chooses the number of cameras itself: do not give k")
-        _check_setcover_memory(q, w, free_cols, conflicts, engine)
+        if conflicts.size:  # the model runs directly (otherwise setcover_ls checks its own memory)
+            _check_setcover_memory(q, w, free_cols, conflicts, engine)
         ctx = _setcover(q, w, costs, required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0,
                         seed, iterations)
     else:

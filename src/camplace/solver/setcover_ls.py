@@ -32,11 +32,12 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
 4. **Exact model**: SCIP (``mip``) or CP-SAT (``cpsat``) on the reduced instance, started from
    the local search cover (a hint: SCIP takes it as its incumbent and cuts off everything not
    cheaper; CP-SAT also gets the row ``cost <= its cost``). The cheaper cover and the larger bound
-   are kept; if the model stops on the time limit without a proof, the search resumes. ``auto``
-   runs SCIP only when the reduced instance is small (:data:`AUTO_MODEL_NNZ`): otherwise the local
-   search answer comes back with the Lagrangian bound (status ``feasible`` and its gap unless the
-   two meet). Its memory is estimated first (:func:`model_bytes`); a model that would not fit is
-   skipped with a warning (``stats["memory_fallback"]``).
+   are kept; without a proof, the search resumes. ``auto`` runs SCIP only when the reduced
+   instance is small (:data:`AUTO_MODEL_NNZ`) and, with equal costs, the gap is at most two columns
+   (the LP bound of a unicost cover is flat: SCIP closes no wider gap); otherwise the search answer
+   comes back with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
+   Its memory is estimated first (:func:`cover_model_bytes`); a model that would not fit is skipped
+   with a warning (``stats["memory_fallback"]``).
 """
 
 from __future__ import annotations
@@ -53,28 +54,27 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver import _sckernels as K
-from camplace.solver._common import memory_budget_bytes
+from camplace.solver._common import OverBudget, memory_budget_bytes
 
 __all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "CoverOutcome",
-           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "model_bytes", "patience_work"]
+           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work"]
 
 log = logging.getLogger(__name__)
 
-AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros
+AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros ...
+AUTO_MODEL_GAP_COLUMNS = 2  # ... and, with equal costs, a gap to the Lagrangian bound of this many columns
 BITSET_MAX_BYTES = 1 << 30  # a subset reduction is skipped when its bitsets would need more
 _REDUCE_ROUNDS = 20
 _CHUNK_S = 0.02  # target seconds per compiled local-search call (the clock is read in between)
 _LAG_PATIENCE = 10
 _LAG_MAX_ITERS = 3000
-_LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit and a model to follow: the search's share of the time left
+_LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit: the first search's share of the time left at most
 _LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
 _MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resumes after it)
-# without a time limit the search stops after this many iterations without improvement, plus
-# the iterations it took to find the best (it keeps going while improvements keep coming)
 MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
 # patience of the search, in work units (score updates; about 1e8 to 1e9 a second): 2,000 per
-# nonzero of the reduced matrix, between these limits; a tenth of it before SCIP / CP-SAT (the
-# search resumes with the full patience if they stop without a proof)
+# nonzero of the reduced matrix, between these limits; a tenth of it for the first search (the one
+# before SCIP / CP-SAT may run)
 PATIENCE_PER_NNZ = 2000
 PATIENCE_WORK_MIN = 1_000_000
 PATIENCE_WORK = 500_000_000
@@ -161,9 +161,9 @@ def cover_bytes(m: int, n: int, nnz: int) -> int:
     """Working memory of the reductions and the local search for an (m, n) matrix with ``nnz``
     nonzeros: during the first reduction round a row-major and a column-major copy (12 bytes a
     nonzero each), their int32 indices and the next, smaller, copy (about 44 bytes a nonzero in
-    all), plus per-row and per-column state (the bitsets of the subset tests are checked
-    separately, :data:`BITSET_MAX_BYTES`)."""
-    return 48 * int(nnz) + 128 * (int(m) + int(n))
+    all), plus per-row and per-column state and a fixed 16 MiB for temporaries (the bitsets of
+    the subset tests are checked separately, :data:`BITSET_MAX_BYTES`)."""
+    return 48 * int(nnz) + 128 * (int(m) + int(n)) + (16 << 20)
 
 
 def _lists(a: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -298,9 +298,10 @@ def reduce_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray 
                   "forced_cols": int(fc.size), "time_s": time.perf_counter() - t0})
     log.info("setcover reduction: %dx%d (%d nnz) -> %dx%d (%d nnz), %d forced, in %.2f s", m, n, a.nnz,
              sub.shape[0], sub.shape[1], sub.nnz, fc.size, stats["time_s"])
-    return CoverReduction(cptr=cptr, crow=crow, rptr=rptr, rcol=rcol, cost=cost[cols].copy(), roww=roww.astype(np.float64),
-                          need=max(left, 0.0) if partial else -1.0, columns=cols.astype(np.int64), forced=fc,
-                          forced_cost=float(cost[fc].sum()), shape_in=(int(m), int(n)), stats=stats)
+    return CoverReduction(cptr=cptr, crow=crow, rptr=rptr, rcol=rcol, cost=cost[cols].copy(),
+                          roww=roww.astype(np.float64), need=max(left, 0.0) if partial else -1.0,
+                          columns=cols.astype(np.int64), forced=fc, forced_cost=float(cost[fc].sum()),
+                          shape_in=(int(m), int(n)), stats=stats)
 
 
 def _merge_identical_rows(sub: sp.csr_matrix, roww: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -347,8 +348,10 @@ class LocalSearch:
         Reduced columns of a cover to start from instead of the greedy one.
     """
 
-    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None, max_cand: int = MAX_CANDIDATES) -> None:
+    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None,
+                 max_cand: int = MAX_CANDIDATES, joint: bool = True) -> None:
         self.max_cand = int(max_cand)
+        self.joint = bool(joint)
         m, n = red.shape
         self.red = red
         self.x = np.zeros(n, dtype=np.int8)
@@ -450,7 +453,7 @@ class LocalSearch:
             c0 = time.perf_counter()
             with ctrl_c_deferred():
                 code = K.search(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target), stop_it,
-                                pat, self.max_cand)
+                                pat, self.max_cand, self.joint)
             dt = time.perf_counter() - c0
             if code:
                 return {1: "target", 2: "iterations", 3: "stuck", 4: "patience"}[code]
@@ -604,10 +607,15 @@ def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: s
     return sel, out.status, bound, stats
 
 
-def model_bytes(nnz: int, m: int, n: int) -> int:
-    """Approximate peak memory of the SCIP / CP-SAT model of a reduced instance (Python rows, the
-    model proto and the solver's copy; measured about 300 bytes a nonzero)."""
-    return 300 * int(nnz) + 2000 * (int(m) + int(n))
+def cover_model_bytes(red: CoverReduction, backend: str) -> int:
+    """Estimated peak memory of the SCIP / CP-SAT model of a reduced instance
+    (:func:`camplace.solver._model.model_bytes`)."""
+    from camplace.solver._model import model_bytes
+
+    m, n = red.shape
+    if red.partial:  # a y variable per row, y_i in each covering row, the weight row
+        return model_bytes(backend, n + m, m + 1, red.nnz + 2 * m)
+    return model_bytes(backend, n, m + 1, red.nnz + n)
 
 
 def _is_cover(red: CoverReduction, sel: np.ndarray) -> bool:
@@ -625,6 +633,25 @@ def _is_cover(red: CoverReduction, sel: np.ndarray) -> bool:
 # ----------------------------------------------------------------------------------------------
 # the whole pipeline
 # ----------------------------------------------------------------------------------------------
+
+
+def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) -> tuple[str | None, str]:
+    """The model to run after the first search (or None) and, if none, why.
+
+    ``mip`` / ``cpsat``: always. ``auto``: SCIP when the reduced instance has at most
+    :data:`AUTO_MODEL_NNZ` nonzeros and, with equal costs, the gap to the Lagrangian bound is at
+    most :data:`AUTO_MODEL_GAP_COLUMNS` columns: the LP bound of a unicost cover is flat (the
+    Lagrangian one a little below it), so SCIP closes no wider gap, and the time is better spent
+    searching.
+    """
+    if engine in ("mip", "cpsat"):
+        return engine, ""
+    if red.nnz > AUTO_MODEL_NNZ:
+        return None, f"reduced instance has {red.nnz} nonzeros (auto runs SCIP up to {AUTO_MODEL_NNZ})"
+    gap = upper - lower
+    if red.cost.size and np.all(red.cost == red.cost[0]) and gap > AUTO_MODEL_GAP_COLUMNS * red.cost[0] * (1 + 1e-9):
+        return None, f"equal costs and a gap of {gap / red.cost[0]:g} columns (SCIP would not close it)"
+    return "mip", ""
 
 
 @dataclass(frozen=True)
@@ -670,15 +697,15 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     need : float, optional
         Weight a partial cover must reach; None: cover every row.
     engine : {"auto", "mip", "cpsat"}
-        ``auto``: SCIP after the local search only when the reduced instance has at most
-        :data:`AUTO_MODEL_NNZ` nonzeros; ``mip`` / ``cpsat``: always (unless the local search
-        cover is proven optimal by the bound).
+        ``auto``: SCIP after the first search when :func:`_model_choice` says it can close the
+        gap; ``mip`` / ``cpsat``: always (unless the bound already proves the cover optimal).
     time_limit_s : float, optional
-        Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it, the local
-        search at most half of what is left when a model follows (all of it otherwise), the model
-        three quarters of what is then left; if the model stops without a proof, the search resumes
-        for the rest. The search stops earlier when it meets the bound, or on patience: once the work
-        since its best cover exceeds :func:`patience_work` plus the work it took to find it.
+        Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it; the first
+        search stops on a short patience (:func:`patience_work`) or after half of what is left;
+        the model gets three quarters of what is then left; if there is still no proof, the
+        search goes on until the time limit. Without a time limit the second search stops on the
+        full patience: once the work since its best cover exceeds :func:`patience_work` plus the
+        work it took to find it.
     seed : int
         Seed of the local search.
     max_iterations : int, optional
@@ -699,9 +726,8 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     need_bytes = cover_bytes(m, n, int(pattern.nnz))
     budget = memory_budget_bytes()
     if need_bytes > budget:
-        raise CamplaceError(f"setcover needs about {need_bytes / 2**30:.1f} GiB for a {m} x {n} matrix with "
-                            f"{pattern.nnz} nonzeros but only {budget / 2**30:.1f} GiB may be used; use fewer "
-                            "candidates or points")
+        exc = OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)")
+        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
     c = np.asarray(costs, dtype=np.float64)
     red = reduce_cover(pattern, c, weights, need)
     stats: dict[str, Any] = {"reduction": dict(red.stats)}
@@ -713,18 +739,12 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         return CoverOutcome(sel, "optimal", cost, cost, "local-search", stats)
     ls = LocalSearch(red, seed=seed)
     rem = left()
-    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost, time_limit_s=None if rem is None else _LAG_SHARE * rem)
-    backend = None
-    if engine in ("mip", "cpsat"):
-        backend = engine
-    elif engine == "auto" and red.nnz <= AUTO_MODEL_NNZ:
-        backend = "mip"
+    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost,
+                                               time_limit_s=None if rem is None else _LAG_SHARE * rem)
+    # first search: short patience, at most half the time left (the whole budget with an iteration budget)
     rem = left()
-    ls_limit = None if rem is None else rem * (_LS_SHARE_BEFORE_MODEL if backend else 0.95)
-    patience = None
-    if max_iterations is None:
-        patience = patience_work(red.nnz, before_model=backend is not None)
-    why = ls.run(max_iterations=max_iterations, time_limit_s=ls_limit, target=lb, patience=patience)
+    why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else _LS_SHARE_BEFORE_MODEL * rem,
+                 target=lb, patience=None if max_iterations is not None else patience_work(red.nnz, before_model=True))
     sel_r = ls.best_cover()
     cost_r = float(red.cost[sel_r].sum())
     ls_stats = {"greedy_cost": ls.greedy_cost + red.forced_cost, "cost": cost_r + red.forced_cost,
@@ -734,17 +754,21 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     bound_r = min(lb, cost_r)
     name = "local-search"
     proven = cost_r <= lb + 1e-9 * max(1.0, abs(cost_r))
-    if not proven and backend is not None and model_bytes(red.nnz, mr, nr) > memory_budget_bytes():
-        msg = (f"the {backend} model of the reduced {mr} x {nr} instance ({red.nnz} nonzeros) would need about "
-               f"{model_bytes(red.nnz, mr, nr) / 2**30:.1f} GiB; kept the local-search cover and its bound")
+    backend, why_not = _model_choice(engine, red, cost_r, lb)
+    if not proven and backend is not None and cover_model_bytes(red, backend) > memory_budget_bytes():
+        msg = (f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} model of the reduced {mr} x {nr} instance "
+               f"({red.nnz} nonzeros) would need about {cover_model_bytes(red, backend) / 2**30:.1f} GiB but only "
+               f"{memory_budget_bytes() / 2**30:.1f} GiB may be used; kept the local-search cover and its bound")
         log.warning("setcover: %s", msg)
         stats["memory_fallback"] = msg
         backend = None
+    if not proven and backend is None and why_not:
+        stats["model_skipped"] = why_not
     if not proven and backend is not None:
         name = backend
         rem = left()
-        model_limit = None if rem is None else _MODEL_SHARE * rem
-        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, model_limit)
+        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend,
+                                                     None if rem is None else _MODEL_SHARE * rem)
         stats["model"] = mstats
         if msel is not None and _is_cover(red, msel):
             mcost = float(red.cost[msel].sum())
@@ -758,21 +782,21 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         elif math.isfinite(mbound):
             bound_r = max(bound_r, min(mbound, cost_r))
         proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
-        rem = left()
-        if not proven and why in ("patience", "time") and (rem is None or rem > 0.05 * float(time_limit_s)):
-            # the model stopped on the time limit without a proof: the search goes on from where it
-            # was (with the full patience, counted from its best so far)
-            ls.ist[K.BEST_WORK] = max(int(ls.ist[K.BEST_WORK]), int(ls.ist[K.WORK]) // 2)
-            why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else 0.95 * rem,
-                         target=bound_r, patience=None if max_iterations is not None else patience_work(red.nnz))
-            sel2 = ls.best_cover()
-            cost2 = float(red.cost[sel2].sum())
-            if cost2 < cost_r - 1e-9 * max(1.0, abs(cost_r)):
-                sel_r, cost_r = sel2, cost2
-                proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
-            ls_stats.update({"cost": float(red.cost[sel2].sum()) + red.forced_cost, "iterations": ls.iterations,
-                             "best_iteration": ls.best_iteration, "work": int(ls.ist[K.WORK]),
-                             "stopped_by": why, "resumed_after_model": True})
+    rem = left()
+    if not proven and why in ("patience", "time") and (rem is None or rem > 0.02 * float(time_limit_s)):
+        # the search goes on from where it was: until the time limit when there is one, else with
+        # the full patience counted from now
+        ls.ist[K.BEST_WORK] = max(int(ls.ist[K.BEST_WORK]), int(ls.ist[K.WORK]) // 2)
+        why = ls.run(time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
+                     patience=None if rem is not None else patience_work(red.nnz))
+        sel2 = ls.best_cover()
+        cost2 = float(red.cost[sel2].sum())
+        if cost2 < cost_r - 1e-9 * max(1.0, abs(cost_r)):
+            sel_r, cost_r = sel2, cost2
+            proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
+        ls_stats.update({"cost": cost2 + red.forced_cost, "iterations": ls.iterations,
+                         "best_iteration": ls.best_iteration, "work": int(ls.ist[K.WORK]), "stopped_by": why,
+                         "resumed": True})
     sel = _prune_input(pattern, c, weights, need, red.input_columns(sel_r))
     cost = float(c[list(sel)].sum())
     bound = min(bound_r + red.forced_cost, cost)
