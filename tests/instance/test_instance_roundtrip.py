@@ -10,7 +10,7 @@ import tomli_w
 import trimesh
 
 from camplace.instance import Instance, builtin, load_instance, parse_instance, save_instance
-from camplace.instance.loader import mesh_ply_bytes
+from camplace.geometry import ply_bytes as mesh_ply_bytes
 
 try:
     import tomllib

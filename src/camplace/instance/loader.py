@@ -25,6 +25,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 from camplace._io import write_bytes_atomic, write_text_atomic
 from camplace.errors import InstanceError
+from camplace.geometry import ply_bytes
 from camplace.instance import procedural
 from camplace.names import ROBUST_OBJECTIVES
 from camplace.instance.schema import (
@@ -46,7 +47,7 @@ from camplace.instance.schema import (
     Volume,
 )
 
-__all__ = ["load_instance", "parse_instance", "save_instance", "mesh_ply_bytes", "read_mesh_file"]
+__all__ = ["load_instance", "parse_instance", "save_instance", "read_mesh_file"]
 
 log = logging.getLogger(__name__)
 
@@ -817,24 +818,6 @@ def make_winding_consistent(faces: np.ndarray) -> np.ndarray:
     return out
 
 
-def mesh_ply_bytes(vertices: np.ndarray, faces: np.ndarray, comment: str = "") -> bytes:
-    """Binary little-endian PLY with float64 (``double``) vertices, so coordinates round-trip exactly."""
-    v = np.ascontiguousarray(vertices, dtype="<f8").reshape(-1, 3)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    if len(f) and (f.min() < 0 or f.max() >= min(len(v), 2**31 - 1)):
-        raise ValueError("face index out of range")
-    comment_line = f"comment {_one_line(comment)}\n" if comment else ""
-    header = (
-        f"ply\nformat binary_little_endian 1.0\n{comment_line}"
-        f"element vertex {len(v)}\nproperty double x\nproperty double y\nproperty double z\n"
-        f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n"
-    ).encode("ascii")
-    packed = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    packed["n"] = 3
-    packed["i"] = f
-    return header + v.tobytes() + packed.tobytes()
-
-
 # --------------------------------------------------------------------------------------------------
 # public API
 
@@ -934,7 +917,7 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             table["name"] = mesh.name
             return {"name": table.pop("name"), **table}
         rel = f"{mesh_dir_name}/{file_stem}.ply"
-        write_bytes_atomic(out_dir / rel, mesh_ply_bytes(mesh.vertices, mesh.faces, f"camplace mesh {mesh.name} (metres)"))
+        write_bytes_atomic(out_dir / rel, ply_bytes(mesh.vertices, mesh.faces, f"camplace mesh {mesh.name} (metres)"))
         if "shape" in spec:
             comments[key] = "generated from: " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in spec.items() if k != "name")
         elif is_file_spec:

@@ -38,6 +38,7 @@ import numpy as np
 
 from camplace._io import write_json_atomic
 from camplace.errors import CamplaceError
+from camplace.geometry import quaternion_to_rotation
 
 log = logging.getLogger(__name__)
 
@@ -487,22 +488,6 @@ def _check_rotation(R: np.ndarray, where: str) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------------------
 # COLMAP
-
-
-def quaternion_to_rotation(q: Sequence[float]) -> np.ndarray:
-    """(3, 3) rotation of the unit quaternion ``(qw, qx, qy, qz)`` (Hamilton, as COLMAP writes it)."""
-    w, x, y, z = (float(v) for v in q)
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if n == 0:
-        raise CamplaceError("quaternion (0, 0, 0, 0) is not a rotation")
-    w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 _COLMAP_MODELS = {

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from camplace.errors import CamplaceError
+from camplace.geometry import rotation_from_vector
 from camplace.validation.cameras import CameraView
 
 log = logging.getLogger(__name__)
@@ -124,17 +125,6 @@ def parse_physical(table: dict[str, Any] | None, where: str = "[physical]") -> P
             raise CamplaceError(f"{where}.vignetting: must be between 0 and 1, got {value}")
         vals[key] = float(value)
     return PhysicalCamera(**vals)
-
-
-def rotation_from_vector(w: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation ``Exp(w)`` of a rotation vector (axis * angle, radians), Rodrigues' formula."""
-    w = np.asarray(w, dtype=np.float64).reshape(3)
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-15:
-        return np.eye(3)
-    k = w / theta
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(theta) * Kx + (1 - math.cos(theta)) * (Kx @ Kx)
 
 
 def perturb_camera(camera: CameraView, physical: PhysicalCamera, rng: np.random.Generator) -> CameraView:

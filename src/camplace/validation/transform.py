@@ -44,6 +44,7 @@ import numpy as np
 
 from camplace._io import write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
+from camplace.geometry import euler_xyz_deg
 
 __all__ = [
     "TRANSFORM_METHODS",
@@ -280,30 +281,6 @@ def build_transform(config: TransformConfig) -> PlacementTransform:
         rms = float(np.sqrt((res**2).sum(axis=1).mean()))
         return PlacementTransform(s * R, t, config, scale=s, rotation=R, rms_residual_m=rms)
     raise CamplaceError(f"[transform].method: unknown method {config.method!r}")
-
-
-def euler_xyz_deg(R: np.ndarray) -> np.ndarray:
-    """Extrinsic X-then-Y-then-Z Euler angles (degrees) of ``R = Rz @ Ry @ Rx`` (the instance format's convention).
-
-    Parameters
-    ----------
-    R : (3, 3) float64
-
-    Returns
-    -------
-    (3,) float64
-        Angles about world x, y, z; at gimbal lock (|y| = 90 deg) x is set to 0.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    sy = -R[2, 0]
-    ay = math.asin(max(-1.0, min(1.0, sy)))
-    if abs(sy) < 1.0 - 1e-12:
-        ax = math.atan2(R[2, 1], R[2, 2])
-        az = math.atan2(R[1, 0], R[0, 0])
-    else:  # gimbal lock: only ax - az (or ax + az) is defined
-        ax = 0.0
-        az = math.atan2(-R[0, 1], R[1, 1])
-    return np.degrees([ax, ay, az])
 
 
 PLACEMENT_COLUMNS = (
