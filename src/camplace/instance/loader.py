@@ -24,9 +24,10 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
 from camplace._io import write_bytes_atomic, write_text_atomic
-from camplace.errors import InstanceError
+from camplace.errors import CamplaceError, InstanceError
 from camplace.geometry import ply_bytes
 from camplace.instance import procedural
+from camplace.instance.lab import parse_physical, parse_transform
 from camplace.names import ROBUST_OBJECTIVES
 from camplace.instance.schema import (
     SAMPLERS,
@@ -563,16 +564,11 @@ class _Parser:
         )
 
     def passthrough(self, data: dict, key: str) -> dict | None:
-        """A ``[physical]`` or ``[transform]`` table, validated by the validation stage's parser."""
+        """A ``[physical]`` or ``[transform]`` table, checked by its parser (:mod:`camplace.instance.lab`)."""
         table = self.table(data, key, "", required=False)
         if table is None:
             return None
-        from camplace.errors import CamplaceError
-
-        if key == "physical":
-            from camplace.validation.physical import parse_physical as parse
-        else:
-            from camplace.validation.transform import parse_transform as parse
+        parse = parse_physical if key == "physical" else parse_transform
         try:
             parse(table, key)
         except CamplaceError as exc:
