@@ -373,7 +373,7 @@ def parse_target(spec: str) -> tuple[np.ndarray, np.ndarray]:
     path = Path(spec)
     if not path.exists():
         raise CamplaceError(f"--target: {spec} is neither box:x0,y0,z0,x1,y1,z1 nor an existing mesh file")
-    from camplace.instance.loader import read_mesh_file
+    from camplace.instance.meshio import read_mesh_file
 
     try:
         v, f = read_mesh_file(path)
