@@ -1,6 +1,6 @@
 """Export a run's chosen cameras: JSON, CSV, COLMAP text model and a GLB scene with camera frustums.
 
-All in the run's (simulation) world frame, metres; for lab coordinates use ``camplace export --frame physical``.
+All in the run's (simulation) world frame, metres; for lab coordinates use ``camplace export --format placement``.
 Cameras are named ``e{experiment}.1.camera_{n}`` like the renders (``OUTDIR/render``).
 
 ``cameras.json``
@@ -36,6 +36,7 @@ import numpy as np
 from camplace._io import write_bytes_atomic, write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
 from camplace.geometry import rotation_to_quaternion
+from camplace.names import CAMERA_FORMATS
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +52,7 @@ __all__ = [
     "export_cameras",
 ]
 
-EXPORT_FORMATS = ("json", "csv", "colmap", "glb")
+EXPORT_FORMATS = CAMERA_FORMATS  # the camera files (``camplace export`` adds ``placement``: camplace.names.EXPORT_FORMATS)
 
 #: 4x4 transform from the run's z-up world to glTF's y-up frame: (x, y, z) -> (x, z, -y).
 Z_UP_TO_Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, -1.0, 0, 0], [0, 0, 0, 1.0]])
