@@ -14,7 +14,9 @@ import camplace.cli
 from camplace.instance import builtin
 from camplace.pipeline import Solution, run
 from camplace.report.export import Z_UP_TO_Y_UP, export_cameras, frustum_mesh, parse_formats, rotation_to_quaternion
-from camplace.validation.cameras import CameraSet, quaternion_to_rotation, read_colmap
+from camplace.geometry import quaternion_to_rotation
+from camplace.validation.camera_io import read_colmap
+from camplace.validation.cameras import CameraSet
 
 
 @pytest.fixture

@@ -137,7 +137,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
-    from camplace.validation.cameras import import_cameras
+    from camplace.validation.camera_io import import_cameras
 
     cams = import_cameras(args.file, args.format, images_dir=args.images, size=args.size)
     cams.save(args.out)
