@@ -23,6 +23,8 @@ the whole target); segments to points on a
 supporting plane of the target are cast against the occluders alone (they provably miss the
 target); the rest are cast with Embree, chunk by chunk over candidates, on a pool of threads
 (Embree and numpy release the GIL) or on a Dask cluster (:mod:`camplace.visibility.distributed`).
+The chunk kernel is :mod:`camplace.visibility.chunk`; this module plans the chunks, checks the
+memory budget on a pilot chunk, consults the cache and assembles the matrix.
 """
 
 from __future__ import annotations
