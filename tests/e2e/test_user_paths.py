@@ -244,6 +244,10 @@ def test_render_validate_export(reported_run, tmp_path) -> None:
 
     scene = trimesh.load(exp / "cameras.glb")
     assert sum("frustum" in str(n).lower() or "camera" in str(n).lower() for n in scene.geometry) >= k
+    # the former verb name still works for one release: the same files, one warning line on stderr
+    old = camplace("export-cameras", str(out), "--format", "colmap", "-o", str(tmp_path / "old"), cwd=tmp_path)
+    assert old.stderr.startswith("warning:") and "deprecated" in old.stderr and len(old.stderr.strip().splitlines()) == 1
+    assert (tmp_path / "old" / "colmap" / "images.txt").read_text() == (exp / "colmap" / "images.txt").read_text()
 
 
 @pytest.mark.parametrize("args,option", [
