@@ -34,6 +34,7 @@ _LAZY = {
     "Presolved": "camplace.solver.presolve",
     "presolve": "camplace.solver.presolve",
     "SolverResult": "camplace.solver.result",
+    "SolveOptions": "camplace.solver.options",
     "coverage_weight": "camplace.solver._common",
     "solve": "camplace.solver.modes",
     "mode_value": "camplace.solver.modes",

@@ -67,9 +67,10 @@ import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
+from camplace.names import MODES
 from camplace.solver._anglekernels import count_bad_pairs, selected_pattern
 from camplace.solver._common import (
-    OverBudget, check_engine_and_limit, coverage_weight, memory_budget, memory_budget_bytes, selected_row_stats,
+    OverBudget, coverage_weight, memory_budget, memory_budget_bytes, selected_row_stats,
 )
 from camplace.solver._dispatch import memory_fallback, run_maxcover_engine
 from camplace.solver._model import LinearModel, model_bytes, solve_model
@@ -83,6 +84,7 @@ from camplace.solver.quality_exact import (
 )
 from camplace.solver.quality_tree import quality_tree_bytes, solve_quality_tree
 from camplace.solver.presolve import as_pattern, check_weights, presolve
+from camplace.solver.options import SolveOptions
 from camplace.solver.result import SolverResult, jsonable, relative_gap
 from camplace.solver.setcover_ls import solve_cover
 
@@ -90,8 +92,6 @@ __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
 
 log = logging.getLogger(__name__)
 
-MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
-_ENGINES = ("auto", "exact", "mip", "cpsat")
 _STEREO_AUTO_MAX_N = 4000  # the pair-Gram stereo engine (views=2, k<=3) up to this many candidates, bitsets above
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 _OPT_TOL = 1e-9
@@ -406,6 +406,7 @@ def solve(
     memory_budget_bytes: int | None = None,
     seed: int = 0,
     iterations: int | None = None,
+    options: SolveOptions | None = None,
 ) -> SolverResult:
     """Choose cameras under one of the formulations (see the module docstring).
 
@@ -446,6 +447,10 @@ def solve(
     iterations : int, optional
         setcover: iteration budget of the local search; with it and no time limit the answer is
         fully deterministic (with a time limit it depends on the machine's speed).
+    options : SolveOptions, optional
+        All of the above (``k`` to ``iterations``) in one checked object
+        (:class:`~camplace.solver.options.SolveOptions`), e.g. built by the command line; then none
+        of them may be given beside it.
 
     Returns
     -------
@@ -460,30 +465,50 @@ def solve(
     CamplaceError
         On malformed input or an impossible request (one line).
     """
-    with memory_budget(memory_budget_bytes):
-        return _solve(matrix, weights, k, mode=mode, views=views, min_angle_deg=min_angle_deg, positions=positions,
-                      points=points, costs=costs, required_fraction=required_fraction, fixed=fixed, forbidden=forbidden,
-                      min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s, seed=seed,
-                      iterations=iterations)
+    if options is None:
+        options = SolveOptions(
+            mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction,
+            fixed=tuple(fixed or ()), forbidden=tuple(forbidden or ()), min_distance_m=min_distance_m, engine=engine,
+            time_limit_s=time_limit_s, costs=costs, memory_budget_bytes=memory_budget_bytes, seed=seed,
+            iterations=iterations,
+        )
+    else:
+        given = dict(k=k, mode=mode, views=views, min_angle_deg=min_angle_deg, costs=costs,
+                     required_fraction=required_fraction, fixed=fixed, forbidden=forbidden,
+                     min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
+                     memory_budget_bytes=memory_budget_bytes, seed=seed, iterations=iterations)
+        mixed = sorted(name for name, value in given.items() if not _is_default(name, value))
+        if mixed:
+            raise CamplaceError(f"solve: give {', '.join(mixed)} inside options=SolveOptions(...), not beside it")
+    with memory_budget(options.memory_budget_bytes):
+        return _solve(matrix, weights, positions, points, options)
 
 
-def _solve(
-    matrix: Any, weights: Any, k: int | None, *, mode: str, views: int, min_angle_deg: float | None, positions: Any,
-    points: Any, costs: Any, required_fraction: float, fixed: Sequence[int], forbidden: Sequence[int],
-    min_distance_m: float | None, engine: str, time_limit_s: float | None, seed: int = 0, iterations: int | None = None,
-) -> SolverResult:
-    """:func:`solve` within the memory budget."""
+_DEFAULTS = SolveOptions()
+
+
+def _is_default(name: str, value: Any) -> bool:
+    """True when keyword option ``name`` of :func:`solve` was left at its default."""
+    if name == "costs":
+        return value is None
+    if name in ("fixed", "forbidden"):
+        return len(value or ()) == 0
+    return value is getattr(_DEFAULTS, name) or (type(value) is type(getattr(_DEFAULTS, name))
+                                                  and value == getattr(_DEFAULTS, name))
+
+
+def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions) -> SolverResult:
+    """:func:`solve` within the memory budget (``o`` is already checked)."""
     t0 = time.perf_counter()
-    if mode not in MODES:
-        raise CamplaceError(f"unknown mode {mode!r} (choose one of {', '.join(MODES)})")
-    check_engine_and_limit(engine, _ENGINES, time_limit_s)
+    k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
+    min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
     q = _values_matrix(matrix)
     m, n = q.shape
     if n == 0:
         raise CamplaceError("the visibility matrix has no candidate columns")
     w = check_weights(weights, m)
-    fixed_t = _index_set(fixed, n, "fixed")
-    forbidden_t = _index_set(forbidden, n, "forbidden")
+    fixed_t = _index_set(o.fixed, n, "fixed")
+    forbidden_t = _index_set(o.forbidden, n, "forbidden")
     both = sorted(set(fixed_t) & set(forbidden_t))
     if both:
         raise CamplaceError(f"candidates {both} are both fixed and forbidden")
@@ -493,8 +518,6 @@ def _solve(
     conflicts = np.zeros((0, 2), dtype=np.int64)
     too_many: OverBudget | None = None  # conflicting pairs that would not fit in memory
     if min_distance_m is not None:
-        if not (float(min_distance_m) >= 0.0):
-            raise CamplaceError(f"min_distance_m must be >= 0, got {min_distance_m!r}")
         if pos is None:
             raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
         n_pairs = conflict_count(pos, float(min_distance_m))
@@ -508,19 +531,11 @@ def _solve(
             conflicts = conflict_pairs(pos, float(min_distance_m))
     pts = None
     if min_angle_deg is not None:
-        if mode != "multiview":
-            raise CamplaceError("min_angle_deg applies to mode 'multiview' only")
-        if not (0.0 <= float(min_angle_deg) <= 180.0):
-            raise CamplaceError(f"min_angle_deg must be within 0..180, got {min_angle_deg!r}")
         if pos is None or points is None:
             raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions (points (m, 3))")
         pts = _coords(points, m, "points", "point positions")
     if mode == "multiview":
-        if isinstance(views, bool) or not isinstance(views, numbers.Integral) or int(views) < 1:
-            raise CamplaceError(f"views must be an integer >= 1, got {views!r}")
         views = int(views)
-        if min_angle_deg is not None and views < 2:
-            raise CamplaceError("min_angle_deg needs views >= 2")
     if too_many is not None:
         assert pos is not None and min_distance_m is not None
         return _spaced_fallback(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, forbidden_t,
@@ -542,12 +557,10 @@ def _solve(
     conflicts = conflicts[keep_conf]
 
     if mode == "setcover":
-        if k is not None:
-            raise CamplaceError("mode 'setcover' chooses the number of cameras itself: do not give k")
         if conflicts.size:  # the model runs directly (otherwise setcover_ls checks its own memory)
             _check_setcover_memory(q, w, free_cols, conflicts, engine)
-        ctx = _setcover(q, w, costs, required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0,
-                        seed, iterations)
+        ctx = _setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0,
+                        o.seed, o.iterations)
     else:
         if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
             raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
@@ -1102,8 +1115,6 @@ def _setcover(
     if c.shape != (n,) or not np.all(np.isfinite(c)) or np.any(c < 0):
         raise CamplaceError(f"costs must be ({n},) finite values >= 0, got shape {c.shape}")
     frac = float(required_fraction)
-    if not (0.0 < frac <= 1.0):
-        raise CamplaceError(f"required_fraction must be in (0, 1], got {required_fraction!r}")
     pat = as_pattern(q)
     allowed = np.zeros(n, dtype=bool)
     allowed[free_cols] = True
