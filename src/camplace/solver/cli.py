@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 from camplace.errors import CamplaceError
 from camplace.names import EVENT_MODES, SETCOVER_ENGINES
-from camplace.solver.options import SolveOptions, add_solver_options, options_from_args, parse_index_list
+from camplace.solver.options import SolveOptions, add_solver_options, options_from_args
 
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 3
