@@ -237,8 +237,8 @@ def _reason(engine: str, name: str, mode: str, k: int, p: ProblemSizes, exact_ok
     if k > EXACT_MAX_K and (exact_ok or multiview_ok or angle_ok):
         return f"auto: k = {k} > {EXACT_MAX_K}, beyond the exact engines"
     if p.conflicts:
-        return f"auto: {p.conflicts} minimum-distance conflicts need the model"
-    return f"auto: {mode} with {p.fixed} fixed cameras needs the model"
+        return f"auto: min_distance_m ({p.conflicts} conflicting pairs) needs the model"
+    return f"auto: {mode} with fixed cameras ({p.fixed}) needs the model"
 
 
 def use_stereo(views: int, k: int, engine: str, free: int, stereo_need: int, budget_bytes: int) -> bool:
