@@ -89,3 +89,11 @@ def test_record_has_the_solution_json_keys() -> None:
     assert rec["views"] == 3 and rec["fixed"] == [1, 4] and rec["required_fraction"] is None
     rec = SolveOptions(mode="setcover", views=3).record()
     assert rec["k"] is None and rec["views"] is None and rec["required_fraction"] == 1.0
+
+
+def test_index_arrays_are_accepted() -> None:
+    opts = SolveOptions(k=2, fixed=np.array([1, 2]), forbidden=np.array([4, 5]))
+    assert opts.fixed == (1, 2) and opts.forbidden == (4, 5)
+    res = solve(DENSE, W, 2, fixed=np.array([1, 2]), forbidden=np.array([4, 5]))
+    best = brute_force_mode(DENSE > 0, W, 2, "maxcover", fixed=(1, 2), forbidden=(4, 5))
+    assert res.objective == pytest.approx(best, rel=1e-9) and {1, 2} <= set(res.selected)

@@ -179,7 +179,7 @@ def solve(
     if options is None:
         options = SolveOptions(
             mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction,
-            fixed=tuple(fixed or ()), forbidden=tuple(forbidden or ()), min_distance_m=min_distance_m, engine=engine,
+            fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, engine=engine,
             time_limit_s=time_limit_s, costs=costs, memory_budget_bytes=memory_budget_bytes, seed=seed,
             iterations=iterations,
         )
@@ -203,7 +203,7 @@ def _is_default(name: str, value: Any) -> bool:
     if name == "costs":
         return value is None
     if name in ("fixed", "forbidden"):
-        return len(value or ()) == 0
+        return value is None or len(value) == 0
     return value is getattr(_DEFAULTS, name) or (type(value) is type(getattr(_DEFAULTS, name))
                                                   and value == getattr(_DEFAULTS, name))
 

@@ -74,8 +74,8 @@ class SolveOptions:
     iterations: int | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "fixed", tuple(self.fixed or ()))
-        object.__setattr__(self, "forbidden", tuple(self.forbidden or ()))
+        object.__setattr__(self, "fixed", () if self.fixed is None else tuple(self.fixed))
+        object.__setattr__(self, "forbidden", () if self.forbidden is None else tuple(self.forbidden))
         _check(self)
 
     def replace(self, **changes: Any) -> "SolveOptions":
