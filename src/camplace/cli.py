@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 from camplace.errors import CamplaceError
-from camplace.names import ENGINES, EVENT_MODES, MODES, SAMPLERS
+from camplace.names import EVENT_MODES, SAMPLERS
 from camplace.robust_cli import add_robust_options, print_oos, spec_from_args, wrap_solve
+from camplace.solver.options import add_solver_options, options_from_args
 
 MATRIX_FORMATS = ("cpm", "npz")  # camplace.visibility.store.MATRIX_FORMATS (not imported: startup time)
 
@@ -40,20 +41,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--candidates", type=int, default=None, help="number of candidate camera positions")
     p.add_argument("--points", type=int, default=None, help="number of target surface points")
     p.add_argument("--sampler", choices=SAMPLERS, default=None, help="candidate sampler")
-    p.add_argument("--k", type=int, default=None, help="number of cameras to place (default: the instance's k)")
-    p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="solver time limit, seconds")
-    p.add_argument(
-        "--engine", choices=ENGINES, default="auto", help="solver engine (default: auto)"
-    )
-    p.add_argument("--mode", choices=MODES, default="maxcover",
-                   help="formulation: maxcover (default), quality, multiview (>= --views cameras), setcover (fewest cameras)")
-    p.add_argument("--views", type=int, default=2, help="multiview: cameras that must observe a point (default 2)")
-    p.add_argument("--min-angle", type=float, default=None, dest="min_angle", help="multiview: minimum angle between two views, degrees")
-    p.add_argument("--required-fraction", type=float, default=1.0, dest="required_fraction",
-                   help="setcover: share of the coverable weight to observe (default 1)")
-    p.add_argument("--fixed", default="", help="candidate columns kept as existing cameras, e.g. 3,17 (k new ones are added)")
-    p.add_argument("--forbidden", default="", help="candidate columns never chosen, e.g. 5,6")
-    p.add_argument("--min-distance", type=float, default=None, dest="min_distance", help="minimum distance between chosen cameras, m")
+    add_solver_options(p, k_default="the instance's k", memory_budget=False)
     p.add_argument("--event-mode", choices=EVENT_MODES, default="all", dest="event_mode",
                    help="all: expected coverage over all frames (default); peak: the maximum-likelihood frame")
     _add_visibility_options(p)
@@ -132,7 +120,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
     from camplace.pipeline import run
-    from camplace.solver.cli import parse_index_list
 
     instance = resolve_instance(args.instance, seed=args.seed)
     from camplace.plan.cli import check_agent_options
@@ -145,8 +132,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
         points=args.points,
         sampler=args.sampler,
         k=args.k,
-        time_limit_s=args.time_limit,
-        engine=args.engine,
         orientations=args.orientations,
         outdir=args.out,
         reporter=ConsoleReporter(),
@@ -154,13 +139,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         dask_address=args.dask,
         memory_budget_gb=args.memory_budget_gb,
         event_mode=args.event_mode,
-        mode=args.mode,
-        views=args.views,
-        min_angle_deg=args.min_angle,
-        fixed=parse_index_list(args.fixed, "--fixed"),
-        forbidden=parse_index_list(args.forbidden, "--forbidden"),
-        min_distance_m=args.min_distance,
-        required_fraction=args.required_fraction,
+        solve_options=options_from_args(args, k=None if args.mode == "setcover" else args.k),
         matrix_format=args.matrix_format,
         robust=spec_from_args(instance, args),
     )

@@ -17,3 +17,10 @@ SAMPLERS: tuple[str, ...] = ("chaotic", "uniform", "sobol")
 EVENT_MODES: tuple[str, ...] = ("all", "peak")
 #: Robust objectives over sampled installations (``[robust] objective``, ``--robust-objective``).
 ROBUST_OBJECTIVES: tuple[str, ...] = ("mean", "p10")
+#: Formats of ``camplace export --format``: the lab placement (``placement.{frame}.csv`` / ``.json``)
+#: and the camera files (:mod:`camplace.report.export`).
+EXPORT_FORMATS: tuple[str, ...] = ("placement", "json", "csv", "colmap", "glb")
+#: The camera-file formats (``--format all``), written in the simulation frame.
+CAMERA_FORMATS: tuple[str, ...] = ("json", "csv", "colmap", "glb")
+#: Coordinate frames of ``camplace export --frame``.
+EXPORT_FRAMES: tuple[str, ...] = ("physical", "simulation")

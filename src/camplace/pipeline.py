@@ -7,7 +7,7 @@ import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -85,7 +85,7 @@ class Solution:
         The ``--points`` value of the run (surface points split over the frames, before rounding
         up to a whole number per frame and adding emitters); with ``seed`` it recreates the rows.
     options : dict
-        Every option that shaped the answer, as asked for (:func:`run_options`): ``mode``, ``k``,
+        Every option that shaped the answer, as asked for (:meth:`camplace.solver.options.SolveOptions.record` and the run's settings): ``mode``, ``k``,
         ``views``, ``min_angle_deg``, ``required_fraction``, ``fixed``, ``forbidden``,
         ``min_distance_m``, ``engine``, ``time_limit_s``, ``event_mode``, ``sampler``, ``seed``,
         ``candidates``, ``points``, ``orientations`` (and ``robust``, the settings of a robust run).
@@ -178,47 +178,6 @@ class Solution:
         data = read_json(path, "solution.json", "solution")
         known = {f for f in cls.__dataclass_fields__ if f not in ("candidates", "visibility")}
         return cls(**{k: v for k, v in data.items() if k in known})
-
-
-def run_options(
-    *, mode: str, k: int | None, views: int, min_angle_deg: float | None, required_fraction: float,
-    fixed: Sequence[int], forbidden: Sequence[int], min_distance_m: float | None, engine: str,
-    time_limit_s: float | None, event_mode: str = "all", **run_settings: Any,
-) -> dict[str, Any]:
-    """The ``options`` record of ``solution.json``: every option that shaped an answer, as asked for.
-
-    Parameters
-    ----------
-    mode, k, views, min_angle_deg, required_fraction, fixed, forbidden, min_distance_m, engine, time_limit_s
-        The solver's options (:func:`camplace.solver.solve`); ``k`` counts the new cameras (None
-        for setcover).
-    event_mode : {"all", "peak"}
-        Which row weights the solver maximised (:func:`event_weights`).
-    **run_settings
-        Further settings of the run (``sampler``, ``seed``, ``candidates``, ``points``,
-        ``orientations``), recorded as given.
-
-    Returns
-    -------
-    dict
-        JSON-ready; ``views`` and ``min_angle_deg`` are None outside multiview,
-        ``required_fraction`` None outside setcover.
-    """
-    out: dict[str, Any] = {
-        "mode": mode,
-        "k": None if mode == "setcover" or k is None else int(k),
-        "views": int(views) if mode == "multiview" else None,
-        "min_angle_deg": None if min_angle_deg is None else float(min_angle_deg),
-        "required_fraction": float(required_fraction) if mode == "setcover" else None,
-        "fixed": sorted(int(j) for j in fixed),
-        "forbidden": sorted(int(j) for j in forbidden),
-        "min_distance_m": None if min_distance_m is None else float(min_distance_m),
-        "engine": engine,
-        "time_limit_s": None if time_limit_s is None else float(time_limit_s),
-        "event_mode": event_mode,
-    }
-    out.update(run_settings)
-    return out
 
 
 def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
@@ -522,6 +481,7 @@ def run(
     required_fraction: float = 1.0,
     matrix_format: str = "cpm",
     robust=None,
+    solve_options=None,
 ) -> Solution:
     """Run the whole pipeline on an instance.
 
@@ -562,6 +522,11 @@ def run(
     robust : RobustSpec or None
         Optimise against installation error (:mod:`camplace.robust`); default: the instance's
         ``[robust]`` table, if any.
+    solve_options : SolveOptions or None
+        The solver's options in one object (:class:`camplace.solver.options.SolveOptions`, as the
+        command line builds them); they replace ``mode``, ``views``, ``min_angle_deg``, ``fixed``,
+        ``forbidden``, ``min_distance_m``, ``required_fraction`` and ``engine``, and ``k`` /
+        ``time_limit_s`` when set (otherwise the keyword or the instance's default).
 
     Returns
     -------
@@ -570,6 +535,14 @@ def run(
     from camplace.instance import resolve_instance, save_instance
     from camplace.solver.modes import solve
 
+    from camplace.solver.options import SolveOptions
+
+    if solve_options is not None:
+        o = solve_options
+        mode, views, min_angle_deg, fixed, forbidden = o.mode, o.views, o.min_angle_deg, o.fixed, o.forbidden
+        min_distance_m, required_fraction, engine = o.min_distance_m, o.required_fraction, o.engine
+        k = k if o.k is None else o.k
+        time_limit_s = time_limit_s if o.time_limit_s is None else o.time_limit_s
     if not hasattr(instance, "frames"):
         instance = resolve_instance(str(instance), seed=seed)
     if event_mode not in EVENT_MODES:
@@ -601,11 +574,16 @@ def run(
         raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
 
     check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
-    options = run_options(
-        mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction, fixed=fixed,
-        forbidden=forbidden, min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
-        event_mode=event_mode, sampler=sampler, seed=seed, candidates=n_cand, points=n_points, orientations=orientations,
+    if memory_budget_gb is not None and not memory_budget_gb > 0:
+        raise CamplaceError(f"--memory-budget-gb: must be > 0, got {memory_budget_gb}")
+    solve_opts = SolveOptions(
+        mode=mode, k=None if mode == "setcover" else k, views=views, min_angle_deg=min_angle_deg,
+        required_fraction=required_fraction, fixed=tuple(fixed), forbidden=tuple(forbidden),
+        min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
+        memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
     )
+    options = {**solve_opts.record(), "event_mode": event_mode, "sampler": sampler, "seed": seed, "candidates": n_cand,
+               "points": n_points, "orientations": orientations}
     robust = instance.robust if robust is None else robust
     if robust is not None:
         from camplace.robust import check_request, spec_record
@@ -634,14 +612,8 @@ def run(
     geometric = min_angle_deg is not None or min_distance_m is not None
     t0 = time.perf_counter()
     with reporter.stage("solve"):
-        res = solve(
-            vis.matrix, solve_w, None if mode == "setcover" else k, mode=mode, views=views,
-            min_angle_deg=min_angle_deg, positions=cands.positions if geometric else None,
-            points=pts.positions if geometric else None, required_fraction=required_fraction,
-            fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
-            engine=engine, time_limit_s=time_limit_s,
-            memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
-        )
+        res = solve(vis.matrix, solve_w, positions=cands.positions if geometric else None,
+                    points=pts.positions if geometric else None, options=solve_opts)
     timings["solve"] = time.perf_counter() - t0
     robust_record = None
     if robust is not None:

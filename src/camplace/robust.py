@@ -256,7 +256,7 @@ def solve_robust(
         The run's row weights (one scenario).
     spec : RobustSpec
     options : dict
-        The run's options (:func:`camplace.pipeline.run_options`): mode, k, views, fixed,
+        The run's options (``options`` of ``solution.json``: :meth:`camplace.solver.options.SolveOptions.record`): mode, k, views, fixed,
         forbidden, min_distance_m, engine, time_limit_s.
     positions : (n, 3) float64 or None
         Nominal camera positions (for ``min_distance_m``).
@@ -343,7 +343,7 @@ def robust_stage(
         The nominal optimum.
     spec : RobustSpec
     options : dict
-        The run's options (:func:`camplace.pipeline.run_options`).
+        The run's options (``options`` of ``solution.json``: :meth:`camplace.solver.options.SolveOptions.record`).
     seed : int
         The run seed (scenario draws).
     timings : dict or None

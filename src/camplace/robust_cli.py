@@ -56,7 +56,8 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     from camplace.instance import load_instance
     from camplace.robust import robust_stage
     from camplace.sampling import CandidateSet
-    from camplace.solver.cli import _run_defaults, parse_index_list
+    from camplace.solver.cli import _run_defaults
+    from camplace.solver.options import parse_index_list
     from camplace.solver.modes import solve
     from camplace.visibility import VisibilityMatrix
 

@@ -1,7 +1,7 @@
 """The paths a user walks, whole commands in subprocesses, on every built-in.
 
 For each built-in instance (and the lab instance file) at reduced sizes: ``run`` in every mode,
-``run --report``, ``render``, ``validate --random-systems``, ``export-cameras``, ``solve`` on the run
+``run --report``, ``render``, ``validate --random-systems``, ``export --format``, ``solve`` on the run
 folder, ``campaign OUTDIR`` and ``report``. Each command runs as ``python -m camplace`` under an
 address-space limit (:data:`ADDRESS_SPACE_GB`), must exit 0 without a traceback, and its outputs
 must agree with each other: every objective is recomputed here, in plain numpy, from the folder's
@@ -228,7 +228,7 @@ def test_render_validate_export(reported_run, tmp_path) -> None:
     for c in views:
         assert c["iou"] >= 0.98 and c["inside_fraction"] >= 0.98, c
     exp = tmp_path / "exp"
-    camplace("export-cameras", str(out), "--format", "glb,colmap", "-o", str(exp), cwd=tmp_path)
+    camplace("export", str(out), "--format", "glb,colmap", "-o", str(exp), cwd=tmp_path)
     lines = [ln for ln in (exp / "colmap" / "images.txt").read_text().splitlines() if not ln.startswith("#")]
     poses = [ln.split() for ln in lines if ln.strip()]
     assert len(poses) == k  # one pose line per image (its 2D-points line is empty)
@@ -244,6 +244,10 @@ def test_render_validate_export(reported_run, tmp_path) -> None:
 
     scene = trimesh.load(exp / "cameras.glb")
     assert sum("frustum" in str(n).lower() or "camera" in str(n).lower() for n in scene.geometry) >= k
+    # the former verb name still works for one release: the same files, one warning line on stderr
+    old = camplace("export-cameras", str(out), "--format", "colmap", "-o", str(tmp_path / "old"), cwd=tmp_path)
+    assert old.stderr.startswith("warning:") and "deprecated" in old.stderr and len(old.stderr.strip().splitlines()) == 1
+    assert (tmp_path / "old" / "colmap" / "images.txt").read_text() == (exp / "colmap" / "images.txt").read_text()
 
 
 @pytest.mark.parametrize("args,option", [

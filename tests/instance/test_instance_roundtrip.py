@@ -10,7 +10,7 @@ import tomli_w
 import trimesh
 
 from camplace.instance import Instance, builtin, load_instance, parse_instance, save_instance
-from camplace.instance.loader import mesh_ply_bytes
+from camplace.geometry import ply_bytes as mesh_ply_bytes
 
 try:
     import tomllib
@@ -196,7 +196,7 @@ def test_real_comet_67p_shape_model(tmp_path, valid_data):
 
 
 def test_make_winding_consistent():
-    from camplace.instance.loader import make_winding_consistent
+    from camplace.instance.meshio import make_winding_consistent
     from camplace.instance.procedural import icosphere
 
     v, f = icosphere(6)  # > 46341 faces: face-pair keys overflow int32

@@ -129,7 +129,7 @@ def test_phase_starts_and_start_positions(run_dir, tmp_path):
 
 def test_export_cameras_of_a_phase(run_dir, tmp_path):
     doc = json.loads((run_dir / "plan.json").read_text())
-    assert main(["export-cameras", str(run_dir), "--phase", "2", "--format", "json", "-o", str(tmp_path / "e")]) == 0
+    assert main(["export", str(run_dir), "--phase", "2", "--format", "json", "-o", str(tmp_path / "e")]) == 0
     cams = json.loads((tmp_path / "e" / "cameras.json").read_text())["cameras"]
     assert [c["candidate"] for c in cams] == [ag["candidates"][2] for ag in doc["agents"]]
 
@@ -142,7 +142,7 @@ def test_export_cameras_of_a_phase(run_dir, tmp_path):
     ["plan", "{d}", "--phases", "4", "--speed", "1", "--start-positions", "1,2"],
     ["plan", "{d}", "--phases", "4", "--speed", "1", "--mode", "setcover"],
     ["plan", "{d}", "--phases", "4", "--speed", "1", "--start-time", "-1"],  # no start positions
-    ["export-cameras", "{d}", "--phase", "7"],
+    ["export", "{d}", "--format", "all", "--phase", "7"],
 ])
 def test_bad_plan_input_is_a_one_line_error(run_dir, argv, capsys):
     code = main([a.format(d=run_dir) for a in argv])

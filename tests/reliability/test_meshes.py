@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-import camplace.instance.loader as loader
+import camplace.instance.parse as parse_module
 from camplace.errors import InstanceError
 from camplace.instance import parse_instance
 
@@ -41,7 +41,7 @@ def parse(data: dict, tmp_path: Path):
 def test_degenerate_faces_are_dropped_with_a_warning(tmp_path: Path, caplog) -> None:
     v = TETRA_V + [(2, 2, 2)]
     f = TETRA_F + [(0, 0, 1), (0, 1, 1), (1, 4, 4)]  # repeated vertices = zero area
-    with caplog.at_level(logging.WARNING, logger="camplace.instance.loader"):
+    with caplog.at_level(logging.WARNING, logger="camplace.instance.parse"):
         inst = parse(with_target(tmp_path, v, f), tmp_path)
     assert inst.target.faces.shape == (4, 3)
     assert "dropped 3 degenerate" in caplog.text
@@ -62,24 +62,24 @@ def test_nan_vertices_are_an_error(tmp_path: Path) -> None:
 
 
 def test_face_budget(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr(loader, "MAX_FACES", 3)
+    monkeypatch.setattr(parse_module, "MAX_FACES", 3)
     with pytest.raises(InstanceError) as err:
         parse(with_target(tmp_path, TETRA_V, TETRA_F), tmp_path)
     assert "over the budget" in str(err.value) and "decimate" in str(err.value)
 
 
 def test_open_target_warns(tmp_path: Path, caplog) -> None:
-    with caplog.at_level(logging.WARNING, logger="camplace.instance.loader"):
+    with caplog.at_level(logging.WARNING, logger="camplace.instance.parse"):
         parse(with_target(tmp_path, TETRA_V, TETRA_F[:3]), tmp_path)
     assert "not watertight" in caplog.text
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="camplace.instance.loader"):
+    with caplog.at_level(logging.WARNING, logger="camplace.instance.parse"):
         parse(with_target(tmp_path, TETRA_V, TETRA_F), tmp_path)
     assert "not watertight" not in caplog.text
 
 
 def test_wrong_units_warn(tmp_path: Path, caplog) -> None:
-    with caplog.at_level(logging.WARNING, logger="camplace.instance.loader"):
+    with caplog.at_level(logging.WARNING, logger="camplace.instance.parse"):
         parse(with_target(tmp_path, TETRA_V, TETRA_F, scale=1000.0), tmp_path)  # a km model read as metres
     assert "larger than the camera volume" in caplog.text and "units" in caplog.text
 

@@ -14,7 +14,9 @@ import camplace.cli
 from camplace.instance import builtin
 from camplace.pipeline import Solution, run
 from camplace.report.export import Z_UP_TO_Y_UP, export_cameras, frustum_mesh, parse_formats, rotation_to_quaternion
-from camplace.validation.cameras import CameraSet, quaternion_to_rotation, read_colmap
+from camplace.geometry import quaternion_to_rotation
+from camplace.validation.camera_io import read_colmap
+from camplace.validation.cameras import CameraSet
 
 
 @pytest.fixture
@@ -159,16 +161,57 @@ def test_csv_columns_and_values(run_dir, exported) -> None:
         assert float(r["cx_px"]) == cam.K[0, 2] and int(r["width_px"]) == cam.width
 
 
-def test_export_cameras_verb(cli, run_dir, tmp_path, capsys) -> None:
+def files_in(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.rglob("*") if p.is_file())
+
+
+def test_export_verb_camera_formats(cli, run_dir, tmp_path, capsys) -> None:
     out = tmp_path / "x"
-    assert cli(["export-cameras", str(run_dir), "--format", "colmap,csv", "-o", str(out)]) == 0
-    assert sorted(p.name for p in out.rglob("*") if p.is_file()) == ["cameras.csv", "cameras.txt", "images.txt", "points3D.txt"]
-    assert "wrote" in capsys.readouterr().out
-    assert cli(["export-cameras", str(run_dir), "--format", "ply", "-o", str(out)]) == 2
+    assert cli(["export", str(run_dir), "--format", "colmap,csv", "-o", str(out)]) == 0
+    assert files_in(out) == ["cameras.csv", "cameras.txt", "images.txt", "points3D.txt"]
+    captured = capsys.readouterr()
+    assert "wrote" in captured.out and captured.err == ""
+    assert cli(["export", str(run_dir), "--format", "ply", "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --format") and "ply" in err
-    assert cli(["export-cameras", str(tmp_path / "nope")]) == 2
+    assert cli(["export", str(tmp_path / "nope"), "--format", "all"]) == 2
     assert "solution.json" in capsys.readouterr().err
+
+
+def test_export_verb_placement_and_camera_files_in_one_call(cli, run_dir, tmp_path, capsys) -> None:
+    out = tmp_path / "both"
+    assert cli(["export", str(run_dir), "--format", "json,placement", "--frame", "simulation", "-o", str(out)]) == 0
+    assert files_in(out) == ["cameras.json", "placement.simulation.csv", "placement.simulation.json"]
+    placed = json.loads((out / "placement.simulation.json").read_text())
+    cams = json.loads((out / "cameras.json").read_text())["cameras"]
+    assert len(placed["cameras"]) == len(cams) > 0
+    for p, c in zip(placed["cameras"], cams, strict=True):  # the same poses in the simulation frame
+        np.testing.assert_allclose(p["position_m"], c["position"], atol=1e-12)
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["--format", "json", "--frame", "physical"], "--frame"),
+    (["--format", "csv", "--transform", "lab.toml"], "--transform"),
+    (["--format", "placement,json", "--phase", "1"], "--phase"),
+    (["--frustum-depth", "2"], "--frustum-depth"),  # default format: placement
+    (["--format", "glb", "--frustum-depth", "0"], "--frustum-depth"),
+])
+def test_export_verb_options_that_do_not_apply_are_one_line_errors(cli, run_dir, tmp_path, capsys, argv, option) -> None:
+    out = tmp_path / "none"
+    assert cli(["export", str(run_dir), *argv, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {option}") and err.count("\n") == 1
+    assert not out.exists()  # nothing written
+
+
+def test_export_cameras_is_a_deprecated_alias(cli, run_dir, tmp_path, capsys) -> None:
+    out = tmp_path / "alias"
+    assert cli(["export-cameras", str(run_dir), "--format", "colmap,csv", "-o", str(out)]) == 0
+    assert files_in(out) == ["cameras.csv", "cameras.txt", "images.txt", "points3D.txt"]
+    captured = capsys.readouterr()
+    assert "wrote" in captured.out
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning:") and "deprecated" in lines[0] and "camplace export" in lines[0]
 
 
 def test_parse_formats() -> None:

@@ -261,7 +261,7 @@ def test_too_large_model_is_not_built(monkeypatch) -> None:
     def never(*args, **kwargs):
         raise AssertionError("the model was built")
 
-    monkeypatch.setattr(modes, "_build_model", never)
+    monkeypatch.setattr(modes, "build_model", never)
     for mode in ("quality", "multiview"):
         res = solve(dense, w, 5, mode=mode, views=3)  # auto with k = 5: the SCIP model
         assert res.stats["model_build"].startswith("skipped")

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 import camplace.solver.bitset_exact as bitset_mod
 import camplace.solver.modes as modes
+from camplace.solver.result import ModeOutcome
 from camplace.solver.bitset_exact import solve_bitset
 from camplace.solver.modes import solve
 from camplace.solver.pair_cap import opposite_pair_bound
@@ -107,7 +108,7 @@ def test_solve_tightens_an_unproven_multiview_bound(monkeypatch) -> None:
 
     def loose(q, w_, k, mode, views, *args):
         seen["limit"] = args[-2]
-        return (0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": k}
+        return ModeOutcome((0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": k})
 
     monkeypatch.setattr(modes, "_cover_modes", loose)
     res = solve(dense, w, 3, mode="multiview", views=2, time_limit_s=10.0)

@@ -8,7 +8,9 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import camplace.solver.choose as choose
 import camplace.solver.modes as modes
+import camplace.solver.portfolio as portfolio
 import camplace.solver.quality_tree as qt
 from camplace.errors import CamplaceError
 from camplace.solver.modes import solve
@@ -102,8 +104,8 @@ def test_solve_routes_large_quality_to_the_tree_engine(data) -> None:
         return
     k = data.draw(st.integers(1, min(4, free)))
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(modes, "QUALITY_EXACT_MAX_N", 0)
-        mp.setattr(modes, "_QUALITY_EXPAND_MAX", -1)
+        mp.setattr(choose, "QUALITY_EXACT_MAX_N", 0)
+        mp.setattr(choose, "_QUALITY_EXPAND_MAX", -1)
         res = solve(dense, w, k, mode="quality", fixed=fixed, forbidden=forbidden)
     best = brute_force_mode(dense, w, k, "quality", fixed=fixed, forbidden=forbidden)
     tol = 1e-9 * max(1.0, float(w.sum()))
@@ -127,10 +129,10 @@ def test_memory_guard(monkeypatch, mode) -> None:
     def huge(*args, **kwargs):  # the exact engines' estimates (models are checked separately)
         return 1 << 60
 
-    for mod, name in [(modes, "bitset_bytes"), (modes, "stereo_bytes"), (modes, "quality_tree_bytes"),
-                      (modes, "quality_exact_bytes"), (dispatch, "bitset_bytes")]:
+    for mod, name in [(modes, "bitset_bytes"), (modes, "stereo_bytes"), (choose, "quality_tree_bytes"),
+                      (choose, "quality_exact_bytes"), (dispatch, "bitset_bytes")]:
         monkeypatch.setattr(mod, name, huge)
-    monkeypatch.setattr(modes, "_QUALITY_EXPAND_MAX", -1)  # quality: the tree engine would be next
+    monkeypatch.setattr(choose, "_QUALITY_EXPAND_MAX", -1)  # quality: the tree engine would be next
     with pytest.raises(CamplaceError, match="GiB") as err:
         solve(dense, w, 3, mode=mode, engine="exact")
     assert "\n" not in str(err.value)
@@ -153,8 +155,8 @@ def test_solve_time_limit_on_the_tree_engine(monkeypatch) -> None:
     rng = np.random.default_rng(3)
     a = a.astype(np.float32)
     a.data = rng.uniform(0.05, 1.0, a.nnz).astype(np.float32)  # graded qualities
-    monkeypatch.setattr(modes, "QUALITY_EXACT_MAX_N", 0)
-    monkeypatch.setattr(modes, "_QUALITY_EXPAND_MAX", -1)
+    monkeypatch.setattr(choose, "QUALITY_EXACT_MAX_N", 0)
+    monkeypatch.setattr(choose, "_QUALITY_EXPAND_MAX", -1)
     full = solve(a, w, 3, mode="quality")
     assert full.status == "optimal" and "peak_open" in full.stats["engine_stats"]
     cut = solve(a, w, 3, mode="quality", time_limit_s=1e-6)  # stops after the first greedy start
@@ -174,8 +176,8 @@ def test_portfolio_hands_over_to_the_min_gram_engine(data, k) -> None:
     if dense.shape[1] <= k:
         return
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(modes, "_TREE_FIRST_S", 0.0)
-        mp.setattr(modes, "_TREE_FIRST_MIN_S", 0.0)
+        mp.setattr(portfolio, "_TREE_FIRST_S", 0.0)
+        mp.setattr(portfolio, "_TREE_FIRST_MIN_S", 0.0)
         res = solve(dense, w, k, mode="quality")
     best = brute_force_mode(dense, w, k, "quality")
     tol = 1e-9 * max(1.0, float(w.sum()))

@@ -11,7 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from camplace.errors import CamplaceError
-from camplace.validation.cameras import CameraSet, import_cameras, read_colmap, read_middlebury, read_opencv_cameras, write_opencv_cameras
+from camplace.validation.camera_io import import_cameras, read_colmap, read_middlebury, read_opencv_cameras, write_opencv_cameras
+from camplace.validation.cameras import CameraSet
 
 TEMPLE = Path("/work/shared/data/photos/templeSparseRing")
 if not TEMPLE.exists():  # the shared data sits beside the repository

@@ -53,7 +53,7 @@ def test_detected_temple_lies_inside_the_projected_box(cli, tmp_path, capsys) ->
 
 def test_ray_cast_box_mask_equals_projected_hull() -> None:
     """The predicted mask of a box (ray cast) matches the filled convex hull of its projected corners."""
-    from camplace.validation.cameras import import_cameras
+    from camplace.validation.camera_io import import_cameras
 
     cams = import_cameras(TEMPLE / "templeSR_par.txt", "middlebury")
     v, f = parse_target(BOX)

@@ -16,7 +16,7 @@ import trimesh
 from camplace.instance import builtin
 from camplace.pipeline import event_aims
 from camplace.sampling import make_candidates
-from camplace.visibility import compute_visibility, engine, make_target_points
+from camplace.visibility import chunk, compute_visibility, engine, make_target_points
 from camplace.visibility.engine import assemble, compute_chunk, make_task
 from camplace.visibility.raycast import RayScene, _ones32
 
@@ -59,11 +59,11 @@ def test_whole_frame_shortcut_changes_nothing(flyby, monkeypatch) -> None:
     per-pair test everywhere gives the same matrix and the same counts."""
     inst, pts, cands = flyby
     task, scenes = make_task(inst, cands, pts)
-    whole = engine.sphere_inside_view(*task.frame_spheres[0], task.cam_positions, task.cam_rotations, task.K,
+    whole = chunk.sphere_inside_view(*task.frame_spheres[0], task.cam_positions, task.cam_rotations, task.K,
                                       task.width_px, task.height_px, task.near_m, task.far_m)
     assert 0 < whole.sum() < len(whole)  # both paths are exercised
     ref = compute_visibility(inst, cands, pts, chunk_size=40)
-    monkeypatch.setattr(engine, "sphere_inside_view", lambda *a, **k: np.zeros(len(a[2]), dtype=bool))
+    monkeypatch.setattr(chunk, "sphere_inside_view", lambda *a, **k: np.zeros(len(a[2]), dtype=bool))
     slow = compute_visibility(inst, cands, pts, chunk_size=40)
     assert same(slow.matrix, ref.matrix)
     assert slow.stats == ref.stats
@@ -126,14 +126,14 @@ def test_block_culling_changes_nothing(monkeypatch) -> None:
     decided = (s + e - lv["block_h_lo"] < 0) | (s - e - lv["block_h_hi"] > task.support_tol[0])
     assert decided.mean() > 0.2  # (more with more points: blocks get smaller)
     ref = compute_visibility(inst, cands, pts, chunk_size=40)
-    real = engine._row_blocks
+    real = chunk._row_blocks
 
     def undecided(*args):
         out = real(*args)
         out["block_spread"] = np.full_like(out["block_spread"], np.inf)
         return out
 
-    monkeypatch.setattr(engine, "_row_blocks", undecided)
+    monkeypatch.setattr(chunk, "_row_blocks", undecided)
     plain = compute_visibility(inst, cands, pts, chunk_size=40)
     assert same(plain.matrix, ref.matrix)
     assert plain.stats == ref.stats

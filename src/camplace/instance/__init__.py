@@ -7,7 +7,8 @@ from pathlib import Path
 
 from camplace.errors import CamplaceError, InstanceError
 from camplace.instance.builtins import BUILTINS, builtin, builtin_toml, write_builtin
-from camplace.instance.loader import load_instance, parse_instance, save_instance
+from camplace.instance.parse import load_instance, parse_instance
+from camplace.instance.write import save_instance
 from camplace.instance.schema import (
     SAMPLERS,
     SCHEMA_VERSION,

@@ -9,7 +9,8 @@ from typing import Any
 
 from camplace.errors import CamplaceError
 from camplace.instance.events import comet_flyby_toml, volcanic_eruption_toml
-from camplace.instance.loader import parse_instance, save_instance
+from camplace.instance.parse import parse_instance
+from camplace.instance.write import save_instance
 from camplace.instance.schema import Instance
 
 __all__ = ["BUILTINS", "builtin", "builtin_toml", "write_builtin"]

@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from camplace.geometry import box_mesh
+
 __all__ = ["SHAPES", "icosphere", "sphere", "box", "corridor", "bilobed_comet", "volcano", "volcano_height"]
 
 # Icosahedron: 12 vertices (cyclic permutations of (0, +-1, +-phi)) and 20 faces.
@@ -121,27 +123,10 @@ def sphere(radius_m: float = 0.5, subdivisions: int = 4) -> tuple[np.ndarray, np
     return v * r, f
 
 
-def _unit_box() -> tuple[np.ndarray, np.ndarray]:
-    """Box [0, 1]^3: 8 corners, 12 triangles, outward."""
-    corners = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
-    # corner index = 4x + 2y + z; two triangles per side
-    quads = [
-        (0, 1, 3, 2),  # x = 0
-        (4, 6, 7, 5),  # x = 1
-        (0, 4, 5, 1),  # y = 0
-        (2, 3, 7, 6),  # y = 1
-        (0, 2, 6, 4),  # z = 0
-        (1, 5, 7, 3),  # z = 1
-    ]
-    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
-    return corners, _orient_outward(corners, faces, np.full(3, 0.5))
-
-
 def box(size_m) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box of edge lengths ``size_m`` (x, y, z), centred at the origin, outward normals."""
     s = _size3(size_m)
-    v, f = _unit_box()
-    return (v - 0.5) * s, f
+    return box_mesh(-0.5 * s, 0.5 * s)
 
 
 def corridor(size_m) -> tuple[np.ndarray, np.ndarray]:
@@ -150,8 +135,8 @@ def corridor(size_m) -> tuple[np.ndarray, np.ndarray]:
     Cameras stand inside; every side faces the interior. Its signed volume is negative.
     """
     s = _size3(size_m)
-    v, f = _unit_box()
-    return v * s, np.ascontiguousarray(f[:, ::-1])
+    v, f = box_mesh(np.zeros(3), s)
+    return v, np.ascontiguousarray(f[:, ::-1])
 
 
 # Lobes of the comet in relative units (67P: big lobe about 4.1 x 3.3 x 1.8 km, small lobe about

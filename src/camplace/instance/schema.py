@@ -12,27 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 SCHEMA_VERSION = 1
+from camplace.geometry import rotation_from_euler_deg  # noqa: E402, F401  (re-exported)
 from camplace.names import SAMPLERS  # noqa: E402  (one list of the names)
-
-
-def rotation_from_euler_deg(angles_deg: tuple[float, float, float] | np.ndarray) -> np.ndarray:
-    """Rotation matrix from extrinsic X, then Y, then Z rotations (degrees): R = Rz @ Ry @ Rx.
-
-    Parameters
-    ----------
-    angles_deg : (3,) float
-        Rotation about the world x, y and z axes, degrees, applied in that order.
-
-    Returns
-    -------
-    (3, 3) float64
-    """
-    ax, ay, az = np.radians(np.asarray(angles_deg, dtype=np.float64))
-    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 @dataclass(frozen=True)

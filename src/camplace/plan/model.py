@@ -391,29 +391,13 @@ def _reach_pairs(pa: np.ndarray, pb: np.ndarray, reach: float) -> tuple[np.ndarr
     return np.concatenate(ii).astype(np.int64), np.concatenate(jj).astype(np.int64)
 
 
-def _merge_rows(a: sp.csr_matrix, w: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
-    """Rows with identical columns and values merged (weights summed)."""
-    seen: dict[bytes, int] = {}
-    first: list[int] = []
-    wsum: list[float] = []
-    for i in range(a.shape[0]):
-        s, e = a.indptr[i], a.indptr[i + 1]
-        key = a.indices[s:e].astype(np.int32).tobytes() + b"|" + a.data[s:e].astype(np.float64).tobytes()
-        g = seen.get(key)
-        if g is None:
-            seen[key] = len(first)
-            first.append(i)
-            wsum.append(float(w[i]))
-        else:
-            wsum[g] += float(w[i])
-    return (a[first].tocsr() if first else a[:0]), np.asarray(wsum, dtype=np.float64)
-
-
 def _phase_block(problem: PlanProblem, p: int, kept: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
     """Phase p's live rows restricted to the kept poses, identical rows merged."""
+    from camplace.solver.models import merge_rows
+
     q = problem.matrices[p][:, kept].tocsr()
     live = (problem.weights[p] > 0) & (np.diff(q.indptr) > 0)
-    return _merge_rows(q[live].tocsr(), problem.weights[p][live])
+    return merge_rows(q[live].tocsr(), problem.weights[p][live])
 
 
 def _transition_arcs(problem: PlanProblem, kept: list, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -468,6 +452,7 @@ def build_flow_model(problem: PlanProblem, kept: list, phase_bounds: Sequence[fl
     FlowModel
     """
     from camplace.solver._model import LinearModel
+    from camplace.solver.models import add_level_chain
 
     k, P = problem.k, problem.n_phases
     model = LinearModel(maximize=True)
@@ -538,17 +523,7 @@ def build_flow_model(problem: PlanProblem, kept: list, phase_bounds: Sequence[fl
                 obj_idx.append(y)
                 obj_coef.append(np.array([w[r] / wmax]))
             else:
-                levels = np.unique(vals)[::-1]
-                nxt = np.append(levels[1:], 0.0)
-                c = w[r] * (levels - nxt) / wmax
-                ys = model.add_vars(levels.size, integer=False, obj=c)
-                for li, lv in enumerate(levels):
-                    at = cols[vals == lv]
-                    idx = np.append(x[at], ys[li])
-                    coef = np.append(np.ones(at.size), -1.0)
-                    if li > 0:
-                        idx, coef = np.append(idx, ys[li - 1]), np.append(coef, 1.0)
-                    model.add_row(idx, coef, lo=0.0)
+                ys, c = add_level_chain(model, x, cols, vals, w[r], wmax)
                 obj_idx.append(ys)
                 obj_coef.append(c)
             rows += 1

@@ -1,4 +1,4 @@
-"""Verbs of the report stage: ``campaign``, ``report``, ``export-cameras``.
+"""Verbs of the report stage: ``campaign``, ``report``, ``export`` (and its deprecated alias ``export-cameras``).
 
 Imports nothing heavy at module level (matplotlib, OpenCV and Embree load when a verb runs).
 """
@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Callable
 
 from camplace.errors import CamplaceError
-from camplace.names import EVENT_MODES, SAMPLERS
+from camplace.names import CAMERA_FORMATS, EVENT_MODES, EXPORT_FORMATS, EXPORT_FRAMES, SAMPLERS
 
 EXIT_OK = 0
 
@@ -44,15 +44,29 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
     p.add_argument("-o", "--out", type=Path, default=None, help="HTML file to write (default OUTDIR/report.html)")
 
-    p = subparsers.add_parser("export-cameras", help="write the chosen cameras as JSON, CSV, a COLMAP text model and/or a GLB scene")
+    p = subparsers.add_parser("export", help="write the chosen cameras: lab placement (CSV + JSON, default) and/or JSON, CSV, COLMAP, GLB camera files")
+    p.add_argument("outdir", type=Path, help="output folder of 'camplace run'")
+    p.add_argument("--format", default="placement", dest="formats",
+                   help=f"{', '.join(EXPORT_FORMATS)}, or all (= {','.join(CAMERA_FORMATS)}); comma-separated for several (default placement)")
+    p.add_argument("--frame", choices=EXPORT_FRAMES, default=None,
+                   help="placement: coordinate frame (default physical); the camera files are in the simulation frame")
+    p.add_argument("--transform", type=Path, default=None, help="placement: TOML/JSON with the [transform] table (default: the run's instance.toml)")
+    _add_camera_file_options(p)
+    p.add_argument("-o", "--out", type=Path, default=None, help="output folder (default: OUTDIR for placement, OUTDIR/export for camera files)")
+
+    p = subparsers.add_parser("export-cameras", help="deprecated: use 'export --format all' (or json, csv, colmap, glb)")
     p.add_argument("outdir", type=Path, help="output folder of 'camplace run'")
     p.add_argument("--format", default="all", dest="formats", help="json, csv, colmap, glb, or all (default); comma-separated for several")
-    p.add_argument("--experiment", default=None, help="experiment name in camera names (default: the instance name)")
-    p.add_argument("--frustum-depth", type=float, default=None, dest="frustum_depth", help="GLB frustum depth, metres (default: distance to the aim point)")
+    _add_camera_file_options(p)
     p.add_argument("-o", "--out", type=Path, default=None, help="output folder (default OUTDIR/export)")
-    p.add_argument("--phase", type=int, default=None, help="export the moving agents' poses of this phase of plan.json (default out: OUTDIR/export-phaseP)")
 
-    return {"campaign": _cmd_campaign, "report": _cmd_report, "export-cameras": _cmd_export_cameras}
+    return {"campaign": _cmd_campaign, "report": _cmd_report, "export": _cmd_export, "export-cameras": _cmd_export_cameras}
+
+
+def _add_camera_file_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--experiment", default=None, help="camera files: experiment name in camera names (default: the instance name)")
+    p.add_argument("--frustum-depth", type=float, default=None, dest="frustum_depth", help="glb: frustum depth, metres (default: distance to the aim point)")
+    p.add_argument("--phase", type=int, default=None, help="camera files: the moving agents' poses of this phase of plan.json (default out: OUTDIR/export-phaseP)")
 
 
 def _csv_list(text: str, what: str) -> list[str]:
@@ -119,11 +133,62 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _cmd_export_cameras(args: argparse.Namespace) -> int:
+def export_formats(spec: str) -> tuple[str, ...]:
+    """``--format`` of ``camplace export``: a comma list of :data:`camplace.names.EXPORT_FORMATS`
+    (``all`` = the camera files) -> formats in canonical order."""
+    names = {s.strip().lower() for s in spec.split(",") if s.strip()}
+    if "all" in names:
+        names = (names - {"all"}) | set(CAMERA_FORMATS)
+    bad = sorted(names - set(EXPORT_FORMATS))
+    if bad or not names:
+        what = f"unknown format {bad[0]!r}" if bad else "no format given"
+        raise CamplaceError(f"--format: {what} (use {', '.join(EXPORT_FORMATS)} or all, comma-separated)")
+    return tuple(f for f in EXPORT_FORMATS if f in names)
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    fmts = export_formats(args.formats)
+    files = tuple(f for f in fmts if f in CAMERA_FORMATS)
+    placement = "placement" in fmts
+    if not placement and args.frame == "physical":
+        raise CamplaceError("--frame physical: the camera files (json, csv, colmap, glb) are in the simulation frame; add placement to --format for lab coordinates")
+    if not placement and args.transform is not None:
+        raise CamplaceError("--transform: applies to --format placement only")
+    if placement and args.phase is not None:
+        raise CamplaceError("--phase: applies to the camera files only (the placement is of the run's cameras); drop placement from --format")
+    for option, value in (("--experiment", args.experiment), ("--frustum-depth", args.frustum_depth)):
+        if not files and value is not None:
+            raise CamplaceError(f"{option}: applies to the camera files (--format {','.join(CAMERA_FORMATS)}), not to placement")
+    if args.frustum_depth is not None and not args.frustum_depth > 0:
+        raise CamplaceError(f"--frustum-depth: must be > 0 metres, got {args.frustum_depth}")
+    if placement:
+        from camplace.validation.workflow import export_run, read_table_file
+
+        transform = None
+        source = ""
+        if args.transform is not None:
+            transform = read_table_file(args.transform, "transform")
+            source = f"{args.transform}: [transform]"
+        csv_path, json_path = export_run(args.outdir, frame=args.frame or "physical", transform=transform, transform_source=source, out=args.out)
+        print(f"wrote {csv_path} and {json_path}")
+    if files:
+        _write_camera_files(args, files)
+    return EXIT_OK
+
+
+def _write_camera_files(args: argparse.Namespace, formats) -> None:
     from camplace.report.export import export_cameras
 
-    paths = export_cameras(args.outdir, formats=args.formats, out=args.out, experiment=args.experiment, frustum_depth_m=args.frustum_depth,
+    paths = export_cameras(args.outdir, formats=formats, out=args.out, experiment=args.experiment, frustum_depth_m=args.frustum_depth,
                            phase=args.phase)
     for p in paths:
         print(f"wrote {p}")
+
+
+def _cmd_export_cameras(args: argparse.Namespace) -> int:
+    import sys
+
+    print("warning: 'camplace export-cameras' is deprecated and will be removed in the next release: "
+          "use 'camplace export OUTDIR --format all' (or json, csv, colmap, glb)", file=sys.stderr)
+    _write_camera_files(args, args.formats)
     return EXIT_OK

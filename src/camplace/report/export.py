@@ -1,6 +1,6 @@
 """Export a run's chosen cameras: JSON, CSV, COLMAP text model and a GLB scene with camera frustums.
 
-All in the run's (simulation) world frame, metres; for lab coordinates use ``camplace export --frame physical``.
+All in the run's (simulation) world frame, metres; for lab coordinates use ``camplace export --format placement``.
 Cameras are named ``e{experiment}.1.camera_{n}`` like the renders (``OUTDIR/render``).
 
 ``cameras.json``
@@ -35,6 +35,8 @@ import numpy as np
 
 from camplace._io import write_bytes_atomic, write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
+from camplace.geometry import rotation_to_quaternion
+from camplace.names import CAMERA_FORMATS
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +52,7 @@ __all__ = [
     "export_cameras",
 ]
 
-EXPORT_FORMATS = ("json", "csv", "colmap", "glb")
+EXPORT_FORMATS = CAMERA_FORMATS  # the camera files (``camplace export`` adds ``placement``: camplace.names.EXPORT_FORMATS)
 
 #: 4x4 transform from the run's z-up world to glTF's y-up frame: (x, y, z) -> (x, z, -y).
 Z_UP_TO_Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, -1.0, 0, 0], [0, 0, 0, 1.0]])
@@ -74,40 +76,6 @@ def parse_formats(spec: str | Sequence[str]) -> tuple[str, ...]:
     if bad:
         raise CamplaceError(f"--format: unknown format {bad[0]!r} (use {', '.join(EXPORT_FORMATS)} or all, comma-separated)")
     return tuple(f for f in EXPORT_FORMATS if f in names)
-
-
-def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (qw, qx, qy, qz) of a rotation matrix (Hamilton convention, as COLMAP), with qw >= 0.
-
-    Parameters
-    ----------
-    R : (3, 3) float64
-
-    Returns
-    -------
-    (4,) float64
-        Inverse of :func:`camplace.validation.cameras.quaternion_to_rotation`.
-    """
-    m = np.asarray(R, dtype=np.float64)
-    # Shepperd's method: pivot on the largest of the four squared components
-    t = np.trace(m)
-    d = np.array([t, m[0, 0], m[1, 1], m[2, 2]])
-    i = int(np.argmax(d))
-    if i == 0:
-        s = 2.0 * np.sqrt(max(1.0 + t, 1e-300))
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif i == 1:
-        s = 2.0 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 1e-300))
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif i == 2:
-        s = 2.0 * np.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 1e-300))
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 1e-300))
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.array(q, dtype=np.float64)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
 
 
 def colmap_pose(position: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

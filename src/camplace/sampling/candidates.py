@@ -10,44 +10,10 @@ import numpy as np
 
 from camplace._io import read_numeric_csv, write_text_atomic
 from camplace.errors import CamplaceError
+from camplace.geometry import WORLD_UP, look_at  # noqa: F401  (re-exported)
 from camplace.sampling.samplers import sample_positions
 
-WORLD_UP = np.array([0.0, 0.0, 1.0])
 CSV_HEADER = "index,x,y,z,aim_x,aim_y,aim_z," + ",".join(f"r{i}{j}" for i in range(1, 4) for j in range(1, 4))
-
-
-def look_at(positions: np.ndarray, aims: np.ndarray, up: np.ndarray = WORLD_UP) -> np.ndarray:
-    """World-from-camera rotations of cameras at ``positions`` looking at ``aims``.
-
-    OpenCV convention: camera x right, y down, z forward. The columns of each matrix are the
-    camera axes expressed in world coordinates, so ``world = R @ cam + position``. The image's
-    "up" is the projection of ``up`` (world +z by default); a camera looking straight along
-    ``up`` uses world +y instead.
-
-    Parameters
-    ----------
-    positions : (n, 3) float64
-    aims : (n, 3) float64
-    up : (3,) float64
-
-    Returns
-    -------
-    (n, 3, 3) float64
-    """
-    positions = np.atleast_2d(np.asarray(positions, dtype=np.float64))
-    aims = np.atleast_2d(np.asarray(aims, dtype=np.float64))
-    fwd = aims - positions
-    norm = np.linalg.norm(fwd, axis=1, keepdims=True)
-    if np.any(norm[:, 0] <= 0):
-        raise CamplaceError("candidates: a camera position coincides with its aim point (move the volume or the target)")
-    fwd = fwd / norm
-    ups = np.broadcast_to(np.asarray(up, dtype=np.float64), fwd.shape).copy()
-    parallel = np.abs(fwd @ np.asarray(up, dtype=np.float64)) > 1.0 - 1e-9
-    ups[parallel] = np.array([0.0, 1.0, 0.0])
-    right = np.cross(fwd, ups)
-    right /= np.linalg.norm(right, axis=1, keepdims=True)
-    down = np.cross(fwd, right)
-    return np.stack([right, down, fwd], axis=2)
 
 
 @dataclass(frozen=True, eq=False)

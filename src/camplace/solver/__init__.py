@@ -17,6 +17,19 @@ Engines (all run on the :func:`presolve`-reduced instance):
 ``cpsat``
     OR-Tools CP-SAT with integer-scaled weights, 2 workers.
 
+``auto`` is decided by :func:`~camplace.solver.choose.choose_engine` (a pure function of the
+problem's sizes, the :class:`~camplace.solver.options.SolveOptions` and the memory budget; its
+reason is in ``stats["engine_choice"]``).
+
+Modules: :mod:`~camplace.solver.options` (SolveOptions and the command-line flags),
+:mod:`~camplace.solver.checks` (input checks), :mod:`~camplace.solver.objectives` (what each mode
+counts), :mod:`~camplace.solver.choose` (engine choice), :mod:`~camplace.solver.modes` (``solve``:
+runs the choice, falls back on memory), :mod:`~camplace.solver.portfolio` (the exact quality
+engines), :mod:`~camplace.solver.greedy`, :mod:`~camplace.solver.models` (SCIP / CP-SAT models of
+the modes, on :mod:`~camplace.solver._model`), :mod:`~camplace.solver.setcover` (the set-cover
+mode), :mod:`~camplace.solver.result` (``SolverResult``, and ``ModeOutcome`` between an engine and
+``solve``); the engines themselves in their own modules.
+
 This package imports no geometry code: it only sees matrices.
 """
 
@@ -34,10 +47,12 @@ _LAZY = {
     "Presolved": "camplace.solver.presolve",
     "presolve": "camplace.solver.presolve",
     "SolverResult": "camplace.solver.result",
+    "SolveOptions": "camplace.solver.options",
     "coverage_weight": "camplace.solver._common",
     "solve": "camplace.solver.modes",
-    "mode_value": "camplace.solver.modes",
-    "conflict_pairs": "camplace.solver.modes",
+    "mode_value": "camplace.solver.objectives",
+    "conflict_pairs": "camplace.solver.checks",
+    "choose_engine": "camplace.solver.choose",
     "solve_maxcover": "camplace.solver.maxcover",
 }
 

@@ -24,7 +24,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from camplace.solver._bitkernels import _bits_weight, _ctz, _popcount, all_leaves, split_tuple
+from camplace.solver._bitkernels import _ctz, _missed_weight, all_leaves, split_tuple
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _PJIT = dict(_JIT, parallel=True)
@@ -332,14 +332,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                         acc[t] |= acc[t - 1] & y
                 ph &= acc[views]
             hit |= ph
-        x = ~hit
-        if wd == n_words - 1:
-            x &= last_mask
-        if n_planes > 0:
-            for b in range(n_planes):
-                total += float(_popcount(x & planes[b, wd]) << np.uint64(b))
-        else:
-            total += _bits_weight(x, wd, w)
+        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
         if total >= need:
             return total
     return total

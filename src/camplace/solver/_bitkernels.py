@@ -46,6 +46,22 @@ def _bits_weight(x, wd, w):  # pragma: no cover - compiled
     return acc
 
 
+@numba.njit(inline="always", **_JIT)
+def _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w):  # pragma: no cover - compiled
+    """Weight of the rows of word ``wd`` that ``hit`` misses (the last word masked to the real
+    rows): popcounts over the weights' binary digits ``planes`` (B, n_words), or with
+    ``n_planes = 0`` the set bits one by one."""
+    x = ~hit
+    if wd == n_words - 1:
+        x &= last_mask
+    if n_planes > 0:
+        out = 0.0
+        for b in range(n_planes):
+            out += float(_popcount(x & planes[b, wd]) << np.uint64(b))
+        return out
+    return _bits_weight(x, wd, w)
+
+
 @numba.njit(**_JIT)
 def live_rows(indptr, indices, data, w):  # pragma: no cover - compiled
     """Rows with weight > 0 and at least one entry > 0; and each row's number of entries > 0.
@@ -417,14 +433,7 @@ def _shortfall2(levels, nodes, k, w, planes, last_mask, need, pw):  # pragma: no
                     two |= levels[1, v, ww]
                 one |= x
             hit |= two
-        x = ~hit
-        if wd == n_words - 1:
-            x &= last_mask
-        if n_planes > 0:
-            for b in range(n_planes):
-                total += float(_popcount(x & planes[b, wd]) << np.uint64(b))
-        else:
-            total += _bits_weight(x, wd, w)
+        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
         if total >= need:
             return total
     return total
@@ -484,14 +493,7 @@ def shortfall(levels, nodes, k, m, w, planes, last_mask, need, acc, pw):  # prag
                         add |= acc[t - j] & levels[j - 1, v, ww]
                     acc[t] |= add
             hit |= acc[m]
-        x = ~hit
-        if wd == n_words - 1:
-            x &= last_mask
-        if n_planes > 0:
-            for b in range(n_planes):
-                total += float(_popcount(x & planes[b, wd]) << np.uint64(b))
-        else:
-            total += _bits_weight(x, wd, w)
+        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
         if total >= need:
             return total
     return total

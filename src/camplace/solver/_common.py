@@ -360,3 +360,8 @@ def push_chunks(stack_t: list[np.ndarray], stack_b: list[np.ndarray], children: 
         stack_t.append(ch[c0 : c0 + chunk])
         stack_b.append(cv[c0 : c0 + chunk])
     return int(cv.shape[0])
+
+
+def remaining(t0: float, time_limit_s: float | None) -> float | None:
+    """Seconds left of ``time_limit_s`` since ``t0`` (``time.perf_counter``), at least 1 ms; None without a limit."""
+    return None if time_limit_s is None else max(1e-3, float(time_limit_s) - (time.perf_counter() - t0))

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from camplace.errors import CamplaceError
-from camplace.names import ENGINES, EVENT_MODES, MODES, SETCOVER_ENGINES
+from camplace.names import EVENT_MODES, SETCOVER_ENGINES
+from camplace.solver.options import SolveOptions, add_solver_options, options_from_args
 
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 3
@@ -24,20 +25,9 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     """Add the solver verbs to ``subparsers``; returns {verb: handler}."""
     p = subparsers.add_parser("solve", help="choose cameras on a stored visibility matrix (any mode, side constraints)")
     p.add_argument("source", type=Path, help="output folder of 'camplace run' (or 'visibility') or its matrix file (visibility.cpm or .npz)")
-    p.add_argument("--mode", choices=MODES, default="maxcover", help="formulation (default maxcover)")
-    p.add_argument("--k", type=int, default=None, help="number of new cameras (all modes but setcover; default: the run's k)")
+    add_solver_options(p, k_default="the run's k")
     p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
                    help="row weights: all frames, or the maximum-likelihood frame alone (default: the run's, else all)")
-    p.add_argument("--views", type=int, default=2, help="multiview: cameras needed per point (default 2)")
-    p.add_argument("--min-angle", type=float, default=None, dest="min_angle", help="multiview: minimum angle between two views at a point, degrees")
-    p.add_argument("--required-fraction", type=float, default=1.0, dest="required_fraction", help="setcover: fraction of the coverable weight to observe (default 1)")
-    p.add_argument("--engine", choices=ENGINES, default="auto", help="solver engine (default auto)")
-    p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
-    p.add_argument("--fixed", default="", help="comma-separated candidate indices that are always kept")
-    p.add_argument("--forbidden", default="", help="comma-separated candidate indices never chosen")
-    p.add_argument("--min-distance", type=float, default=None, dest="min_distance", help="minimum distance between chosen cameras, metres")
-    p.add_argument("--memory-budget-gb", type=float, default=None, dest="memory_budget_gb",
-                   help="memory the solver may use (default: 60%% of the memory available); larger models fall back or stop")
     p.add_argument("-o", "--out", type=Path, required=True, help="solution JSON to write")
 
     p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
@@ -54,20 +44,6 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: cost, bound, status, time_s, selected, engine, uncoverable_rows")
     return {"solve": _cmd_solve, "setcover": _cmd_setcover}
-
-
-def parse_index_list(text: str, name: str) -> tuple[int, ...]:
-    """``"1,2, 5"`` -> ``(1, 2, 5)``; empty -> ``()``."""
-    out = []
-    for part in (text or "").split(","):
-        part = part.strip()
-        if not part:
-            continue
-        try:
-            out.append(int(part))
-        except ValueError:
-            raise CamplaceError(f"--{name}: expected comma-separated candidate indices, got {part!r}") from None
-    return tuple(out)
 
 
 def _read_csv_columns(path: Path, columns: list[str]) -> dict[str, Any]:
@@ -183,27 +159,13 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         args.event_mode = run.get("event_mode", "all")
     if args.event_mode == "peak":
         weights = _peak_weights(args.source, weights, run.get("peak_frame"))
-    if args.memory_budget_gb is not None and not args.memory_budget_gb > 0:
-        raise CamplaceError(f"--memory-budget-gb: must be > 0, got {args.memory_budget_gb}")
-    res = solve(
-        matrix, weights, args.k, mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
-        positions=positions, points=points if args.min_angle is not None else None,
-        required_fraction=args.required_fraction, fixed=parse_index_list(args.fixed, "fixed"),
-        forbidden=parse_index_list(args.forbidden, "forbidden"), min_distance_m=args.min_distance,
-        engine=args.engine, time_limit_s=args.time_limit,
-        memory_budget_bytes=None if args.memory_budget_gb is None else int(args.memory_budget_gb * 2**30),
-    )
+    opts = options_from_args(args)
+    res = solve(matrix, weights, positions=positions, points=points if opts.min_angle_deg is not None else None,
+                options=opts)
     out = res.to_dict()
     out["timings_s"] = {**(out.get("timings_s") or {}), "load": load_s, "solve": res.time_s}
     # how the answer was asked for (the same record as solution.json's "options")
-    out["options"] = {
-        "mode": args.mode, "k": None if args.mode == "setcover" else args.k,
-        "views": args.views if args.mode == "multiview" else None, "min_angle_deg": args.min_angle,
-        "required_fraction": args.required_fraction if args.mode == "setcover" else None,
-        "fixed": sorted(parse_index_list(args.fixed, "fixed")), "forbidden": sorted(parse_index_list(args.forbidden, "forbidden")),
-        "min_distance_m": args.min_distance, "engine": args.engine, "time_limit_s": args.time_limit,
-        "event_mode": args.event_mode, "source": str(args.source),
-    }
+    out["options"] = {**opts.record(), "event_mode": args.event_mode, "source": str(args.source)}
     write_json_atomic(args.out, out)
     total = float(weights.sum())
     what = "cost" if args.mode == "setcover" else "objective"
@@ -225,8 +187,9 @@ def _cmd_setcover(args: argparse.Namespace) -> int:
     if args.iterations is not None and args.iterations < 1:
         raise CamplaceError(f"--iterations: must be a positive number of iterations, got {args.iterations}")
     costs = np.ones(inst.matrix.shape[1]) if args.unicost else inst.costs
-    res = solve(inst.matrix, np.ones(inst.matrix.shape[0]), mode="setcover", costs=costs, engine=args.engine,
-                time_limit_s=args.time_limit, seed=args.seed, iterations=args.iterations)
+    opts = SolveOptions(mode="setcover", costs=costs, engine=args.engine, time_limit_s=args.time_limit, seed=args.seed,
+                        iterations=args.iterations)
+    res = solve(inst.matrix, np.ones(inst.matrix.shape[0]), options=opts)
     unc = int(res.stats.get("uncoverable_points", 0))
     if args.json:
         out = {

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["SolverResult", "STATUSES", "jsonable", "relative_gap"]
+__all__ = ["ModeOutcome", "SolverResult", "STATUSES", "jsonable", "relative_gap"]
 
 STATUSES = ("optimal", "feasible", "infeasible", "unknown")
 
@@ -124,3 +124,32 @@ class SolverResult:
     def to_json(self) -> str:
         """JSON text of :meth:`to_dict`."""
         return json.dumps(self.to_dict(), sort_keys=True)
+
+
+@dataclass(frozen=True)
+class ModeOutcome:
+    """What a mode's engine hands back to :func:`camplace.solver.solve`, before the final checks
+    (status ``optimal`` when the gap closed, the gap, the common stats) make it a :class:`SolverResult`.
+
+    Attributes
+    ----------
+    selected : tuple of int or None
+        Chosen columns of the ORIGINAL matrix, fixed ones included (None: no answer).
+    status : str
+        One of :data:`STATUSES`.
+    objective : float
+        Value of ``selected`` on the original data (setcover: the cost of the new cameras).
+    bound : float
+        Valid bound (upper for the covering modes, lower for setcover).
+    engine : str
+        The engine that produced it (``exact``, ``mip``, ``cpsat``, ``local-search``).
+    stats : dict
+        Details gathered so far (``solve`` adds the common entries).
+    """
+
+    selected: tuple[int, ...] | None
+    status: str
+    objective: float
+    bound: float
+    engine: str
+    stats: dict[str, Any] = field(default_factory=dict)

@@ -14,11 +14,11 @@ _LAZY = {
     # cameras
     "CameraView": "camplace.validation.cameras",
     "CameraSet": "camplace.validation.cameras",
-    "import_cameras": "camplace.validation.cameras",
-    "read_middlebury": "camplace.validation.cameras",
-    "read_colmap": "camplace.validation.cameras",
-    "read_opencv_cameras": "camplace.validation.cameras",
-    "write_opencv_cameras": "camplace.validation.cameras",
+    "import_cameras": "camplace.validation.camera_io",
+    "read_middlebury": "camplace.validation.camera_io",
+    "read_colmap": "camplace.validation.camera_io",
+    "read_opencv_cameras": "camplace.validation.camera_io",
+    "write_opencv_cameras": "camplace.validation.camera_io",
     # render
     "RenderSettings": "camplace.validation.render",
     "RenderScene": "camplace.validation.render",

@@ -1,4 +1,4 @@
-"""Verbs of the validation stage: ``render``, ``validate``, ``import-cameras``, ``export``.
+"""Verbs of the validation stage: ``render``, ``validate``, ``import-cameras`` (``export`` is in :mod:`camplace.report.cli`).
 
 Imports nothing heavy at module level (OpenCV and Embree load when a verb runs).
 """
@@ -53,13 +53,7 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--size", default=None, help="Middlebury: image size WIDTHxHEIGHT when the images are not at hand")
     p.add_argument("-o", "--out", type=Path, required=True, help="cameras.json to write")
 
-    p = subparsers.add_parser("export", help="write the chosen cameras' placement (CSV + JSON) in lab or simulation coordinates")
-    p.add_argument("outdir", type=Path, help="output folder of 'camplace run'")
-    p.add_argument("--frame", choices=["physical", "simulation"], default="physical", help="coordinate frame (default physical)")
-    p.add_argument("--transform", type=Path, default=None, help="TOML/JSON with the [transform] table (default: the run's instance.toml)")
-    p.add_argument("-o", "--out", type=Path, default=None, help="output folder (default OUTDIR)")
-
-    return {"render": _cmd_render, "validate": _cmd_validate, "import-cameras": _cmd_import, "export": _cmd_export}
+    return {"render": _cmd_render, "validate": _cmd_validate, "import-cameras": _cmd_import}
 
 
 def _check_workers(args: argparse.Namespace) -> None:
@@ -151,22 +145,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
-    from camplace.validation.cameras import import_cameras
+    from camplace.validation.camera_io import import_cameras
 
     cams = import_cameras(args.file, args.format, images_dir=args.images, size=args.size)
     cams.save(args.out)
     print(f"wrote {args.out}: {len(cams)} cameras ({cams.format})")
-    return EXIT_OK
-
-
-def _cmd_export(args: argparse.Namespace) -> int:
-    from camplace.validation.workflow import export_run, read_table_file
-
-    transform = None
-    source = ""
-    if args.transform is not None:
-        transform = read_table_file(args.transform, "transform")
-        source = f"{args.transform}: [transform]"
-    csv_path, json_path = export_run(args.outdir, frame=args.frame, transform=transform, transform_source=source, out=args.out)
-    print(f"wrote {csv_path} and {json_path}")
     return EXIT_OK

@@ -23,119 +23,19 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from camplace.errors import CamplaceError
+from camplace.geometry import rotation_from_vector
+from camplace.instance.lab import PhysicalCamera, parse_physical
 from camplace.validation.cameras import CameraView
 
 log = logging.getLogger(__name__)
 
 __all__ = ["PhysicalCamera", "parse_physical", "perturb_camera", "install_camera", "apply_optics_and_sensor", "EmulatedShot",
            "emulate_shots", "rotation_from_vector"]
-
-
-@dataclass(frozen=True)
-class PhysicalCamera:
-    """Imperfections of the physical cameras (all zero: a perfect camera, photo == render).
-
-    Attributes
-    ----------
-    sigma_position_m : float
-        Standard deviation of the placement error per axis, metres.
-    sigma_rotation_deg : float
-        Standard deviation of each component of the orientation error's rotation vector, degrees.
-    exposure_ev : float
-        Exposure change in stops (x 2 ** exposure_ev).
-    gain_db : float
-        Sensor gain in decibels (x 10 ** (gain_db / 20)).
-    noise_poisson_a : float
-        Poisson (shot) noise scale a of the Poisson-Gaussian model, image units (1.0 = white).
-    noise_sigma : float
-        Gaussian (read) noise standard deviation, image units.
-    defocus_radius_px : float
-        Radius of the defocus disc (circle of confusion), pixels.
-    k1, k2 : float
-        Radial distortion coefficients (OpenCV).
-    vignetting : float
-        Relative brightness loss in the image corners (0..1).
-    ambient_light : float
-        Extra ambient light in the room, added to the renderer's ambient term on every surface.
-    """
-
-    sigma_position_m: float = 0.0
-    sigma_rotation_deg: float = 0.0
-    exposure_ev: float = 0.0
-    gain_db: float = 0.0
-    noise_poisson_a: float = 0.0
-    noise_sigma: float = 0.0
-    defocus_radius_px: float = 0.0
-    k1: float = 0.0
-    k2: float = 0.0
-    vignetting: float = 0.0
-    ambient_light: float = 0.0
-
-    @property
-    def exposure_factor(self) -> float:
-        """Total brightness factor of exposure and gain."""
-        return 2.0**self.exposure_ev * 10.0 ** (self.gain_db / 20.0)
-
-    def to_dict(self) -> dict[str, float]:
-        return asdict(self)
-
-
-_NONNEG = ("sigma_position_m", "sigma_rotation_deg", "noise_poisson_a", "noise_sigma", "defocus_radius_px", "ambient_light")
-
-
-def parse_physical(table: dict[str, Any] | None, where: str = "[physical]") -> PhysicalCamera:
-    """Build a :class:`PhysicalCamera` from a TOML/JSON table (e.g. an instance's ``[physical]``).
-
-    Parameters
-    ----------
-    table : dict or None
-        Keys are the field names; missing keys keep their default (0).
-    where : str
-        Prefix for error messages, e.g. ``"run.toml: [physical]"``.
-
-    Raises
-    ------
-    CamplaceError
-        Unknown key, non-number, negative standard deviation or vignetting outside [0, 1].
-    """
-    if table is None:
-        return PhysicalCamera()
-    if not isinstance(table, dict):
-        raise CamplaceError(f"{where}: must be a table of numbers")
-    names = [f.name for f in fields(PhysicalCamera)]
-    vals: dict[str, float] = {}
-    for key, value in table.items():
-        if key not in names:
-            import difflib
-
-            close = difflib.get_close_matches(key, names, n=1)
-            hint = f"did you mean {close[0]!r}?" if close else f"known keys: {', '.join(names)}"
-            raise CamplaceError(f"{where}.{key}: unknown key ({hint})")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise CamplaceError(f"{where}.{key}: must be a finite number, got {value!r}")
-        if key in _NONNEG and value < 0:
-            raise CamplaceError(f"{where}.{key}: must be >= 0, got {value}")
-        if key == "vignetting" and not 0.0 <= value <= 1.0:
-            raise CamplaceError(f"{where}.vignetting: must be between 0 and 1, got {value}")
-        vals[key] = float(value)
-    return PhysicalCamera(**vals)
-
-
-def rotation_from_vector(w: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation ``Exp(w)`` of a rotation vector (axis * angle, radians), Rodrigues' formula."""
-    w = np.asarray(w, dtype=np.float64).reshape(3)
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-15:
-        return np.eye(3)
-    k = w / theta
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(theta) * Kx + (1 - math.cos(theta)) * (Kx @ Kx)
 
 
 def perturb_camera(camera: CameraView, physical: PhysicalCamera, rng: np.random.Generator) -> CameraView:

@@ -44,6 +44,8 @@ import numpy as np
 
 from camplace._io import write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
+from camplace.geometry import euler_xyz_deg
+from camplace.instance.lab import TRANSFORM_METHODS, TransformConfig, parse_transform
 
 __all__ = [
     "TRANSFORM_METHODS",
@@ -56,128 +58,6 @@ __all__ = [
     "placement_rows",
     "write_placement",
 ]
-
-TRANSFORM_METHODS = ("scale", "similarity", "identity")
-_KEYS = ("method", "sim_extent_m", "phys_extent_m", "sim_scale", "reference_m", "sim_reference_m", "pairs", "with_scale")
-
-Vec3 = tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class TransformConfig:
-    """How simulation coordinates map to the lab (see the module docstring).
-
-    Attributes
-    ----------
-    method : {"scale", "similarity", "identity"}
-    sim_extent_m : (3,) float or None
-        Simulation environment constraints V_sim per axis (scale method).
-    phys_extent_m : (3,) float or None
-        Physical environment constraints V_phys per axis (scale method).
-    sim_scale : (3,) float
-        Scale used when modelling the simulation, s (scale method; default 1).
-    reference_m : (3,) float
-        Physical coordinates x_r of the reference point (scale method).
-    sim_reference_m : (3,) float
-        Simulation coordinates of the same reference point (default: the origin, as in the thesis).
-    pairs_sim_m, pairs_phys_m : tuple of (3,) float
-        Matching reference points (similarity method; at least 3, not collinear).
-    with_scale : bool
-        Estimate a scale in the similarity (False: a rigid motion).
-    """
-
-    method: str = "identity"
-    sim_extent_m: Vec3 | None = None
-    phys_extent_m: Vec3 | None = None
-    sim_scale: Vec3 = (1.0, 1.0, 1.0)
-    reference_m: Vec3 = (0.0, 0.0, 0.0)
-    sim_reference_m: Vec3 = (0.0, 0.0, 0.0)
-    pairs_sim_m: tuple[Vec3, ...] = ()
-    pairs_phys_m: tuple[Vec3, ...] = ()
-    with_scale: bool = True
-
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"method": self.method}
-        if self.method == "scale":
-            out.update(
-                sim_extent_m=list(self.sim_extent_m or ()),
-                phys_extent_m=list(self.phys_extent_m or ()),
-                sim_scale=list(self.sim_scale),
-                reference_m=list(self.reference_m),
-                sim_reference_m=list(self.sim_reference_m),
-            )
-        elif self.method == "similarity":
-            out["pairs"] = [{"sim_m": list(a), "phys_m": list(b)} for a, b in zip(self.pairs_sim_m, self.pairs_phys_m)]
-            out["with_scale"] = self.with_scale
-        return out
-
-
-def _vec3(value: Any, field: str, *, positive: bool = False, allow_scalar: bool = False) -> Vec3:
-    if allow_scalar and isinstance(value, (int, float)) and not isinstance(value, bool):
-        value = [value] * 3
-    if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise CamplaceError(f"{field}: must be an array of 3 numbers [x, y, z], got {value!r}")
-    out = []
-    for i, v in enumerate(value):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise CamplaceError(f"{field}[{i}]: must be a finite number, got {v!r}")
-        if positive and v <= 0:
-            raise CamplaceError(f"{field}[{i}]: must be > 0, got {v} (mirroring axes cannot be placed in a lab)")
-        out.append(float(v))
-    return (out[0], out[1], out[2])
-
-
-def parse_transform(table: dict[str, Any] | None, where: str = "[transform]") -> TransformConfig:
-    """Build a :class:`TransformConfig` from a TOML/JSON table.
-
-    Parameters
-    ----------
-    table : dict or None
-        None gives the identity.
-    where : str
-        Prefix of error messages (e.g. ``"lab.toml: [transform]"``).
-    """
-    if table is None:
-        return TransformConfig()
-    if not isinstance(table, dict):
-        raise CamplaceError(f"{where}: must be a table")
-    for key in table:
-        if key not in _KEYS:
-            raise CamplaceError(f"{where}.{key}: unknown key (known: {', '.join(_KEYS)})")
-    method = table.get("method")
-    if method not in TRANSFORM_METHODS:
-        raise CamplaceError(f"{where}.method: must be one of {', '.join(TRANSFORM_METHODS)}, got {method!r}")
-    if method == "identity":
-        return TransformConfig()
-    if method == "scale":
-        for key in ("sim_extent_m", "phys_extent_m"):
-            if key not in table:
-                raise CamplaceError(f"{where}.{key}: required for method = \"scale\" (the environment's size per axis [x, y, z])")
-        return TransformConfig(
-            method="scale",
-            sim_extent_m=_vec3(table["sim_extent_m"], f"{where}.sim_extent_m", positive=True),
-            phys_extent_m=_vec3(table["phys_extent_m"], f"{where}.phys_extent_m", positive=True),
-            sim_scale=_vec3(table.get("sim_scale", 1.0), f"{where}.sim_scale", positive=True, allow_scalar=True),
-            reference_m=_vec3(table.get("reference_m", [0.0, 0.0, 0.0]), f"{where}.reference_m"),
-            sim_reference_m=_vec3(table.get("sim_reference_m", [0.0, 0.0, 0.0]), f"{where}.sim_reference_m"),
-        )
-    pairs = table.get("pairs")
-    if not isinstance(pairs, list) or len(pairs) < 3:
-        raise CamplaceError(f"{where}.pairs: method = \"similarity\" needs at least 3 pairs {{sim_m = [x, y, z], phys_m = [x, y, z]}}")
-    sim, phys = [], []
-    for i, p in enumerate(pairs):
-        if not isinstance(p, dict) or set(p) != {"sim_m", "phys_m"}:
-            raise CamplaceError(f"{where}.pairs[{i}]: must be a table with exactly sim_m and phys_m")
-        sim.append(_vec3(p["sim_m"], f"{where}.pairs[{i}].sim_m"))
-        phys.append(_vec3(p["phys_m"], f"{where}.pairs[{i}].phys_m"))
-    s = np.array(sim)
-    if np.linalg.matrix_rank(s - s.mean(axis=0), tol=1e-9 * max(1.0, float(np.abs(s).max()))) < 2:
-        raise CamplaceError(f"{where}.pairs: the simulation points are collinear (add a point off their line)")
-    with_scale = table.get("with_scale", True)
-    if not isinstance(with_scale, bool):
-        raise CamplaceError(f"{where}.with_scale: must be true or false")
-    return TransformConfig(method="similarity", pairs_sim_m=tuple(sim), pairs_phys_m=tuple(phys), with_scale=with_scale)
-
 
 def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
     """Least-squares similarity ``dst ~ s R src + t`` (Umeyama 1991).
@@ -280,30 +160,6 @@ def build_transform(config: TransformConfig) -> PlacementTransform:
         rms = float(np.sqrt((res**2).sum(axis=1).mean()))
         return PlacementTransform(s * R, t, config, scale=s, rotation=R, rms_residual_m=rms)
     raise CamplaceError(f"[transform].method: unknown method {config.method!r}")
-
-
-def euler_xyz_deg(R: np.ndarray) -> np.ndarray:
-    """Extrinsic X-then-Y-then-Z Euler angles (degrees) of ``R = Rz @ Ry @ Rx`` (the instance format's convention).
-
-    Parameters
-    ----------
-    R : (3, 3) float64
-
-    Returns
-    -------
-    (3,) float64
-        Angles about world x, y, z; at gimbal lock (|y| = 90 deg) x is set to 0.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    sy = -R[2, 0]
-    ay = math.asin(max(-1.0, min(1.0, sy)))
-    if abs(sy) < 1.0 - 1e-12:
-        ax = math.atan2(R[2, 1], R[2, 2])
-        az = math.atan2(R[1, 0], R[0, 0])
-    else:  # gimbal lock: only ax - az (or ax + az) is defined
-        ax = 0.0
-        az = math.atan2(-R[0, 1], R[1, 1])
-    return np.degrees([ax, ay, az])
 
 
 PLACEMENT_COLUMNS = (

@@ -22,6 +22,7 @@ import numpy as np
 
 from camplace._io import write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
+from camplace.geometry import box_mesh  # noqa: F401  (also re-exported)
 from camplace.validation.cameras import CameraSet, CameraView, camera_stem
 
 log = logging.getLogger(__name__)
@@ -372,7 +373,7 @@ def parse_target(spec: str) -> tuple[np.ndarray, np.ndarray]:
     path = Path(spec)
     if not path.exists():
         raise CamplaceError(f"--target: {spec} is neither box:x0,y0,z0,x1,y1,z1 nor an existing mesh file")
-    from camplace.instance.loader import read_mesh_file
+    from camplace.instance.meshio import read_mesh_file
 
     try:
         v, f = read_mesh_file(path)
@@ -380,17 +381,6 @@ def parse_target(spec: str) -> tuple[np.ndarray, np.ndarray]:
         raise CamplaceError(f"--target: cannot read mesh {path} ({exc})") from None
     if len(f) == 0:
         raise CamplaceError(f"--target: {path} has no triangles")
-    return v, f
-
-
-def box_mesh(lo: Sequence[float], hi: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle mesh of an axis-aligned box (8 vertices, 12 outward-facing triangles)."""
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    v = np.array([[hi[0] if i & 1 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 4 else lo[2]] for i in range(8)])
-    f = np.array(
-        [[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]],
-        dtype=np.int64,
-    )
     return v, f
 
 

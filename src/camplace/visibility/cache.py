@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
+from camplace.visibility.chunk import ENGINE_VERSION
 
 log = logging.getLogger(__name__)
 
@@ -35,9 +36,7 @@ def default_cache_dir() -> Path:
 
 
 def task_key(task) -> str:
-    """Hex SHA-256 of a :class:`~camplace.visibility.engine.VisibilityTask`'s content."""
-    from camplace.visibility.engine import ENGINE_VERSION
-
+    """Hex SHA-256 of a :class:`~camplace.visibility.chunk.VisibilityTask`'s content."""
     h = hashlib.sha256()
     h.update(f"camplace-visibility-{ENGINE_VERSION}".encode())
     scalars = {

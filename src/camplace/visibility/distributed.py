@@ -12,6 +12,7 @@ import weakref
 from typing import Any, Callable
 
 from camplace.errors import CamplaceError
+from camplace.visibility.chunk import compute_chunk
 
 log = logging.getLogger(__name__)
 
@@ -31,8 +32,6 @@ def _import_distributed():
 
 def run_chunk(task, start: int, stop: int):
     """Worker entry point: compute candidates ``start:stop`` of ``task``."""
-    from camplace.visibility.engine import compute_chunk
-
     scenes = _SCENES.get(task)
     if scenes is None:
         scenes = task.build_scenes()

@@ -1,0 +1,231 @@
+"""Write an :class:`~camplace.instance.schema.Instance` back to an instance file (format v1, TOML).
+
+Meshes go out as binary float64 PLY files (:func:`camplace.geometry.ply_bytes`) next to the file, so
+``load_instance(save_instance(x))`` gives the same geometry bit for bit.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+try:  # Python >= 3.11
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+from camplace._io import write_bytes_atomic, write_text_atomic
+from camplace.geometry import ply_bytes
+from camplace.instance.parse import _one_line
+from camplace.instance.schema import SCHEMA_VERSION, Instance, Mesh, QualitySpec
+
+__all__ = ["save_instance"]
+
+
+def _slug(name: str) -> str:
+    s = re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-.")
+    return s or "mesh"
+
+
+def _rel(target: Path, start: Path) -> str:
+    try:
+        return Path(os.path.relpath(target, start)).as_posix()
+    except ValueError:  # different drives on Windows
+        return target.as_posix()
+
+
+def _vec(v) -> list[float]:
+    return [float(x) for x in v]
+
+
+def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_files: bool = True) -> None:
+    """Write ``instance`` as a v1 TOML file (atomically) that :func:`load_instance` reads back.
+
+    Parameters
+    ----------
+    instance : Instance
+    path : path
+        The ``.toml`` file to write.
+    mesh_files : bool
+        True: write every mesh (target and occluders) as a binary float64 PLY into ``<stem>_meshes/``
+        beside ``path`` and reference it with a relative ``file = ...`` (exact geometry round trip; the
+        procedural spec that made a mesh, if any, is kept as a comment). False: write each mesh's
+        original spec (``Mesh.spec``): procedural specs as they are, ``file`` specs with the path
+        rewritten relative to the new location; a mesh without a spec is written as a PLY anyway.
+    """
+    out = Path(path)
+    out_dir = Path(os.path.abspath(out.parent))
+    mesh_dir_name = f"{out.stem}_meshes"
+    comments: dict[str, str] = {}
+
+    def mesh_table(mesh: Mesh, key: str, file_stem: str) -> dict:
+        spec = dict(mesh.spec) if mesh.spec else {}
+        is_file_spec = "file" in spec and mesh.source.startswith("file:")
+        if not mesh_files and spec and ("shape" in spec or is_file_spec):
+            table = copy.deepcopy(spec)
+            if is_file_spec:
+                table["file"] = _rel(Path(mesh.source[len("file:") :]), out_dir)
+            table["name"] = mesh.name
+            return {"name": table.pop("name"), **table}
+        rel = f"{mesh_dir_name}/{file_stem}.ply"
+        write_bytes_atomic(out_dir / rel, ply_bytes(mesh.vertices, mesh.faces, f"camplace mesh {mesh.name} (metres)"))
+        if "shape" in spec:
+            comments[key] = "generated from: " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in spec.items() if k != "name")
+        elif is_file_spec:
+            comments[key] = f"read from: {mesh.source[len('file:'):]}" + (f" (scale {spec['scale']})" if "scale" in spec else "")
+        return {"name": mesh.name, "file": rel}
+
+    cam = instance.camera
+    d = instance.defaults
+    data: dict[str, Any] = {
+        "schema_version": SCHEMA_VERSION,
+        "name": instance.name,
+        "k": int(instance.k),
+        "run": {
+            "candidates": int(d.candidates),
+            "points": int(d.points),
+            "sampler": d.sampler,
+            "seed": int(d.seed),
+            "time_limit_s": float(d.time_limit_s),
+            "orientations": int(d.orientations),
+        },
+        "camera": {
+            "sensor_width_mm": float(cam.sensor_width_mm),
+            "sensor_height_mm": float(cam.sensor_height_mm),
+            "focal_length_mm": float(cam.focal_length_mm),
+            "width_px": int(cam.width_px),
+            "height_px": int(cam.height_px),
+            "near_m": float(cam.near_m),
+            "far_m": float(cam.far_m),
+        },
+        "volume": {"min_m": _vec(instance.volume.min_m), "max_m": _vec(instance.volume.max_m)},
+        "light": {"position_m": _vec(instance.light.position_m)},
+        "target": mesh_table(instance.target, "target", "target"),
+    }
+    if instance.occluders:
+        occs = []
+        for i, occ in enumerate(instance.occluders):
+            t = mesh_table(occ.mesh, f"occluders[{i}]", f"occluder{i}_{_slug(occ.mesh.name)}")
+            t["position_m"] = _vec(occ.pose.position_m)
+            t["rotation_deg"] = _vec(occ.pose.rotation_deg)
+            if occ.ground:
+                t["ground"] = True
+            occs.append(t)
+        data["occluders"] = occs
+    q = instance.quality
+    if q != QualitySpec():
+        data["quality"] = {
+            "mode": q.mode,
+            "required_px_per_m": float(q.required_px_per_m),
+            "max_incidence_deg": float(q.max_incidence_deg),
+            "require_light": bool(q.require_light),
+        }
+    if instance.robust is not None:
+        r = instance.robust
+        data["robust"] = {
+            "position_sigma_m": float(r.position_sigma_m), "rotation_sigma_deg": float(r.rotation_sigma_deg),
+            "scenarios": int(r.scenarios), "objective": r.objective, "eval_scenarios": int(r.eval_scenarios),
+        }
+    for key in ("physical", "transform"):
+        table = getattr(instance, key)
+        if table is not None:
+            data[key] = copy.deepcopy(table)
+    agents = getattr(instance, "agents", None)
+    if agents is not None:
+        at: dict[str, Any] = {}
+        if agents.phases is not None:
+            at["phases"] = int(agents.phases)
+        else:
+            at["phase_starts_s"] = [float(t) for t in agents.phase_starts_s or ()]
+        at["speed_m_s"] = float(agents.speed_m_s)
+        if agents.start_positions_m is not None:
+            at["start_positions_m"] = [_vec(v) for v in agents.start_positions_m]
+        if agents.start_time_s is not None:
+            at["start_time_s"] = float(agents.start_time_s)
+        data["agents"] = at
+    frames = []
+    for i, f in enumerate(instance.frames):
+        ft: dict[str, Any] = {
+            "weight": float(f.weight),
+            "time_s": float(f.time_s),
+            "position_m": _vec(f.target_pose.position_m),
+            "rotation_deg": _vec(f.target_pose.rotation_deg),
+        }
+        if f.target_weight != 1.0:
+            ft["target_weight"] = float(f.target_weight)
+        if f.emitters is not None:
+            src = f.emitters.source
+            if not mesh_files and src.startswith("file:"):
+                ft["emitters"] = {"file": _rel(Path(src[len("file:"):]), out_dir)}
+            else:
+                rel = f"{mesh_dir_name}/frame{i}_emitters.csv"
+                table = np.column_stack([f.emitters.positions_m, f.emitters.weights])
+                text = "x,y,z,weight\n" + "".join(",".join(repr(float(v)) for v in row) + "\n" for row in table)
+                write_text_atomic(out_dir / rel, text)
+                ft["emitters"] = {"file": rel}
+        if f.occluders:
+            occs = []
+            for j, occ in enumerate(f.occluders):
+                t = mesh_table(occ.mesh, f"frames[{i}].occluders[{j}]", f"frame{i}_occluder{j}_{_slug(occ.mesh.name)}")
+                t["position_m"] = _vec(occ.pose.position_m)
+                t["rotation_deg"] = _vec(occ.pose.rotation_deg)
+                occs.append(t)
+            ft["occluders"] = occs
+        frames.append(ft)
+    data["frames"] = frames
+
+    head = f"# camplace instance, schema v{SCHEMA_VERSION} (metres, degrees). Written by camplace.instance.save_instance."
+    write_text_atomic(out, _dumps_toml(data, comments, head))
+
+
+def _toml_value(value: Any) -> str:
+    """Inline TOML for a scalar or an array of scalars (tomli_w does the escaping)."""
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):  # inline table (frame emitters and occluders)
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    return tomli_w.dumps({"v": value})[len("v = ") :].strip()
+
+
+def _dumps_toml(data: dict[str, Any], comments: dict[str, str], head: str) -> str:
+    """TOML text of an instance dict: scalars, inline arrays, [tables], [[arrays of tables]]; with comments.
+
+    ``comments`` maps ``"target"`` / ``"occluders[0]"`` to a line written just above that table.
+    """
+
+    def body(table: dict[str, Any]) -> list[str]:
+        return [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in table.items()]
+
+    lines = [head, ""]
+    lines += body({k: v for k, v in data.items() if not isinstance(v, dict) and not _is_table_array(v)})
+    for key, value in data.items():
+        if isinstance(value, dict):
+            lines.append("")
+            if key in comments:
+                lines.append(f"# {_one_line(comments[key])}")
+            lines.append(f"[{_toml_key(key)}]")
+            lines += body(value)
+        elif _is_table_array(value):
+            for i, item in enumerate(value):
+                lines.append("")
+                if f"{key}[{i}]" in comments:
+                    lines.append(f"# {_one_line(comments[f'{key}[{i}]'])}")
+                lines.append(f"[[{_toml_key(key)}]]")
+                lines += body(item)
+    text = "\n".join(lines) + "\n"
+    tomllib.loads(text)  # never write a file we could not read back
+    return text
+
+
+def _is_table_array(value: Any) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_value(key)
