@@ -194,7 +194,7 @@ def installed_objective(instance, objective: RunObjective, installed: Sequence[S
         The same on ``rows`` (None without ``rows``).
     """
     from camplace.sampling import CandidateSet
-    from camplace.solver.modes import mode_value
+    from camplace.solver.objectives import mode_value
     from camplace.visibility import compute_visibility
 
     n_inst = len(installed)
