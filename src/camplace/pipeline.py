@@ -3,294 +3,26 @@
 from __future__ import annotations
 
 import logging
-import platform
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from camplace._io import read_json, remove_stale_temps, write_json_atomic, write_text_atomic
+from camplace._io import remove_stale_temps, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
-from camplace.sampling import SAMPLERS, CandidateSet
-from camplace.visibility import VisibilityMatrix, compute_visibility, frame_scene, make_target_points, write_ply
+from camplace.names import EVENT_MODES, SAMPLERS
+from camplace.sampling import CandidateSet
+
+# moved to their own modules; still importable from here
+from camplace.event import covered_rows, event_aims, event_centres, event_weights, light_curves_csv, peak_frame  # noqa: F401
+from camplace.solution import Solution, camera_record, run_options, split_timings, versions  # noqa: F401
+
+if TYPE_CHECKING:  # pragma: no cover
+    from camplace.visibility.engine import VisibilityMatrix
 
 log = logging.getLogger(__name__)
-
-
-def versions() -> dict[str, str]:
-    """Versions of camplace and the libraries that shape its results."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": platform.python_version()}
-    for dist in ("camplace", "numpy", "scipy", "ortools", "embreex", "trimesh"):
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            out[dist] = "unknown"
-    return out
-
-
-@dataclass(frozen=True, eq=False)
-class Solution:
-    """The chosen camera system and how good it provably is (the content of ``solution.json``).
-
-    Attributes
-    ----------
-    status : str
-        "optimal" | "feasible" | "infeasible" | "unknown".
-    objective : float
-        Weight of the points observed by the chosen cameras (points weigh 1 in total).
-    bound : float
-        Proven upper bound on the objective of any k-camera system from these candidates.
-    gap : float
-        (bound - objective) / bound.
-    k : int
-        Cameras in the system (fixed ones included; for setcover, as many as were needed).
-    seed, sampler, n_candidates : as run
-    n_points : int
-        Rows of the visibility matrix (``points.csv``): the surface points of every frame plus the
-        emitter points. This is THE meaning of ``n_points`` everywhere (run, campaign, report);
-        the ``--points`` value that produced them is ``points_requested``.
-    coverage_fraction : float
-        Observed weight / total point weight.
-    timings_s : dict of str to float
-        Wall time per stage.
-    versions : dict of str to str
-    cameras : list of dict
-        Per chosen camera: candidate (column index), position [x, y, z], rotation (3x3,
-        world-from-camera, OpenCV axes), K (3x3), width, height, near_m, far_m.
-    instance : str
-        Instance name.
-    engine : str
-        Solver engine that produced the answer.
-    mode : str
-        The formulation solved (``maxcover``, ``quality``, ``multiview``, ``setcover``); for
-        ``setcover`` the objective is the number (or cost) of cameras and ``bound`` a lower bound.
-    event_mode : str
-        ``all``: the objective is the expected coverage over all frames (weights P(t));
-        ``peak``: the coverage of the maximum-likelihood frame alone.
-    peak_frame : int
-        The maximum-likelihood frame (for the volcano, the plume's peak step).
-    expected_coverage : float
-        Share of the whole event (all frames, weighted by P) the chosen cameras observe.
-    peak_coverage : float
-        Share of the peak frame's weight the chosen cameras observe.
-    warnings : list of str
-        Degenerate situations worth a look: nothing observable, fewer useful candidates than k,
-        all weights zero.
-    points_requested : int
-        The ``--points`` value of the run (surface points split over the frames, before rounding
-        up to a whole number per frame and adding emitters); with ``seed`` it recreates the rows.
-    options : dict
-        Every option that shaped the answer, as asked for (:func:`run_options`): ``mode``, ``k``,
-        ``views``, ``min_angle_deg``, ``required_fraction``, ``fixed``, ``forbidden``,
-        ``min_distance_m``, ``engine``, ``time_limit_s``, ``event_mode``, ``sampler``, ``seed``,
-        ``candidates``, ``points``, ``orientations`` (and ``robust``, the settings of a robust run).
-        With ``points.csv`` and the matrix they recompute the objective from the folder alone.
-    robust : dict or None
-        Robust runs (``[robust]``, ``--pose-error``): settings, the sampled objective of the chosen
-        system and of the nominal optimum, and both on fresh installations
-        (:func:`camplace.robust.robust_stage`). ``objective``/``bound``/``gap`` are then those of the
-        robust objective; the coverage figures are the chosen system's at the nominal poses.
-    candidates, visibility : optional
-        The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
-    """
-
-    status: str
-    objective: float
-    bound: float
-    gap: float
-    k: int
-    seed: int
-    sampler: str
-    n_candidates: int
-    n_points: int
-    coverage_fraction: float
-    timings_s: dict
-    versions: dict
-    cameras: list
-    instance: str = ""
-    engine: str = ""
-    mode: str = "maxcover"
-    solver_stats: dict = field(default_factory=dict)
-    warnings: list = field(default_factory=list)
-    event_mode: str = "all"
-    peak_frame: int = 0
-    expected_coverage: float = 0.0
-    peak_coverage: float = 0.0
-    points_requested: int = 0
-    options: dict = field(default_factory=dict)
-    robust: dict | None = None
-    candidates: CandidateSet | None = field(default=None, repr=False)
-    visibility: VisibilityMatrix | None = field(default=None, repr=False)
-
-    @property
-    def selected(self) -> list[int]:
-        """Column indices of the chosen cameras."""
-        return [int(c["candidate"]) for c in self.cameras]
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready content of ``solution.json``."""
-        return {
-            "status": self.status,
-            "objective": self.objective,
-            "bound": self.bound,
-            "gap": self.gap,
-            "k": self.k,
-            "seed": self.seed,
-            "sampler": self.sampler,
-            "n_candidates": self.n_candidates,
-            "n_points": self.n_points,
-            "coverage_fraction": self.coverage_fraction,
-            "timings_s": self.timings_s,
-            "versions": self.versions,
-            "cameras": self.cameras,
-            "instance": self.instance,
-            "engine": self.engine,
-            "mode": self.mode,
-            "solver_stats": self.solver_stats,
-            "warnings": self.warnings,
-            "event_mode": self.event_mode,
-            "peak_frame": self.peak_frame,
-            "expected_coverage": self.expected_coverage,
-            "peak_coverage": self.peak_coverage,
-            "points_requested": self.points_requested,
-            "options": self.options,
-            **({"robust": self.robust} if self.robust is not None else {}),
-        }
-
-    def save(self, outdir: str | Path) -> None:
-        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.cpm) atomically."""
-        outdir = Path(outdir)
-        outdir.mkdir(parents=True, exist_ok=True)
-        if self.candidates is not None:
-            self.candidates.save(outdir / "candidates.csv")
-        if self.visibility is not None:
-            self.visibility.save(outdir)
-        write_json_atomic(outdir / "solution.json", self.to_dict())
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Solution":
-        """Read a ``solution.json`` (or the folder holding one)."""
-        data = read_json(path, "solution.json", "solution")
-        known = {f for f in cls.__dataclass_fields__ if f not in ("candidates", "visibility")}
-        return cls(**{k: v for k, v in data.items() if k in known})
-
-
-def run_options(
-    *, mode: str, k: int | None, views: int, min_angle_deg: float | None, required_fraction: float,
-    fixed: Sequence[int], forbidden: Sequence[int], min_distance_m: float | None, engine: str,
-    time_limit_s: float | None, event_mode: str = "all", **run_settings: Any,
-) -> dict[str, Any]:
-    """The ``options`` record of ``solution.json``: every option that shaped an answer, as asked for.
-
-    Parameters
-    ----------
-    mode, k, views, min_angle_deg, required_fraction, fixed, forbidden, min_distance_m, engine, time_limit_s
-        The solver's options (:func:`camplace.solver.solve`); ``k`` counts the new cameras (None
-        for setcover).
-    event_mode : {"all", "peak"}
-        Which row weights the solver maximised (:func:`event_weights`).
-    **run_settings
-        Further settings of the run (``sampler``, ``seed``, ``candidates``, ``points``,
-        ``orientations``), recorded as given.
-
-    Returns
-    -------
-    dict
-        JSON-ready; ``views`` and ``min_angle_deg`` are None outside multiview,
-        ``required_fraction`` None outside setcover.
-    """
-    out: dict[str, Any] = {
-        "mode": mode,
-        "k": None if mode == "setcover" or k is None else int(k),
-        "views": int(views) if mode == "multiview" else None,
-        "min_angle_deg": None if min_angle_deg is None else float(min_angle_deg),
-        "required_fraction": float(required_fraction) if mode == "setcover" else None,
-        "fixed": sorted(int(j) for j in fixed),
-        "forbidden": sorted(int(j) for j in forbidden),
-        "min_distance_m": None if min_distance_m is None else float(min_distance_m),
-        "engine": engine,
-        "time_limit_s": None if time_limit_s is None else float(time_limit_s),
-        "event_mode": event_mode,
-    }
-    out.update(run_settings)
-    return out
-
-
-def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
-    """The ``cameras`` entry of ``solution.json`` for candidate column ``j``."""
-    cam = instance.camera
-    return {
-        "candidate": int(j),
-        "position": [float(x) for x in candidates.positions[j]],
-        "aim": [float(x) for x in candidates.aims[j]],
-        "rotation": [[float(x) for x in row] for row in candidates.rotations[j]],
-        "K": [[float(x) for x in row] for row in cam.K()],
-        "width": int(cam.width_px),
-        "height": int(cam.height_px),
-        "near_m": float(cam.near_m),
-        "far_m": float(cam.far_m),
-    }
-
-
-def event_centres(instance) -> np.ndarray:
-    """(n_frames, 3) float64 centre of what is observed in each frame.
-
-    The weighted mean of the target's bounding-box centre (weight ``target_weight``) and the
-    frame's emitter points (their weights).
-    """
-    out = []
-    for f, frame in enumerate(instance.frames):
-        c, w = [instance.target_centre(f) * frame.target_weight], frame.target_weight
-        if frame.emitters is not None and len(frame.emitters):
-            c.append(frame.emitters.weights @ frame.emitters.positions_m)
-            w += float(frame.emitters.weights.sum())
-        out.append(np.sum(c, axis=0) / w if w > 0 else instance.target_centre(f))
-    return np.array(out)
-
-
-def event_aims(instance, orientations: int = 1) -> np.ndarray:
-    """Aim points of the candidate poses at each position.
-
-    One orientation aims at the likelihood-weighted mean event centre. ``n > 1`` orientations aim
-    at the event centres of ``n`` key frames, taken at the likelihood quantiles (i + 0.5) / n of
-    the frame sequence (duplicates removed), so a moving target is followed.
-
-    Returns
-    -------
-    (a, 3) float64
-        ``a <= orientations`` distinct aim points.
-    """
-    centres = event_centres(instance)
-    w = instance.frame_weights()
-    if orientations <= 1 or len(centres) == 1:
-        return (w @ centres)[None, :]
-    cdf = np.cumsum(w)
-    keys = np.searchsorted(cdf, (np.arange(orientations) + 0.5) / orientations, side="left")
-    keys = np.unique(np.minimum(keys, len(centres) - 1))
-    return centres[keys]
-
-
-from camplace.names import EVENT_MODES  # noqa: E402  (one list of the names)
-
-
-def peak_frame(instance) -> int:
-    """Index of the maximum-likelihood frame (the first one on ties)."""
-    return int(np.argmax([f.weight for f in instance.frames]))
-
-
-def event_weights(pts, instance, event_mode: str) -> np.ndarray:
-    """Row weights the solver maximises: all frames (P-weighted), or the peak frame alone (summing to 1)."""
-    if event_mode == "all":
-        return pts.weight
-    in_peak = pts.frame == peak_frame(instance)
-    w = np.where(in_peak, pts.weight, 0.0)
-    s = w.sum()
-    return w / s if s > 0 else w
 
 
 def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
@@ -313,56 +45,6 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
             "nothing (raise --candidates or widen the volume)"
         )
     return out
-
-
-def split_timings(stats: dict, prefix: str = "solver") -> tuple[dict, dict[str, float]]:
-    """Separate wall-clock fields (keys starting with ``time``) from solver statistics.
-
-    Returns the statistics without them (deterministic for a given input) and the timings as flat
-    ``solver.<path>`` keys, so that ``solution.json`` is identical between runs but for ``timings_s``.
-    """
-    clean: dict = {}
-    times: dict[str, float] = {}
-    for key, value in stats.items():
-        path = f"{prefix}.{key}"
-        if isinstance(value, dict):
-            sub, sub_t = split_timings(value, path)
-            clean[key] = sub
-            times.update(sub_t)
-        elif str(key).startswith("time") and isinstance(value, (int, float)):
-            times[path] = float(value)
-        else:
-            clean[key] = value
-    return clean, times
-
-
-def covered_rows(matrix, selected) -> np.ndarray:
-    """(m,) bool: rows observed by at least one of the ``selected`` columns."""
-    sel = list(selected)
-    if not sel:
-        return np.zeros(matrix.shape[0], dtype=bool)
-    return np.asarray((matrix[:, sel] > 0).sum(axis=1)).ravel() > 0
-
-
-def light_curves_csv(instance, vis: VisibilityMatrix, selected) -> str:
-    """``light_curves.csv``: per chosen camera and frame, the event weight it observes.
-
-    Columns: camera (0-based position in ``solution.json`` cameras), frame, observed_weight (sum of
-    the row weights it observes in that frame; a frame's rows sum to its normalised likelihood),
-    observed_fraction (observed_weight / the frame's weight), candidate (column index), time_s.
-    """
-    pts = vis.points
-    n_frames = len(instance.frames)
-    frame_total = np.bincount(pts.frame, weights=pts.weight, minlength=n_frames)
-    lines = ["camera,frame,observed_weight,observed_fraction,candidate,time_s"]
-    csc = vis.matrix.tocsc()
-    for cam, j in enumerate(selected):
-        rows = csc.indices[csc.indptr[j]:csc.indptr[j + 1]]
-        seen = np.bincount(pts.frame[rows], weights=pts.weight[rows], minlength=n_frames)
-        for f in range(n_frames):
-            frac = seen[f] / frame_total[f] if frame_total[f] > 0 else 0.0
-            lines.append(f"{cam},{f},{float(seen[f])!r},{float(frac)!r},{int(j)},{float(instance.frames[f].time_s)!r}")
-    return "\n".join(lines) + "\n"
 
 
 def under_ground(instance, positions: np.ndarray) -> np.ndarray:
@@ -468,6 +150,8 @@ def compute_points(instance, n_points: int | None = None, seed: int | None = Non
         raise CamplaceError(f"--seed: must be >= 0, got {seed}")
     if n_points < 1:
         raise CamplaceError(f"--points: must be >= 1, got {n_points}")
+    from camplace.visibility import make_target_points
+
     check_input_memory(n_points, len(instance.frames))
     return make_target_points(instance, n_points, seed=stage_seeds(seed)[1])
 
@@ -484,6 +168,7 @@ def visibility_stage(
 ) -> VisibilityMatrix:
     """Compute (or fetch from the cache) the visibility matrix, with a progress bar."""
     from camplace.visibility.cache import default_cache_dir
+    from camplace.visibility import compute_visibility
 
     reporter = reporter or Reporter()
     if memory_budget_gb is not None and not memory_budget_gb > 0:
@@ -567,7 +252,7 @@ def run(
     -------
     Solution
     """
-    from camplace.instance import resolve_instance, save_instance
+    from camplace.instance import resolve_instance
     from camplace.solver.modes import solve
 
     if not hasattr(instance, "frames"):
@@ -695,20 +380,33 @@ def run(
         visibility=vis,
     )
     if outdir is not None:
-        t0 = time.perf_counter()
-        with reporter.stage("write"):
-            outdir = Path(outdir)
-            outdir.mkdir(parents=True, exist_ok=True)
-            remove_stale_temps(outdir)
-            write_ply(outdir / "scene.ply", frame_scene(instance, 0).triangles)
-            save_instance(instance, outdir / "instance.toml", mesh_files=True)
-            cands.save(outdir / "candidates.csv")
-            t1 = time.perf_counter()
-            vis.save_matrix(outdir, matrix_format)
-            timings["write.matrix"] = time.perf_counter() - t1
-            vis.points.save(outdir / "points.csv")
-            write_text_atomic(outdir / "light_curves.csv", light_curves_csv(instance, vis, res.selected))
-            timings["write"] = time.perf_counter() - t0
-            # solution.json last: its presence means the run's outputs are complete
-            write_json_atomic(outdir / "solution.json", solution.to_dict())
+        write_stage(outdir, instance, solution, matrix_format=matrix_format, reporter=reporter)
     return solution
+
+
+def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_format: str = "cpm",
+                reporter: Reporter | None = None) -> None:
+    """Write a run folder (:class:`camplace.RunFolder`): scene.ply, instance.toml, candidates.csv, the
+    matrix, points.csv, light_curves.csv, and solution.json last (its presence means the outputs are
+    complete). Adds ``write`` and ``write.matrix`` to ``solution.timings_s``."""
+    from camplace.runfolder import RunFolder
+    from camplace.visibility import frame_scene, write_ply
+
+    reporter = reporter or Reporter()
+    timings = solution.timings_s
+    vis = solution.visibility
+    t0 = time.perf_counter()
+    with reporter.stage("write"):
+        folder = RunFolder(outdir)
+        folder.path.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(folder.path)
+        write_ply(folder.file("scene.ply"), frame_scene(instance, 0).triangles)
+        folder.save_instance(instance)
+        folder.save_candidates(solution.candidates)
+        t1 = time.perf_counter()
+        folder.save_visibility(vis, matrix_format)
+        timings["write.matrix"] = time.perf_counter() - t1
+        folder.save_points(vis.points)
+        write_text_atomic(folder.file("light_curves.csv"), light_curves_csv(instance, vis, solution.selected))
+        timings["write"] = time.perf_counter() - t0
+        folder.save_solution(solution)
