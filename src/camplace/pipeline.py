@@ -1,11 +1,20 @@
-"""The end-to-end pipeline: instance -> candidates -> visibility -> proven k-camera system."""
+"""The end-to-end pipeline: instance -> candidates -> visibility -> proven k-camera system.
+
+:func:`run` is a short sequence of stages, each a function of plain data (an Instance, frozen
+dataclasses, arrays): :func:`resolve_settings` (defaults and checks -> :class:`RunSettings`),
+:func:`sampling_stage` (candidates and points), :func:`visibility_stage` (the matrix),
+:func:`solve_stage` (the cameras, robust when asked), :func:`make_solution` (the
+:class:`~camplace.solution.Solution`) and :func:`write_stage` (the run folder,
+:class:`camplace.RunFolder`).
+"""
 
 from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -21,6 +30,7 @@ from camplace.solution import Solution, camera_record, run_options, split_timing
 
 if TYPE_CHECKING:  # pragma: no cover
     from camplace.visibility.engine import VisibilityMatrix
+    from camplace.visibility.points import TargetPoints
 
 log = logging.getLogger(__name__)
 
@@ -49,11 +59,11 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
 
 def under_ground(instance, positions: np.ndarray) -> np.ndarray:
     """(n,) bool: positions under (or inside) a ``ground = true`` occluder: a ray straight up hits it."""
-    from camplace.visibility import RayScene
-
     ground = [o.mesh.transformed(o.pose) for o in instance.occluders if o.ground]
     if not ground or len(positions) == 0:
         return np.zeros(len(positions), dtype=bool)
+    from camplace.visibility import RayScene  # Embree: only when there is ground to test against
+
     scene = RayScene(ground)
     up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), positions.shape)
     tri, _ = scene.first_hit(positions, up)
@@ -181,6 +191,120 @@ def visibility_stage(
         )
 
 
+@dataclass(frozen=True)
+class RunSettings:
+    """Every setting of a run, resolved from the instance's ``[run]`` defaults and checked
+    (:func:`resolve_settings`); the parameters of :func:`run` under the same names.
+
+    Attributes
+    ----------
+    seed, candidates, points, sampler, k, time_limit_s, orientations : resolved values
+        ``candidates`` positions, ``points`` surface points requested, ``k`` new cameras.
+    engine, event_mode, mode, views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction
+        The solver's options (:func:`camplace.solver.modes.solve`).
+    matrix_format : {"cpm", "npz"}
+    robust : RobustSpec or None
+        The instance's ``[robust]`` table unless given.
+    cache, dask_address, memory_budget_gb
+        Where and within what memory the visibility matrix is computed.
+    options : dict
+        The ``options`` record of ``solution.json`` (:func:`run_options`, plus ``robust``).
+    """
+
+    seed: int
+    candidates: int
+    points: int
+    sampler: str
+    k: int
+    time_limit_s: float
+    orientations: int
+    engine: str = "auto"
+    event_mode: str = "all"
+    mode: str = "maxcover"
+    views: int = 2
+    min_angle_deg: float | None = None
+    fixed: tuple[int, ...] = ()
+    forbidden: tuple[int, ...] = ()
+    min_distance_m: float | None = None
+    required_fraction: float = 1.0
+    matrix_format: str = "cpm"
+    robust: Any = None
+    cache: bool = True
+    dask_address: str | None = None
+    memory_budget_gb: float | None = None
+    options: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def memory_budget_bytes(self) -> int | None:
+        return None if self.memory_budget_gb is None else int(self.memory_budget_gb * 2**30)
+
+
+def resolve_settings(
+    instance, *, seed: int | None = None, candidates: int | None = None, points: int | None = None,
+    sampler: str | None = None, k: int | None = None, time_limit_s: float | None = None, engine: str = "auto",
+    orientations: int | None = None, cache: bool = True, dask_address: str | None = None,
+    memory_budget_gb: float | None = None, event_mode: str = "all", mode: str = "maxcover", views: int = 2,
+    min_angle_deg: float | None = None, fixed: Sequence[int] = (), forbidden: Sequence[int] = (),
+    min_distance_m: float | None = None, required_fraction: float = 1.0, matrix_format: str = "cpm", robust=None,
+) -> RunSettings:
+    """The settings of a run on ``instance``: the instance's defaults where None, every value checked.
+
+    Parameters are those of :func:`run`.
+
+    Raises
+    ------
+    CamplaceError
+        One line naming the option and the fix, before anything is computed (including when the
+        points and candidate poses alone would not fit the memory budget).
+    """
+    if event_mode not in EVENT_MODES:
+        raise CamplaceError(f"--event-mode: unknown mode {event_mode!r} (use one of {', '.join(EVENT_MODES)})")
+    d = instance.defaults
+    seed = d.seed if seed is None else int(seed)
+    n_cand = d.candidates if candidates is None else int(candidates)
+    n_points = d.points if points is None else int(points)
+    sampler = d.sampler if sampler is None else sampler
+    k = instance.k if k is None else int(k)
+    time_limit_s = d.time_limit_s if time_limit_s is None else float(time_limit_s)
+    orientations = d.orientations if orientations is None else int(orientations)
+    if orientations < 1:
+        raise CamplaceError(f"--orientations: must be >= 1, got {orientations}")
+    if sampler not in SAMPLERS:
+        raise CamplaceError(f"--sampler: unknown sampler {sampler!r} (use one of {', '.join(SAMPLERS)})")
+    if seed < 0:
+        raise CamplaceError(f"--seed: must be >= 0, got {seed}")
+    if k < 1:
+        raise CamplaceError(f"--k: must be >= 1, got {k}")
+    if mode != "setcover" and n_cand < k:
+        raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
+    if n_points < 1:
+        raise CamplaceError(f"--points: must be >= 1, got {n_points}")
+    if time_limit_s <= 0:
+        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
+    if matrix_format not in ("cpm", "npz"):
+        raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
+
+    check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
+    options = run_options(
+        mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction, fixed=fixed,
+        forbidden=forbidden, min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
+        event_mode=event_mode, sampler=sampler, seed=seed, candidates=n_cand, points=n_points, orientations=orientations,
+    )
+    robust = instance.robust if robust is None else robust
+    if robust is not None:
+        from camplace.robust import check_request, spec_record
+
+        check_request(robust, mode, min_angle_deg, engine)
+        options["robust"] = spec_record(robust)
+    return RunSettings(
+        seed=seed, candidates=n_cand, points=n_points, sampler=sampler, k=k, time_limit_s=time_limit_s,
+        orientations=orientations, engine=engine, event_mode=event_mode, mode=mode, views=views,
+        min_angle_deg=min_angle_deg, fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
+        required_fraction=required_fraction, matrix_format=matrix_format, robust=robust, cache=cache,
+        dask_address=dask_address, memory_budget_gb=memory_budget_gb, options=options,
+    )
+
+
 def run(
     instance,
     *,
@@ -253,135 +377,170 @@ def run(
     Solution
     """
     from camplace.instance import resolve_instance
-    from camplace.solver.modes import solve
 
     if not hasattr(instance, "frames"):
         instance = resolve_instance(str(instance), seed=seed)
-    if event_mode not in EVENT_MODES:
-        raise CamplaceError(f"--event-mode: unknown mode {event_mode!r} (use one of {', '.join(EVENT_MODES)})")
-    reporter = reporter or Reporter()
-    d = instance.defaults
-    seed = d.seed if seed is None else int(seed)
-    n_cand = d.candidates if candidates is None else int(candidates)
-    n_points = d.points if points is None else int(points)
-    sampler = d.sampler if sampler is None else sampler
-    k = instance.k if k is None else int(k)
-    time_limit_s = d.time_limit_s if time_limit_s is None else float(time_limit_s)
-    orientations = d.orientations if orientations is None else int(orientations)
-    if orientations < 1:
-        raise CamplaceError(f"--orientations: must be >= 1, got {orientations}")
-    if sampler not in SAMPLERS:
-        raise CamplaceError(f"--sampler: unknown sampler {sampler!r} (use one of {', '.join(SAMPLERS)})")
-    if seed < 0:
-        raise CamplaceError(f"--seed: must be >= 0, got {seed}")
-    if k < 1:
-        raise CamplaceError(f"--k: must be >= 1, got {k}")
-    if mode != "setcover" and n_cand < k:
-        raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
-    if n_points < 1:
-        raise CamplaceError(f"--points: must be >= 1, got {n_points}")
-    if time_limit_s <= 0:
-        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
-    if matrix_format not in ("cpm", "npz"):
-        raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
-
-    check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
-    options = run_options(
-        mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction, fixed=fixed,
-        forbidden=forbidden, min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
-        event_mode=event_mode, sampler=sampler, seed=seed, candidates=n_cand, points=n_points, orientations=orientations,
+    settings = resolve_settings(
+        instance, seed=seed, candidates=candidates, points=points, sampler=sampler, k=k, time_limit_s=time_limit_s,
+        engine=engine, orientations=orientations, cache=cache, dask_address=dask_address,
+        memory_budget_gb=memory_budget_gb, event_mode=event_mode, mode=mode, views=views, min_angle_deg=min_angle_deg,
+        fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, required_fraction=required_fraction,
+        matrix_format=matrix_format, robust=robust,
     )
-    robust = instance.robust if robust is None else robust
-    if robust is not None:
-        from camplace.robust import check_request, spec_record
+    return run_settings(instance, settings, outdir=outdir, reporter=reporter)
 
-        check_request(robust, mode, min_angle_deg, engine)
-        options["robust"] = spec_record(robust)
+
+def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None = None,
+                 reporter: Reporter | None = None) -> Solution:
+    """The pipeline as a sequence of stages: sampling, visibility, solve, the solution, the folder.
+
+    Parameters
+    ----------
+    instance : Instance
+    settings : RunSettings
+        Resolved and checked (:func:`resolve_settings`).
+    outdir : path or None
+        When given, the run folder to write (:func:`write_stage`).
+    reporter : Reporter or None
+
+    Returns
+    -------
+    Solution
+    """
+    reporter = reporter or Reporter()
     timings: dict[str, float] = {}
-    cand_seed, _ = stage_seeds(seed)
-
     t0 = time.perf_counter()
     with reporter.stage("sampling"):
-        cands = make_run_candidates(instance, sampler, n_cand, orientations, cand_seed)
-        cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=sampler, seed=seed)
-        pts = compute_points(instance, n_points, seed)
+        cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    vis = visibility_stage(
-        instance, cands, pts, reporter=reporter, cache=cache, dask_address=dask_address, memory_budget_gb=memory_budget_gb
-    )
+    vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
+                           dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb)
     timings["visibility"] = time.perf_counter() - t0
     timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 
-    peak = peak_frame(instance)
-    solve_w = event_weights(pts, instance, event_mode)
-    geometric = min_angle_deg is not None or min_distance_m is not None
+    res, robust_record = solve_stage(instance, cands, pts, vis.matrix, settings, reporter=reporter, timings=timings)
+    solution = make_solution(instance, settings, cands, vis, res, robust_record, timings)
+    if outdir is not None:
+        write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter)
+    return solution
+
+
+def sampling_stage(instance, settings: RunSettings) -> tuple[CandidateSet, "TargetPoints"]:
+    """The candidate poses (the columns) and target points (the rows) of a run.
+
+    Returns
+    -------
+    candidates : CandidateSet
+        ``settings.candidates * settings.orientations`` poses (fewer orientations when aims coincide).
+    points : TargetPoints
+    """
+    cand_seed, _ = stage_seeds(settings.seed)
+    cands = make_run_candidates(instance, settings.sampler, settings.candidates, settings.orientations, cand_seed)
+    cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=settings.sampler, seed=settings.seed)
+    return cands, compute_points(instance, settings.points, settings.seed)
+
+
+def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSettings, *,
+                reporter: Reporter | None = None, timings: dict[str, float] | None = None):
+    """Choose the cameras (:func:`camplace.solver.modes.solve`), and against installation error when
+    the run is robust (:func:`camplace.robust.robust_stage`).
+
+    Parameters
+    ----------
+    instance : Instance
+    cands : CandidateSet
+    pts : TargetPoints
+    matrix : (m, n) scipy.sparse.csr_matrix
+    settings : RunSettings
+    reporter : Reporter or None
+    timings : dict or None
+        Receives ``solve`` (and the robust stage's timings), seconds.
+
+    Returns
+    -------
+    result : SolveResult
+    robust_record : dict or None
+        The ``robust`` entry of ``solution.json``.
+    """
+    from camplace.solver.modes import solve
+
+    reporter = reporter or Reporter()
+    timings = {} if timings is None else timings
+    s = settings
+    weights = event_weights(pts, instance, s.event_mode)
+    geometric = s.min_angle_deg is not None or s.min_distance_m is not None
     t0 = time.perf_counter()
     with reporter.stage("solve"):
         res = solve(
-            vis.matrix, solve_w, None if mode == "setcover" else k, mode=mode, views=views,
-            min_angle_deg=min_angle_deg, positions=cands.positions if geometric else None,
-            points=pts.positions if geometric else None, required_fraction=required_fraction,
-            fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
-            engine=engine, time_limit_s=time_limit_s,
-            memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
+            matrix, weights, None if s.mode == "setcover" else s.k, mode=s.mode, views=s.views,
+            min_angle_deg=s.min_angle_deg, positions=cands.positions if geometric else None,
+            points=pts.positions if geometric else None, required_fraction=s.required_fraction,
+            fixed=tuple(s.fixed), forbidden=tuple(s.forbidden), min_distance_m=s.min_distance_m,
+            engine=s.engine, time_limit_s=s.time_limit_s, memory_budget_bytes=s.memory_budget_bytes,
         )
     timings["solve"] = time.perf_counter() - t0
-    robust_record = None
-    if robust is not None:
-        from camplace.robust import robust_stage
+    if s.robust is None:
+        return res, None
+    from camplace.robust import robust_stage
 
-        res, robust_record = robust_stage(
-            instance, cands, pts, vis.matrix, solve_w, res, robust, options, seed=seed, cache=cache, reporter=reporter,
-            memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30), timings=timings,
-        )
+    return robust_stage(
+        instance, cands, pts, matrix, weights, res, s.robust, s.options, seed=s.seed, cache=s.cache, reporter=reporter,
+        memory_budget_bytes=s.memory_budget_bytes, timings=timings,
+    )
+
+
+def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res, robust_record: dict | None,
+                  timings: dict[str, float]) -> Solution:
+    """The :class:`Solution` of a run: the solver's answer with the coverage figures, the camera
+    records, warnings and the solver's timings (moved from its stats into ``timings``)."""
+    s = settings
+    pts = vis.points
+    weights = event_weights(pts, instance, s.event_mode)
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
-    k = len(res.selected) if (mode == "setcover" or fixed) else k
-
-    notes = degenerate_warnings(vis.matrix, solve_w, k)
+    k = len(res.selected) if (s.mode == "setcover" or s.fixed) else s.k
+    notes = degenerate_warnings(vis.matrix, weights, k)
     for note in notes:
         log.info("%s", note)
     solver_stats, solver_times = split_timings(dict(res.stats))
     timings.update(solver_times)
-    total_weight = float(solve_w.sum())
+    total_weight = float(weights.sum())
     observed = covered_rows(vis.matrix, res.selected)
+    peak = peak_frame(instance)
     in_peak = pts.frame == peak
     # no incumbent at all (a time limit before the first solution): objective 0, gap 100%
     bound = float(res.bound) if np.isfinite(res.bound) else total_weight
     gap = float(res.gap) if np.isfinite(res.gap) else 1.0
-    solution = Solution(
+    return Solution(
         status=res.status,
         objective=float(res.objective),
         bound=bound,
         gap=gap,
         k=k,
-        seed=seed,
-        sampler=sampler,
+        seed=s.seed,
+        sampler=s.sampler,
         n_candidates=len(cands),
         n_points=len(pts),
-        coverage_fraction=float(solve_w[observed].sum()) / total_weight if total_weight > 0 else 0.0,
+        coverage_fraction=float(weights[observed].sum()) / total_weight if total_weight > 0 else 0.0,
         timings_s=timings,
         versions=versions(),
         cameras=[camera_record(instance, cands, j) for j in res.selected],
         instance=instance.name,
         engine=res.engine,
-        mode=mode,
+        mode=s.mode,
         solver_stats=solver_stats,
         warnings=notes,
-        event_mode=event_mode,
+        event_mode=s.event_mode,
         peak_frame=peak,
         expected_coverage=float(pts.weight[observed].sum() / pts.weight.sum()),
         peak_coverage=float(pts.weight[observed & in_peak].sum() / max(pts.weight[in_peak].sum(), 1e-300)),
-        points_requested=n_points,
-        options=options,
+        points_requested=s.points,
+        options=s.options,
         robust=robust_record,
         candidates=cands,
         visibility=vis,
     )
-    if outdir is not None:
-        write_stage(outdir, instance, solution, matrix_format=matrix_format, reporter=reporter)
-    return solution
 
 
 def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_format: str = "cpm",

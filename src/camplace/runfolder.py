@@ -11,8 +11,9 @@
 
 :class:`RunFolder` reads each file on first use only (a verb reads what it needs), checks the
 sizes against each other, and writes each file atomically. Importing this module loads neither
-Embree, nor numba, nor OpenCV, nor OR-Tools; reading the instance loads trimesh only when the
-instance refers to mesh files.
+Embree, nor numba, nor OpenCV, nor OR-Tools; reading the matrix loads the store's numba decoding
+kernels, reading the instance loads trimesh without its optional Embree ray interface
+(:func:`camplace._lazy.import_trimesh`).
 """
 
 from __future__ import annotations
@@ -169,11 +170,13 @@ class RunFolder:
 
     @cached_property
     def instance(self) -> "Instance":
+        from camplace._lazy import import_trimesh
         from camplace.instance import load_instance
 
         p = self.file(INSTANCE_NAME)
         if not p.is_file():
             raise CamplaceError(f"{self.path}: no instance.toml here (re-run 'camplace run ... -o {self.path}')")
+        import_trimesh()  # a run folder's meshes are files, read with trimesh: without Embree
         return load_instance(p)
 
     @cached_property
