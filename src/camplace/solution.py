@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
-from camplace._io import read_json
+from camplace._io import read_json, write_json_atomic
 
 if TYPE_CHECKING:  # pragma: no cover
     from camplace.sampling import CandidateSet
@@ -160,17 +160,18 @@ class Solution:
         }
 
     def save(self, outdir: str | Path) -> None:
-        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.cpm) atomically
-        (:class:`camplace.RunFolder`)."""
-        from camplace.runfolder import RunFolder
+        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.cpm) atomically.
 
-        folder = RunFolder(outdir)
-        folder.path.mkdir(parents=True, exist_ok=True)
+        A whole run folder (instance, scene, light curves) is :func:`camplace.pipeline.write_stage`;
+        reading one back is :class:`camplace.RunFolder`.
+        """
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
         if self.candidates is not None:
-            folder.save_candidates(self.candidates)
+            self.candidates.save(outdir / "candidates.csv")
         if self.visibility is not None:
-            self.visibility.save(folder.path)
-        folder.save_solution(self)
+            self.visibility.save(outdir)
+        write_json_atomic(outdir / "solution.json", self.to_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> "Solution":
