@@ -77,6 +77,7 @@ from camplace.solver.angle_exact import greedy_angle, solve_angle
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
 from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
 from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
+from camplace.solver.large_k import LARGE_K_MAX, run_large_k
 from camplace.solver.pair_cap import opposite_pair_bound
 from camplace.solver.quality_exact import (
     QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, min_gram_cost, quality_exact_bytes, solve_quality_exact,
@@ -650,6 +651,16 @@ def _cover_modes(
     else:
         base = np.asarray((q[:, list(fixed_t)] > 0).sum(axis=1)).ravel().astype(np.float64) if fixed_t else np.zeros(m)
         resid, resid_w = qf, w
+
+    # -- issue 16: 4 < k <= 8 goes to camplace.solver.large_k (None: it does not fit, go on) --
+    if EXACT_MAX_K < k <= LARGE_K_MAX and engine in ("auto", "exact") and conflicts.shape[0] == 0 and (
+            mode != "multiview" or (min_angle_deg is None and not fixed_t)):
+        got = run_large_k(resid, resid_w, k, mode, views, engine, _remaining(t0, time_limit_s), stats)
+        if got is not None:
+            sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in got[0]}))
+            const = fixed_value if mode == "maxcover" else float(w @ base) if mode == "quality" else 0.0
+            return sel, got[1], value(sel), got[2] + const, got[3], stats
+    # -- end of the issue-16 hook --
 
     exact_ok = mode in ("maxcover", "quality") and conflicts.shape[0] == 0
     budget = memory_budget_bytes()
