@@ -262,6 +262,7 @@ def test_too_large_model_is_not_built(monkeypatch) -> None:
         raise AssertionError("the model was built")
 
     monkeypatch.setattr(modes, "_build_model", never)
+    monkeypatch.setattr(modes, "LARGE_K_MAX", 4)  # k = 5 takes the general model's path (not the large-k engine)
     for mode in ("quality", "multiview"):
         res = solve(dense, w, 5, mode=mode, views=3)  # auto with k = 5: the SCIP model
         assert res.stats["model_build"].startswith("skipped")

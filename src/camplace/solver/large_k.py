@@ -58,10 +58,10 @@ _RESIDUAL_MAX_SETS = 10**8  # ... or at most this many subsets of them
 
 
 def large_k_bytes(m: int, n: int, nnz: int) -> int:
-    """Working memory for an (m, n) instance with ``nnz`` entries: a CSC copy (indices and weighted
-    float64 values, 20 bytes an entry, plus the input's conversion) and about a dozen row and
-    column vectors."""
-    return 32 * int(nnz) + 8 * (n + 1) + 12 * 8 * (int(m) + int(n))
+    """Working memory for an (m, n) instance with ``nnz`` entries: the input's float64 CSC copy
+    (12 bytes an entry), 64-bit row indices and weighted values (16) and their temporaries (16),
+    and about a dozen row and column vectors."""
+    return 48 * int(nnz) + 8 * (n + 1) + 12 * 8 * (int(m) + int(n))
 
 
 class _Quality:
@@ -231,7 +231,8 @@ class _Views:
 
 
 def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int, *, time_limit_s: float | None,
-                    seed: int = 0, patience: int = 10) -> tuple[tuple[int, ...], float, dict[str, Any]]:
+                    seed: int = 0, patience: int = 10,
+                    prepared: _Views | None = None) -> tuple[tuple[int, ...], float, dict[str, Any]]:
     """A good k-set for m-view coverage: greedy, 1-swap local search, then perturbed local search
     until ``time_limit_s`` or ``patience`` runs without improvement.
 
@@ -244,6 +245,10 @@ def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int
     time_limit_s : float or None
     seed : int
         Seed of the perturbations.
+    patience : int
+        Perturbed runs without improvement before it stops.
+    prepared : _Views, optional
+        The same instance already converted (saves a copy of the matrix).
 
     Returns
     -------
@@ -254,7 +259,7 @@ def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int
     stats : dict
     """
     deadline = Deadline(time_limit_s)
-    vs = _Views(matrix, weights, views)
+    vs = prepared if prepared is not None else _Views(matrix, weights, views)
     if vs.n <= k:
         sel = list(range(vs.n))
         return tuple(sel), vs.value(sel), {"local_search_tries": 0}
@@ -552,13 +557,15 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
             memory_fallback(OverBudget(need, budget, "the exact multiview engine"), engine, "exact", stats,
                             "falling back to the general model")
             return None
-        share = None if time_limit_s is None else _VIEWS_SHARE * time_limit_s
-        start, _, ls = views_incumbent(resid, resid_w, k, views, time_limit_s=share, seed=seed)
-        out = solve_bitset(pre, views=views, time_limit_s=deadline.remaining(), start=pre.reduced_columns(start))
+        vs = _Views(resid, resid_w, views)
         # a counted row uses `views` of the views the k chosen columns give: the k heaviest columns
         # / views caps the bound (the search's open tuples are not capped by their parents')
-        vs = _Views(resid, resid_w, views)
-        cap = float(np.sort(LK.view_gains(vs.indptr, vs.indices, vs.w))[-k:].sum()) / views
+        with ctrl_c_deferred():
+            cap = float(np.sort(LK.view_gains(vs.indptr, vs.indices, vs.w))[-k:].sum()) / views
+        share = None if time_limit_s is None else _VIEWS_SHARE * time_limit_s
+        start, _, ls = views_incumbent(resid, resid_w, k, views, time_limit_s=share, seed=seed, prepared=vs)
+        del vs
+        out = solve_bitset(pre, views=views, time_limit_s=deadline.remaining(), start=pre.reduced_columns(start))
         stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1],
                       "engine_stats": dict(out.stats, local_search=ls, column_cap=cap)})
         return (tuple(int(j) for j in pre.original_columns(out.selected)), out.status,
