@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.errors import CamplaceError
+from camplace.solver import bitset_exact as bitset_mod
 from camplace.solver import large_k as lk_mod
 from camplace.solver._common import Deadline
 from camplace.solver._synthetic import structured_instance
@@ -146,6 +147,8 @@ def test_interrupted_anywhere_keeps_a_valid_bound(monkeypatch, mode: str, after:
     views, k = (3, 6) if mode == "multiview" else (1, 7)
     opt = _enumerate(dense, w, k, mode, views)
     monkeypatch.setattr(lk_mod, "Deadline", lambda _limit: _CountingDeadline(after))
+    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: _CountingDeadline(after))  # multiview's search
+    monkeypatch.setattr(bitset_mod, "_SLICE", 3)  # deadline checks every 3 bound evaluations
     res = solve(sp.csr_matrix(dense), w, k, mode=mode, views=views, time_limit_s=30.0)
     assert res.status in ("optimal", "feasible")
     assert len(res.selected) == k

@@ -511,7 +511,39 @@ def _residual(qs: _Quality, keep: np.ndarray, forced: np.ndarray, k: int, best: 
 
 
 _MAXCOVER_SHARE = 0.5  # maxcover under auto: this share of the time for this engine, the rest for SCIP
-_VIEWS_SHARE = 0.2  # multiview: this share of the time for the local search, the rest for the bitset search
+_VIEWS_SHARE = 0.15  # multiview: this share of the time for the local search, ...
+_VIEWS_SEARCH_SHARE = 0.4  # ... then this share of the rest for the bitset search (under auto SCIP gets the rest)
+
+
+def _views_scip(pre: Any, views: int, k: int, start: tuple[int, ...],
+                deadline: Deadline) -> tuple[tuple[int, ...] | None, str, float, dict[str, Any]]:
+    """SCIP on the merged rows of a presolved m-view instance (``views y_r <= sum_{j in r} x_j``,
+    ``sum x = k``, y binary), hinted with ``start`` and stopped at ``deadline`` (building
+    included): (reduced columns or None, status, bound, stats)."""
+    from camplace.solver._model import LinearModel, solve_model
+
+    a, wr = pre.matrix, pre.weights
+    wmax = float(wr.max()) if wr.size and wr.max() > 0 else 1.0
+    model = LinearModel(maximize=True)
+    x = model.add_vars(pre.shape[1])
+    model.add_row(x, np.ones(pre.shape[1]), float(k), float(k))
+    y = model.add_vars(pre.shape[0], obj=wr / wmax)
+    for r in range(pre.shape[0]):
+        if (r & 255) == 0 and deadline.expired():
+            return None, "unknown", math.inf, {"model_build": "interrupted by the time limit"}
+        cols = a.indices[a.indptr[r] : a.indptr[r + 1]]
+        model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -float(views)), lo=0.0)
+    chosen = set(start)
+    left = deadline.remaining()
+    out = solve_model(model, "mip", time_limit_s=None if left is None else max(left, 1e-3),
+                      hint={int(x[j]): (1.0 if j in chosen else 0.0) for j in range(pre.shape[1])})
+    sel = None
+    if out.values is not None:
+        sel = tuple(int(j) for j in np.flatnonzero(out.values[x] > 0.5))
+        if len(sel) != k:
+            sel = None
+    bound = out.bound * wmax if math.isfinite(out.bound) else math.inf
+    return sel, out.status, bound, dict(out.stats)
 
 
 def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, views: int, engine: str,
@@ -521,8 +553,9 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
 
     ``maxcover`` and ``quality``: :func:`solve_large_k` (under ``auto``, maxcover then gives SCIP
     the rest of the time on the presolved instance; the better set and the smaller bound are kept).
-    ``multiview``: :func:`views_incumbent` for a fifth of the time, then the bitset engine of
-    :mod:`camplace.solver.bitset_exact` started from that set.
+    ``multiview``: :func:`views_incumbent` for 15 % of the time, then the bitset engine of
+    :mod:`camplace.solver.bitset_exact` started from that set (under ``auto`` for 40 % of the rest,
+    then SCIP on the merged rows, hinted with the best set, while its model fits in memory).
 
     Parameters
     ----------
@@ -544,6 +577,7 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     """
     from camplace.solver._dispatch import memory_fallback, run_maxcover_engine
     from camplace.solver._common import OverBudget
+    from camplace.solver._model import model_bytes
     from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
     from camplace.solver.presolve import presolve
 
@@ -565,11 +599,29 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         share = None if time_limit_s is None else _VIEWS_SHARE * time_limit_s
         start, _, ls = views_incumbent(resid, resid_w, k, views, time_limit_s=share, seed=seed, prepared=vs)
         del vs
-        out = solve_bitset(pre, views=views, time_limit_s=deadline.remaining(), start=pre.reduced_columns(start))
-        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1],
-                      "engine_stats": dict(out.stats, local_search=ls, column_cap=cap)})
-        return (tuple(int(j) for j in pre.original_columns(out.selected)), out.status,
-                min(float(out.bound), max(cap, 0.0)) if out.status != "optimal" else float(out.bound), "exact")
+        scip_need = model_bytes("mip", pre.shape[0] + pre.shape[1], pre.shape[0] + 1,
+                                int(pre.matrix.nnz) + pre.shape[0] + pre.shape[1])
+        scip = engine == "auto" and scip_need <= budget
+        limit = deadline.remaining()
+        if scip and limit is not None:  # SCIP gets the rest if the search does not finish
+            limit = _VIEWS_SEARCH_SHARE * limit
+        out = solve_bitset(pre, views=views, time_limit_s=limit, start=pre.reduced_columns(start))
+        sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
+        es = dict(out.stats, local_search=ls, column_cap=cap)
+        if status != "optimal":
+            bound = min(bound, max(cap, 0.0))
+            if scip and not deadline.expired():
+                got = _views_scip(pre, views, k, sel, deadline)
+                es["then"] = got[3]
+                if got[0] is not None:
+                    vs2 = _Views(pre.matrix, pre.weights, views)
+                    if vs2.value(got[0]) > vs2.value(sel) + vs2.margin:
+                        sel, name = got[0], "mip"
+                bound = min(bound, got[2])
+                if got[1] == "optimal":
+                    status = "optimal"
+        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": es})
+        return tuple(int(j) for j in pre.original_columns(sel)), status, bound, name
     need = large_k_bytes(m, n, resid.nnz)
     if need > budget:
         memory_fallback(OverBudget(need, budget, "the large-k engine"), engine, "exact", stats,
