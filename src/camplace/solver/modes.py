@@ -42,7 +42,8 @@ candidates, hands over to the min-Gram triple engine of :mod:`camplace.solver.qu
 tree has not finished within its share of the time (see :func:`_quality_engines`); when neither
 fits in memory, the bitset engine on the level rows while that expansion stays small), ``mip``
 (SCIP) and ``cpsat``.
-``auto`` picks ``exact`` where it applies and ``k <= 4`` (``4 < k <= 8``: :mod:`camplace.solver.large_k`), otherwise ``mip``. Each exact engine
+``auto`` picks ``exact`` where it applies and ``k <= 4`` (``4 < k <= 8``: :mod:`camplace.solver.large_k`),
+otherwise ``mip``. Each exact engine
 first checks that its working memory fits in :func:`camplace.solver._common.memory_budget_bytes`;
 if not, ``auto`` falls back to the general model (``stats["memory_fallback"]`` says why) and an
 explicit ``exact`` is a one-line error.
