@@ -510,7 +510,11 @@ def _residual(qs: _Quality, keep: np.ndarray, forced: np.ndarray, k: int, best: 
     return sel, v, const + float(out.bound)
 
 
-_MAXCOVER_SHARE = 0.5  # maxcover under auto: this share of the time for this engine, the rest for SCIP
+# maxcover under auto: this share of the time (this many seconds without a limit) for solve_large_k, the rest for
+# SCIP, whose LP and branching prove max coverage better (bilobed corridor 10,000 x 2,000, k = 6: SCIP alone 4.7 s,
+# after half of a 40 s limit here 24.5 s), while greedy + swaps prove it at once when they see every coverable point
+_MAXCOVER_SHARE = 0.1
+_MAXCOVER_FIRST_S = 5.0
 _VIEWS_SHARE = 0.15  # multiview: this share of the time for the local search, ...
 _VIEWS_SEARCH_SHARE = 0.4  # ... then this share of the rest for the bitset search (under auto SCIP gets the rest ...
 # ... when the merged rows have at most this many entries: on comet-67p-bunker 2,000 x 10,000, k = 6, 3 views, the
@@ -555,8 +559,9 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
                 seed: int = 0) -> tuple[tuple[int, ...], str, float, str] | None:
     """The engines for ``4 < k <= LARGE_K_MAX`` behind :func:`camplace.solver.modes.solve`.
 
-    ``maxcover`` and ``quality``: :func:`solve_large_k` (under ``auto``, maxcover then gives SCIP
-    the rest of the time on the presolved instance; the better set and the smaller bound are kept).
+    ``maxcover`` and ``quality``: :func:`solve_large_k` (under ``auto``, maxcover gets a tenth of
+    the time there, 5 s without a limit, and SCIP the rest on the presolved instance; the better set
+    and the smaller bound are kept).
     ``multiview``: :func:`views_incumbent` for 15 % of the time, then the bitset engine of
     :mod:`camplace.solver.bitset_exact` started from that set (under ``auto``, when the merged rows have
     at most ``_VIEWS_SCIP_MAX_NNZ`` entries and SCIP's model fits in memory, for 40 % of the rest,
@@ -633,8 +638,8 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
                         "falling back to the general model")
         return None
     share = time_limit_s
-    if mode == "maxcover" and engine == "auto" and time_limit_s is not None:
-        share = _MAXCOVER_SHARE * time_limit_s
+    if mode == "maxcover" and engine == "auto":
+        share = _MAXCOVER_FIRST_S if time_limit_s is None else _MAXCOVER_SHARE * time_limit_s
     out = solve_large_k(resid, resid_w, k, binary=mode == "maxcover", time_limit_s=share, seed=seed)
     stats["engine_stats"] = dict(out.stats)
     sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
