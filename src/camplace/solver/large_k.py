@@ -26,6 +26,12 @@ columns ``S``, with ``wq_ij = w_i Q_ij``.
 * **Memory.** :func:`large_k_bytes` (a CSC copy with weighted values, a few row and column vectors)
   is checked by the caller before the engine runs; the residual engines check their own estimate
   and are skipped (bound = Lagrangian) when they do not fit.
+
+Multiview (``views`` sightings per point) has no useful linear relaxation (on comet-67p-bunker with
+every surface point, 3 views, k = 6, it is no better than the k heaviest columns / ``views``), so
+:func:`run_large_k` combines :func:`views_incumbent` (the same local search with exact m-view
+values) with the bitset engine of :mod:`camplace.solver.bitset_exact` started from its set, and,
+under ``auto`` on sparse enough merged rows, SCIP hinted with the best set.
 """
 
 from __future__ import annotations
