@@ -14,6 +14,7 @@ Usage::
     PYTHONPATH=src python benchmarks/solver.py --modes                 # issue-8 mode targets, sphere
     PYTHONPATH=src python benchmarks/solver.py --modes multiview quality --source bunker
     PYTHONPATH=src python benchmarks/solver.py --modes multiview-angle --source bunker-all   # issue 16
+    PYTHONPATH=src python benchmarks/solver.py --modes quality-k8 --source bunker-all   # issue 16, k = 8
     PYTHONPATH=src python benchmarks/solver.py --quality-engines     # min-Gram vs quantised tree
 
 ``--modes`` runs the issue's mode targets (maxcover 10,000 x 50,000; multiview and quality
@@ -54,6 +55,10 @@ MODE_RUNS: list[tuple[str, int, int, float, str]] = [
     ("quality", 10000, 50000, 120.0, "gap <= 0.5 % within 120 s"),
     ("multiview-angle", 2000, 10000, 60.0, "proven optimal <= 60 s, peak RSS <= 4 GB"),
     ("multiview-angle", 10000, 50000, 120.0, "gap <= 1 % within 120 s, peak RSS <= 12 GB"),
+    # issue 16, more cameras: "<mode>-v<views>-k<k>" overrides --k (and views); run with --source bunker-all
+    ("multiview-v3-k6", 2000, 10000, 60.0, "gap <= 1 % within 60 s"),
+    ("maxcover-k8", 2000, 10000, 60.0, "gap <= 0.5 % within 60 s"),
+    ("quality-k8", 2000, 10000, 60.0, "gap <= 0.5 % within 60 s"),
 ]
 MIN_ANGLE_DEG = 20.0
 
@@ -100,12 +105,17 @@ def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere")
         if only and mode not in only:
             continue
         angle = mode == "multiview-angle"
+        base, views, k_run = mode, 2, k
+        if "-k" in mode:  # e.g. "multiview-v3-k6": views 3, k = 6
+            parts = mode.split("-")
+            base, k_run = parts[0], int(parts[-1][1:])
+            views = int(parts[1][1:]) if len(parts) == 3 else views
         geo: dict[str, Any] = {}
         if angle and not source.startswith("bunker"):
             print(f"   {mode}: needs --source bunker or bunker-all (camera and point positions)")
             continue
         if source.startswith("bunker"):
-            got = builtin_matrix("multiview" if angle else mode, n_cams, m_pts, seed, lit=source == "bunker",
+            got = builtin_matrix("multiview" if angle else base, n_cams, m_pts, seed, lit=source == "bunker",
                                  geometry=angle)
             matrix, weights = got[0], got[1]
             if angle:
@@ -114,15 +124,15 @@ def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere")
             matrix, weights = structured_instance(m_pts, n_cams, seed=seed)
         t = time.perf_counter()
         cpu = time.process_time()
-        res = solve(matrix, weights, k, mode="multiview" if angle else mode, views=2, time_limit_s=limit, **geo)
+        res = solve(matrix, weights, k_run, mode="multiview" if angle else base, views=views, time_limit_s=limit, **geo)
         wall = time.perf_counter() - t
         extra = ""
-        if angle:
+        if angle or "-k" in mode:
             es = res.stats.get("engine_stats", {})
             extra = (f" cpu {time.process_time() - cpu:.1f} s, {es.get('bound_evaluations', 0)} bound evaluations, "
                      f"peak RSS so far {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GB")
         print(
-            f"   {source} {mode:9s} {n_cams:5d}x{m_pts:6d} k={k}: {wall:7.2f} s {res.engine:5s} {_fmt_result(res)}  "
+            f"   {source} {mode:9s} {n_cams:5d}x{m_pts:6d} k={k_run}: {wall:7.2f} s {res.engine:5s} {_fmt_result(res)}  "
             f"(limit {limit:.0f} s; target: {target}){extra}"
         )
         sys.stdout.flush()

@@ -6,6 +6,7 @@ The small public API::
     inst = camplace.builtin("comet-67p-bunker")      # or camplace.load_instance("my.toml")
     sol = camplace.run(inst, seed=0, outdir="out")   # a Solution (status, objective, bound, gap, cameras)
     A = camplace.load_visibility("out")              # the points x candidates matrix (scipy CSR, float32)
+    folder = camplace.RunFolder("out")               # every file of the folder, each read on first use
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ _LAZY = {
     "builtin": "camplace.instance",
     "load_instance": "camplace.instance",
     "save_instance": "camplace.instance",
-    "Solution": "camplace.pipeline",
+    "RunFolder": "camplace.runfolder",
+    "Solution": "camplace.solution",
     "run": "camplace.pipeline",
     "load_visibility": "camplace.visibility.store",
 }
@@ -47,6 +49,7 @@ __all__ = [
     "CamplaceError",
     "Instance",
     "InstanceError",
+    "RunFolder",
     "Solution",
     "__version__",
     "builtin",

@@ -18,3 +18,27 @@ def lazy_getattr(package: str, table: dict[str, str]) -> Callable[[str], Any]:
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
 
     return __getattr__
+
+
+def import_trimesh() -> Any:
+    """``trimesh``, imported without its optional Embree ray interface.
+
+    ``import trimesh`` loads ``embreex`` when it is installed (``trimesh.ray.ray_pyembree``), which
+    costs a process that only reads meshes (a run folder's ``instance.toml``) the Embree library.
+    camplace casts rays through :mod:`camplace.visibility.raycast`, never through ``trimesh.ray``,
+    so the first import of trimesh here hides ``embreex`` from it (trimesh then falls back to its
+    own ray module); ``embreex`` itself stays importable afterwards.
+    """
+    import sys
+
+    if "trimesh" in sys.modules:
+        return sys.modules["trimesh"]
+    hide = "embreex" not in sys.modules
+    if hide:
+        sys.modules["embreex"] = None  # type: ignore[assignment]  # "import embreex" raises ImportError
+    try:
+        import trimesh
+    finally:
+        if hide and sys.modules.get("embreex", 0) is None:
+            del sys.modules["embreex"]
+    return trimesh

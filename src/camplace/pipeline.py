@@ -1,255 +1,38 @@
-"""The end-to-end pipeline: instance -> candidates -> visibility -> proven k-camera system."""
+"""The end-to-end pipeline: instance -> candidates -> visibility -> proven k-camera system.
+
+:func:`run` is a short sequence of stages, each a function of plain data (an Instance, frozen
+dataclasses, arrays): :func:`resolve_settings` (defaults and checks -> :class:`RunSettings`),
+:func:`sampling_stage` (candidates and points), :func:`visibility_stage` (the matrix),
+:func:`solve_stage` (the cameras, robust when asked), :func:`make_solution` (the
+:class:`~camplace.solution.Solution`) and :func:`write_stage` (the run folder,
+:class:`camplace.RunFolder`).
+"""
 
 from __future__ import annotations
 
 import logging
-import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from camplace._io import read_json, remove_stale_temps, write_json_atomic, write_text_atomic
+from camplace._io import remove_stale_temps, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
-from camplace.sampling import SAMPLERS, CandidateSet
-from camplace.visibility import VisibilityMatrix, compute_visibility, frame_scene, make_target_points, write_ply
+from camplace.names import EVENT_MODES, SAMPLERS
+from camplace.sampling import CandidateSet
+
+# moved to their own modules; still importable from here
+from camplace.event import covered_rows, event_aims, event_centres, event_weights, light_curves_csv, peak_frame  # noqa: F401
+from camplace.solution import Solution, camera_record, split_timings, versions  # noqa: F401
+
+if TYPE_CHECKING:  # pragma: no cover
+    from camplace.visibility.engine import VisibilityMatrix
+    from camplace.visibility.points import TargetPoints
 
 log = logging.getLogger(__name__)
-
-
-def versions() -> dict[str, str]:
-    """Versions of camplace and the libraries that shape its results."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": platform.python_version()}
-    for dist in ("camplace", "numpy", "scipy", "ortools", "embreex", "trimesh"):
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            out[dist] = "unknown"
-    return out
-
-
-@dataclass(frozen=True, eq=False)
-class Solution:
-    """The chosen camera system and how good it provably is (the content of ``solution.json``).
-
-    Attributes
-    ----------
-    status : str
-        "optimal" | "feasible" | "infeasible" | "unknown".
-    objective : float
-        Weight of the points observed by the chosen cameras (points weigh 1 in total).
-    bound : float
-        Proven upper bound on the objective of any k-camera system from these candidates.
-    gap : float
-        (bound - objective) / bound.
-    k : int
-        Cameras in the system (fixed ones included; for setcover, as many as were needed).
-    seed, sampler, n_candidates : as run
-    n_points : int
-        Rows of the visibility matrix (``points.csv``): the surface points of every frame plus the
-        emitter points. This is THE meaning of ``n_points`` everywhere (run, campaign, report);
-        the ``--points`` value that produced them is ``points_requested``.
-    coverage_fraction : float
-        Observed weight / total point weight.
-    timings_s : dict of str to float
-        Wall time per stage.
-    versions : dict of str to str
-    cameras : list of dict
-        Per chosen camera: candidate (column index), position [x, y, z], rotation (3x3,
-        world-from-camera, OpenCV axes), K (3x3), width, height, near_m, far_m.
-    instance : str
-        Instance name.
-    engine : str
-        Solver engine that produced the answer.
-    mode : str
-        The formulation solved (``maxcover``, ``quality``, ``multiview``, ``setcover``); for
-        ``setcover`` the objective is the number (or cost) of cameras and ``bound`` a lower bound.
-    event_mode : str
-        ``all``: the objective is the expected coverage over all frames (weights P(t));
-        ``peak``: the coverage of the maximum-likelihood frame alone.
-    peak_frame : int
-        The maximum-likelihood frame (for the volcano, the plume's peak step).
-    expected_coverage : float
-        Share of the whole event (all frames, weighted by P) the chosen cameras observe.
-    peak_coverage : float
-        Share of the peak frame's weight the chosen cameras observe.
-    warnings : list of str
-        Degenerate situations worth a look: nothing observable, fewer useful candidates than k,
-        all weights zero.
-    points_requested : int
-        The ``--points`` value of the run (surface points split over the frames, before rounding
-        up to a whole number per frame and adding emitters); with ``seed`` it recreates the rows.
-    options : dict
-        Every option that shaped the answer, as asked for (:meth:`camplace.solver.options.SolveOptions.record` and the run's settings): ``mode``, ``k``,
-        ``views``, ``min_angle_deg``, ``required_fraction``, ``fixed``, ``forbidden``,
-        ``min_distance_m``, ``engine``, ``time_limit_s``, ``event_mode``, ``sampler``, ``seed``,
-        ``candidates``, ``points``, ``orientations`` (and ``robust``, the settings of a robust run).
-        With ``points.csv`` and the matrix they recompute the objective from the folder alone.
-    robust : dict or None
-        Robust runs (``[robust]``, ``--pose-error``): settings, the sampled objective of the chosen
-        system and of the nominal optimum, and both on fresh installations
-        (:func:`camplace.robust.robust_stage`). ``objective``/``bound``/``gap`` are then those of the
-        robust objective; the coverage figures are the chosen system's at the nominal poses.
-    candidates, visibility : optional
-        The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
-    """
-
-    status: str
-    objective: float
-    bound: float
-    gap: float
-    k: int
-    seed: int
-    sampler: str
-    n_candidates: int
-    n_points: int
-    coverage_fraction: float
-    timings_s: dict
-    versions: dict
-    cameras: list
-    instance: str = ""
-    engine: str = ""
-    mode: str = "maxcover"
-    solver_stats: dict = field(default_factory=dict)
-    warnings: list = field(default_factory=list)
-    event_mode: str = "all"
-    peak_frame: int = 0
-    expected_coverage: float = 0.0
-    peak_coverage: float = 0.0
-    points_requested: int = 0
-    options: dict = field(default_factory=dict)
-    robust: dict | None = None
-    candidates: CandidateSet | None = field(default=None, repr=False)
-    visibility: VisibilityMatrix | None = field(default=None, repr=False)
-
-    @property
-    def selected(self) -> list[int]:
-        """Column indices of the chosen cameras."""
-        return [int(c["candidate"]) for c in self.cameras]
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready content of ``solution.json``."""
-        return {
-            "status": self.status,
-            "objective": self.objective,
-            "bound": self.bound,
-            "gap": self.gap,
-            "k": self.k,
-            "seed": self.seed,
-            "sampler": self.sampler,
-            "n_candidates": self.n_candidates,
-            "n_points": self.n_points,
-            "coverage_fraction": self.coverage_fraction,
-            "timings_s": self.timings_s,
-            "versions": self.versions,
-            "cameras": self.cameras,
-            "instance": self.instance,
-            "engine": self.engine,
-            "mode": self.mode,
-            "solver_stats": self.solver_stats,
-            "warnings": self.warnings,
-            "event_mode": self.event_mode,
-            "peak_frame": self.peak_frame,
-            "expected_coverage": self.expected_coverage,
-            "peak_coverage": self.peak_coverage,
-            "points_requested": self.points_requested,
-            "options": self.options,
-            **({"robust": self.robust} if self.robust is not None else {}),
-        }
-
-    def save(self, outdir: str | Path) -> None:
-        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.cpm) atomically."""
-        outdir = Path(outdir)
-        outdir.mkdir(parents=True, exist_ok=True)
-        if self.candidates is not None:
-            self.candidates.save(outdir / "candidates.csv")
-        if self.visibility is not None:
-            self.visibility.save(outdir)
-        write_json_atomic(outdir / "solution.json", self.to_dict())
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Solution":
-        """Read a ``solution.json`` (or the folder holding one)."""
-        data = read_json(path, "solution.json", "solution")
-        known = {f for f in cls.__dataclass_fields__ if f not in ("candidates", "visibility")}
-        return cls(**{k: v for k, v in data.items() if k in known})
-
-
-def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
-    """The ``cameras`` entry of ``solution.json`` for candidate column ``j``."""
-    cam = instance.camera
-    return {
-        "candidate": int(j),
-        "position": [float(x) for x in candidates.positions[j]],
-        "aim": [float(x) for x in candidates.aims[j]],
-        "rotation": [[float(x) for x in row] for row in candidates.rotations[j]],
-        "K": [[float(x) for x in row] for row in cam.K()],
-        "width": int(cam.width_px),
-        "height": int(cam.height_px),
-        "near_m": float(cam.near_m),
-        "far_m": float(cam.far_m),
-    }
-
-
-def event_centres(instance) -> np.ndarray:
-    """(n_frames, 3) float64 centre of what is observed in each frame.
-
-    The weighted mean of the target's bounding-box centre (weight ``target_weight``) and the
-    frame's emitter points (their weights).
-    """
-    out = []
-    for f, frame in enumerate(instance.frames):
-        c, w = [instance.target_centre(f) * frame.target_weight], frame.target_weight
-        if frame.emitters is not None and len(frame.emitters):
-            c.append(frame.emitters.weights @ frame.emitters.positions_m)
-            w += float(frame.emitters.weights.sum())
-        out.append(np.sum(c, axis=0) / w if w > 0 else instance.target_centre(f))
-    return np.array(out)
-
-
-def event_aims(instance, orientations: int = 1) -> np.ndarray:
-    """Aim points of the candidate poses at each position.
-
-    One orientation aims at the likelihood-weighted mean event centre. ``n > 1`` orientations aim
-    at the event centres of ``n`` key frames, taken at the likelihood quantiles (i + 0.5) / n of
-    the frame sequence (duplicates removed), so a moving target is followed.
-
-    Returns
-    -------
-    (a, 3) float64
-        ``a <= orientations`` distinct aim points.
-    """
-    centres = event_centres(instance)
-    w = instance.frame_weights()
-    if orientations <= 1 or len(centres) == 1:
-        return (w @ centres)[None, :]
-    cdf = np.cumsum(w)
-    keys = np.searchsorted(cdf, (np.arange(orientations) + 0.5) / orientations, side="left")
-    keys = np.unique(np.minimum(keys, len(centres) - 1))
-    return centres[keys]
-
-
-from camplace.names import EVENT_MODES  # noqa: E402  (one list of the names)
-
-
-def peak_frame(instance) -> int:
-    """Index of the maximum-likelihood frame (the first one on ties)."""
-    return int(np.argmax([f.weight for f in instance.frames]))
-
-
-def event_weights(pts, instance, event_mode: str) -> np.ndarray:
-    """Row weights the solver maximises: all frames (P-weighted), or the peak frame alone (summing to 1)."""
-    if event_mode == "all":
-        return pts.weight
-    in_peak = pts.frame == peak_frame(instance)
-    w = np.where(in_peak, pts.weight, 0.0)
-    s = w.sum()
-    return w / s if s > 0 else w
 
 
 def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
@@ -274,63 +57,13 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
     return out
 
 
-def split_timings(stats: dict, prefix: str = "solver") -> tuple[dict, dict[str, float]]:
-    """Separate wall-clock fields (keys starting with ``time``) from solver statistics.
-
-    Returns the statistics without them (deterministic for a given input) and the timings as flat
-    ``solver.<path>`` keys, so that ``solution.json`` is identical between runs but for ``timings_s``.
-    """
-    clean: dict = {}
-    times: dict[str, float] = {}
-    for key, value in stats.items():
-        path = f"{prefix}.{key}"
-        if isinstance(value, dict):
-            sub, sub_t = split_timings(value, path)
-            clean[key] = sub
-            times.update(sub_t)
-        elif str(key).startswith("time") and isinstance(value, (int, float)):
-            times[path] = float(value)
-        else:
-            clean[key] = value
-    return clean, times
-
-
-def covered_rows(matrix, selected) -> np.ndarray:
-    """(m,) bool: rows observed by at least one of the ``selected`` columns."""
-    sel = list(selected)
-    if not sel:
-        return np.zeros(matrix.shape[0], dtype=bool)
-    return np.asarray((matrix[:, sel] > 0).sum(axis=1)).ravel() > 0
-
-
-def light_curves_csv(instance, vis: VisibilityMatrix, selected) -> str:
-    """``light_curves.csv``: per chosen camera and frame, the event weight it observes.
-
-    Columns: camera (0-based position in ``solution.json`` cameras), frame, observed_weight (sum of
-    the row weights it observes in that frame; a frame's rows sum to its normalised likelihood),
-    observed_fraction (observed_weight / the frame's weight), candidate (column index), time_s.
-    """
-    pts = vis.points
-    n_frames = len(instance.frames)
-    frame_total = np.bincount(pts.frame, weights=pts.weight, minlength=n_frames)
-    lines = ["camera,frame,observed_weight,observed_fraction,candidate,time_s"]
-    csc = vis.matrix.tocsc()
-    for cam, j in enumerate(selected):
-        rows = csc.indices[csc.indptr[j]:csc.indptr[j + 1]]
-        seen = np.bincount(pts.frame[rows], weights=pts.weight[rows], minlength=n_frames)
-        for f in range(n_frames):
-            frac = seen[f] / frame_total[f] if frame_total[f] > 0 else 0.0
-            lines.append(f"{cam},{f},{float(seen[f])!r},{float(frac)!r},{int(j)},{float(instance.frames[f].time_s)!r}")
-    return "\n".join(lines) + "\n"
-
-
 def under_ground(instance, positions: np.ndarray) -> np.ndarray:
     """(n,) bool: positions under (or inside) a ``ground = true`` occluder: a ray straight up hits it."""
-    from camplace.visibility import RayScene
-
     ground = [o.mesh.transformed(o.pose) for o in instance.occluders if o.ground]
     if not ground or len(positions) == 0:
         return np.zeros(len(positions), dtype=bool)
+    from camplace.visibility import RayScene  # Embree: only when there is ground to test against
+
     scene = RayScene(ground)
     up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), positions.shape)
     tri, _ = scene.first_hit(positions, up)
@@ -427,6 +160,8 @@ def compute_points(instance, n_points: int | None = None, seed: int | None = Non
         raise CamplaceError(f"--seed: must be >= 0, got {seed}")
     if n_points < 1:
         raise CamplaceError(f"--points: must be >= 1, got {n_points}")
+    from camplace.visibility import make_target_points
+
     check_input_memory(n_points, len(instance.frames))
     return make_target_points(instance, n_points, seed=stage_seeds(seed)[1])
 
@@ -443,6 +178,7 @@ def visibility_stage(
 ) -> VisibilityMatrix:
     """Compute (or fetch from the cache) the visibility matrix, with a progress bar."""
     from camplace.visibility.cache import default_cache_dir
+    from camplace.visibility import compute_visibility
 
     reporter = reporter or Reporter()
     if memory_budget_gb is not None and not memory_budget_gb > 0:
@@ -453,6 +189,140 @@ def visibility_stage(
             instance, cands, pts, progress=advance, memory_budget_bytes=budget, dask_address=dask_address,
             cache_dir=default_cache_dir() if cache else None,
         )
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Every setting of a run, resolved from the instance's ``[run]`` defaults and checked
+    (:func:`resolve_settings`); the parameters of :func:`run` under the same names.
+
+    Attributes
+    ----------
+    seed, candidates, points, sampler, k, time_limit_s, orientations : resolved values
+        ``candidates`` positions, ``points`` surface points requested, ``k`` new cameras.
+    engine, event_mode, mode, views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction
+        The solver's options (:func:`camplace.solver.modes.solve`).
+    matrix_format : {"cpm", "npz"}
+    robust : RobustSpec or None
+        The instance's ``[robust]`` table unless given.
+    cache, dask_address, memory_budget_gb
+        Where and within what memory the visibility matrix is computed.
+    options : dict
+        The ``options`` record of ``solution.json`` (:meth:`SolveOptions.record`, the run's
+        settings, and ``robust``).
+    solve_options : SolveOptions or None
+        The solver's options in one object, passed to :func:`camplace.solver.modes.solve` unchanged.
+    """
+
+    seed: int
+    candidates: int
+    points: int
+    sampler: str
+    k: int
+    time_limit_s: float
+    orientations: int
+    engine: str = "auto"
+    event_mode: str = "all"
+    mode: str = "maxcover"
+    views: int = 2
+    min_angle_deg: float | None = None
+    fixed: tuple[int, ...] = ()
+    forbidden: tuple[int, ...] = ()
+    min_distance_m: float | None = None
+    required_fraction: float = 1.0
+    matrix_format: str = "cpm"
+    robust: Any = None
+    cache: bool = True
+    dask_address: str | None = None
+    memory_budget_gb: float | None = None
+    options: dict = field(default_factory=dict, compare=False)
+    solve_options: Any = None
+
+    @property
+    def memory_budget_bytes(self) -> int | None:
+        return None if self.memory_budget_gb is None else int(self.memory_budget_gb * 2**30)
+
+
+def resolve_settings(
+    instance, *, seed: int | None = None, candidates: int | None = None, points: int | None = None,
+    sampler: str | None = None, k: int | None = None, time_limit_s: float | None = None, engine: str = "auto",
+    orientations: int | None = None, cache: bool = True, dask_address: str | None = None,
+    memory_budget_gb: float | None = None, event_mode: str = "all", mode: str = "maxcover", views: int = 2,
+    min_angle_deg: float | None = None, fixed: Sequence[int] = (), forbidden: Sequence[int] = (),
+    min_distance_m: float | None = None, required_fraction: float = 1.0, matrix_format: str = "cpm", robust=None,
+    solve_options=None,
+) -> RunSettings:
+    """The settings of a run on ``instance``: the instance's defaults where None, every value checked.
+
+    Parameters are those of :func:`run`; ``solve_options`` (a
+    :class:`camplace.solver.options.SolveOptions`) replaces the solver's keyword options, and
+    ``k`` / ``time_limit_s`` when set.
+
+    Raises
+    ------
+    CamplaceError
+        One line naming the option and the fix, before anything is computed (including when the
+        points and candidate poses alone would not fit the memory budget).
+    """
+    from camplace.solver.options import SolveOptions
+
+    if solve_options is not None:
+        o = solve_options
+        mode, views, min_angle_deg, fixed, forbidden = o.mode, o.views, o.min_angle_deg, o.fixed, o.forbidden
+        min_distance_m, required_fraction, engine = o.min_distance_m, o.required_fraction, o.engine
+        k = k if o.k is None else o.k
+        time_limit_s = time_limit_s if o.time_limit_s is None else o.time_limit_s
+    if event_mode not in EVENT_MODES:
+        raise CamplaceError(f"--event-mode: unknown mode {event_mode!r} (use one of {', '.join(EVENT_MODES)})")
+    d = instance.defaults
+    seed = d.seed if seed is None else int(seed)
+    n_cand = d.candidates if candidates is None else int(candidates)
+    n_points = d.points if points is None else int(points)
+    sampler = d.sampler if sampler is None else sampler
+    k = instance.k if k is None else int(k)
+    time_limit_s = d.time_limit_s if time_limit_s is None else float(time_limit_s)
+    orientations = d.orientations if orientations is None else int(orientations)
+    if orientations < 1:
+        raise CamplaceError(f"--orientations: must be >= 1, got {orientations}")
+    if sampler not in SAMPLERS:
+        raise CamplaceError(f"--sampler: unknown sampler {sampler!r} (use one of {', '.join(SAMPLERS)})")
+    if seed < 0:
+        raise CamplaceError(f"--seed: must be >= 0, got {seed}")
+    if k < 1:
+        raise CamplaceError(f"--k: must be >= 1, got {k}")
+    if mode != "setcover" and n_cand < k:
+        raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
+    if n_points < 1:
+        raise CamplaceError(f"--points: must be >= 1, got {n_points}")
+    if time_limit_s <= 0:
+        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
+    if matrix_format not in ("cpm", "npz"):
+        raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
+
+    check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
+    if memory_budget_gb is not None and not memory_budget_gb > 0:
+        raise CamplaceError(f"--memory-budget-gb: must be > 0, got {memory_budget_gb}")
+    solve_opts = SolveOptions(
+        mode=mode, k=None if mode == "setcover" else k, views=views, min_angle_deg=min_angle_deg,
+        required_fraction=required_fraction, fixed=tuple(fixed), forbidden=tuple(forbidden),
+        min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
+        memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
+    )
+    options = {**solve_opts.record(), "event_mode": event_mode, "sampler": sampler, "seed": seed, "candidates": n_cand,
+               "points": n_points, "orientations": orientations}
+    robust = instance.robust if robust is None else robust
+    if robust is not None:
+        from camplace.robust import check_request, spec_record
+
+        check_request(robust, mode, min_angle_deg, engine)
+        options["robust"] = spec_record(robust)
+    return RunSettings(
+        seed=seed, candidates=n_cand, points=n_points, sampler=sampler, k=k, time_limit_s=time_limit_s,
+        orientations=orientations, engine=engine, event_mode=event_mode, mode=mode, views=views,
+        min_angle_deg=min_angle_deg, fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
+        required_fraction=required_fraction, matrix_format=matrix_format, robust=robust, cache=cache,
+        dask_address=dask_address, memory_budget_gb=memory_budget_gb, options=options, solve_options=solve_opts,
+    )
 
 
 def run(
@@ -532,155 +402,191 @@ def run(
     -------
     Solution
     """
-    from camplace.instance import resolve_instance, save_instance
-    from camplace.solver.modes import solve
+    from camplace.instance import resolve_instance
 
-    from camplace.solver.options import SolveOptions
-
-    if solve_options is not None:
-        o = solve_options
-        mode, views, min_angle_deg, fixed, forbidden = o.mode, o.views, o.min_angle_deg, o.fixed, o.forbidden
-        min_distance_m, required_fraction, engine = o.min_distance_m, o.required_fraction, o.engine
-        k = k if o.k is None else o.k
-        time_limit_s = time_limit_s if o.time_limit_s is None else o.time_limit_s
     if not hasattr(instance, "frames"):
         instance = resolve_instance(str(instance), seed=seed)
-    if event_mode not in EVENT_MODES:
-        raise CamplaceError(f"--event-mode: unknown mode {event_mode!r} (use one of {', '.join(EVENT_MODES)})")
-    reporter = reporter or Reporter()
-    d = instance.defaults
-    seed = d.seed if seed is None else int(seed)
-    n_cand = d.candidates if candidates is None else int(candidates)
-    n_points = d.points if points is None else int(points)
-    sampler = d.sampler if sampler is None else sampler
-    k = instance.k if k is None else int(k)
-    time_limit_s = d.time_limit_s if time_limit_s is None else float(time_limit_s)
-    orientations = d.orientations if orientations is None else int(orientations)
-    if orientations < 1:
-        raise CamplaceError(f"--orientations: must be >= 1, got {orientations}")
-    if sampler not in SAMPLERS:
-        raise CamplaceError(f"--sampler: unknown sampler {sampler!r} (use one of {', '.join(SAMPLERS)})")
-    if seed < 0:
-        raise CamplaceError(f"--seed: must be >= 0, got {seed}")
-    if k < 1:
-        raise CamplaceError(f"--k: must be >= 1, got {k}")
-    if mode != "setcover" and n_cand < k:
-        raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
-    if n_points < 1:
-        raise CamplaceError(f"--points: must be >= 1, got {n_points}")
-    if time_limit_s <= 0:
-        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
-    if matrix_format not in ("cpm", "npz"):
-        raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
-
-    check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
-    if memory_budget_gb is not None and not memory_budget_gb > 0:
-        raise CamplaceError(f"--memory-budget-gb: must be > 0, got {memory_budget_gb}")
-    solve_opts = SolveOptions(
-        mode=mode, k=None if mode == "setcover" else k, views=views, min_angle_deg=min_angle_deg,
-        required_fraction=required_fraction, fixed=tuple(fixed), forbidden=tuple(forbidden),
-        min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
-        memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
+    settings = resolve_settings(
+        instance, seed=seed, candidates=candidates, points=points, sampler=sampler, k=k, time_limit_s=time_limit_s,
+        engine=engine, orientations=orientations, cache=cache, dask_address=dask_address,
+        memory_budget_gb=memory_budget_gb, event_mode=event_mode, mode=mode, views=views, min_angle_deg=min_angle_deg,
+        fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, required_fraction=required_fraction,
+        matrix_format=matrix_format, robust=robust, solve_options=solve_options,
     )
-    options = {**solve_opts.record(), "event_mode": event_mode, "sampler": sampler, "seed": seed, "candidates": n_cand,
-               "points": n_points, "orientations": orientations}
-    robust = instance.robust if robust is None else robust
-    if robust is not None:
-        from camplace.robust import check_request, spec_record
+    return run_settings(instance, settings, outdir=outdir, reporter=reporter)
 
-        check_request(robust, mode, min_angle_deg, engine)
-        options["robust"] = spec_record(robust)
+
+def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None = None,
+                 reporter: Reporter | None = None) -> Solution:
+    """The pipeline as a sequence of stages: sampling, visibility, solve, the solution, the folder.
+
+    Parameters
+    ----------
+    instance : Instance
+    settings : RunSettings
+        Resolved and checked (:func:`resolve_settings`).
+    outdir : path or None
+        When given, the run folder to write (:func:`write_stage`).
+    reporter : Reporter or None
+
+    Returns
+    -------
+    Solution
+    """
+    reporter = reporter or Reporter()
     timings: dict[str, float] = {}
-    cand_seed, _ = stage_seeds(seed)
-
     t0 = time.perf_counter()
     with reporter.stage("sampling"):
-        cands = make_run_candidates(instance, sampler, n_cand, orientations, cand_seed)
-        cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=sampler, seed=seed)
-        pts = compute_points(instance, n_points, seed)
+        cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    vis = visibility_stage(
-        instance, cands, pts, reporter=reporter, cache=cache, dask_address=dask_address, memory_budget_gb=memory_budget_gb
-    )
+    vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
+                           dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb)
     timings["visibility"] = time.perf_counter() - t0
     timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 
-    peak = peak_frame(instance)
-    solve_w = event_weights(pts, instance, event_mode)
-    geometric = min_angle_deg is not None or min_distance_m is not None
+    res, robust_record = solve_stage(instance, cands, pts, vis.matrix, settings, reporter=reporter, timings=timings)
+    solution = make_solution(instance, settings, cands, vis, res, robust_record, timings)
+    if outdir is not None:
+        write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter)
+    return solution
+
+
+def sampling_stage(instance, settings: RunSettings) -> tuple[CandidateSet, "TargetPoints"]:
+    """The candidate poses (the columns) and target points (the rows) of a run.
+
+    Returns
+    -------
+    candidates : CandidateSet
+        ``settings.candidates * settings.orientations`` poses (fewer orientations when aims coincide).
+    points : TargetPoints
+    """
+    cand_seed, _ = stage_seeds(settings.seed)
+    cands = make_run_candidates(instance, settings.sampler, settings.candidates, settings.orientations, cand_seed)
+    cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=settings.sampler, seed=settings.seed)
+    return cands, compute_points(instance, settings.points, settings.seed)
+
+
+def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSettings, *,
+                reporter: Reporter | None = None, timings: dict[str, float] | None = None):
+    """Choose the cameras (:func:`camplace.solver.modes.solve`), and against installation error when
+    the run is robust (:func:`camplace.robust.robust_stage`).
+
+    Parameters
+    ----------
+    instance : Instance
+    cands : CandidateSet
+    pts : TargetPoints
+    matrix : (m, n) scipy.sparse.csr_matrix
+    settings : RunSettings
+    reporter : Reporter or None
+    timings : dict or None
+        Receives ``solve`` (and the robust stage's timings), seconds.
+
+    Returns
+    -------
+    result : SolveResult
+    robust_record : dict or None
+        The ``robust`` entry of ``solution.json``.
+    """
+    from camplace.solver.modes import solve
+
+    reporter = reporter or Reporter()
+    timings = {} if timings is None else timings
+    s = settings
+    weights = event_weights(pts, instance, s.event_mode)
+    geometric = s.min_angle_deg is not None or s.min_distance_m is not None
     t0 = time.perf_counter()
     with reporter.stage("solve"):
-        res = solve(vis.matrix, solve_w, positions=cands.positions if geometric else None,
-                    points=pts.positions if geometric else None, options=solve_opts)
+        res = solve(matrix, weights, positions=cands.positions if geometric else None,
+                    points=pts.positions if geometric else None, options=s.solve_options)
     timings["solve"] = time.perf_counter() - t0
-    robust_record = None
-    if robust is not None:
-        from camplace.robust import robust_stage
+    if s.robust is None:
+        return res, None
+    from camplace.robust import robust_stage
 
-        res, robust_record = robust_stage(
-            instance, cands, pts, vis.matrix, solve_w, res, robust, options, seed=seed, cache=cache, reporter=reporter,
-            memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30), timings=timings,
-        )
+    return robust_stage(
+        instance, cands, pts, matrix, weights, res, s.robust, s.options, seed=s.seed, cache=s.cache, reporter=reporter,
+        memory_budget_bytes=s.memory_budget_bytes, timings=timings,
+    )
+
+
+def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res, robust_record: dict | None,
+                  timings: dict[str, float]) -> Solution:
+    """The :class:`Solution` of a run: the solver's answer with the coverage figures, the camera
+    records, warnings and the solver's timings (moved from its stats into ``timings``)."""
+    s = settings
+    pts = vis.points
+    weights = event_weights(pts, instance, s.event_mode)
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
-    k = len(res.selected) if (mode == "setcover" or fixed) else k
-
-    notes = degenerate_warnings(vis.matrix, solve_w, k)
+    k = len(res.selected) if (s.mode == "setcover" or s.fixed) else s.k
+    notes = degenerate_warnings(vis.matrix, weights, k)
     for note in notes:
         log.info("%s", note)
     solver_stats, solver_times = split_timings(dict(res.stats))
     timings.update(solver_times)
-    total_weight = float(solve_w.sum())
+    total_weight = float(weights.sum())
     observed = covered_rows(vis.matrix, res.selected)
+    peak = peak_frame(instance)
     in_peak = pts.frame == peak
     # no incumbent at all (a time limit before the first solution): objective 0, gap 100%
     bound = float(res.bound) if np.isfinite(res.bound) else total_weight
     gap = float(res.gap) if np.isfinite(res.gap) else 1.0
-    solution = Solution(
+    return Solution(
         status=res.status,
         objective=float(res.objective),
         bound=bound,
         gap=gap,
         k=k,
-        seed=seed,
-        sampler=sampler,
+        seed=s.seed,
+        sampler=s.sampler,
         n_candidates=len(cands),
         n_points=len(pts),
-        coverage_fraction=float(solve_w[observed].sum()) / total_weight if total_weight > 0 else 0.0,
+        coverage_fraction=float(weights[observed].sum()) / total_weight if total_weight > 0 else 0.0,
         timings_s=timings,
         versions=versions(),
         cameras=[camera_record(instance, cands, j) for j in res.selected],
         instance=instance.name,
         engine=res.engine,
-        mode=mode,
+        mode=s.mode,
         solver_stats=solver_stats,
         warnings=notes,
-        event_mode=event_mode,
+        event_mode=s.event_mode,
         peak_frame=peak,
         expected_coverage=float(pts.weight[observed].sum() / pts.weight.sum()),
         peak_coverage=float(pts.weight[observed & in_peak].sum() / max(pts.weight[in_peak].sum(), 1e-300)),
-        points_requested=n_points,
-        options=options,
+        points_requested=s.points,
+        options=s.options,
         robust=robust_record,
         candidates=cands,
         visibility=vis,
     )
-    if outdir is not None:
-        t0 = time.perf_counter()
-        with reporter.stage("write"):
-            outdir = Path(outdir)
-            outdir.mkdir(parents=True, exist_ok=True)
-            remove_stale_temps(outdir)
-            write_ply(outdir / "scene.ply", frame_scene(instance, 0).triangles)
-            save_instance(instance, outdir / "instance.toml", mesh_files=True)
-            cands.save(outdir / "candidates.csv")
-            t1 = time.perf_counter()
-            vis.save_matrix(outdir, matrix_format)
-            timings["write.matrix"] = time.perf_counter() - t1
-            vis.points.save(outdir / "points.csv")
-            write_text_atomic(outdir / "light_curves.csv", light_curves_csv(instance, vis, res.selected))
-            timings["write"] = time.perf_counter() - t0
-            # solution.json last: its presence means the run's outputs are complete
-            write_json_atomic(outdir / "solution.json", solution.to_dict())
-    return solution
+
+
+def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_format: str = "cpm",
+                reporter: Reporter | None = None) -> None:
+    """Write a run folder (:class:`camplace.RunFolder`): scene.ply, instance.toml, candidates.csv, the
+    matrix, points.csv, light_curves.csv, and solution.json last (its presence means the outputs are
+    complete). Adds ``write`` and ``write.matrix`` to ``solution.timings_s``."""
+    from camplace.runfolder import RunFolder
+    from camplace.visibility import frame_scene, write_ply
+
+    reporter = reporter or Reporter()
+    timings = solution.timings_s
+    vis = solution.visibility
+    t0 = time.perf_counter()
+    with reporter.stage("write"):
+        folder = RunFolder(outdir)
+        folder.path.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(folder.path)
+        write_ply(folder.file("scene.ply"), frame_scene(instance, 0).triangles)
+        folder.save_instance(instance)
+        folder.save_candidates(solution.candidates)
+        t1 = time.perf_counter()
+        folder.save_visibility(vis, matrix_format)
+        timings["write.matrix"] = time.perf_counter() - t1
+        folder.save_points(vis.points)
+        write_text_atomic(folder.file("light_curves.csv"), light_curves_csv(instance, vis, solution.selected))
+        timings["write"] = time.perf_counter() - t0
+        folder.save_solution(solution)

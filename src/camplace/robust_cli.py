@@ -53,13 +53,11 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     import numpy as np
 
     from camplace._io import write_json_atomic
-    from camplace.instance import load_instance
     from camplace.robust import robust_stage
-    from camplace.sampling import CandidateSet
+    from camplace.runfolder import RunFolder
     from camplace.solver.cli import _run_defaults
     from camplace.solver.options import parse_index_list
     from camplace.solver.modes import solve
-    from camplace.visibility import VisibilityMatrix
 
     folder: Path = args.source if args.source.is_dir() else args.source.parent
     for name in ("instance.toml", "candidates.csv", "points.csv"):
@@ -67,21 +65,16 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
             raise CamplaceError(f"{folder / name}: missing (a robust solve re-casts rays: give the -o folder of 'camplace run')")
     if not ((folder / "visibility.cpm").is_file() or (folder / "visibility.npz").is_file()):
         raise CamplaceError(f"{folder}: no visibility.cpm or visibility.npz (a robust solve re-casts rays: give the -o folder of 'camplace run')")
-    instance = load_instance(folder / "instance.toml")
+    run_folder = RunFolder(folder)
+    instance = run_folder.instance
     spec = spec_from_args(instance, args)
     run = _run_defaults(folder)
     k = args.k if args.k is not None else run.get("k")
     if k is None:
         raise CamplaceError(f"--k: required (no solution.json in {folder} to take it from)")
     event_mode = args.event_mode or run.get("event_mode", "all")
-    cands = CandidateSet.load(folder / "candidates.csv")
-    vis = VisibilityMatrix.load(folder)
-    pts = vis.points
-    weights = pts.weight
-    if event_mode == "peak":
-        from camplace.pipeline import event_weights
-
-        weights = event_weights(pts, instance, "peak")
+    cands, matrix, pts = run_folder.candidates, run_folder.matrix, run_folder.points
+    weights = run_folder.weights(event_mode)
     seed = _run_seed(folder, instance.defaults.seed)
     fixed, forbidden = parse_index_list(args.fixed, "fixed"), parse_index_list(args.forbidden, "forbidden")
     options = {
@@ -96,11 +89,11 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     options["robust"] = spec_record(spec)
     geometric = args.min_distance is not None or args.min_angle is not None
     nominal = solve(
-        vis.matrix, weights, int(k), mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
+        matrix, weights, int(k), mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
         positions=cands.positions if geometric else None, points=pts.positions if args.min_angle is not None else None,
         fixed=fixed, forbidden=forbidden, min_distance_m=args.min_distance, engine=args.engine, time_limit_s=args.time_limit,
     )
-    res, record = robust_stage(instance, cands, pts, vis.matrix, np.asarray(weights, dtype=np.float64), nominal, spec, options,
+    res, record = robust_stage(instance, cands, pts, matrix, np.asarray(weights, dtype=np.float64), nominal, spec, options,
                                seed=seed)
     out = res.to_dict()
     out["options"] = options
@@ -113,11 +106,11 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
 
 def _run_seed(folder: Path, default: int) -> int:
     """The seed of the run in ``folder`` (its solution.json), else ``default``."""
-    import json
+    from camplace.runfolder import RunFolder
 
     try:
-        return int(json.loads((folder / "solution.json").read_text()).get("seed", default))
-    except (OSError, ValueError, TypeError):
+        return int(RunFolder(folder).solution_record.get("seed", default))
+    except (CamplaceError, ValueError, TypeError):
         return int(default)
 
 

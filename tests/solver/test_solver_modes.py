@@ -192,6 +192,7 @@ def test_time_limit_returns_best_with_gap() -> None:
 def test_time_limit_during_model_build_keeps_a_valid_bound(mode, data) -> None:
     """When the limit passes while the MIP model is built, the greedy answer comes back with a
     bound that is still >= the enumerated optimum (fixed and forbidden cameras respected)."""
+    import camplace.solver.choose as choose
     import camplace.solver.modes as modes
 
     dense, w, pos, pts, rng = data.draw(instances())
@@ -251,6 +252,7 @@ def test_too_large_model_is_not_built(monkeypatch) -> None:
     """Past the memory budget (model size estimated before building) the greedy answer comes back
     with a valid bound under ``auto``, and an explicitly requested engine is a one-line error;
     either way no memory goes into a model."""
+    import camplace.solver.choose as choose
     import camplace.solver.modes as modes
 
     rng = np.random.default_rng(7)
@@ -262,6 +264,7 @@ def test_too_large_model_is_not_built(monkeypatch) -> None:
         raise AssertionError("the model was built")
 
     monkeypatch.setattr(modes, "build_model", never)
+    monkeypatch.setattr(choose, "LARGE_K_MAX", 4)  # k = 5 takes the general model's path (not the large-k engine)
     for mode in ("quality", "multiview"):
         res = solve(dense, w, 5, mode=mode, views=3)  # auto with k = 5: the SCIP model
         assert res.stats["model_build"].startswith("skipped")

@@ -28,7 +28,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -37,6 +36,7 @@ import numpy as np
 from camplace._io import read_json, write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
 from camplace.plan.phases import Phase
+from camplace.runfolder import RunFolder
 
 __all__ = [
     "RunFolder",
@@ -54,56 +54,27 @@ __all__ = [
 PLAN_FILES = ("plan.json", "plan.csv", "plan_light_curves.csv", "plan_timeline.csv")
 
 
-@dataclass(frozen=True, eq=False)
-class RunFolder:
-    """What the planner reads from a ``camplace run`` output folder.
-
-    Attributes
-    ----------
-    outdir : Path
-    instance : camplace.instance.Instance
-    solution : dict
-        ``solution.json``.
-    candidates : camplace.sampling.CandidateSet
-    matrix : (m, n) scipy.sparse.csr_matrix
-    points : camplace.visibility.TargetPoints
-        The rows (``points.csv``): frame and weight of each.
-    """
-
-    outdir: Path
-    instance: Any
-    solution: dict
-    candidates: Any
-    matrix: Any
-    points: Any
-
-
 def load_run_folder(outdir: str | Path) -> RunFolder:
-    """Read instance.toml, solution.json, candidates.csv, points.csv and the matrix (visibility.cpm or .npz, like the report does).
+    """A run folder (:class:`camplace.RunFolder`) with every file the planner reads checked.
+
+    Reads instance.toml, solution.json, candidates.csv, points.csv and the matrix (visibility.cpm
+    or .npz); the planner uses ``solution_record``, ``instance``, ``candidates``, ``matrix``,
+    ``points``.
 
     Raises
     ------
     CamplaceError
         When a file is missing or the sizes disagree.
     """
-    from camplace.instance import load_instance
-    from camplace.sampling import CandidateSet
-    from camplace.visibility import VisibilityMatrix
-
-    outdir = Path(outdir)
-    if not (outdir / "solution.json").is_file():
-        raise CamplaceError(f"{outdir}: no solution.json here (give the -o folder of 'camplace run')")
-    if not (outdir / "instance.toml").is_file():
-        raise CamplaceError(f"{outdir}: no instance.toml here (re-run 'camplace run ... -o {outdir}')")
-    solution = read_json(outdir / "solution.json", "solution.json", "solution")
-    instance = load_instance(outdir / "instance.toml")
-    vis = VisibilityMatrix.load(outdir)
-    cands = CandidateSet.load(outdir / "candidates.csv")
-    if vis.matrix.shape[1] != len(cands):
-        raise CamplaceError(f"{outdir / 'candidates.csv'}: {len(cands)} candidates but the matrix has {vis.matrix.shape[1]} columns (re-run)")
-    if vis.points.frame.size and int(vis.points.frame.max()) >= len(instance.frames):
-        raise CamplaceError(f"{outdir / 'points.csv'}: frame {int(vis.points.frame.max())} but the instance has {len(instance.frames)} frames (re-run)")
-    return RunFolder(outdir, instance, solution, cands, vis.matrix, vis.points)
+    run = RunFolder(outdir)
+    run.solution_record  # noqa: B018  (solution.json first: the clearest error for a wrong folder)
+    instance = run.instance
+    run.matrix, run.candidates  # noqa: B018  (candidates.csv is checked against the matrix's columns)
+    points = run.points
+    if points.frame.size and int(points.frame.max()) >= len(instance.frames):
+        raise CamplaceError(f"{run.file('points.csv')}: frame {int(points.frame.max())} but the instance has "
+                            f"{len(instance.frames)} frames (re-run)")
+    return run
 
 
 def _f(x: float) -> float | None:
@@ -273,9 +244,6 @@ def phase_camera_records(outdir: str | Path, phase: int) -> tuple[list[dict], li
     doc : dict
         The plan document.
     """
-    from camplace.instance import load_instance
-    from camplace.sampling import CandidateSet
-
     outdir = Path(outdir)
     if not (outdir / "plan.json").is_file():
         raise CamplaceError(f"--phase: {outdir} has no plan.json (make one: camplace plan {outdir} --phases N --speed M_S)")
@@ -285,8 +253,8 @@ def phase_camera_records(outdir: str | Path, phase: int) -> tuple[list[dict], li
         raise CamplaceError(f"--phase: the plan has phases 0..{n - 1}, got {phase}")
     if not doc["agents"]:
         raise CamplaceError(f"{outdir / 'plan.json'}: the plan has no agents (status {doc['status']})")
-    instance = load_instance(outdir / "instance.toml")
-    cands = CandidateSet.load(outdir / "candidates.csv")
+    run = RunFolder(outdir)
+    instance, cands = run.instance, run.candidates
     cam = instance.camera
     records = []
     for ag in doc["agents"]:

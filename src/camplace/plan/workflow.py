@@ -163,7 +163,7 @@ def plan_run_folder(
     from camplace.plan.planner import solve_plan
 
     run = load_run_folder(outdir)
-    sol = run.solution
+    sol = run.solution_record
     opts = sol.get("options") or {}
     if mode is None:
         mode = sol.get("mode", "maxcover") if sol.get("mode", "maxcover") in PLAN_MODES else "maxcover"

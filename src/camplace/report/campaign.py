@@ -374,13 +374,14 @@ class Campaign:
             raise CamplaceError(f"{outdir / 'cameras.csv'}: {len(cams)} cameras, expected {n * k} (re-run 'camplace campaign')")
         mat = None
         if matrix:
-            from camplace.visibility.store import load_visibility, matrix_path
+            from camplace.runfolder import RunFolder
 
+            folder = RunFolder(outdir)  # a campaign folder holds its matrix as a run folder does
             try:
-                mpath = matrix_path(outdir)
+                mpath = folder.matrix_path
             except CamplaceError as exc:
                 raise CamplaceError(f"{exc}; re-run 'camplace campaign'") from None
-            mat = load_visibility(mpath)
+            mat = folder.matrix
             if mat.shape != (int(meta["n_points"]), n * k):
                 raise CamplaceError(f"{mpath}: shape {mat.shape} does not match campaign.json (re-run 'camplace campaign')")
         def sk(a: np.ndarray) -> np.ndarray:

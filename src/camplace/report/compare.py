@@ -44,11 +44,11 @@ class RunData:
     ----------
     outdir : Path
     instance : camplace.instance.Instance
-    solution : camplace.pipeline.Solution
+    solution : camplace.solution.Solution
     points : camplace.visibility.TargetPoints
         The rows: the run's ``points.csv``.
     weights : (n_points,) float64
-        The row weights the run's solver maximised (:func:`camplace.pipeline.event_weights` of its event mode).
+        The row weights the run's solver maximised (:func:`camplace.event.event_weights` of its event mode).
     matrix : (n_points, n_candidates) scipy.sparse.csr_matrix
     candidates : camplace.sampling.CandidateSet
     fingerprint : str
@@ -75,8 +75,8 @@ class RunData:
 
 
 def load_run_data(outdir: str | Path) -> RunData:
-    """Read a run folder: instance.toml, solution.json, candidates.csv, points.csv and the matrix
-    (visibility.cpm or visibility.npz, :func:`camplace.visibility.store.load_visibility`).
+    """Read a run folder (:class:`camplace.RunFolder`): instance.toml, solution.json, candidates.csv,
+    points.csv and the matrix (visibility.cpm or visibility.npz).
 
     The rows are the run's own (``points.csv``, written with exact floats), so their number is the
     matrix's row count and ``solution.json``'s ``n_points``.
@@ -86,24 +86,16 @@ def load_run_data(outdir: str | Path) -> RunData:
     CamplaceError
         When a file is missing or the matrix does not match the solution's sizes.
     """
-    from camplace.pipeline import event_weights
     from camplace.report.campaign import problem_fingerprint
-    from camplace.sampling import CandidateSet
-    from camplace.validation.workflow import load_run
-    from camplace.visibility import VisibilityMatrix
-    from camplace.visibility.store import matrix_path
+    from camplace.runfolder import RunFolder
 
-    outdir = Path(outdir)
-    instance, solution = load_run(outdir)
-    vis = VisibilityMatrix.load(outdir)
-    matrix, points = vis.matrix, vis.points
-    mpath = matrix_path(outdir)
-    if matrix.shape != (solution.n_points, solution.n_candidates):
-        raise CamplaceError(f"{mpath}: shape {matrix.shape} but solution.json says {solution.n_points} points x {solution.n_candidates} candidates (re-run)")
-    cands = CandidateSet.load(outdir / "candidates.csv")
-    if len(cands) != solution.n_candidates:
-        raise CamplaceError(f"{outdir / 'candidates.csv'}: {len(cands)} candidates but solution.json says {solution.n_candidates} (re-run)")
-    weights = event_weights(points, instance, getattr(solution, "event_mode", "all") or "all")
+    run = RunFolder(outdir)
+    outdir = run.path
+    solution, instance = run.solution, run.instance
+    run.require_cameras()
+    run.check_sizes()
+    matrix, points, cands = run.matrix, run.points, run.candidates
+    weights = run.weights()
     return RunData(outdir, instance, solution, points, weights, matrix, cands, problem_fingerprint(instance, points))
 
 

@@ -265,7 +265,8 @@ def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.
     return status, max(st.best, open_bound)
 
 
-def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None = None) -> EngineOutcome:
+def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None = None,
+                 start: tuple[int, ...] | None = None) -> EngineOutcome:
     """Choose ``pre.k`` columns maximising the weight of rows observed by at least ``views`` of them.
 
     Parameters
@@ -278,6 +279,10 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
     time_limit_s : float, optional
         Wall-clock limit; on expiry the incumbent is returned with status "feasible" and a valid
         bound.
+    start : tuple of int, optional
+        ``k`` reduced column indices found elsewhere (e.g. by
+        :func:`camplace.solver.large_k.views_incumbent`): the first incumbent, instead of the
+        engine's own greedy + swap.
 
     Returns
     -------
@@ -298,7 +303,10 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
     st = _State(pre, views)
     stats: dict[str, Any] = {"arithmetic": "integer" if st.integer else "float64", "views": views, "words": st.n_words,
                              "time_bitsets_s": deadline.elapsed()}
-    st.incumbent()
+    if start is not None and len(set(start)) == k:
+        st.offer(st.value(list(start)), list(start))
+    else:
+        st.incumbent()
     stats["initial_incumbent"] = st.best * st.scale
     stats["time_incumbent_s"] = deadline.elapsed() - stats["time_bitsets_s"]
     with ctrl_c_deferred():

@@ -22,6 +22,9 @@ multiview, no fixed cameras, no minimum     ``exact`` (bitset, or stereo for vie
 distance, no angle, k <= 4                  k = 2, 3, n <= 4,000)
 multiview with angle, no minimum distance,  ``exact`` (angle engine)
 k <= 4
+maxcover / quality, no minimum distance;    ``exact`` (:mod:`camplace.solver.large_k`: local
+multiview without fixed cameras, angle or   search and a Lagrangian bound; maxcover then
+minimum distance; 4 < k <= 8                SCIP, multiview then bitsets and SCIP)
 anything else                               ``mip`` (SCIP; maxcover without minimum distance
                                             through the presolved max-coverage model)
 ==========================================  ==================================================
@@ -36,6 +39,7 @@ from typing import Any
 
 from camplace.errors import CamplaceError
 from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
+from camplace.solver.large_k import LARGE_K_MAX
 from camplace.solver.objectives import expand_bytes
 from camplace.solver.options import SolveOptions
 from camplace.solver.quality_exact import QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, quality_exact_bytes
@@ -47,7 +51,7 @@ _STEREO_AUTO_MAX_N = 4000  # the pair-Gram stereo engine (views=2, k<=3) up to t
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 
 #: How :func:`camplace.solver.solve` runs the chosen engine.
-ROUTES: tuple[str, ...] = ("quality-portfolio", "angle", "multiview", "maxcover", "quality-levels", "model")
+ROUTES: tuple[str, ...] = ("large-k", "quality-portfolio", "angle", "multiview", "maxcover", "quality-levels", "model")
 
 
 @dataclass(frozen=True)
@@ -99,7 +103,7 @@ class EngineChoice:
     reason : str
         Why, in one line (recorded in ``stats["engine_choice"]``).
     route : str
-        One of :data:`ROUTES`: the quality portfolio, the angle engine, the multiview bitset /
+        One of :data:`ROUTES`: the large-k engines, the quality portfolio, the angle engine, the multiview bitset /
         stereo engines, presolved max coverage (of the points, or of quality's level rows), or
         the SCIP / CP-SAT model of the mode.
     tree, gram : bool
@@ -153,7 +157,7 @@ def too_big_message(need: int, budget: int) -> str:
             f"{budget / 2**30:.1f} GiB may be used")
 
 
-def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: int) -> EngineChoice:
+def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: int, large_k: bool = True) -> EngineChoice:
     """Choose the engine of a maxcover / quality / multiview problem (pure: sizes in, choice out).
 
     Parameters
@@ -163,6 +167,9 @@ def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: in
         Reads ``mode``, ``views``, ``min_angle_deg`` and ``engine`` (``problem.k`` is the k).
     budget_bytes : int
         Memory the engine may use (:func:`camplace.solver._common.memory_budget_bytes`).
+    large_k : bool
+        Consider the engines for ``4 < k <= 8`` (:mod:`camplace.solver.large_k`); ``solve`` asks
+        again without them when they do not fit in memory (they measure that themselves).
 
     Returns
     -------
@@ -180,6 +187,10 @@ def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: in
     stats: dict[str, Any] = {}
     expanded = False
     why_not = ""
+    if large_k and EXACT_MAX_K < k <= LARGE_K_MAX and engine in ("auto", "exact") and problem.conflicts == 0 and (
+            mode != "multiview" or (options.min_angle_deg is None and not problem.fixed)):
+        return EngineChoice("exact", f"{'requested' if engine == 'exact' else 'auto'}: {mode} with "
+                            f"{EXACT_MAX_K} < k = {k} <= {LARGE_K_MAX}: the large-k engine", "large-k")
     if mode == "quality" and exact_ok and engine in ("auto", "exact"):
         tree_ok = (engine == "exact" or k <= EXACT_MAX_K) and quality_tree_bytes(m, nf, nnz) <= budget_bytes
         gram_ok = (k in (2, 3) and nf <= QUALITY_EXACT_MAX_N and problem.min_gram_pairs <= QUALITY_EXACT_MAX_PAIRS

@@ -46,73 +46,40 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     return {"solve": _cmd_solve, "setcover": _cmd_setcover}
 
 
-def _read_csv_columns(path: Path, columns: list[str]) -> dict[str, Any]:
-    """The named columns of a CSV file with a header line, as float64 arrays (numpy's C parser)."""
-    import warnings
-
-    import numpy as np
-
-    try:
-        with open(path, encoding="utf-8") as fh:
-            header = [h.strip() for h in fh.readline().strip().split(",")]
-            missing = [c for c in columns if c not in header]
-            if missing:
-                raise CamplaceError(f"{path}: missing column(s) {', '.join(missing)}")
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # "input contained no data"
-                data = np.loadtxt(fh, delimiter=",", usecols=[header.index(c) for c in columns], ndmin=2,
-                                  dtype=np.float64)
-    except OSError as exc:
-        raise CamplaceError(f"{path}: cannot read ({exc.strerror})") from None
-    except ValueError as exc:
-        raise CamplaceError(f"{path}: bad number ({exc})") from None
-    if data.size == 0:
-        data = np.zeros((0, len(columns)))
-    return {c: np.ascontiguousarray(data[:, t]) for t, c in enumerate(columns)}
 
 
 def load_problem(source: Path) -> tuple[Any, Any, Any, Any]:
     """Matrix, weights, camera positions and point positions from a run folder or its matrix file.
 
-    The matrix is ``visibility.cpm`` or ``visibility.npz`` (read by
-    :func:`camplace.visibility.store.load_visibility`, which loads no Embree);
-    ``points.csv`` (index,x,y,z,...,weight) must sit beside it; ``candidates.csv``
-    (index,x,y,z,...) is optional (positions are then None).
+    Read through :class:`camplace.RunFolder` (which loads no Embree): the matrix is
+    ``visibility.cpm`` or ``visibility.npz``; ``points.csv`` (index,x,y,z,...,weight) must sit
+    beside it; ``candidates.csv`` (index,x,y,z,...) is optional (positions are then None).
     """
     import numpy as np
 
-    from camplace.visibility.store import load_visibility, matrix_path
+    from camplace.runfolder import CANDIDATES_NAME, POINTS_NAME, RunFolder
 
-    npz = matrix_path(source)
-    matrix = load_visibility(npz)
-    pts_csv = npz.parent / "points.csv"
-    if not pts_csv.is_file():
-        raise CamplaceError(f"{pts_csv}: missing (the point weights are read from points.csv beside the matrix)")
-    cols = _read_csv_columns(pts_csv, ["x", "y", "z", "weight"])
+    run = RunFolder(source)
+    matrix = run.matrix
+    cols = run.point_columns(["x", "y", "z", "weight"])
     weights = cols["weight"]
     points = np.column_stack([cols["x"], cols["y"], cols["z"]])
     if weights.shape[0] != matrix.shape[0]:
-        raise CamplaceError(f"{pts_csv}: {weights.shape[0]} points but the matrix has {matrix.shape[0]} rows")
-    positions = None
-    cand_csv = npz.parent / "candidates.csv"
-    if cand_csv.is_file():
-        c = _read_csv_columns(cand_csv, ["x", "y", "z"])
-        positions = np.column_stack([c["x"], c["y"], c["z"]])
-        if positions.shape[0] != matrix.shape[1]:
-            raise CamplaceError(f"{cand_csv}: {positions.shape[0]} candidates but the matrix has {matrix.shape[1]} columns")
+        raise CamplaceError(f"{run.file(POINTS_NAME)}: {weights.shape[0]} points but the matrix has {matrix.shape[0]} rows")
+    positions = run.candidate_positions()
+    if positions is not None and positions.shape[0] != matrix.shape[1]:
+        raise CamplaceError(f"{run.file(CANDIDATES_NAME)}: {positions.shape[0]} candidates but the matrix has {matrix.shape[1]} columns")
     return matrix, weights, positions, points
 
 
 def _run_defaults(source: Path) -> dict[str, Any]:
     """``k`` (new cameras) and ``event_mode`` of the run whose folder holds the matrix, if any."""
-    folder = source if source.is_dir() else source.parent
-    path = folder / "solution.json"
-    if not path.is_file():
+    from camplace.runfolder import SOLUTION_NAME, RunFolder
+
+    run = RunFolder(source)
+    if not run.has(SOLUTION_NAME):
         return {}
-    try:
-        sol = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise CamplaceError(f"{path}: cannot read ({exc}); re-run 'camplace run' or give --k") from None
+    sol = run.solution_record
     opts = sol.get("options") or {}
     k = opts.get("k")
     if k is None and sol.get("mode") != "setcover" and isinstance(sol.get("cameras"), list):
@@ -127,8 +94,9 @@ def _peak_weights(source: Path, weights: Any, peak: int | None) -> Any:
     """
     import numpy as np
 
-    folder = source if source.is_dir() else source.parent
-    frames = _read_csv_columns(folder / "points.csv", ["frame"])["frame"].astype(np.int64)
+    from camplace.runfolder import RunFolder
+
+    frames = RunFolder(source).point_columns(["frame"])["frame"].astype(np.int64)
     if peak is None:
         peak = int(np.argmax(np.bincount(frames, weights=weights)))
     w = np.where(frames == peak, weights, 0.0)

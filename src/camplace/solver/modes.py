@@ -42,8 +42,9 @@ candidates, hands over to the min-Gram triple engine of :mod:`camplace.solver.qu
 tree has not finished within its share of the time (see :func:`camplace.solver.portfolio.quality_engines`); when neither
 fits in memory, the bitset engine on the level rows while that expansion stays small), ``mip``
 (SCIP) and ``cpsat``.
-``auto`` picks ``exact`` where it applies and ``k <= 4``, otherwise ``mip``: the decision is
-:func:`camplace.solver.choose.choose_engine` (pure; its reason goes to ``stats["engine_choice"]``). Each exact engine
+``auto`` picks ``exact`` where it applies and ``k <= 4`` (``4 < k <= 8``: :mod:`camplace.solver.large_k`),
+otherwise ``mip``: the decision is :func:`camplace.solver.choose.choose_engine` (pure; its reason
+goes to ``stats["engine_choice"]``). Each exact engine
 first checks that its working memory fits in :func:`camplace.solver._common.memory_budget_bytes`;
 if not, ``auto`` falls back to the general model (``stats["memory_fallback"]`` says why) and an
 explicit ``exact`` is a one-line error.
@@ -79,6 +80,7 @@ from camplace.solver.checks import conflict_count, conflict_pairs, coords, index
 from camplace.solver.greedy import NearCandidates, greedy
 from camplace.solver.models import BuildTimeout, build_model, check_setcover_memory, model_size
 from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
+from camplace.solver.large_k import run_large_k
 from camplace.solver.objectives import cheap_bound, expand_levels, mode_value
 from camplace.solver.options import SolveOptions
 from camplace.solver.pair_cap import opposite_pair_bound
@@ -373,6 +375,16 @@ def _cover_modes(
     opts = SolveOptions(mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, engine=engine)
     choice = choose_engine(problem_sizes(resid, k, free_cols.size, len(fixed_t), conflicts.shape[0], mode), opts,
                            budget)
+    if choice.route == "large-k":
+        got = run_large_k(resid, resid_w, k, mode, views, engine, remaining(t0, time_limit_s), stats)
+        if got is not None:
+            stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
+            sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in got[0]}))
+            const = fixed_value if mode == "maxcover" else float(w @ base) if mode == "quality" else 0.0
+            return ModeOutcome(sel, got[1], value(sel), got[2] + const, got[3], stats)
+        # it does not fit in memory (auto): the choice without the large-k engines
+        choice = choose_engine(problem_sizes(resid, k, free_cols.size, len(fixed_t), conflicts.shape[0], mode), opts,
+                               budget, large_k=False)
     stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
     stats.update(choice.stats)
     if "memory_fallback" in choice.stats:

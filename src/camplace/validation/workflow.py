@@ -62,18 +62,11 @@ def load_run(outdir: str | Path):
     instance : camplace.instance.Instance
     solution : camplace.pipeline.Solution
     """
-    from camplace.instance import load_instance
-    from camplace.pipeline import Solution
+    from camplace.runfolder import RunFolder
 
-    outdir = Path(outdir)
-    if not (outdir / "solution.json").exists():
-        raise CamplaceError(f"{outdir}: no solution.json here (give the -o folder of 'camplace run')")
-    if not (outdir / "instance.toml").exists():
-        raise CamplaceError(f"{outdir}: no instance.toml here (re-run 'camplace run ... -o {outdir}')")
-    solution = Solution.load(outdir)
-    instance = load_instance(outdir / "instance.toml")
-    if not solution.cameras:
-        raise CamplaceError(f"{outdir / 'solution.json'}: the solution has no cameras (the run found no camera system)")
+    run = RunFolder(outdir)
+    solution, instance = run.solution, run.instance
+    run.require_cameras()
     return instance, solution
 
 
@@ -564,9 +557,9 @@ def _run_physical(outdir: str | Path, instance):
 
 
 def _random_systems(outdir: Path, instance, solution, n: int, rng: np.random.Generator, experiment: str, first_system: int) -> list[list[CameraView]]:
-    from camplace.sampling import CandidateSet
+    from camplace.runfolder import RunFolder
 
-    cands = CandidateSet.load(outdir / "candidates.csv")
+    cands = RunFolder(outdir).candidates
     k = len(solution.cameras)
     if len(cands) < k:
         raise CamplaceError(f"--random-systems: {outdir / 'candidates.csv'} has fewer than k = {k} candidates")
@@ -771,13 +764,11 @@ def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[s
     -------
     (csv path, json path) of ``placement.{frame}.csv`` / ``.json``
     """
-    from camplace.pipeline import Solution
+    from camplace.runfolder import RunFolder
     from camplace.validation.transform import build_transform, parse_transform, placement_rows, write_placement
 
     outdir = Path(outdir)
-    if not (outdir / "solution.json").exists():
-        raise CamplaceError(f"{outdir}: no solution.json here (give the -o folder of 'camplace run')")
-    solution = Solution.load(outdir)
+    solution = RunFolder(outdir).solution
     if frame == "simulation":
         tr = build_transform(parse_transform(None))
     elif frame == "physical":

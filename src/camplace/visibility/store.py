@@ -600,27 +600,26 @@ def _load_npz(path: Path) -> sp.csr_matrix:
     return canonical_csr(matrix)
 
 
-def read_meta(path: str | Path) -> dict:
-    """The ``meta`` record of a ``.cpm`` file (the footer alone is read)."""
-    path = Path(path)
+def _footer(path: Path) -> dict:
+    """The footer of a ``.cpm`` file, without reading its blocks (one-line error when corrupt)."""
     try:
         buf, footer = _open(path)
         if isinstance(buf, mmap.mmap):
             buf.close()
     except _Corrupt as exc:
         raise _corrupt_error(path, exc) from None
-    return dict(footer.get("meta") or {})
+    return footer
+
+
+def read_meta(path: str | Path) -> dict:
+    """The ``meta`` record of a ``.cpm`` file (the footer alone is read)."""
+    return dict(_footer(Path(path)).get("meta") or {})
 
 
 def describe(path: str | Path) -> dict:
     """Shape, nnz, structure, values, codec and size of a ``.cpm`` file (its footer, without the blocks)."""
     path = Path(path)
-    try:
-        buf, footer = _open(path)
-        if isinstance(buf, mmap.mmap):
-            buf.close()
-    except _Corrupt as exc:
-        raise _corrupt_error(path, exc) from None
+    footer = _footer(path)
     keep = ("shape", "nnz", "structure", "values", "codec", "level")
     return {**{k: footer.get(k) for k in keep}, "bytes": path.stat().st_size}
 

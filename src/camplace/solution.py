@@ -1,0 +1,222 @@
+"""The answer of a run: :class:`Solution` (the content of ``solution.json``) and its records.
+
+Imports only numpy and the package's file helpers, so reading a run folder loads no geometry.
+"""
+
+from __future__ import annotations
+
+import platform
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from camplace._io import read_json, write_json_atomic
+
+if TYPE_CHECKING:  # pragma: no cover
+    from camplace.sampling import CandidateSet
+    from camplace.visibility.engine import VisibilityMatrix
+
+
+def versions() -> dict[str, str]:
+    """Versions of camplace and the libraries that shape its results."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for dist in ("camplace", "numpy", "scipy", "ortools", "embreex", "trimesh"):
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            out[dist] = "unknown"
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """The chosen camera system and how good it provably is (the content of ``solution.json``).
+
+    Attributes
+    ----------
+    status : str
+        "optimal" | "feasible" | "infeasible" | "unknown".
+    objective : float
+        Weight of the points observed by the chosen cameras (points weigh 1 in total).
+    bound : float
+        Proven upper bound on the objective of any k-camera system from these candidates.
+    gap : float
+        (bound - objective) / bound.
+    k : int
+        Cameras in the system (fixed ones included; for setcover, as many as were needed).
+    seed, sampler, n_candidates : as run
+    n_points : int
+        Rows of the visibility matrix (``points.csv``): the surface points of every frame plus the
+        emitter points. This is THE meaning of ``n_points`` everywhere (run, campaign, report);
+        the ``--points`` value that produced them is ``points_requested``.
+    coverage_fraction : float
+        Observed weight / total point weight.
+    timings_s : dict of str to float
+        Wall time per stage.
+    versions : dict of str to str
+    cameras : list of dict
+        Per chosen camera: candidate (column index), position [x, y, z], rotation (3x3,
+        world-from-camera, OpenCV axes), K (3x3), width, height, near_m, far_m.
+    instance : str
+        Instance name.
+    engine : str
+        Solver engine that produced the answer.
+    mode : str
+        The formulation solved (``maxcover``, ``quality``, ``multiview``, ``setcover``); for
+        ``setcover`` the objective is the number (or cost) of cameras and ``bound`` a lower bound.
+    event_mode : str
+        ``all``: the objective is the expected coverage over all frames (weights P(t));
+        ``peak``: the coverage of the maximum-likelihood frame alone.
+    peak_frame : int
+        The maximum-likelihood frame (for the volcano, the plume's peak step).
+    expected_coverage : float
+        Share of the whole event (all frames, weighted by P) the chosen cameras observe.
+    peak_coverage : float
+        Share of the peak frame's weight the chosen cameras observe.
+    warnings : list of str
+        Degenerate situations worth a look: nothing observable, fewer useful candidates than k,
+        all weights zero.
+    points_requested : int
+        The ``--points`` value of the run (surface points split over the frames, before rounding
+        up to a whole number per frame and adding emitters); with ``seed`` it recreates the rows.
+    options : dict
+        Every option that shaped the answer, as asked for (:meth:`camplace.solver.options.SolveOptions.record` and the run's settings): ``mode``, ``k``,
+        ``views``, ``min_angle_deg``, ``required_fraction``, ``fixed``, ``forbidden``,
+        ``min_distance_m``, ``engine``, ``time_limit_s``, ``event_mode``, ``sampler``, ``seed``,
+        ``candidates``, ``points``, ``orientations`` (and ``robust``, the settings of a robust run).
+        With ``points.csv`` and the matrix they recompute the objective from the folder alone.
+    robust : dict or None
+        Robust runs (``[robust]``, ``--pose-error``): settings, the sampled objective of the chosen
+        system and of the nominal optimum, and both on fresh installations
+        (:func:`camplace.robust.robust_stage`). ``objective``/``bound``/``gap`` are then those of the
+        robust objective; the coverage figures are the chosen system's at the nominal poses.
+    candidates, visibility : optional
+        The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
+    """
+
+    status: str
+    objective: float
+    bound: float
+    gap: float
+    k: int
+    seed: int
+    sampler: str
+    n_candidates: int
+    n_points: int
+    coverage_fraction: float
+    timings_s: dict
+    versions: dict
+    cameras: list
+    instance: str = ""
+    engine: str = ""
+    mode: str = "maxcover"
+    solver_stats: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    event_mode: str = "all"
+    peak_frame: int = 0
+    expected_coverage: float = 0.0
+    peak_coverage: float = 0.0
+    points_requested: int = 0
+    options: dict = field(default_factory=dict)
+    robust: dict | None = None
+    candidates: CandidateSet | None = field(default=None, repr=False)
+    visibility: VisibilityMatrix | None = field(default=None, repr=False)
+
+    @property
+    def selected(self) -> list[int]:
+        """Column indices of the chosen cameras."""
+        return [int(c["candidate"]) for c in self.cameras]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready content of ``solution.json``."""
+        return {
+            "status": self.status,
+            "objective": self.objective,
+            "bound": self.bound,
+            "gap": self.gap,
+            "k": self.k,
+            "seed": self.seed,
+            "sampler": self.sampler,
+            "n_candidates": self.n_candidates,
+            "n_points": self.n_points,
+            "coverage_fraction": self.coverage_fraction,
+            "timings_s": self.timings_s,
+            "versions": self.versions,
+            "cameras": self.cameras,
+            "instance": self.instance,
+            "engine": self.engine,
+            "mode": self.mode,
+            "solver_stats": self.solver_stats,
+            "warnings": self.warnings,
+            "event_mode": self.event_mode,
+            "peak_frame": self.peak_frame,
+            "expected_coverage": self.expected_coverage,
+            "peak_coverage": self.peak_coverage,
+            "points_requested": self.points_requested,
+            "options": self.options,
+            **({"robust": self.robust} if self.robust is not None else {}),
+        }
+
+    def save(self, outdir: str | Path) -> None:
+        """Write ``solution.json`` (and, when present, candidates.csv, points.csv, visibility.cpm) atomically.
+
+        A whole run folder (instance, scene, light curves) is :func:`camplace.pipeline.write_stage`;
+        reading one back is :class:`camplace.RunFolder`.
+        """
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        if self.candidates is not None:
+            self.candidates.save(outdir / "candidates.csv")
+        if self.visibility is not None:
+            self.visibility.save(outdir)
+        write_json_atomic(outdir / "solution.json", self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Solution":
+        """Read a ``solution.json`` (or the folder holding one)."""
+        return cls.from_dict(read_json(path, "solution.json", "solution"))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "Solution":
+        """The Solution of a ``solution.json`` record (unknown keys ignored)."""
+        known = {f for f in cls.__dataclass_fields__ if f not in ("candidates", "visibility")}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+
+def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
+    """The ``cameras`` entry of ``solution.json`` for candidate column ``j``."""
+    cam = instance.camera
+    return {
+        "candidate": int(j),
+        "position": [float(x) for x in candidates.positions[j]],
+        "aim": [float(x) for x in candidates.aims[j]],
+        "rotation": [[float(x) for x in row] for row in candidates.rotations[j]],
+        "K": [[float(x) for x in row] for row in cam.K()],
+        "width": int(cam.width_px),
+        "height": int(cam.height_px),
+        "near_m": float(cam.near_m),
+        "far_m": float(cam.far_m),
+    }
+
+
+def split_timings(stats: dict, prefix: str = "solver") -> tuple[dict, dict[str, float]]:
+    """Separate wall-clock fields (keys starting with ``time``) from solver statistics.
+
+    Returns the statistics without them (deterministic for a given input) and the timings as flat
+    ``solver.<path>`` keys, so that ``solution.json`` is identical between runs but for ``timings_s``.
+    """
+    clean: dict = {}
+    times: dict[str, float] = {}
+    for key, value in stats.items():
+        path = f"{prefix}.{key}"
+        if isinstance(value, dict):
+            sub, sub_t = split_timings(value, path)
+            clean[key] = sub
+            times.update(sub_t)
+        elif str(key).startswith("time") and isinstance(value, (int, float)):
+            times[path] = float(value)
+        else:
+            clean[key] = value
+    return clean, times
