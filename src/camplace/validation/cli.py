@@ -37,6 +37,8 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--frame", type=int, default=0, help="frame the photos show (default 0)")
     p.add_argument("--seed", type=int, default=0, help="seed of the emulation and random systems (default 0)")
     p.add_argument("--random-systems", type=int, default=0, dest="random_systems", help="add N random k-camera systems from candidates.csv as a baseline")
+    p.add_argument("--installations", type=int, default=1, help="emulated photos: install every system N times (the [physical] pose error) and "
+                   "score each installation by the run's objective and by the photographs (default 1)")
     p.add_argument("--experiment", default=None, help="experiment name in camera names (default: the instance name)")
     p.add_argument("--threshold", default="otsu", help="otsu (default), triangle (better for background-subtracted or flat-shaded images), or a fixed level 0..255")
     p.add_argument("--morph-px", type=int, default=5, dest="morph_px", help="morphology kernel diameter, pixels (default 5; 0 = none)")
@@ -119,6 +121,12 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             raise CamplaceError("validate: give one or more run folders, or --cameras cameras.json --target ... --photos DIR")
         if args.random_systems < 0:
             raise CamplaceError(f"--random-systems: must be >= 0, got {args.random_systems}")
+        if not 1 <= args.installations <= 4096:
+            raise CamplaceError(f"--installations: must be between 1 and 4096, got {args.installations}")
+        if args.installations > 1 and args.photos is not None:
+            raise CamplaceError("--installations: applies to emulated photographs only (drop --photos or --installations)")
+        if args.seed < 0:
+            raise CamplaceError(f"--seed: must be >= 0, got {args.seed}")
         physical = None
         if args.physical is not None:
             from camplace.validation.physical import parse_physical
@@ -127,7 +135,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         report = validate_runs(
             args.outdirs, args.out, photos_dir=args.photos, manifest=args.manifest, physical=physical,
             frame=args.frame, seed=args.seed, random_systems=args.random_systems, experiment=args.experiment,
-            detection=det, workers=args.workers,
+            detection=det, workers=args.workers, installations=args.installations,
         )
     print(report.summary())
     scene = args.out / "scene3d.html"

@@ -316,6 +316,10 @@ class ValidationReport:
         PNG files written beside ``validation.json``.
     agreement : dict
         Both figures' medians, minima and drops from a perfect camera (see :func:`agreement`).
+    installed : dict
+        Emulated photographs: every system's run objective at its installed poses and its photo
+        figure over the installations, and which system keeps more
+        (:meth:`camplace.validation.installed.InstalledSystems.finish`).
     """
 
     cameras: list = field(default_factory=list)
@@ -325,6 +329,7 @@ class ValidationReport:
     settings: dict = field(default_factory=dict)
     figures: list = field(default_factory=list)
     agreement: dict = field(default_factory=dict)
+    installed: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return _clean(
@@ -336,6 +341,7 @@ class ValidationReport:
                 "settings": self.settings,
                 "figures": self.figures,
                 "agreement": self.agreement,
+                "installed": self.installed,
             }
         )
 
@@ -382,7 +388,47 @@ class ValidationReport:
                     f"a perfect camera {f3(d.get('perfect_iou_median'))} / {f3(d.get('perfect_inside_fraction_median'))}, "
                     f"drop {f3(d.get('iou_drop'))} / {f3(d.get('inside_fraction_drop'))}"
                 )
+        lines += installed_summary(self.installed)
         return "\n".join(lines)
+
+
+def installed_summary(installed: dict[str, Any]) -> list[str]:
+    """Summary lines of ``validation.json`` ``installed`` (empty when there is none)."""
+    if not installed:
+        return []
+    if not installed.get("available"):
+        return [f"  installed systems: {installed.get('note') or 'not scored'}"] + [f"    note: {n}" for n in installed.get("notes", [])]
+    n = installed["installations"]
+    ph = installed.get("physical") or {}
+    lines = [f"  installed systems ({n} installation(s), seed {installed['seed']}, pose error {ph.get('sigma_position_m', 0):g} m, "
+             f"{ph.get('sigma_rotation_deg', 0):g} deg): the run's objective at the installed poses; photo = share of the "
+             f"frame's points seen in the photographs"]
+    for r in installed["systems"]:
+        o, p, of = r.get("objective"), r.get("photo"), r.get("objective_frame")
+        if o is None:
+            lines.append(f"    system {r['system']} ({r['run']}): not scored")
+            continue
+        line = f"    system {r['system']} ({Path(r['run']).name}): objective mean {o['mean']:.4f}, p10 {o['p10']:.4f}, min {o['min']:.4f}"
+        if p is not None:
+            line += f" | photo mean {p['mean']:.4f}, p10 {p['p10']:.4f}"
+            if of is not None:
+                line += f" (ray cast on the same points {of['mean']:.4f})"
+        lines.append(line)
+    c = installed.get("comparison") or {}
+    for d in c.get("paired", []):
+        o = d["objective"]
+        se = "-" if o["standard_error"] is None else f"{o['standard_error']:.4f}"
+        line = (f"    system {d['system']} minus system {d['minus_system']}: objective {o['mean']:+.4f} (standard error {se}, "
+                f"better in {o['wins']}, worse in {o['losses']} of {n})")
+        if d.get("photo") is not None:
+            ph_ = d["photo"]
+            se = "-" if ph_["standard_error"] is None else f"{ph_['standard_error']:.4f}"
+            line += f"; photo {ph_['mean']:+.4f} (standard error {se})"
+        lines.append(line)
+    if c.get("verdict"):
+        lines.append(f"    {c['verdict']}")
+    lines += [f"    note: {n_}" for n_ in installed.get("notes", [])]
+    return lines
 
 
 # --------------------------------------------------------------------------------------------------

@@ -34,7 +34,8 @@ from camplace.validation.cameras import CameraView
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PhysicalCamera", "parse_physical", "perturb_camera", "apply_optics_and_sensor", "EmulatedShot", "emulate_shots", "rotation_from_vector"]
+__all__ = ["PhysicalCamera", "parse_physical", "perturb_camera", "install_camera", "apply_optics_and_sensor", "EmulatedShot",
+           "emulate_shots", "rotation_from_vector"]
 
 
 def perturb_camera(camera: CameraView, physical: PhysicalCamera, rng: np.random.Generator) -> CameraView:
@@ -42,8 +43,32 @@ def perturb_camera(camera: CameraView, physical: PhysicalCamera, rng: np.random.
 
     Draws 6 normal numbers from ``rng`` (always, so streams stay aligned whatever the sigmas).
     """
-    dp = rng.normal(0.0, 1.0, 3) * physical.sigma_position_m
-    w = rng.normal(0.0, 1.0, 3) * math.radians(physical.sigma_rotation_deg)
+    z = np.concatenate([rng.normal(0.0, 1.0, 3), rng.normal(0.0, 1.0, 3)])
+    return install_camera(camera, physical, z)
+
+
+def install_camera(camera: CameraView, physical: PhysicalCamera, normals: np.ndarray) -> CameraView:
+    """The camera as actually placed, from given standard normal draws (:func:`perturb_camera`'s model).
+
+    Parameters
+    ----------
+    camera : CameraView
+        The planned camera.
+    physical : PhysicalCamera
+        Its sigmas and lens distortion.
+    normals : (6,) float64
+        Standard normals: 3 of the position error (world axes), then 3 of the rotation vector (camera
+        frame), as one scenario of :func:`camplace.sampling.perturb.pose_draws`.
+
+    Returns
+    -------
+    CameraView
+        At ``C + sigma_p * normals[:3]``, turned to ``R @ Exp(sigma_r * normals[3:])``, with the lens's
+        radial distortion.
+    """
+    z = np.asarray(normals, dtype=np.float64).reshape(6)
+    dp = z[:3] * physical.sigma_position_m
+    w = z[3:] * math.radians(physical.sigma_rotation_deg)
     pos = camera.position + dp
     rot = camera.rotation @ rotation_from_vector(w) if np.any(w != 0) else camera.rotation
     out = camera.with_pose(pos, rot)
@@ -121,6 +146,9 @@ class EmulatedShot:
         Where the physical camera actually stood (and its distortion).
     target_mask : (h, w) bool
         The target's pixels in the actual photo (ground truth of the emulation).
+    depth : (h, w) float32 or None
+        Ray length to the first surface hit per pixel in the actual photo (the render's depth, metres;
+        inf where nothing is hit).
     """
 
     photo: np.ndarray
@@ -128,6 +156,7 @@ class EmulatedShot:
     camera: CameraView
     actual: CameraView
     target_mask: np.ndarray
+    depth: np.ndarray | None = None
 
 
 def emulate_shots(
@@ -140,6 +169,7 @@ def emulate_shots(
     emitters: Any = None,
     seed: int | np.random.Generator | None = 0,
     workers: int | None = None,
+    installed: Any = None,
 ) -> list[EmulatedShot]:
     """Photograph the scene with every camera as a :class:`PhysicalCamera` would.
 
@@ -159,6 +189,9 @@ def emulate_shots(
         (the placement error's share of a validation's drop can be measured alone).
     workers : int or None
         Render threads.
+    installed : sequence of CameraView or None
+        Where each camera actually stands (e.g. :func:`install_camera` from given draws); None: drawn
+        here with :func:`perturb_camera`. The sensor noise stream is the same either way.
 
     Returns
     -------
@@ -171,12 +204,16 @@ def emulate_shots(
     if physical.ambient_light:
         settings = settings.with_ambient(settings.ambient + physical.ambient_light)
     shots = []
-    for cam in cameras:
-        actual = perturb_camera(cam, physical, pose_rng)
+    cameras = list(cameras)
+    if installed is not None and len(installed) != len(cameras):
+        raise ValueError(f"installed: {len(installed)} poses for {len(cameras)} cameras")
+    for t, cam in enumerate(cameras):
+        actual = perturb_camera(cam, physical, pose_rng) if installed is None else installed[t]
         fg = render_view(actual, scene, settings=settings, emitters=emitters, workers=workers)
         bg = render_view(actual, background_scene, settings=settings, workers=workers)
         photo = apply_optics_and_sensor(fg.image, actual, physical, sensor_rng)
         background = apply_optics_and_sensor(bg.image, actual, physical, sensor_rng)
-        shots.append(EmulatedShot(photo=photo, background=background, camera=cam, actual=actual, target_mask=fg.target_mask))
+        shots.append(EmulatedShot(photo=photo, background=background, camera=cam, actual=actual, target_mask=fg.target_mask,
+                                  depth=fg.depth))
         log.debug("emulated %s: moved %.4f m", cam.name, float(np.linalg.norm(actual.position - cam.position)))
     return shots

@@ -426,7 +426,8 @@ def _compare_one(name: str, system: int, cam: CameraView, render, background_ren
     return rec, det, expected
 
 
-def _finish_report(records: list[dict], out: Path, overlays: list[tuple[str, np.ndarray]], settings: dict):
+def _finish_report(records: list[dict], out: Path, overlays: list[tuple[str, np.ndarray]], settings: dict,
+                   installed: dict | None = None):
     from camplace.validation.compare import (
         ValidationReport,
         across_systems,
@@ -461,7 +462,7 @@ def _finish_report(records: list[dict], out: Path, overlays: list[tuple[str, np.
         write_png(out / "kde_scores.png", kde_image([s["normalised_predicted"] for s in systems], [s["normalised_photo"] for s in systems]))
         figures.append("kde_scores.png")
     report = ValidationReport(cameras=records, systems=systems, across=across, heatmaps=heat, settings=settings, figures=figures,
-                              agreement=agreement(records))
+                              agreement=agreement(records), installed=installed or {})
     report.save(out)
     return report
 
@@ -588,6 +589,7 @@ def validate_runs(
     detection=None,
     settings=None,
     workers: int | None = None,
+    installations: int = 1,
 ) -> Any:
     """Validate one or more runs: each run's chosen cameras form a system (numbered 1, 2, ... in order).
 
@@ -601,12 +603,18 @@ def validate_runs(
     camera's render (against its background render when the photo has a background): a perfect
     camera scores IoU 1. The ray-cast target mask alone is the second figure (``*_target`` fields).
 
+    With emulated photographs every system is also installed ``installations`` times (the first
+    installation is the one photographed for the per-camera comparison) and scored per installation
+    by its run's objective at the installed poses and by the photo figure
+    (:mod:`camplace.validation.installed`; ``validation.json`` ``installed``).
+
     Returns
     -------
     ValidationReport
     """
     from camplace.validation.compare import overlay_image
     from camplace.validation.detect import DetectionSettings
+    from camplace.validation.installed import InstalledSystems
     from camplace.validation.physical import emulate_shots
     from camplace.validation.render import RenderSettings, quantise, read_image, render_view, scene_for_frame, write_png
 
@@ -615,6 +623,8 @@ def validate_runs(
     detection = detection or DetectionSettings()
     settings = settings or RenderSettings()
     out = Path(out)
+    if int(installations) < 1:
+        raise CamplaceError(f"--installations: must be >= 1, got {installations}")
     sys_rng, shot_rng = np.random.default_rng(seed).spawn(2)
     runs = [load_run(d) for d in outdirs]
     instance0 = runs[0][0]
@@ -634,6 +644,7 @@ def validate_runs(
     else:
         if physical is None:
             physical = _run_physical(outdirs[0], instance0)
+    inst_plan = None if photos is not None else InstalledSystems.plan(outdirs, runs, systems, physical, seed, installations, frame)
     scenes: dict[int, tuple[Any, Any]] = {}
     records, overlays, manifest_rows = [], [], []
     for s, (inst, cams) in enumerate(systems, start=1):
@@ -645,7 +656,7 @@ def validate_runs(
             )
         fg_scene, bg_scene = scenes[key]
         emit = _frame_emitters(inst, frame)
-        for cam in cams:
+        for ci, cam in enumerate(cams):
             pred = render_view(cam, fg_scene, settings=settings, emitters=emit, workers=workers)
             extra: dict[str, Any] = {}
             if photos is not None:
@@ -656,7 +667,8 @@ def validate_runs(
                 bg = read_image(ph.background) if ph.background is not None else None
                 extra = {"photo": str(ph.photo), "background": None if ph.background is None else str(ph.background)}
             else:
-                shot = emulate_shots([cam], fg_scene, bg_scene, physical, settings=settings, emitters=emit, seed=shot_rng, workers=workers)[0]
+                shot = emulate_shots([cam], fg_scene, bg_scene, physical, settings=settings, emitters=emit, seed=shot_rng, workers=workers,
+                                     installed=[inst_plan.installed[s - 1][0][ci]])[0]
                 photo, bg = quantise(shot.photo, 8), quantise(shot.background, 8)
                 pdir = out / "photos"
                 write_png(pdir / f"{cam.name}.png", photo)
@@ -671,8 +683,13 @@ def validate_runs(
                 }
             bg_render = render_view(cam, bg_scene, settings=settings, workers=workers).image if bg is not None else None
             rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, detection, extra)
+            if inst_plan is not None:
+                inst_plan.record_photo(s - 1, 0, ci, shot, det.mask)
             records.append(rec)
             overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, expected.mask, det.mask, det.bbox_xywh, cam.name, target=pred.target_mask)))
+    if inst_plan is not None:
+        _photograph_installations(inst_plan, systems, scenes, physical, frame, settings=settings, detection=detection,
+                                  rng=shot_rng, workers=workers)
     if manifest_rows:
         write_text_atomic(out / "photos" / "manifest.csv", "camera,photo,background\n" + "\n".join(manifest_rows) + "\n")
     if not records:
@@ -690,8 +707,11 @@ def validate_runs(
         "physical": None if photos is not None else physical.to_dict(),
         "detection": detection.to_dict(),
         "render": settings.__dict__,
+        "installations": int(installations) if photos is None else None,
     }
-    report = _finish_report(records, out, overlays, report_settings)
+    installed = inst_plan.finish(systems) if inst_plan is not None else {
+        "available": False, "note": "real photographs: the poses they were taken from are unknown (emulate them with --physical)"}
+    report = _finish_report(records, out, overlays, report_settings, installed=installed)
     inst1, cams1 = systems[0]
     em = _frame_emitters(inst1, frame)
     _write_cameras_scene(out, cams1, inst1.target_world(frame), title=f"{exp}, frame {frame}", target_name=inst1.target.name,
@@ -699,6 +719,25 @@ def validate_runs(
                          other_systems=[(f"system {s}", cams) for s, (_, cams) in enumerate(systems[1:], start=2)],
                          seed=seed, meta={"mode": "runs", "runs": [str(d) for d in outdirs], "frame": frame})
     return report
+
+
+def _photograph_installations(plan, systems, scenes, physical, frame: int, *, settings, detection, rng, workers) -> None:
+    """Photograph installations 2..N of every system (not written to disk) and record what each
+    photo sees (:meth:`camplace.validation.installed.InstalledSystems.record_photo`)."""
+    from camplace.validation.detect import detect_target
+    from camplace.validation.physical import emulate_shots
+    from camplace.validation.render import quantise
+
+    for t in range(1, plan.installations):
+        for s, (inst, cams) in enumerate(systems):
+            fg_scene, bg_scene = scenes[id(inst)]
+            emit = _frame_emitters(inst, frame)
+            for ci, cam in enumerate(cams):
+                shot = emulate_shots([cam], fg_scene, bg_scene, physical, settings=settings, emitters=emit, seed=rng, workers=workers,
+                                     installed=[plan.installed[s][t][ci]])[0]
+                det = detect_target(quantise(shot.photo, 8), quantise(shot.background, 8), detection)
+                plan.record_photo(s, t, ci, shot, det.mask)
+        log.info("photographed installation %d of %d", t + 1, plan.installations)
 
 
 # --------------------------------------------------------------------------------------------------
