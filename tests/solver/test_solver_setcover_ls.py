@@ -164,7 +164,9 @@ def test_memory_estimate_stops_with_one_line(monkeypatch) -> None:
     assert "\n" not in str(ei.value) and "GiB" in str(ei.value)
 
 
-def _shared() -> list[tuple[str, float]]:
+def _shared() -> list:
+    if not (DATA / "setcover" / "known_optima.csv").exists():
+        return [pytest.param("-", 0.0, marks=pytest.mark.skip(reason=f"the shared set-cover data are not at {DATA}"))]
     with open(DATA / "setcover" / "known_optima.csv", newline="") as fh:
         rows = [(r["file"], float(r["weighted_BKS"])) for r in csv.DictReader(fh)]
     return rows + [("AC_01", float((DATA / "camera_placement" / "AC_01_best_known_solution.txt").read_text().split()[0]))]

@@ -176,20 +176,60 @@ def _objective_words(sol) -> str:
     return "observed weight"
 
 
+def setcover_rows(sol) -> list[tuple[str, str]]:
+    """(heading, text) rows saying how many cameras a setcover run needs and how far that is
+    proven: the number of new cameras, the lower bound on it, the status, points no candidate sees.
+
+    ``sol`` is a :class:`camplace.pipeline.Solution` of mode ``setcover`` (objective = new cameras,
+    bound = lower bound on their number, ``solver_stats.uncoverable_points``).
+    """
+    opts = getattr(sol, "options", None) or {}
+    stats = getattr(sol, "solver_stats", None) or {}
+    frac = opts.get("required_fraction")
+    n_fixed = len(opts.get("fixed") or [])
+    new = len(sol.cameras) - n_fixed
+    what = ("every point a candidate sees" if frac is None or float(frac) >= 1.0
+            else f"{100 * float(frac):g} % of the weight the candidates see")
+    fixed = f" besides the {n_fixed} fixed ones" if n_fixed else ""
+    bound = float(sol.bound)
+    if not math.isfinite(bound):
+        proof = "no lower bound"
+    elif sol.status == "optimal" or bound >= float(sol.objective) - 1e-9:
+        proof = f"{bound:g}: no fewer cameras can do it (optimal)"
+    else:
+        proof = (f"{bound:g} ({sol.status}: at most {float(sol.objective) - bound:g} camera(s) more than the fewest "
+                 f"possible; raise --time-limit to close the gap)")
+    rows = [("cameras that cover it all", f"{new} new camera(s){fixed} cover {what}"),
+            ("lower bound on the number of cameras", proof)]
+    unc = stats.get("uncoverable_points")
+    if unc:
+        rows.append(("points no candidate sees", f"{int(unc):,} (weight {float(stats.get('uncoverable_weight', 0.0)):.4g}; "
+                                                  "not counted, no camera could cover them)"))
+    return rows
+
+
 def _system_section(run, comp) -> str:
     from camplace.report.campaign import scoring_of
 
     sol = run.solution
     w_total = float(run.weights.sum())
+    if getattr(sol, "mode", "maxcover") == "setcover":
+        # the run's proof is about the number of cameras; the weight they observe has no bound of its own
+        status = sol.status
+        proof = "".join(f"<tr><th class='l'>{esc(h)}</th><td class='l'>{esc(t)}</td></tr>" for h, t in setcover_rows(sol))
+    else:
+        status = comp.status
+        proof = (f"<tr><th class='l'>proven bound</th><td class='l'>{_num(comp.bound, 6)}</td></tr>"
+                 f"<tr><th class='l'>gap</th><td class='l'>"
+                 f"{_num(100 * comp.gap if comp.gap is not None and math.isfinite(comp.gap) else None, 4)} %</td></tr>")
     head = (
         f"<h2 id='system'>Optimised system</h2>"
         f"<table><tbody>"
-        f"<tr><th class='l'>status</th><td class='l'>{esc(comp.status)}</td></tr>"
+        f"<tr><th class='l'>status</th><td class='l'>{esc(status)}</td></tr>"
         f"<tr><th class='l'>objective ({esc(_objective_words(sol))})</th><td class='l'>{_num(comp.objective, 6)}</td></tr>"
         f"<tr><th class='l'>{'share of the event' if scoring_of(sol)['mode'] != 'maxcover' else 'coverage'}</th>"
         f"<td class='l'>{_num(100 * comp.objective / w_total if w_total > 0 else 0, 2)} % of the event</td></tr>"
-        f"<tr><th class='l'>proven bound</th><td class='l'>{_num(comp.bound, 6)}</td></tr>"
-        f"<tr><th class='l'>gap</th><td class='l'>{_num(100 * comp.gap if comp.gap is not None and math.isfinite(comp.gap) else None, 4)} %</td></tr>"
+        + proof +
         f"<tr><th class='l'>chosen from</th><td class='l'>{comp.n_columns:,} candidate poses ({esc(comp.note)})</td></tr>"
         f"</tbody></table>"
     )
