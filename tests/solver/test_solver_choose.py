@@ -24,21 +24,30 @@ def _p(k, free=100, fixed=0, conflicts=0, points=1000, nnz=10_000, gram=1e4, exp
 CASES = [
     ("maxcover k=3", _p(3), SolveOptions(k=3), BIG, "exact", "maxcover"),
     ("maxcover k=4", _p(4), SolveOptions(k=4), BIG, "exact", "maxcover"),
-    ("maxcover k=5", _p(5), SolveOptions(k=5), BIG, "mip", "maxcover"),
+    ("maxcover k=5", _p(5), SolveOptions(k=5), BIG, "exact", "large-k"),
+    ("maxcover k=8", _p(8), SolveOptions(k=8), BIG, "exact", "large-k"),
+    ("maxcover k=9", _p(9), SolveOptions(k=9), BIG, "mip", "maxcover"),
+    ("maxcover k=6 spaced", _p(6, conflicts=4), SolveOptions(k=6), BIG, "mip", "model"),
+    ("maxcover k=6 mip", _p(6), SolveOptions(k=6, engine="mip"), BIG, "mip", "maxcover"),
     ("maxcover spaced", _p(3, conflicts=4), SolveOptions(k=3), BIG, "mip", "model"),
     ("maxcover mip", _p(3), SolveOptions(k=3, engine="mip"), BIG, "mip", "maxcover"),
     ("maxcover cpsat", _p(3), SolveOptions(k=3, engine="cpsat"), BIG, "cpsat", "maxcover"),
     ("maxcover fixed", _p(3, fixed=2), SolveOptions(k=3), BIG, "exact", "maxcover"),
     ("quality k=3", _p(3), SolveOptions(mode="quality", k=3), BIG, "exact", "quality-portfolio"),
     ("quality k=4", _p(4), SolveOptions(mode="quality", k=4), BIG, "exact", "quality-portfolio"),
-    ("quality k=5", _p(5), SolveOptions(mode="quality", k=5), BIG, "mip", "model"),
-    ("quality k=5 exact", _p(5), SolveOptions(mode="quality", k=5, engine="exact"), BIG, "exact", "quality-portfolio"),
+    ("quality k=5", _p(5), SolveOptions(mode="quality", k=5), BIG, "exact", "large-k"),
+    ("quality k=5 exact", _p(5), SolveOptions(mode="quality", k=5, engine="exact"), BIG, "exact", "large-k"),
+    ("quality k=9", _p(9), SolveOptions(mode="quality", k=9), BIG, "mip", "model"),
+    ("quality k=9 exact", _p(9), SolveOptions(mode="quality", k=9, engine="exact"), BIG, "exact", "quality-portfolio"),
+    ("quality k=6 fixed", _p(6, fixed=2), SolveOptions(mode="quality", k=6), BIG, "exact", "large-k"),
     ("quality levels", _p(4, free=5000), SolveOptions(mode="quality", k=4), 5 * MB, "exact", "quality-levels"),
     ("quality nothing fits", _p(4, free=5000), SolveOptions(mode="quality", k=4), MB, "mip", "model"),
     ("quality spaced", _p(3, conflicts=1), SolveOptions(mode="quality", k=3), BIG, "mip", "model"),
     ("quality cpsat", _p(3), SolveOptions(mode="quality", k=3, engine="cpsat"), BIG, "cpsat", "model"),
     ("multiview k=3", _p(3), SolveOptions(mode="multiview", k=3), BIG, "exact", "multiview"),
-    ("multiview k=5", _p(5), SolveOptions(mode="multiview", k=5), BIG, "mip", "model"),
+    ("multiview k=5", _p(5), SolveOptions(mode="multiview", k=5), BIG, "exact", "large-k"),
+    ("multiview k=6 fixed", _p(6, fixed=1), SolveOptions(mode="multiview", k=6), BIG, "mip", "model"),
+    ("multiview k=9", _p(9), SolveOptions(mode="multiview", k=9), BIG, "mip", "model"),
     ("multiview fixed", _p(3, fixed=1), SolveOptions(mode="multiview", k=3), BIG, "mip", "model"),
     ("multiview spaced", _p(3, conflicts=2), SolveOptions(mode="multiview", k=3), BIG, "mip", "model"),
     ("angle k=3", _p(3), SolveOptions(mode="multiview", k=3, min_angle_deg=20.0), BIG, "exact", "angle"),
@@ -58,6 +67,19 @@ def test_engine_table(problem, options, budget, engine, route) -> None:
     name, reason = choice  # unpacks as (engine, reason)
     assert name == engine and reason and "\n" not in reason
     assert reason.startswith("requested" if options.engine != "auto" else "auto")
+
+
+@pytest.mark.parametrize(("problem", "options", "engine", "route"), [
+    (_p(5), SolveOptions(k=5), "mip", "maxcover"),
+    (_p(5), SolveOptions(mode="quality", k=5), "mip", "model"),
+    (_p(5), SolveOptions(mode="quality", k=5, engine="exact"), "exact", "quality-portfolio"),
+    (_p(6), SolveOptions(mode="multiview", k=6), "mip", "model"),
+])
+def test_choice_when_large_k_does_not_fit(problem, options, engine, route) -> None:
+    """The large-k engines measure their own memory; when they do not fit, solve asks again
+    without them and gets the rules for k > 4 of the other engines."""
+    choice = choose_engine(problem, options, BIG, large_k=False)
+    assert (choice.engine, choice.route) == (engine, route)
 
 
 def test_quality_portfolio_members() -> None:
