@@ -11,7 +11,7 @@ import numba
 import numpy as np
 from numba import prange
 
-__all__ = ["gains", "rho_quality", "hits_quality", "rho_views", "view_counts", "value_quality", "value_views"]
+__all__ = ["gains", "rho_quality", "hits_quality", "view_counts", "view_gains", "value_quality", "value_views"]
 
 _PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False, "parallel": True}
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
@@ -78,19 +78,6 @@ def hits_quality(indptr, indices, wq, lam, top, m):  # pragma: no cover - compil
         for p in range(indptr[j], indptr[j + 1]):
             if wq[p] > lam[indices[p]]:
                 out[indices[p]] += 1.0
-    return out
-
-
-@numba.njit(**_PJIT)
-def rho_views(indptr, indices, mu):  # pragma: no cover - compiled
-    """(n,) float64: ``sum_{i observed by j} mu_i`` for every column j (0/1 pattern)."""
-    n = indptr.shape[0] - 1
-    out = np.zeros(n)
-    for j in prange(n):
-        s = 0.0
-        for p in range(indptr[j], indptr[j + 1]):
-            s += mu[indices[p]]
-        out[j] = s
     return out
 
 

@@ -70,7 +70,26 @@ def large_k_bytes(m: int, n: int, nnz: int) -> int:
     return 48 * int(nnz) + 8 * (n + 1) + 12 * 8 * (int(m) + int(n))
 
 
-class _Quality:
+class _IteratedSearch:
+    """The perturbation step shared by the local searches (subclasses give ``n``, ``greedy`` and ``swap``)."""
+
+    n: int
+
+    def perturb(self, sel: list[int], k: int, rng: np.random.Generator, deadline: Deadline) -> tuple[list[int], float]:
+        """One iterated-local-search step: drop two chosen columns, refill one greedily and one at
+        random, then swap to a local optimum."""
+        cand = list(sel)
+        for t in sorted(rng.choice(k, size=min(2, k), replace=False).tolist(), reverse=True):
+            cand.pop(t)
+        if len(cand) < k - 1:
+            cand = self.greedy(cand, k - 1)
+        pick = int(rng.integers(self.n))
+        while pick in cand:
+            pick = int(rng.integers(self.n))
+        return self.swap(cand + [pick], deadline)
+
+
+class _Quality(_IteratedSearch):
     """A CSC matrix with weighted values and the local search over it."""
 
     def __init__(self, matrix: sp.spmatrix, weights: np.ndarray) -> None:
@@ -142,21 +161,9 @@ class _Quality:
                 break
         return sel, float(val)
 
-    def perturb(self, sel: list[int], k: int, rng: np.random.Generator, deadline: Deadline) -> tuple[list[int], float]:
-        """One iterated-local-search step: drop two chosen columns, refill one greedily and one at
-        random, then swap to a local optimum."""
-        cand = list(sel)
-        for t in sorted(rng.choice(k, size=min(2, k), replace=False).tolist(), reverse=True):
-            cand.pop(t)
-        if len(cand) < k - 1:
-            cand = self.greedy(cand, k - 1)
-        pick = int(rng.integers(self.n))
-        while pick in cand:
-            pick = int(rng.integers(self.n))
-        return self.swap(cand + [pick], deadline)
 
 
-class _Views:
+class _Views(_IteratedSearch):
     """A 0/1 CSC pattern and the local search for "observed by at least ``views`` chosen columns"."""
 
     def __init__(self, matrix: sp.spmatrix, weights: np.ndarray, views: int) -> None:
@@ -223,17 +230,6 @@ class _Views:
                 break
         return sel, float(self.w[cnt >= v].sum())
 
-    def perturb(self, sel: list[int], k: int, rng: np.random.Generator, deadline: Deadline) -> tuple[list[int], float]:
-        """Drop two chosen columns, refill one greedily and one at random, swap to a local optimum."""
-        cand = list(sel)
-        for t in sorted(rng.choice(k, size=min(2, k), replace=False).tolist(), reverse=True):
-            cand.pop(t)
-        if len(cand) < k - 1:
-            cand = self.greedy(cand, k - 1)
-        pick = int(rng.integers(self.n))
-        while pick in cand:
-            pick = int(rng.integers(self.n))
-        return self.swap(cand + [pick], deadline)
 
 
 def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int, *, time_limit_s: float | None,
