@@ -52,7 +52,8 @@ def load_problem(source: Path) -> tuple[Any, Any, Any, Any]:
     """Matrix, weights, camera positions and point positions from a run folder or its matrix file.
 
     Read through :class:`camplace.RunFolder` (which loads no Embree): the matrix is
-    ``visibility.cpm`` or ``visibility.npz``; ``points.csv`` (index,x,y,z,...,weight) must sit
+    ``visibility.cpm`` or ``visibility.npz``, a binary one read as its bool pattern
+    (:attr:`RunFolder.pattern`: no float copy); ``points.csv`` (index,x,y,z,...,weight) must sit
     beside it; ``candidates.csv`` (index,x,y,z,...) is optional (positions are then None).
     """
     import numpy as np
@@ -60,7 +61,7 @@ def load_problem(source: Path) -> tuple[Any, Any, Any, Any]:
     from camplace.runfolder import CANDIDATES_NAME, POINTS_NAME, RunFolder
 
     run = RunFolder(source)
-    matrix = run.matrix
+    matrix = run.pattern
     cols = run.point_columns(["x", "y", "z", "weight"])
     weights = cols["weight"]
     points = np.column_stack([cols["x"], cols["y"], cols["z"]])

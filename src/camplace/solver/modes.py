@@ -76,7 +76,7 @@ from camplace.solver._model import model_bytes, solve_model
 from camplace.solver.angle_exact import greedy_angle, solve_angle
 from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
 from camplace.solver.choose import choose_engine, problem_sizes, too_big_message, use_stereo
-from camplace.solver.checks import conflict_count, conflict_pairs, coords, index_set, values_matrix
+from camplace.solver.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
 from camplace.solver.greedy import NearCandidates, greedy
 from camplace.solver.models import BuildTimeout, build_model, check_setcover_memory, model_size
 from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
@@ -216,6 +216,8 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
     min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
     q = values_matrix(matrix)
+    if mode == "quality" or min_angle_deg is not None:
+        q = float_values(q)  # these engines read values: a bool pattern becomes float32 ones
     m, n = q.shape
     if n == 0:
         raise CamplaceError("the visibility matrix has no candidate columns")
