@@ -98,6 +98,7 @@ def test_solve_verb_reads_a_binary_folder_as_its_pattern(tmp_path, graded, capsy
     matrix, weights, positions, _ = load_problem(tmp_path)
     assert matrix.dtype == (np.float32 if graded else np.bool_)
     assert np.array_equal(matrix.toarray() > 0, dense > 0) and positions is None
+    assert load_problem(tmp_path, pattern=False)[0].dtype == np.float32  # for quality / minimum angle
     mode = "quality" if graded else "maxcover"
     out = tmp_path / "sol.json"
     assert _run(["solve", str(tmp_path), "--mode", mode, "--k", "2", "-o", str(out)]) == 0
