@@ -41,6 +41,7 @@ CASES = {
     "maxcover large-k k=5": dict(k=5),
     "maxcover mip": dict(k=2, engine="mip"),
     "multiview k=3": dict(k=3, mode="multiview", views=2),
+    "multiview k=4 views=3": dict(k=4, mode="multiview", views=3),
     "multiview k=3 fixed": dict(k=3, mode="multiview", views=2, fixed=(0,)),
     "multiview min-angle": dict(k=3, mode="multiview", views=2, min_angle_deg=25.0),
     "quality k=2": dict(k=2, mode="quality"),
