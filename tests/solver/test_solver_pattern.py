@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from camplace.errors import CamplaceError
 from camplace.solver import solve
 from camplace.solver.checks import values_matrix
 from camplace.solver.cli import load_problem, register
@@ -106,3 +107,11 @@ def test_solve_verb_reads_a_binary_folder_as_its_pattern(tmp_path, graded, capsy
     sol = json.loads(out.read_text())
     assert sol["status"] == "optimal"
     assert sol["objective"] == pytest.approx(brute_force_mode(dense.astype(np.float64), w, 2, mode), rel=1e-9)
+
+
+def test_values_of_a_pattern_are_estimated_before_they_are_made() -> None:
+    dense, w, _, _, flt, pat = _instance(14)
+    with pytest.raises(CamplaceError, match="float32 values of the matrix"):
+        solve(pat, w, 2, mode="quality", memory_budget_bytes=4 * pat.nnz - 1)
+    a = solve(pat, w, 2, mode="quality", memory_budget_bytes=1 << 30)
+    assert a.objective == pytest.approx(brute_force_mode(dense.astype(np.float64), w, 2, "quality"), rel=1e-9)

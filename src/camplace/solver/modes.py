@@ -216,8 +216,13 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
     min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
     q = values_matrix(matrix)
-    if mode == "quality" or min_angle_deg is not None:
-        q = float_values(q)  # these engines read values: a bool pattern becomes float32 ones
+    if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
+        # these engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
+        need, budget = 4 * int(q.nnz), memory_budget_bytes()
+        if need > budget:
+            raise CamplaceError(f"{OverBudget(need, budget, 'the float32 values of the matrix').message}; "
+                                "pass the float32 matrix (load_visibility without pattern=True)")
+        q = float_values(q)
     m, n = q.shape
     if n == 0:
         raise CamplaceError("the visibility matrix has no candidate columns")
