@@ -107,7 +107,7 @@ def cmd_solve(args: argparse.Namespace) -> None:
         ratios.append(wall / solver_s)
         import resource
 
-        peak_gib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB on Linux; the largest child so far
+        peak_gib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB: the largest child so far
         print(f"  run {rep + 1}: process {wall:.2f} s, solver time_s {solver_s:.2f} s, load {load_s:.2f} s, "
               f"ratio {wall / solver_s:.2f}, peak RSS {peak_gib:.2f} GiB  [{proc.stdout.splitlines()[0]}]")
     print(f"camplace solve: whole process / solver time_s = {statistics.median(ratios):.2f} (median; target <= 1.3)")
