@@ -30,6 +30,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import statistics
 import subprocess
 import sys
@@ -105,8 +106,6 @@ def cmd_solve(args: argparse.Namespace) -> None:
         solver_s = float(res["time_s"])
         load_s = res.get("timings_s", {}).get("load", float("nan"))
         ratios.append(wall / solver_s)
-        import resource
-
         peak_gib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB: the largest child so far
         print(f"  run {rep + 1}: process {wall:.2f} s, solver time_s {solver_s:.2f} s, load {load_s:.2f} s, "
               f"ratio {wall / solver_s:.2f}, peak RSS {peak_gib:.2f} GiB  [{proc.stdout.splitlines()[0]}]")
