@@ -9,7 +9,8 @@ Three measurements, each printing ratios against a baseline measured in the same
     ``load_npz``, and the file sizes (target: the store no larger than the npz).
 ``solve OUTDIR``
     The whole ``camplace solve OUTDIR`` process (start-up, loading, solving, writing) against the
-    solver's own ``time_s`` that it prints (target <= 1.3), --repeat times, median.
+    solver's own ``time_s`` that it prints (target <= 1.3), --repeat times, median; and the peak
+    RSS of the largest ``camplace solve`` process so far.
 ``visibility CANDIDATES_CSV --points M``
     The whole ``camplace visibility comet-67p-bunker --candidates CANDIDATES_CSV --points M --no-cache``
     process (writing included) against the naive baseline of benchmarks/visibility.py: a segment for
@@ -29,6 +30,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import statistics
 import subprocess
 import sys
@@ -104,8 +106,9 @@ def cmd_solve(args: argparse.Namespace) -> None:
         solver_s = float(res["time_s"])
         load_s = res.get("timings_s", {}).get("load", float("nan"))
         ratios.append(wall / solver_s)
+        peak_gib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB: the largest child so far
         print(f"  run {rep + 1}: process {wall:.2f} s, solver time_s {solver_s:.2f} s, load {load_s:.2f} s, "
-              f"ratio {wall / solver_s:.2f}  [{proc.stdout.splitlines()[0]}]")
+              f"ratio {wall / solver_s:.2f}, peak RSS {peak_gib:.2f} GiB  [{proc.stdout.splitlines()[0]}]")
     print(f"camplace solve: whole process / solver time_s = {statistics.median(ratios):.2f} (median; target <= 1.3)")
     print(load_line())
 

@@ -106,6 +106,9 @@ class RunFolder:
         ``points.csv`` (m rows).
     matrix : (m, n) scipy.sparse.csr_matrix of float32
         ``visibility.cpm`` or ``visibility.npz`` (:func:`camplace.visibility.store.load_visibility`).
+    pattern : (m, n) scipy.sparse.csr_matrix of bool, or of float32
+        The matrix as the solver takes it: a binary matrix (every value 1) with bool data, read
+        without a float copy (``load_visibility(..., pattern=True)``); a graded one as ``matrix``.
 
     Every attribute raises :class:`~camplace.errors.CamplaceError` (one line naming the file and
     the fix) when its file is missing or unreadable, or disagrees with what is already read.
@@ -207,6 +210,17 @@ class RunFolder:
             self._check_rows(len(self.points), matrix)
         return matrix
 
+    @cached_property
+    def pattern(self) -> "sp.csr_matrix":
+        from camplace.visibility.store import as_pattern_if_binary, load_visibility
+
+        if "matrix" in self.__dict__:  # already read: share its index arrays
+            return as_pattern_if_binary(self.matrix)
+        matrix = load_visibility(self.matrix_path, pattern=True)
+        if "points" in self.__dict__:
+            self._check_rows(len(self.points), matrix)
+        return matrix
+
     def _check_rows(self, n_rows: int, matrix=None) -> None:
         matrix = self.matrix if matrix is None else matrix
         if matrix.shape[0] != n_rows:
@@ -293,6 +307,7 @@ class RunFolder:
         self._matrix_file = None
         path = save_matrix(self.path, matrix, fmt=fmt, link_from=link_from, meta=meta)
         self.__dict__.pop("matrix", None)
+        self.__dict__.pop("pattern", None)
         return path
 
     def save_visibility(self, visibility, fmt: str = "cpm") -> Path:
@@ -302,6 +317,7 @@ class RunFolder:
         self._matrix_file = None
         path = visibility.save_matrix(self.path, fmt)
         self.__dict__.pop("matrix", None)
+        self.__dict__.pop("pattern", None)
         return path
 
     def save_solution(self, solution: "Solution | dict[str, Any]") -> None:

@@ -58,6 +58,7 @@ from camplace._signals import ctrl_c_deferred
 from camplace.solver import _bitkernels as K
 from camplace.solver._common import Deadline, EngineOutcome, best_leaf, greedy_swap, memory_budget_bytes, push_chunks
 from camplace.solver.pair_cap import match_opposite
+from camplace.solver.checks import kernel_data
 from camplace.solver.presolve import Presolved
 
 __all__ = ["solve_bitset", "bitset_bytes", "BITSET_MAX_K"]
@@ -211,7 +212,7 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
         stats["opposite_pairs"]["skipped"] = f"layout bitsets need {need / 2**30:.1f} GiB"
         return None
     with ctrl_c_deferred():
-        bits = K.build_bits(a.indptr, a.indices, a.data, rows, col_map, pre.shape[1])
+        bits = K.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
     return bits, lw, pw, _last_mask(rows.size)
 
 

@@ -14,15 +14,19 @@ import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 
-__all__ = ["values_matrix", "index_set", "coords", "conflict_count", "conflict_pairs"]
+__all__ = ["values_matrix", "kernel_data", "float_values", "index_set", "coords", "conflict_count", "conflict_pairs"]
 
 
 def values_matrix(matrix: Any) -> sp.csr_matrix:
     """(m, n) CSR keeping only entries > 0 (the observation qualities).
 
     A canonical CSR matrix of float32/float64 values, all finite and >= 0, is used as it is (a
-    visibility matrix can hold 10^8 entries; no copy); anything else is converted to float64.
+    visibility matrix can hold 10^8 entries; no copy), and so is a canonical CSR pattern of bool
+    data (``load_visibility(..., pattern=True)`` of a binary matrix: True observes); anything else
+    is converted to float64.
     """
+    if sp.issparse(matrix) and matrix.format == "csr" and matrix.dtype == np.bool_ and matrix.has_canonical_format:
+        return matrix
     if sp.issparse(matrix) and matrix.format == "csr" and matrix.dtype in (np.float32, np.float64) \
             and matrix.has_canonical_format:
         data = matrix.data
@@ -45,6 +49,24 @@ def values_matrix(matrix: Any) -> sp.csr_matrix:
     a.sum_duplicates()
     a.sort_indices()
     return a
+
+
+def kernel_data(matrix: sp.csr_matrix) -> np.ndarray:
+    """The values of a checked CSR matrix as the compiled kernels take them: bool data viewed as
+    uint8 (no copy), any other as it is."""
+    data = np.asarray(matrix.data)
+    return data.view(np.uint8) if data.dtype.kind == "b" else data
+
+
+def float_values(matrix: sp.csr_matrix) -> sp.csr_matrix:
+    """A bool pattern from :func:`values_matrix` as float32 ones (the engines that read values:
+    quality, the angle engines); any other matrix as it is."""
+    if matrix.dtype != np.bool_:
+        return matrix
+    out = sp.csr_matrix((matrix.data.astype(np.float32), matrix.indices, matrix.indptr), shape=matrix.shape,
+                        copy=False)
+    out.has_canonical_format = True
+    return out
 
 
 def index_set(values: Any, n: int, name: str) -> tuple[int, ...]:

@@ -48,19 +48,21 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
 
 
 
-def load_problem(source: Path) -> tuple[Any, Any, Any, Any]:
+def load_problem(source: Path, pattern: bool = True) -> tuple[Any, Any, Any, Any]:
     """Matrix, weights, camera positions and point positions from a run folder or its matrix file.
 
     Read through :class:`camplace.RunFolder` (which loads no Embree): the matrix is
-    ``visibility.cpm`` or ``visibility.npz``; ``points.csv`` (index,x,y,z,...,weight) must sit
-    beside it; ``candidates.csv`` (index,x,y,z,...) is optional (positions are then None).
+    ``visibility.cpm`` or ``visibility.npz``, with ``pattern`` a binary one read as its bool
+    pattern (:attr:`RunFolder.pattern`: no float copy; for the modes whose engines read only
+    the pattern); ``points.csv`` (index,x,y,z,...,weight) must sit beside it; ``candidates.csv``
+    (index,x,y,z,...) is optional (positions are then None).
     """
     import numpy as np
 
     from camplace.runfolder import CANDIDATES_NAME, POINTS_NAME, RunFolder
 
     run = RunFolder(source)
-    matrix = run.matrix
+    matrix = run.pattern if pattern else run.matrix
     cols = run.point_columns(["x", "y", "z", "weight"])
     weights = cols["weight"]
     points = np.column_stack([cols["x"], cols["y"], cols["z"]])
@@ -110,7 +112,9 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=1) as pool:
         # the matrix decodes (GIL-free) while the solver's modules import
-        loading = pool.submit(load_problem, args.source)
+        # quality and the minimum-angle engines read values: they take the float32 matrix
+        pattern = args.mode != "quality" and args.min_angle is None
+        loading = pool.submit(load_problem, args.source, pattern)
         from camplace._io import write_json_atomic
         from camplace.solver.modes import solve
 

@@ -76,7 +76,7 @@ from camplace.solver._model import model_bytes, solve_model
 from camplace.solver.angle_exact import greedy_angle, solve_angle
 from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
 from camplace.solver.choose import choose_engine, problem_sizes, too_big_message, use_stereo
-from camplace.solver.checks import conflict_count, conflict_pairs, coords, index_set, values_matrix
+from camplace.solver.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
 from camplace.solver.greedy import NearCandidates, greedy
 from camplace.solver.models import BuildTimeout, build_model, check_setcover_memory, model_size
 from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
@@ -216,6 +216,13 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
     min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
     q = values_matrix(matrix)
+    if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
+        # these engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
+        need, budget = 4 * int(q.nnz), memory_budget_bytes()
+        if need > budget:
+            raise CamplaceError(f"{OverBudget(need, budget, 'the float32 values of the matrix').message}; "
+                                "pass the float32 matrix (load_visibility without pattern=True)")
+        q = float_values(q)
     m, n = q.shape
     if n == 0:
         raise CamplaceError("the visibility matrix has no candidate columns")

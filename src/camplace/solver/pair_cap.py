@@ -34,6 +34,7 @@ import numpy as np
 from camplace._signals import ctrl_c_deferred
 from camplace.solver import _bitkernels as _bk
 from camplace.solver._common import memory_budget_bytes
+from camplace.solver.checks import kernel_data
 from camplace.solver.presolve import canonical_csr, check_weights
 
 __all__ = ["OppositePairs", "match_opposite", "opposite_pair_bound", "opposite_pair_bytes"]
@@ -159,7 +160,7 @@ def match_opposite(
     # Observers per row among the allowed columns; rows seen fewer than `views` times never count.
     allowed = np.zeros(n, dtype=bool)
     allowed[cols] = True
-    seen, _ = _bk.selected_row_stats(a.indptr, a.indices, a.data, allowed)
+    seen, _ = _bk.selected_row_stats(a.indptr, a.indices, kernel_data(a), allowed)
     rows = np.flatnonzero((seen >= views) & (w > 0))
     countable = float(w[rows].sum())
     stats: dict[str, Any] = {"rows": int(rows.size), "checks": 0, "complete": False}
@@ -174,7 +175,7 @@ def match_opposite(
     else:
         rows = rows[np.random.default_rng(order_seed).permutation(rows.size)]
     with ctrl_c_deferred():
-        bits = _bk.row_bits(a.indptr, a.indices, a.data, rows, col_map, cols.size)
+        bits = _bk.row_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, cols.size)
     r = rows.size
     rem = w[rows].astype(np.float64)
     nxt = np.arange(1, r + 1, dtype=np.int64)

@@ -35,6 +35,7 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver import _bitkernels as _bk
+from camplace.solver.checks import kernel_data
 
 __all__ = ["Presolved", "presolve", "as_pattern", "canonical_csr", "check_weights"]
 
@@ -154,7 +155,7 @@ class Presolved:
         """(m', n') scipy.sparse.csr_matrix of float64: 0/1 pattern of the reduced instance."""
         a, rows, col_map = self.source
         with ctrl_c_deferred():
-            ptr, idx = _bk.extract_rows(a.indptr, a.indices, a.data, rows, col_map)
+            ptr, idx = _bk.extract_rows(a.indptr, a.indices, kernel_data(a), rows, col_map)
         return sp.csr_matrix((np.ones(idx.size), idx, ptr), shape=self.shape)
 
     @functools.cached_property
@@ -162,7 +163,7 @@ class Presolved:
         """(n', ceil(m' / 64)) uint64: column bitsets of the reduced instance (bit i = reduced row i)."""
         a, rows, col_map = self.source
         with ctrl_c_deferred():
-            return _bk.build_bits(a.indptr, a.indices, a.data, rows, col_map, self.shape[1])
+            return _bk.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, self.shape[1])
 
     def original_columns(self, selected: Sequence[int]) -> tuple[int, ...]:
         """Map reduced column indices to sorted original column indices.
@@ -303,9 +304,10 @@ def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray) -
     """
     n = a.shape[1]
     with ctrl_c_deferred():
-        bits = _bk.build_bits(a.indptr, a.indices, a.data, rows, np.arange(n, dtype=np.int64), n)
+        data = kernel_data(a)
+        bits = _bk.build_bits(a.indptr, a.indices, data, rows, np.arange(n, dtype=np.int64), n)
         size = _bk.column_sizes(bits)
-        return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, a.data, rows)
+        return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, data, rows)
 
 
 def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Presolved:
@@ -335,7 +337,7 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         raise CamplaceError(f"k must be between 1 and the number of candidates ({n}), got {k}")
 
     with ctrl_c_deferred():
-        live, row_nnz = _bk.live_rows(a.indptr, a.indices, a.data, w)
+        live, row_nnz = _bk.live_rows(a.indptr, a.indices, kernel_data(a), w)
     live_rows = np.flatnonzero(live).astype(np.int64)
     stats: dict[str, Any] = {
         "rows_in": int(m),
@@ -375,9 +377,10 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
     col_map[columns] = np.arange(columns.size, dtype=np.int64)
     salt = np.random.default_rng(0x5EED).integers(0, np.iinfo(np.int64).max, size=max(1, columns.size), dtype=np.int64)
     with ctrl_c_deferred():
-        h, has = _bk.row_hashes(a.indptr, a.indices, a.data, live_rows, col_map, salt.astype(np.uint64))
+        data = kernel_data(a)
+        h, has = _bk.row_hashes(a.indptr, a.indices, data, live_rows, col_map, salt.astype(np.uint64))
         orig_rows = live_rows[has]
-        groups, n_groups = _bk.group_rows(a.indptr, a.indices, a.data, orig_rows, col_map, h[has])
+        groups, n_groups = _bk.group_rows(a.indptr, a.indices, data, orig_rows, col_map, h[has])
     stats["time_merge_s"] = time.perf_counter() - t1 - stats["time_dominance_s"]
     first = np.full(n_groups, -1, dtype=np.int64)
     first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)

@@ -6,7 +6,8 @@ loads neither (the CSR <-> bitset kernels of :mod:`camplace.visibility._bitkerne
 first use). Every reader of a matrix goes through :func:`load_visibility`, which takes a run,
 visibility or campaign folder, a ``.cpm`` file or a ``.npz`` file, and returns the canonical
 scipy CSR matrix (float32 values, sorted column indices, no duplicates; int32 index arrays
-unless the matrix needs int64).
+unless the matrix needs int64). With ``pattern=True`` a binary matrix comes back with bool data
+instead (1 byte a pair, no float copy), which is what the solver's bitset engines need.
 
 The ``.cpm`` format (version 1), little-endian::
 
@@ -75,6 +76,7 @@ __all__ = [
     "NPZ_NAME",
     "canonical_csr",
     "convert_matrix",
+    "as_pattern_if_binary",
     "load_visibility",
     "matrix_path",
     "read_meta",
@@ -208,13 +210,14 @@ def _layout(matrix: sp.csr_matrix, workers: int) -> tuple[str, str, list[tuple[s
     return structure, values, sections
 
 
-def _from_layout(footer: dict, arrays: dict[str, np.ndarray], workers: int) -> sp.csr_matrix:
+def _from_layout(footer: dict, arrays: dict[str, np.ndarray], workers: int, pattern: bool = False) -> sp.csr_matrix:
     m, n = footer["shape"]
     nnz = footer["nnz"]
     idt = index_dtype((m, n), nnz)
     with ThreadPoolExecutor(max_workers=1) as side:
-        # the all-ones values are allocated (page faults, 4 bytes a pair) beside the decoding
-        ones = side.submit(_ones, nnz) if footer["values"] == "ones" else None
+        # the all-ones values are allocated (page faults, 4 bytes a pair, or 1 for a pattern) beside
+        # the decoding
+        ones = side.submit(_ones, nnz, np.bool_ if pattern else np.float32) if footer["values"] == "ones" else None
         indptr, indices = _structure(footer, arrays, m, n, nnz, idt, workers)
         if ones is not None:
             data = ones.result()
@@ -229,9 +232,9 @@ def _from_layout(footer: dict, arrays: dict[str, np.ndarray], workers: int) -> s
     return matrix
 
 
-def _ones(nnz: int) -> np.ndarray:
-    data = populated_empty(nnz, np.float32)
-    data.fill(1.0)
+def _ones(nnz: int, dtype=np.float32) -> np.ndarray:
+    data = populated_empty(nnz, dtype)
+    data.fill(1)
     return data
 
 
@@ -524,18 +527,20 @@ def _physical_memory_bytes() -> int:
         return 8 << 30
 
 
-def read_bytes_estimate(footer: dict) -> int:
-    """Peak bytes to read a ``.cpm`` file: its decoded sections plus the CSR arrays."""
+def read_bytes_estimate(footer: dict, pattern: bool = False) -> int:
+    """Peak bytes to read a ``.cpm`` file: its decoded sections plus the CSR arrays (values of 1
+    byte a pair for a binary matrix read as a pattern, else 4)."""
     m, n = footer["shape"]
     nnz = footer["nnz"]
     idt = index_dtype((m, n), nnz)
+    value_bytes = 1 if pattern and footer["values"] == "ones" else 4
     sections = sum(int(d["count"]) * np.dtype(d["dtype"]).itemsize for d in footer["sections"].values())
-    return sections + nnz * (idt.itemsize + 4) + (m + 1) * (idt.itemsize + 8)
+    return sections + nnz * (idt.itemsize + value_bytes) + (m + 1) * (idt.itemsize + 8)
 
 
-def _check_memory(path: Path, footer: dict) -> None:
+def _check_memory(path: Path, footer: dict, pattern: bool = False) -> None:
     """Stop before allocating a matrix that cannot fit in this machine's memory."""
-    need = read_bytes_estimate(footer)
+    need = read_bytes_estimate(footer, pattern)
     have = _physical_memory_bytes()
     if need > 0.9 * have:
         m, n = footer["shape"]
@@ -549,7 +554,8 @@ def _corrupt_error(path: Path, exc: Exception) -> CamplaceError:
     return CamplaceError(f"{path}: truncated or corrupt visibility matrix ({exc}); {_FIX}")
 
 
-def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None) -> sp.csr_matrix:
+def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None,
+                    pattern: bool = False) -> sp.csr_matrix:
     """The visibility matrix of a run / visibility / campaign folder, or of a ``.cpm`` / ``.npz`` file.
 
     Parameters
@@ -558,10 +564,14 @@ def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None) -
         A folder holding ``visibility.cpm`` (preferred) or ``visibility.npz``, or the file.
     workers : int or None
         Decoding threads (default: number of CPUs, at most 8).
+    pattern : bool
+        When every stored value is 1 (a binary matrix), return its pattern: bool data (True, 1 byte
+        a pair) instead of float32 ones, so no float copy of the matrix is made (the solver's
+        bitset engines take it as it is). A graded matrix comes back as float32 either way.
 
     Returns
     -------
-    (m, n) scipy.sparse.csr_matrix of float32
+    (m, n) scipy.sparse.csr_matrix of float32 (bool for a binary matrix with ``pattern=True``)
         Canonical: sorted column indices, no duplicates, int32 index arrays unless int64 is needed.
 
     Raises
@@ -572,14 +582,15 @@ def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None) -
     path = matrix_path(path_or_outdir)
     try:
         if not _is_store(path):
-            return _load_npz(path)
+            matrix = _load_npz(path)
+            return as_pattern_if_binary(matrix) if pattern else matrix
         buf, footer = _open(path)
         try:
-            _check_memory(path, footer)
+            _check_memory(path, footer, pattern)
             w = _workers(workers)
             arrays = {name: _read_section(buf, desc, footer["codec"], footer["_data_end"], w)
                       for name, desc in footer["sections"].items()}
-            return _from_layout(footer, arrays, w)
+            return _from_layout(footer, arrays, w, pattern)
         finally:
             if isinstance(buf, mmap.mmap):
                 buf.close()
@@ -589,6 +600,18 @@ def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None) -
         raise _corrupt_error(path, exc) from None
     except OSError as exc:
         raise CamplaceError(f"{path}: cannot read the visibility matrix ({exc.strerror or exc}); {_FIX}") from None
+
+
+def as_pattern_if_binary(matrix: sp.csr_matrix) -> sp.csr_matrix:
+    """A canonical CSR matrix whose every value is 1 with bool data (its pattern, sharing the index
+    arrays); any other matrix unchanged."""
+    from camplace.visibility import _bitkernels
+
+    if matrix.nnz and not bool(_bitkernels.all_ones(matrix.data)):
+        return matrix
+    out = sp.csr_matrix((_ones(matrix.nnz, np.bool_), matrix.indices, matrix.indptr), shape=matrix.shape, copy=False)
+    out.has_canonical_format = True
+    return out
 
 
 def _load_npz(path: Path) -> sp.csr_matrix:
