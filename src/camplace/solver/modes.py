@@ -428,7 +428,8 @@ def _cover_modes(
         sel = tuple(sorted(set(fixed_t) | set(new))) if new else None
         objective = value(sel) if sel else fixed_value
         const = fixed_value if mode == "maxcover" else float(w @ base)
-        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": dict(out.stats)})
+        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
+                      "engine_stats": dict(out.stats)})
         return ModeOutcome(sel, out.status if sel else "unknown", objective, float(out.bound) + const, name, stats)
 
     # General model (SCIP / CP-SAT). The greedy answer comes first: it is the hint, and the answer
