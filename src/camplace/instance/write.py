@@ -22,6 +22,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 from camplace._io import write_bytes_atomic, write_text_atomic
 from camplace.geometry import ply_bytes
+from camplace.instance.lab import PhysicalCamera
 from camplace.instance.parse import _one_line
 from camplace.instance.schema import SCHEMA_VERSION, Instance, Mesh, QualitySpec
 
@@ -132,10 +133,11 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             "position_sigma_m": float(r.position_sigma_m), "rotation_sigma_deg": float(r.rotation_sigma_deg),
             "scenarios": int(r.scenarios), "objective": r.objective, "eval_scenarios": int(r.eval_scenarios),
         }
-    for key in ("physical", "transform"):
-        table = getattr(instance, key)
-        if table is not None:
-            data[key] = copy.deepcopy(table)
+    if instance.physical is not None:  # the fields that differ from a perfect camera
+        perfect = PhysicalCamera().to_dict()
+        data["physical"] = {k: v for k, v in instance.physical.to_dict().items() if v != perfect[k]}
+    if instance.transform is not None:
+        data["transform"] = instance.transform.to_dict()
     agents = getattr(instance, "agents", None)
     if agents is not None:
         at: dict[str, Any] = {}
