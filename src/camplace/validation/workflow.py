@@ -62,7 +62,7 @@ def load_run(outdir: str | Path):
     Returns
     -------
     instance : camplace.instance.Instance
-    solution : camplace.pipeline.Solution
+    solution : camplace.solution.Solution
     """
     from camplace.runfolder import RunFolder
 
