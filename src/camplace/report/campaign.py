@@ -160,7 +160,7 @@ def score_systems(matrix, weights: np.ndarray, columns: np.ndarray, *, mode: str
     import scipy.sparse as sp
 
     from camplace.solver import coverage_weight
-    from camplace.solver.modes import mode_value
+    from camplace.solver.objectives import mode_value
 
     if mode == "maxcover":
         csc = sp.csc_matrix(matrix)
