@@ -82,6 +82,15 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             comments[key] = f"read from: {mesh.source[len('file:'):]}" + (f" (scale {spec['scale']})" if "scale" in spec else "")
         return {"name": mesh.name, "file": rel}
 
+    def occluder_table(occ, key: str, file_stem: str) -> dict:
+        """An occluder's mesh table with its pose (and ``ground``, which only static occluders have)."""
+        t = mesh_table(occ.mesh, key, f"{file_stem}_{_slug(occ.mesh.name)}")
+        t["position_m"] = _vec(occ.pose.position_m)
+        t["rotation_deg"] = _vec(occ.pose.rotation_deg)
+        if occ.ground:
+            t["ground"] = True
+        return t
+
     cam = instance.camera
     d = instance.defaults
     data: dict[str, Any] = {
@@ -110,15 +119,8 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
         "target": mesh_table(instance.target, "target", "target"),
     }
     if instance.occluders:
-        occs = []
-        for i, occ in enumerate(instance.occluders):
-            t = mesh_table(occ.mesh, f"occluders[{i}]", f"occluder{i}_{_slug(occ.mesh.name)}")
-            t["position_m"] = _vec(occ.pose.position_m)
-            t["rotation_deg"] = _vec(occ.pose.rotation_deg)
-            if occ.ground:
-                t["ground"] = True
-            occs.append(t)
-        data["occluders"] = occs
+        data["occluders"] = [occluder_table(occ, f"occluders[{i}]", f"occluder{i}")
+                             for i, occ in enumerate(instance.occluders)]
     q = instance.quality
     if q != QualitySpec():
         data["quality"] = {
@@ -172,13 +174,8 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
                 write_text_atomic(out_dir / rel, text)
                 ft["emitters"] = {"file": rel}
         if f.occluders:
-            occs = []
-            for j, occ in enumerate(f.occluders):
-                t = mesh_table(occ.mesh, f"frames[{i}].occluders[{j}]", f"frame{i}_occluder{j}_{_slug(occ.mesh.name)}")
-                t["position_m"] = _vec(occ.pose.position_m)
-                t["rotation_deg"] = _vec(occ.pose.rotation_deg)
-                occs.append(t)
-            ft["occluders"] = occs
+            ft["occluders"] = [occluder_table(occ, f"frames[{i}].occluders[{j}]", f"frame{i}_occluder{j}")
+                               for j, occ in enumerate(f.occluders)]
         frames.append(ft)
     data["frames"] = frames
 
