@@ -103,7 +103,7 @@ def test_no_import_cycles_in(package: str) -> None:
     assert cycles(g) == []
 
 
-@pytest.mark.parametrize("package", ["instance", "sampling", "visibility", "solver", "plan", "validation"])
+@pytest.mark.parametrize("package", ["instance", "sampling", "visibility", "solver", "plan", "validation", "report"])
 def test_no_import_of_a_later_stage_from(package: str) -> None:
     later = LATER_THAN[package]
     g = graph((package,))
