@@ -175,6 +175,7 @@ def _cmd_visibility(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
     from camplace.pipeline import compute_points, visibility_stage
+    from camplace.runfolder import RunFolder
     from camplace.sampling import CandidateSet
     from camplace.visibility import frame_scene, write_ply
 
@@ -185,9 +186,11 @@ def _cmd_visibility(args: argparse.Namespace) -> int:
         instance, cands, pts, reporter=ConsoleReporter(), cache=not args.no_cache, dask_address=args.dask,
         memory_budget_gb=args.memory_budget_gb,
     )
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_ply(args.out / "scene.ply", frame_scene(instance, 0).triangles)
-    path = vis.save(args.out, args.matrix_format)
+    folder = RunFolder(args.out)
+    folder.path.mkdir(parents=True, exist_ok=True)
+    write_ply(folder.file("scene.ply"), frame_scene(instance, 0).triangles)
+    path = folder.save_visibility(vis, args.matrix_format)
+    folder.save_points(vis.points)
     print(f"{vis.matrix.shape[0]} points x {vis.matrix.shape[1]} candidates, {vis.matrix.nnz} observed pairs")
     print(f"wrote {path}, points.csv, scene.ply")
     return EXIT_OK

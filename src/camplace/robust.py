@@ -269,7 +269,8 @@ def solve_robust(
         ``mean``: the objective is the sampled expected objective (weights ``w / S`` on the
         stacked rows); ``p10``: the sampled 10th percentile.
     """
-    from camplace.solver.modes import conflict_pairs, solve
+    from camplace.solver.checks import conflict_pairs
+    from camplace.solver.modes import solve
 
     s_count = spec.scenarios
     mode = options["mode"]

@@ -10,6 +10,7 @@ import pytest
 
 from camplace.errors import InstanceError
 from camplace.instance import load_instance, parse_instance, save_instance
+from camplace.instance.lab import PhysicalCamera, TransformConfig
 
 
 def rich(valid_data: dict, tmp_path: Path) -> dict:
@@ -39,7 +40,7 @@ def test_new_fields_parse(valid_data: dict, tmp_path: Path) -> None:
     f0, f1, f2 = inst.frames
     assert f0.target_weight == 2.0 and len(f0.emitters) == 2 and np.allclose(f0.emitters.weights, [0.5, 0.25])
     assert f1.emitters.positions_m.shape == (1, 3) and f2.occluders[0].mesh.name == "rock"
-    assert inst.physical["sigma_position_m"] == 0.01 and inst.transform["method"] == "similarity"
+    assert inst.physical.sigma_position_m == 0.01 and inst.transform.method == "similarity"
     assert len(inst.occluders_world(2)) == len(inst.occluders_world()) + 1
 
 
@@ -56,6 +57,30 @@ def test_new_fields_round_trip(valid_data: dict, tmp_path: Path, mesh_files: boo
         assert len(a.occluders) == len(b.occluders)
         for oa, ob in zip(a.occluders, b.occluders):
             assert np.array_equal(oa.mesh.vertices, ob.mesh.vertices) and oa.pose == ob.pose
+
+
+@pytest.mark.parametrize(
+    ("physical", "transform", "expect_physical", "expect_transform"),
+    [
+        ({}, {"method": "identity"}, PhysicalCamera(), TransformConfig()),
+        ({"vignetting": 0.25, "k1": 0}, {"method": "scale", "sim_extent_m": [10, 5, 4], "phys_extent_m": [2, 1, 1],
+                                         "sim_scale": 2},
+         PhysicalCamera(vignetting=0.25),
+         TransformConfig(method="scale", sim_extent_m=(10.0, 5.0, 4.0), phys_extent_m=(2.0, 1.0, 1.0),
+                         sim_scale=(2.0, 2.0, 2.0))),
+    ],
+)
+def test_lab_tables_parsed_once_and_round_trip(valid_data: dict, tmp_path: Path, physical, transform,
+                                               expect_physical, expect_transform) -> None:
+    data = copy.deepcopy(valid_data)
+    data["physical"], data["transform"] = physical, transform
+    inst = parse_instance(data, str(tmp_path / "lab.toml"), tmp_path)
+    assert inst.physical == expect_physical and inst.transform == expect_transform
+    out = tmp_path / "copy" / "lab.toml"
+    save_instance(inst, out)
+    back = load_instance(out)
+    assert back.physical == expect_physical and back.transform == expect_transform
+    assert parse_instance(copy.deepcopy(valid_data), str(tmp_path / "bare.toml"), tmp_path).physical is None
 
 
 @pytest.mark.parametrize(

@@ -24,7 +24,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 from camplace.errors import CamplaceError, InstanceError
 from camplace.instance import procedural
-from camplace.instance.lab import parse_physical, parse_transform
+from camplace.instance.lab import PhysicalCamera, TransformConfig, parse_physical, parse_transform
 from camplace.instance.meshio import _is_closed, read_mesh_file
 from camplace.names import ROBUST_OBJECTIVES
 from camplace.instance.schema import (
@@ -555,23 +555,22 @@ class _Parser:
             defaults=run,
             source=self.source,
             quality=quality,
-            physical=self.passthrough(data, "physical"),
-            transform=self.passthrough(data, "transform"),
+            physical=self.lab_table(data, "physical"),
+            transform=self.lab_table(data, "transform"),
             agents=self.agents(self.table(data, "agents", "", required=False), k, len(frames)),
             robust=self.robust(data),
         )
 
-    def passthrough(self, data: dict, key: str) -> dict | None:
-        """A ``[physical]`` or ``[transform]`` table, checked by its parser (:mod:`camplace.instance.lab`)."""
+    def lab_table(self, data: dict, key: str) -> PhysicalCamera | TransformConfig | None:
+        """The ``[physical]`` or ``[transform]`` table, parsed by :mod:`camplace.instance.lab` (None when absent)."""
         table = self.table(data, key, "", required=False)
         if table is None:
             return None
         parse = parse_physical if key == "physical" else parse_transform
         try:
-            parse(table, key)
+            return parse(table, key)
         except CamplaceError as exc:
             raise InstanceError(self.source, "", _one_line(str(exc))) from None
-        return copy.deepcopy(table)
 
     def agents(self, table: dict | None, k: int, n_frames: int) -> AgentsSpec | None:
         """The ``[agents]`` table: phases (a count or start times), speed, optional start positions."""

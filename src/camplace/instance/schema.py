@@ -13,6 +13,7 @@ import numpy as np
 
 SCHEMA_VERSION = 1
 from camplace.geometry import rotation_from_euler_deg  # noqa: E402, F401  (re-exported)
+from camplace.instance.lab import PhysicalCamera, TransformConfig  # noqa: E402
 from camplace.names import SAMPLERS  # noqa: E402  (one list of the names)
 
 
@@ -360,14 +361,14 @@ class Instance:
         At least one.
     defaults : RunDefaults
     quality : QualitySpec
-    physical : dict or None
-        The validated ``[physical]`` table: the emulated physical camera used by validation when
-        there are no photographs (see :mod:`camplace.validation.physical`).
+    physical : PhysicalCamera or None
+        The parsed ``[physical]`` table (None when absent): the emulated physical camera used by
+        validation when there are no photographs (see :mod:`camplace.validation.physical`).
     robust : RobustSpec or None
         The ``[robust]`` table (None when absent): pose error the placement is optimised against.
-    transform : dict or None
-        The validated ``[transform]`` table: simulation-to-lab coordinate transform used by
-        ``camplace export`` (see :mod:`camplace.validation.transform`).
+    transform : TransformConfig or None
+        The parsed ``[transform]`` table (None when absent): simulation-to-lab coordinate transform
+        used by ``camplace export`` (see :mod:`camplace.validation.transform`).
     agents : AgentsSpec or None
         The ``[agents]`` table: agents that move between phases of the event (``camplace plan``).
     source : str
@@ -385,8 +386,8 @@ class Instance:
     defaults: RunDefaults = RunDefaults()
     source: str = ""
     quality: QualitySpec = QualitySpec()
-    physical: dict | None = None
-    transform: dict | None = None
+    physical: PhysicalCamera | None = None
+    transform: TransformConfig | None = None
     agents: AgentsSpec | None = None
     robust: RobustSpec | None = None
 

@@ -22,6 +22,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 from camplace._io import write_bytes_atomic, write_text_atomic
 from camplace.geometry import ply_bytes
+from camplace.instance.lab import PhysicalCamera
 from camplace.instance.parse import _one_line
 from camplace.instance.schema import SCHEMA_VERSION, Instance, Mesh, QualitySpec
 
@@ -81,6 +82,15 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             comments[key] = f"read from: {mesh.source[len('file:'):]}" + (f" (scale {spec['scale']})" if "scale" in spec else "")
         return {"name": mesh.name, "file": rel}
 
+    def occluder_table(occ, key: str, file_stem: str) -> dict:
+        """An occluder's mesh table with its pose (and ``ground``, which only static occluders have)."""
+        t = mesh_table(occ.mesh, key, f"{file_stem}_{_slug(occ.mesh.name)}")
+        t["position_m"] = _vec(occ.pose.position_m)
+        t["rotation_deg"] = _vec(occ.pose.rotation_deg)
+        if occ.ground:
+            t["ground"] = True
+        return t
+
     cam = instance.camera
     d = instance.defaults
     data: dict[str, Any] = {
@@ -109,15 +119,8 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
         "target": mesh_table(instance.target, "target", "target"),
     }
     if instance.occluders:
-        occs = []
-        for i, occ in enumerate(instance.occluders):
-            t = mesh_table(occ.mesh, f"occluders[{i}]", f"occluder{i}_{_slug(occ.mesh.name)}")
-            t["position_m"] = _vec(occ.pose.position_m)
-            t["rotation_deg"] = _vec(occ.pose.rotation_deg)
-            if occ.ground:
-                t["ground"] = True
-            occs.append(t)
-        data["occluders"] = occs
+        data["occluders"] = [occluder_table(occ, f"occluders[{i}]", f"occluder{i}")
+                             for i, occ in enumerate(instance.occluders)]
     q = instance.quality
     if q != QualitySpec():
         data["quality"] = {
@@ -132,10 +135,11 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             "position_sigma_m": float(r.position_sigma_m), "rotation_sigma_deg": float(r.rotation_sigma_deg),
             "scenarios": int(r.scenarios), "objective": r.objective, "eval_scenarios": int(r.eval_scenarios),
         }
-    for key in ("physical", "transform"):
-        table = getattr(instance, key)
-        if table is not None:
-            data[key] = copy.deepcopy(table)
+    if instance.physical is not None:  # the fields that differ from a perfect camera
+        perfect = PhysicalCamera().to_dict()
+        data["physical"] = {k: v for k, v in instance.physical.to_dict().items() if v != perfect[k]}
+    if instance.transform is not None:
+        data["transform"] = instance.transform.to_dict()
     agents = getattr(instance, "agents", None)
     if agents is not None:
         at: dict[str, Any] = {}
@@ -170,13 +174,8 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
                 write_text_atomic(out_dir / rel, text)
                 ft["emitters"] = {"file": rel}
         if f.occluders:
-            occs = []
-            for j, occ in enumerate(f.occluders):
-                t = mesh_table(occ.mesh, f"frames[{i}].occluders[{j}]", f"frame{i}_occluder{j}_{_slug(occ.mesh.name)}")
-                t["position_m"] = _vec(occ.pose.position_m)
-                t["rotation_deg"] = _vec(occ.pose.rotation_deg)
-                occs.append(t)
-            ft["occluders"] = occs
+            ft["occluders"] = [occluder_table(occ, f"frames[{i}].occluders[{j}]", f"frame{i}_occluder{j}")
+                               for j, occ in enumerate(f.occluders)]
         frames.append(ft)
     data["frames"] = frames
 

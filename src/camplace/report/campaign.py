@@ -1,18 +1,18 @@
 """Campaigns: random k-camera systems scored with the solver's objective and the thesis's legacy score.
 
 A campaign of ``N`` systems samples ``N * k`` camera positions inside the instance's volume with one
-of the samplers (chaotic, uniform, sobol), aims each at the event (:func:`camplace.pipeline.event_aims`;
+of the samplers (chaotic, uniform, sobol), aims each at the event (:func:`camplace.event.event_aims`;
 with several aim points each camera gets one at random), groups them k by k into systems, and scores
 each system
 
 * with the **objective** the solver maximises: the weight of the matrix rows observed by at least one
   of its cameras (:func:`camplace.solver.coverage_weight`), on exactly the rows a ``camplace run``
-  with the same ``seed`` and ``points`` uses (:func:`camplace.pipeline.compute_points`), weighted
-  as the run's ``--event-mode`` weights them (:func:`camplace.pipeline.event_weights`); the
+  with the same ``seed`` and ``points`` uses (:func:`camplace.visibility.stages.compute_points`), weighted
+  as the run's ``--event-mode`` weights them (:func:`camplace.event.event_weights`); the
   cameras' visibility columns come from the same ray caster (and cache) as a run's;
 * with the thesis's **legacy** score (Algorithm 2, :mod:`camplace.report.legacy`, literal).
 
-Positions are drawn like a run's candidates (above any ground, :func:`camplace.pipeline.make_run_candidates`)
+Positions are drawn like a run's candidates (above any ground, :func:`camplace.visibility.stages.make_run_candidates`)
 but from their own seed stream, independent of a run's candidates and points:
 ``SeedSequence(seed).spawn(3)[2]`` (a run uses children 0 and 1), split into positions and aims.
 
@@ -118,7 +118,7 @@ def scoring_of(solution) -> dict[str, Any]:
 
     Parameters
     ----------
-    solution : camplace.pipeline.Solution
+    solution : camplace.solution.Solution
 
     Returns
     -------
@@ -160,7 +160,7 @@ def score_systems(matrix, weights: np.ndarray, columns: np.ndarray, *, mode: str
     import scipy.sparse as sp
 
     from camplace.solver import coverage_weight
-    from camplace.solver.modes import mode_value
+    from camplace.solver.objectives import mode_value
 
     if mode == "maxcover":
         csc = sp.csc_matrix(matrix)
@@ -300,7 +300,7 @@ class Campaign:
 
     def to_dict(self) -> dict[str, Any]:
         """The ``campaign.json`` content."""
-        from camplace.pipeline import versions
+        from camplace.solution import versions
 
         return {
             "format": FORMAT,
@@ -402,8 +402,8 @@ class Campaign:
 
 
 def _camera_poses(instance, sampler: str, n_cams: int, aims: np.ndarray, seed: int):
-    """Positions of a run's sampler (above any ground, :func:`~camplace.pipeline.make_run_candidates`), each aimed at one of ``aims``."""
-    from camplace.pipeline import make_run_candidates
+    """Positions of a run's sampler (above any ground, :func:`~camplace.visibility.stages.make_run_candidates`), each aimed at one of ``aims``."""
+    from camplace.visibility.stages import make_run_candidates
     from camplace.sampling import look_at
 
     pos_seed, aim_seed = campaign_seed(seed).spawn(2)
@@ -454,7 +454,7 @@ def run_campaign(
     k : int or None
         Cameras per system (default: the instance's k).
     orientations : int or None
-        Aim points (:func:`~camplace.pipeline.event_aims`; default: the instance's); each camera
+        Aim points (:func:`~camplace.event.event_aims`; default: the instance's); each camera
         aims at one of them, drawn at random.
     aims : (a, 3) float64 or None
         Explicit aim points (overrides ``orientations``), e.g. those of a run's candidates.
@@ -470,7 +470,7 @@ def run_campaign(
     reporter : camplace._progress.Reporter or None
     rows : camplace.visibility.TargetPoints or None
         The matrix rows to score on, e.g. a run's ``points.csv`` (default: the rows of a run
-        with this ``seed`` and ``points``, :func:`camplace.pipeline.compute_points`).
+        with this ``seed`` and ``points``, :func:`camplace.visibility.stages.compute_points`).
     mode, views, min_angle_deg
         The objective that scores the systems (:func:`score_systems`; default maxcover).
 
@@ -482,7 +482,9 @@ def run_campaign(
     """
     from camplace._progress import Reporter
     from camplace.instance import resolve_instance
-    from camplace.pipeline import EVENT_MODES, compute_points, event_aims, event_weights, visibility_stage
+    from camplace.event import event_aims, event_weights
+    from camplace.names import EVENT_MODES
+    from camplace.visibility.stages import compute_points, visibility_stage
     from camplace.sampling import SAMPLERS, CandidateSet
 
     if not hasattr(instance, "frames"):

@@ -174,7 +174,7 @@ def plan_section(run) -> str:
         except (ValueError, TypeError) as exc:  # a malformed timeline must not stop the report
             log.warning("report: plan timeline figure skipped (%s)", exc)
     pos = run.candidates.positions
-    from camplace.pipeline import event_centres  # the target and its emitters, weighted, per frame
+    from camplace.event import event_centres  # the target and its emitters, weighted, per frame
 
     track = event_centres(run.instance)
     start = np.asarray(doc["start_positions_m"], dtype=np.float64) if doc.get("start_positions_m") else None

@@ -1,8 +1,8 @@
 """Samplers compared: the best k-camera objective against the number of candidates, and discrepancy.
 
 For each sampler (chaotic, sobol, uniform) the study samples as many candidate positions as the
-run, as the run does (:func:`camplace.pipeline.make_run_candidates`, the run's candidate seed stream
-:func:`camplace.pipeline.stage_seeds` and aim points), so the run's own sampler reproduces exactly
+run, as the run does (:func:`camplace.visibility.stages.make_run_candidates`, the run's candidate seed stream
+:func:`camplace.visibility.stages.stage_seeds` and aim points), so the run's own sampler reproduces exactly
 the run's candidates (its matrix and solution are reused). Each
 sampler's sequence is nested (the first n positions of a longer sequence are the n-position
 sequence), so one visibility matrix per sampler serves every rung of the ladder: the solver is run
@@ -149,7 +149,7 @@ def sampler_study(
     from scipy.stats import qmc
 
     from camplace._progress import Reporter
-    from camplace.pipeline import make_run_candidates, stage_seeds, visibility_stage
+    from camplace.visibility.stages import make_run_candidates, stage_seeds, visibility_stage
     from camplace.sampling import SAMPLERS, CandidateSet
     from camplace.report.campaign import scoring_of
     from camplace.solver import solve

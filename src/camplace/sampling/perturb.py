@@ -42,7 +42,7 @@ from camplace.sampling.candidates import CandidateSet
 __all__ = ["DESIGNS", "IN_SAMPLE_STREAM", "OUT_OF_SAMPLE_STREAM", "pose_draws", "perturb_poses"]
 
 #: ``spawn_key`` stream of the scenarios a robust run optimises over (0 and 1 are the candidate and
-#: point streams of :func:`camplace.pipeline.stage_seeds`).
+#: point streams of :func:`camplace.visibility.stages.stage_seeds`).
 IN_SAMPLE_STREAM = 2
 #: Stream of the fresh scenarios of the out-of-sample check.
 OUT_OF_SAMPLE_STREAM = 3

@@ -332,6 +332,36 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     )
 
 
+def _fixed_base(q: sp.csr_matrix, w: np.ndarray, fixed: Sequence[int], mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """What the fixed cameras already give every row, and the row weights left to the new cameras.
+
+    Parameters
+    ----------
+    q : (m, n) scipy.sparse.csr_matrix
+    w : (m,) float64
+    fixed : sequence of int
+    mode : {"maxcover", "quality", "multiview"}
+
+    Returns
+    -------
+    base : (m,) float64
+        maxcover: 1.0 where a fixed camera observes the row; quality: the best fixed value;
+        multiview: how many fixed cameras observe the row (zeros without fixed cameras).
+    weights : (m,) float64
+        maxcover: ``w`` with the rows the fixed cameras cover set to 0; otherwise ``w``.
+    """
+    m = q.shape[0]
+    fx = list(fixed)
+    if not fx:
+        return np.zeros(m), w
+    if mode == "maxcover":
+        covered = np.diff(q[:, fx].tocsr().indptr) > 0
+        return covered.astype(np.float64), np.where(covered, 0.0, w)
+    if mode == "quality":
+        return q[:, fx].max(axis=1).toarray().ravel(), w
+    return np.asarray((q[:, fx] > 0).sum(axis=1)).ravel().astype(np.float64), w
+
+
 def _opposite_pair_cap(
     ctx: ModeOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
     cameras: int, allowed: np.ndarray, time_limit_s: float | None,
@@ -361,22 +391,12 @@ def _cover_modes(
 
     # Residual instance on the free columns: what the new cameras add on top of the fixed ones.
     qf = q if free_cols.size == n else q[:, free_cols].tocsr()
-    if mode == "maxcover":
-        covered = (np.diff(q[:, list(fixed_t)].tocsr().indptr) > 0) if fixed_t else np.zeros(m, dtype=bool)
-        resid_w = np.where(covered, 0.0, w)
-        resid = qf
-        base = covered.astype(np.float64)
-    elif mode == "quality":
-        base = q[:, list(fixed_t)].max(axis=1).toarray().ravel() if fixed_t else np.zeros(m)
-        resid = qf
-        if fixed_t:  # what a new camera adds over the fixed ones' best quality
-            resid = qf.copy()
-            resid.data = np.maximum(resid.data - np.repeat(base, np.diff(resid.indptr)), 0.0)
-            resid.eliminate_zeros()
-        resid_w = w
-    else:
-        base = np.asarray((q[:, list(fixed_t)] > 0).sum(axis=1)).ravel().astype(np.float64) if fixed_t else np.zeros(m)
-        resid, resid_w = qf, w
+    base, resid_w = _fixed_base(q, w, fixed_t, mode)
+    resid = qf
+    if mode == "quality" and fixed_t:  # what a new camera adds over the fixed ones' best quality
+        resid = qf.copy()
+        resid.data = np.maximum(resid.data - np.repeat(base, np.diff(resid.indptr)), 0.0)
+        resid.eliminate_zeros()
 
     budget = memory_budget_bytes()
     opts = SolveOptions(mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, engine=engine)
@@ -435,7 +455,8 @@ def _cover_modes(
         sel = tuple(sorted(set(fixed_t) | set(new))) if new else None
         objective = value(sel) if sel else fixed_value
         const = fixed_value if mode == "maxcover" else float(w @ base)
-        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": dict(out.stats)})
+        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
+                      "engine_stats": dict(out.stats)})
         return ModeOutcome(sel, out.status if sel else "unknown", objective, float(out.bound) + const, name, stats)
 
     # General model (SCIP / CP-SAT). The greedy answer comes first: it is the hint, and the answer
@@ -567,16 +588,7 @@ def _spaced_fallback(
                             "(lower k, or forbid/fix fewer cameras)")
     pts = points
     qf = q[:, free_cols].tocsr()
-    fx = list(fixed_t)
-    if mode == "maxcover":
-        base = ((np.diff(q[:, fx].tocsr().indptr) > 0) if fx else np.zeros(m, dtype=bool)).astype(np.float64)
-        gw = np.where(base > 0, 0.0, w)
-    elif mode == "quality":
-        base = q[:, fx].max(axis=1).toarray().ravel() if fx else np.zeros(m)
-        gw = w
-    else:
-        base = np.asarray((q[:, fx] > 0).sum(axis=1)).ravel().astype(np.float64) if fx else np.zeros(m)
-        gw = w
+    base, gw = _fixed_base(q, w, fixed_t, mode)
     msg = f"{exc.message}; returning the greedy answer with a bound that ignores the spacing"
     log.warning("%s", msg)
     local = greedy(qf.tocsc(), gw, mode, views, base, k, np.ones(free_cols.size, dtype=bool),

@@ -316,11 +316,11 @@ class CameraSet:
 
     @classmethod
     def from_solution(cls, solution, *, experiment: str = "", system: int = 1) -> "CameraSet":
-        """The chosen cameras of a :class:`camplace.pipeline.Solution`, named ``e{experiment}.{system}.camera_{n}``.
+        """The chosen cameras of a :class:`camplace.solution.Solution`, named ``e{experiment}.{system}.camera_{n}``.
 
         Parameters
         ----------
-        solution : camplace.pipeline.Solution
+        solution : camplace.solution.Solution
         experiment : str
             Experiment name (default: the solution's instance name).
         system : int

@@ -114,7 +114,7 @@ def load_run_objective(outdir: str | Path, instance) -> RunObjective:
     event_mode = str(opts.get("event_mode") or data.get("event_mode") or "all")
     pts = TargetPoints.load(outdir / "points.csv")
     weights = np.asarray(pts.weight, dtype=np.float64)
-    if event_mode == "peak":  # as camplace.pipeline.event_weights
+    if event_mode == "peak":  # as camplace.event.event_weights
         peak = int(np.argmax([f.weight for f in instance.frames]))
         weights = np.where(pts.frame == peak, weights, 0.0)
         total = weights.sum()

@@ -16,7 +16,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from camplace._io import write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
 from camplace.geometry import box_mesh  # noqa: F401  (also re-exported)
 from camplace.validation.cameras import CameraSet, CameraView, camera_stem
+
+if TYPE_CHECKING:
+    from camplace.instance.lab import TransformConfig
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +36,6 @@ __all__ = [
     "frame_stem",
     "render_run",
     "read_table_file",
-    "run_table",
     "Photo",
     "read_manifest",
     "find_photos",
@@ -60,7 +62,7 @@ def load_run(outdir: str | Path):
     Returns
     -------
     instance : camplace.instance.Instance
-    solution : camplace.pipeline.Solution
+    solution : camplace.solution.Solution
     """
     from camplace.runfolder import RunFolder
 
@@ -121,16 +123,6 @@ def _toml_loads(text: str, path: Path) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CamplaceError(f"{path}: not valid TOML ({exc})") from None
-
-
-def run_table(outdir: str | Path, table: str) -> dict[str, Any] | None:
-    """The raw ``[table]`` of a run's ``instance.toml`` (e.g. ``physical``, ``transform``), or None."""
-    path = Path(outdir) / "instance.toml"
-    if not path.exists():
-        return None
-    data = _toml_loads(path.read_text(), path)
-    inner = data.get(table)
-    return inner if isinstance(inner, dict) else None
 
 
 # --------------------------------------------------------------------------------------------------
@@ -540,20 +532,14 @@ def _write_cameras_scene(out: Path, cameras, target, **scene_options) -> None:
     write_scene3d(out, cameras_scene(cameras, target, **scene_options))
 
 
-def _run_physical(outdir: str | Path, instance):
-    """The physical camera of a run: the instance's ``physical`` attribute (once the loader knows the
-    table), else the raw ``[physical]`` table of its instance.toml, else a perfect camera."""
-    from camplace.validation.physical import PhysicalCamera, parse_physical
+def _run_physical(instance):
+    """The physical camera of a run: its instance's parsed ``[physical]`` table, else a perfect camera."""
+    from camplace.instance.lab import PhysicalCamera
 
-    where = f"{Path(outdir) / 'instance.toml'}: [physical]"
-    attr = getattr(instance, "physical", None)
-    if isinstance(attr, PhysicalCamera):
-        return attr
-    table = attr if isinstance(attr, dict) else run_table(outdir, "physical")
-    if table is None:
+    if instance.physical is None:
         log.warning("no photos and no [physical] table: emulating a perfect camera (photos equal the renders)")
         return PhysicalCamera()
-    return parse_physical(table, where)
+    return instance.physical
 
 
 def _random_systems(outdir: Path, instance, solution, n: int, rng: np.random.Generator, experiment: str, first_system: int) -> list[list[CameraView]]:
@@ -643,7 +629,7 @@ def validate_runs(
         photos = find_photos(all_cams, photos_dir, manifest)
     else:
         if physical is None:
-            physical = _run_physical(outdirs[0], instance0)
+            physical = _run_physical(instance0)
     inst_plan = None if photos is not None else InstalledSystems.plan(outdirs, runs, systems, physical, seed, installations, frame)
     scenes: dict[int, tuple[Any, Any]] = {}
     records, overlays, manifest_rows = [], [], []
@@ -744,7 +730,7 @@ def _photograph_installations(plan, systems, scenes, physical, frame: int, *, se
 # export
 
 
-def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[str, Any] | None = None,
+def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[str, Any] | TransformConfig | None = None,
                transform_source: str = "", out: str | Path | None = None) -> tuple[Path, Path]:
     """Write the chosen cameras' placement in the simulation or physical frame.
 
@@ -753,8 +739,9 @@ def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[s
     outdir : path
         A ``camplace run`` output folder.
     frame : {"physical", "simulation"}
-    transform : dict or None
-        The ``[transform]`` table (physical frame); default: the run's ``instance.toml`` ``[transform]``.
+    transform : dict, TransformConfig or None
+        The ``[transform]`` table (physical frame), raw (parsed here) or parsed; default: the
+        run's instance's :attr:`~camplace.instance.Instance.transform`.
     transform_source : str
         Where ``transform`` came from (for error messages).
     out : path or None
@@ -765,19 +752,22 @@ def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[s
     (csv path, json path) of ``placement.{frame}.csv`` / ``.json``
     """
     from camplace.runfolder import RunFolder
+    from camplace.instance.lab import TransformConfig
     from camplace.validation.transform import build_transform, parse_transform, placement_rows, write_placement
 
     outdir = Path(outdir)
-    solution = RunFolder(outdir).solution
+    run = RunFolder(outdir)
+    solution = run.solution
     if frame == "simulation":
-        tr = build_transform(parse_transform(None))
+        tr = build_transform(TransformConfig())
     elif frame == "physical":
         if transform is None:
-            transform = run_table(outdir, "transform")
-            transform_source = f"{outdir / 'instance.toml'}: [transform]"
+            transform = run.instance.transform
             if transform is None:
                 raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table (add one or pass --transform FILE; see docs/validation.md)")
-        tr = build_transform(parse_transform(transform, transform_source or "[transform]"))
+        if not isinstance(transform, TransformConfig):
+            transform = parse_transform(transform, transform_source or "[transform]")
+        tr = build_transform(transform)
     else:
         raise CamplaceError(f"--frame: must be physical or simulation, got {frame!r}")
     exp = solution.instance or "camplace"

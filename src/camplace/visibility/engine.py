@@ -110,21 +110,6 @@ class VisibilityMatrix:
         return save_matrix(Path(outdir), self.matrix, fmt=matrix_format, link_from=self.store_path,
                            meta={"stats": counts} if counts else None)
 
-    @classmethod
-    def load(cls, outdir: str | Path) -> "VisibilityMatrix":
-        """Read the matrix (``visibility.cpm`` or ``visibility.npz``) and ``points.csv`` from a run's output folder."""
-        from camplace.visibility.store import load_visibility, matrix_path
-
-        outdir = Path(outdir)
-        mpath = matrix_path(outdir)
-        matrix = load_visibility(mpath)
-        points = TargetPoints.load(outdir / "points.csv")
-        if matrix.shape[0] != len(points):
-            raise CamplaceError(
-                f"{outdir}: {mpath.name} has {matrix.shape[0]} rows but points.csv has {len(points)} (re-run)"
-            )
-        return cls(matrix=matrix, points=points)
-
 
 def frame_scene(instance, frame: int) -> RayScene:
     """Embree scene of everything that occludes in ``frame``: occluders and the posed target."""
