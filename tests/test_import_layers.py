@@ -96,7 +96,7 @@ def test_the_checker_finds_a_cycle() -> None:
     assert cycles({"a": {"b"}, "b": set()}) == []
 
 
-@pytest.mark.parametrize("package", ["instance", "sampling", "visibility", "plan", "validation"])
+@pytest.mark.parametrize("package", ["instance", "sampling", "visibility", "plan", "validation", "report"])
 def test_no_import_cycles_in(package: str) -> None:
     g = graph((package,))
     assert len(g) > 3

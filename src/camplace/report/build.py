@@ -8,9 +8,7 @@ Every string that comes from a file or the user is escaped with :func:`html.esca
 
 from __future__ import annotations
 
-import base64
 import csv
-import html
 import json
 import logging
 import math
@@ -23,6 +21,7 @@ import numpy as np
 
 from camplace._io import write_text_atomic
 from camplace.errors import CamplaceError
+from camplace.report.markup import _img, _num, _table, _vec, esc
 
 log = logging.getLogger(__name__)
 
@@ -52,57 +51,6 @@ nav a{margin-right:12px}
 """
 
 CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'"  # scripts: the 3D view
-
-
-# --------------------------------------------------------------------------------------------------
-# small helpers
-
-
-def esc(value: Any) -> str:
-    """HTML-escaped ``str(value)``."""
-    return html.escape(str(value), quote=True)
-
-
-def _num(v: Any, digits: int = 4) -> str:
-    if v is None:
-        return "–"
-    if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
-        return f"{int(v):,}"
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        return esc(v)
-    if not math.isfinite(f):
-        return "–"
-    return f"{f:.{digits}f}"
-
-
-def _vec(v: Sequence[float], digits: int = 3) -> str:
-    return "(" + ", ".join(f"{float(x):.{digits}f}" for x in v) + ")"
-
-
-def _table(header: Sequence[str] | None, rows: Sequence[Sequence[Any]], left: int = 1) -> str:
-    """An HTML table; cells are escaped unless given as ``("raw", html)``; the first ``left`` columns are left-aligned."""
-    def cell(tag: str, i: int, v: Any) -> str:
-        cls = ' class="l"' if i < left else ""
-        text = v[1] if isinstance(v, tuple) and len(v) == 2 and v[0] == "raw" else esc(v)
-        return f"<{tag}{cls}>{text}</{tag}>"
-
-    out = ["<table>"]
-    if header:
-        out.append("<thead><tr>" + "".join(cell("th", i, h) for i, h in enumerate(header)) + "</tr></thead>")
-    out.append("<tbody>")
-    for r in rows:
-        out.append("<tr>" + "".join(cell("td", i, v) for i, v in enumerate(r)) + "</tr>")
-    out.append("</tbody></table>")
-    return "".join(out)
-
-
-def _img(png: bytes, alt: str, caption: str = "", width: int | None = None) -> str:
-    b64 = base64.b64encode(png).decode("ascii")
-    w = f' width="{int(width)}"' if width else ""
-    cap = f"<figcaption>{caption}</figcaption>" if caption else ""
-    return f'<figure><img src="data:image/png;base64,{b64}" alt="{esc(alt)}"{w}>{cap}</figure>'
 
 
 def percentile_of(values: np.ndarray, x: float, tie: float = 1e-12) -> float:

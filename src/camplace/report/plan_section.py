@@ -122,7 +122,7 @@ def _read_timeline(path: Path) -> dict[str, np.ndarray]:
 def plan_section(run) -> str:
     """HTML of the "Moving agents" section for a run (:class:`~camplace.report.compare.RunData`); "" without plan.json."""
     from camplace.plan.io import load_plan
-    from camplace.report.build import _img, _num, _table, esc
+    from camplace.report.markup import _img, _num, _table, esc
 
     path = Path(run.outdir) / "plan.json"
     if not path.is_file():
