@@ -64,9 +64,10 @@ def test_orlib_proven_optimum(name: str, capsys) -> None:
 
 @pytest.mark.slow
 def test_orlib_scpnre1_reaches_optimum_within_limit(capsys) -> None:
-    """scpnre1: SCIP proves 29 in ~100 s on 2 cores; CI checks the value within 60 s and reports the status."""
+    """scpnre1: SCIP alone proves 29 in ~100 s on 2 cores; the search reaches it within 10 s on an idle
+    machine (docs/solver.md); CI checks the value within 20 s (margin for a loaded runner)."""
     best = {n: v for n, v, _ in _known()}["scpnre1.txt"]
-    res = _run_cli(["setcover", str(SETCOVER / "scpnre1.txt"), "--format", "orlib", "--json", "--time-limit", "60"], capsys)
+    res = _run_cli(["setcover", str(SETCOVER / "scpnre1.txt"), "--format", "orlib", "--json", "--time-limit", "20"], capsys)
     inst = read_orlib(SETCOVER / "scpnre1.txt")
     assert res["cost"] == best
     assert _covers(inst.matrix, res["selected"])
