@@ -167,7 +167,8 @@ def _recount_scores(red: S.CoverReduction, x: np.ndarray, pw: np.ndarray) -> tup
     return cov, np.where(x > 0, -loss, gain)
 
 
-@pytest.mark.parametrize("mode,cc_remove,rwls", [(0, False, True), (1, False, True), (2, True, True), (1, False, False)])
+@pytest.mark.parametrize("mode,cc_remove,rwls",
+                         [(0, False, True), (1, False, True), (2, True, True), (1, False, False)])
 def test_unicost_incremental_state_matches_a_recount(monkeypatch, mode: int, cc_remove: bool, rwls: bool) -> None:
     """Unit costs use the RWLS moves by default (the joint swaps on request); after any number of
     iterations (the three penalty schemes, with and without configuration checking on removals) the
