@@ -242,8 +242,9 @@ def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stam
 
 @numba.njit(**_JIT)
 def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
-               uncpos, ist, fst):  # pragma: no cover - compiled
-    """Take column ``j`` out of the solution and update every score incrementally."""
+               uncpos, ist, fst, inc=0.0):  # pragma: no cover - compiled
+    """Take column ``j`` out of the solution and update every score incrementally; the penalty of
+    every row it leaves uncovered rises by ``inc`` on the way (the same as :func:`_bump` after)."""
     x[j] = 0
     p0 = selpos[j]
     last = sel[ist[NSEL] - 1]
@@ -264,6 +265,9 @@ def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, s
             fst[COVW] -= roww[i]
             _unc_add(i, unc, uncpos, ist)
             ist[WORK] += rptr[i + 1] - rptr[i]
+            if inc != 0.0:
+                pw[i] += inc
+                score[j] += inc
             for q in range(rptr[i], rptr[i + 1]):
                 k = rcol[q]
                 if k != j:
@@ -611,21 +615,13 @@ def _cc_ok(c, cptr, crow, rchg, cblk, ist):  # pragma: no cover - compiled
 
 @numba.njit(**_JIT)
 def _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
-                 ist, fst, rchg, cblk, clk, cc_remove):  # pragma: no cover - compiled
+                 ist, fst, rchg, cblk, clk, cc_remove, inc):  # pragma: no cover - compiled
     remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos, ist,
-               fst)
+               fst, inc)
     if cc_remove:
         _cc_touch(j, cptr, crow, rchg, clk)
     clk[0] += 1
     cblk[j] = clk[0]
-
-
-@numba.njit(**_JIT)
-def _bump_left(j, cptr, crow, rptr, rcol, cov, pw, score, ist):  # pragma: no cover - compiled
-    """Raise by 1 the penalty of every uncovered row of column ``j`` (just removed)."""
-    for p in range(cptr[j], cptr[j + 1]):
-        if cov[crow[p]] == 0:
-            _bump(crow[p], rptr, rcol, pw, score, 1.0, ist)
 
 
 @numba.njit(**_JIT)
@@ -665,16 +661,12 @@ def search_rwls(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, scor
                 return 1
             j = _pick_remove(-1, cost, score, stamp, sel, ist)
             _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
-                         uncpos, ist, fst, rchg, cblk, clk, cc_remove)
-            if wmode == 2:
-                _bump_left(j, cptr, crow, rptr, rcol, cov, pw, score, ist)
+                         uncpos, ist, fst, rchg, cblk, clk, cc_remove, 1.0 if wmode == 2 else 0.0)
         if ist[NSEL] > 1:
             j = _pick_remove(ist[LADD], cost, score, stamp, sel, ist)
             _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
-                         uncpos, ist, fst, rchg, cblk, clk, cc_remove)
+                         uncpos, ist, fst, rchg, cblk, clk, cc_remove, 1.0 if wmode >= 1 else 0.0)
             ist[LREM] = j
-            if wmode >= 1:
-                _bump_left(j, cptr, crow, rptr, rcol, cov, pw, score, ist)
         i = unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))]
         ist[WORK] += rptr[i + 1] - rptr[i]
         k = -1
