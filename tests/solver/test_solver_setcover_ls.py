@@ -157,6 +157,54 @@ def test_same_seed_and_iterations_same_answer_in_any_number_of_calls() -> None:
     assert r1.selected == r2.selected and r1.objective == r2.objective
 
 
+def _recount_scores(red: S.CoverReduction, x: np.ndarray, pw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Coverage counts and scores from their definition: a column of S loses the penalty of the rows
+    only it covers, a column outside gains the penalty of the uncovered rows it covers."""
+    a = red.csr().toarray() > 0
+    cov = a[:, x > 0].sum(axis=1)
+    gain = a.T.astype(float) @ (pw * (cov == 0))
+    loss = a.T.astype(float) @ (pw * (cov == 1))
+    return cov, np.where(x > 0, -loss, gain)
+
+
+@pytest.mark.parametrize("mode,cc_remove,rwls",
+                         [(0, False, True), (1, False, True), (2, True, True), (1, False, False)])
+def test_unicost_incremental_state_matches_a_recount(monkeypatch, mode: int, cc_remove: bool, rwls: bool) -> None:
+    """Unit costs use the RWLS moves by default (the joint swaps on request); after any number of
+    iterations (the three penalty schemes, with and without configuration checking on removals) the
+    incremental coverage and scores equal a recount, the uncovered-row list is exact, and the best
+    solution is a cover of the recorded size."""
+    monkeypatch.setattr(S, "RWLS_PENALTY_MODE", mode)
+    monkeypatch.setattr(S, "RWLS_CC_ON_REMOVE", cc_remove)
+    rng = np.random.default_rng(11)
+    dense = rng.random((120, 150)) < 0.05
+    dense = dense[dense.any(axis=1)]
+    red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(150))
+    ls = S.LocalSearch(red, seed=1, rwls=None if rwls else False)
+    assert ls.rwls == rwls
+    for stop in (1, 50, 777, 5000):
+        ls.run(max_iterations=stop)
+        cov, score = _recount_scores(red, ls.x, ls.pw)
+        assert np.array_equal(ls.cov, cov)
+        np.testing.assert_allclose(ls.score, score, rtol=1e-12, atol=1e-9)
+        unc = np.sort(ls.unc[: int(ls.ist[S.K.NUNC])])
+        assert np.array_equal(unc, np.flatnonzero(cov == 0))
+        assert int(ls.ist[S.K.NSEL]) == int(ls.x.sum()) == float(red.cost[ls.x > 0].sum()) == ls.fst[S.K.COST]
+        best_cov, _ = _recount_scores(red, ls.best, ls.pw)
+        assert np.all(best_cov > 0) and float(ls.best.sum()) == ls.best_cost
+    assert ls.pw.max() > 1.0  # the penalties did move
+
+
+def test_weighted_or_partial_covers_keep_the_weighted_search() -> None:
+    rng = np.random.default_rng(3)
+    dense = rng.random((40, 30)) < 0.2
+    dense = dense[dense.any(axis=1)]
+    a = sp.csr_matrix(dense.astype(float))
+    assert not S.LocalSearch(S.reduce_cover(a, rng.integers(1, 5, 30).astype(float)), seed=0).rwls
+    w = np.ones(dense.shape[0])
+    assert not S.LocalSearch(S.reduce_cover(a, np.ones(30), w, 0.5 * w.sum()), seed=0).rwls
+
+
 def test_memory_estimate_stops_with_one_line(monkeypatch) -> None:
     monkeypatch.setattr(S, "memory_budget_bytes", lambda: 1000)
     with pytest.raises(CamplaceError) as ei:

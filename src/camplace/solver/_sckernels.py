@@ -242,8 +242,9 @@ def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stam
 
 @numba.njit(**_JIT)
 def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
-               uncpos, ist, fst):  # pragma: no cover - compiled
-    """Take column ``j`` out of the solution and update every score incrementally."""
+               uncpos, ist, fst, inc=0.0):  # pragma: no cover - compiled
+    """Take column ``j`` out of the solution and update every score incrementally; the penalty of
+    every row it leaves uncovered rises by ``inc`` on the way (the same as :func:`_bump` after)."""
     x[j] = 0
     p0 = selpos[j]
     last = sel[ist[NSEL] - 1]
@@ -264,6 +265,9 @@ def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, s
             fst[COVW] -= roww[i]
             _unc_add(i, unc, uncpos, ist)
             ist[WORK] += rptr[i + 1] - rptr[i]
+            if inc != 0.0:
+                pw[i] += inc
+                score[j] += inc
             for q in range(rptr[i], rptr[i + 1]):
                 k = rcol[q]
                 if k != j:
@@ -583,6 +587,108 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
         elif ist[NUNC] > 0:
             _bump(unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))], rptr, rcol, pw, score, 1.0,
                   ist)
+    return 0
+
+
+@numba.njit(**_JIT)
+def _cc_touch(j, cptr, crow, rchg, clk):  # pragma: no cover - compiled
+    """Configuration checking: column ``j`` changes state (event ``clk[0]``); every row of it
+    records the event, which frees the columns sharing it (see :func:`_cc_ok`)."""
+    clk[0] += 1
+    for p in range(cptr[j], cptr[j + 1]):
+        rchg[crow[p]] = clk[0]
+
+
+@numba.njit(**_JIT)
+def _cc_ok(c, cptr, crow, rchg, cblk, ist):  # pragma: no cover - compiled
+    """True when column ``c`` may be added: never removed, or a column sharing a row with it
+    changed state after its removal (event ``cblk[c]``)."""
+    if cblk[c] == 0:
+        return True
+    ist[WORK] += cptr[c + 1] - cptr[c]
+    for p in range(cptr[c], cptr[c + 1]):
+        if rchg[crow[p]] > cblk[c]:
+            cblk[c] = 0
+            return True
+    return False
+
+
+@numba.njit(**_JIT)
+def _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
+                 ist, fst, rchg, cblk, clk, cc_remove, inc):  # pragma: no cover - compiled
+    remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos, ist,
+               fst, inc)
+    if cc_remove:
+        _cc_touch(j, cptr, crow, rchg, clk)
+    clk[0] += 1
+    cblk[j] = clk[0]
+
+
+@numba.njit(**_JIT)
+def search_rwls(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
+                best, ist, fst, rng, steps, target, stop_it, patience, rchg, cblk, clk, cc_remove,
+                wmode):  # pragma: no cover - compiled
+    """RWLS (Gao, Weise and Li 2015) for unit costs and full covers, ``steps`` iterations.
+
+    One iteration: while S is a cover, it is recorded and its column of highest score (least loss;
+    ties: unchanged for longest) removed. Then the column of S of highest score other than the one
+    just added is removed, a random uncovered row drawn and its column of highest score that
+    configuration checking allows (ties: unchanged for longest; the best one anyway if all are
+    blocked) added. Configuration checking: a
+    removed column may not be added back until a column sharing a row with it is added (or, with
+    ``cc_remove``, removed); kept lazily as the last event of every row (``rchg``, (m,) int64)
+    and the removal event of every column (``cblk``, (n,) int64, 0: free), ``clk`` (1,) int64
+    the event counter. Penalties (``wmode``): 0 (RWLS) raise every uncovered row by 1 after the
+    move; 1 raise the rows the removed column leaves uncovered, before the addition; 2 as 1, and
+    also after the removals from a cover (fontanf/setcoveringsolver's row weighting 1).
+
+    Returns
+    -------
+    int
+        As :func:`search`.
+    """
+    for _ in range(steps):
+        if fst[BEST_COST] <= target:
+            return 1
+        if ist[IT] >= stop_it:
+            return 2
+        if ist[WORK] - 2 * ist[BEST_WORK] >= patience:
+            return 4
+        ist[IT] += 1
+        while ist[NUNC] == 0:
+            _record(x, best, cov, roww, need, ist, fst)
+            if ist[NSEL] == 0 or fst[BEST_COST] <= target:
+                return 1
+            j = _pick_remove(-1, cost, score, stamp, sel, ist)
+            _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
+                         uncpos, ist, fst, rchg, cblk, clk, cc_remove, 1.0 if wmode == 2 else 0.0)
+        if ist[NSEL] > 1:
+            j = _pick_remove(ist[LADD], cost, score, stamp, sel, ist)
+            _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
+                         uncpos, ist, fst, rchg, cblk, clk, cc_remove, 1.0 if wmode >= 1 else 0.0)
+            ist[LREM] = j
+        i = unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))]
+        ist[WORK] += rptr[i + 1] - rptr[i]
+        k = -1
+        for q in range(rptr[i], rptr[i + 1]):
+            c = rcol[q]
+            if k >= 0 and (score[c] < score[k] or (score[c] == score[k] and stamp[c] >= stamp[k])):
+                continue
+            if _cc_ok(c, cptr, crow, rchg, cblk, ist):
+                k = c
+        if k < 0:  # every column of the row is blocked: the oldest one of highest score
+            for q in range(rptr[i], rptr[i + 1]):
+                c = rcol[q]
+                if k < 0 or score[c] > score[k] or (score[c] == score[k] and stamp[c] < stamp[k]):
+                    k = c
+        add_col(k, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
+                ist, fst)
+        _cc_touch(k, cptr, crow, rchg, clk)
+        cblk[k] = 0
+        ist[LADD] = k
+        if wmode == 0:
+            for t in range(ist[NUNC]):
+                _bump(unc[t], rptr, rcol, pw, score, 1.0, ist)
     return 0
 
 

@@ -12,15 +12,20 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    taken from an item's rarest element.
 2. **Local search** (:class:`LocalSearch`): greedy (best gain per cost) plus redundancy removal,
    then row-weighting local search after RWLS (Gao, Weise and Li 2015): every row has a penalty
-   weight, raised by 1 for every uncovered row after each move, and a column's score is the
+   weight, raised by 1 while it is uncovered, and a column's score is the
    penalty it would cover (outside the solution) or leave uncovered (inside). Whenever the
    solution covers everything it is recorded and its least useful column removed, so the search
-   always looks for a cover one column cheaper than the best. With equal costs a move is the best
-   joint swap of fontanf/setcoveringsolver: add one of the columns covering a random uncovered row
-   and remove one column, chosen together (the overlap of the two counts), candidates tried by
-   decreasing gain with an exact cut-off; with costs, RWLS moves with gain / cost ratios.
-   Tabu: the column just added is not removed next, the one just removed not added back; ties go
-   to the column unchanged for longest. Scores are incremental: a move only touches the rows
+   always looks for a cover one column cheaper than the best. With equal costs (full covers) a
+   move is RWLS's (:func:`_sckernels.search_rwls`): remove the column of least loss (not the one
+   just added), add the column of largest gain covering a random uncovered row that configuration
+   checking allows (a removed column waits until a column sharing a row with it is added), the
+   penalties raised on the rows the removed column leaves uncovered (close to
+   fontanf/setcoveringsolver's row weighting 1, :data:`RWLS_PENALTY_MODE`); ``rwls=False`` gives
+   the best joint swap of its row weighting 2 instead (add one of the columns covering a random
+   uncovered row and remove one column, chosen together, candidates tried by decreasing gain with
+   an exact cut-off). With costs, RWLS moves with gain / cost ratios, penalties raised on every
+   uncovered row. Tabu: the column just added is not removed next, the one just removed not
+   added back; ties go to the column unchanged for longest. Scores are incremental: a move only touches the rows
    whose coverage changes between 0, 1 and 2 (the only coverer of a row is kept as the sum of
    its coverers' indices). The search stops at an iteration budget, a time limit, the bound, or
    on patience, counted in work units (score updates), not seconds: a seed and an iteration
@@ -72,6 +77,12 @@ _LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit: the first search's share of t
 _LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
 _MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resumes after it)
 MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
+# unit costs, full cover: RWLS moves (:func:`_sckernels.search_rwls`); penalties raised on the rows the
+# removed column leaves uncovered (1; 2 also after the removals from a cover, as in
+# fontanf/setcoveringsolver's row weighting 1) or on every uncovered row after the move (0, RWLS);
+# configuration checking freed by additions only
+RWLS_PENALTY_MODE = 1
+RWLS_CC_ON_REMOVE = False
 # patience of the search, in work units (score updates; about 1e8 to 1e9 a second): 2,000 per
 # nonzero of the reduced matrix, between these limits; a tenth of it for the first search (the one
 # before SCIP / CP-SAT may run)
@@ -346,13 +357,24 @@ class LocalSearch:
         Seed of the search's own random generator (same seed and iterations: same answer).
     start : sequence of int, optional
         Reduced columns of a cover to start from instead of the greedy one.
+    max_cand, joint
+        Candidates per move and use of the joint swap (equal costs, ``rwls`` False).
+    rwls : bool, optional
+        RWLS moves (:func:`_sckernels.search_rwls`); default: when every reduced column costs the
+        same and every row must be covered (never for partial covers).
     """
 
     def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None,
-                 max_cand: int = MAX_CANDIDATES, joint: bool = True) -> None:
+                 max_cand: int = MAX_CANDIDATES, joint: bool = True, rwls: bool | None = None) -> None:
         self.max_cand = int(max_cand)
         self.joint = bool(joint)
         m, n = red.shape
+        unit = bool(n == 0 or np.all(red.cost == red.cost[0]))
+        self.rwls = (unit and not red.partial) if rwls is None else bool(rwls) and not red.partial
+        # configuration checking of RWLS: last event of every row, removal event of every column, counter
+        self.rchg = np.zeros(m, dtype=np.int64)
+        self.cblk = np.zeros(n, dtype=np.int64)
+        self.clk = np.zeros(1, dtype=np.int64)
         self.red = red
         self.x = np.zeros(n, dtype=np.int8)
         self.cov = np.zeros(m, dtype=np.int32)
@@ -452,8 +474,13 @@ class LocalSearch:
                 return "time"
             c0 = time.perf_counter()
             with ctrl_c_deferred():
-                code = K.search(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target), stop_it,
-                                pat, self.max_cand, self.joint)
+                if self.rwls:
+                    code = K.search_rwls(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target),
+                                         stop_it, pat, self.rchg, self.cblk, self.clk, RWLS_CC_ON_REMOVE,
+                                         RWLS_PENALTY_MODE)
+                else:
+                    code = K.search(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target),
+                                    stop_it, pat, self.max_cand, self.joint)
             dt = time.perf_counter() - c0
             if code:
                 return {1: "target", 2: "iterations", 3: "stuck", 4: "patience"}[code]
