@@ -11,7 +11,7 @@ import numba
 import numpy as np
 from numba import prange
 
-__all__ = ["gains", "rho_quality", "hits_quality", "view_counts", "view_gains", "value_quality", "value_views"]
+__all__ = ["gains", "hits_quality", "view_counts", "view_gains", "value_quality", "value_views"]
 
 _PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False, "parallel": True}
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
@@ -19,7 +19,8 @@ _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": Fal
 
 @numba.njit(**_PJIT)
 def gains(indptr, indices, wq, cur):  # pragma: no cover - compiled
-    """(n,) float64: ``sum_i max(0, wq_ij - cur_i)`` for every column j (what it adds to ``cur``)."""
+    """(n,) float64: ``sum_i max(0, wq_ij - cur_i)`` for every column j (what it adds to ``cur``;
+    with Lagrange multipliers for ``cur``, the Lagrangian column values ``rho_j``)."""
     n = indptr.shape[0] - 1
     out = np.zeros(n)
     for j in prange(n):
@@ -51,21 +52,6 @@ def value_quality(indptr, indices, wq, cols, m):  # pragma: no cover - compiled
             elif x > b2[i]:
                 b2[i] = x
     return b1.sum(), b1, b2, a1
-
-
-@numba.njit(**_PJIT)
-def rho_quality(indptr, indices, wq, lam):  # pragma: no cover - compiled
-    """(n,) float64: ``rho_j = sum_i max(0, wq_ij - lam_i)`` (Lagrangian column values)."""
-    n = indptr.shape[0] - 1
-    out = np.zeros(n)
-    for j in prange(n):
-        s = 0.0
-        for p in range(indptr[j], indptr[j + 1]):
-            d = wq[p] - lam[indices[p]]
-            if d > 0:
-                s += d
-        out[j] = s
-    return out
 
 
 @numba.njit(**_JIT)

@@ -304,7 +304,7 @@ class _Lagrangian:
         for _ in range(iterations):
             self.iterations += 1
             with ctrl_c_deferred():
-                rho = LK.rho_quality(qs.indptr, qs.indices, qs.wq, self.lam)
+                rho = LK.gains(qs.indptr, qs.indices, qs.wq, self.lam)
             top = np.argpartition(-rho, k - 1)[:k] if k < qs.n else np.arange(qs.n)
             bound = float(self.lam.sum() + rho[top].sum())
             if bound < self.bound - 1e-12 * max(1.0, abs(bound)):
