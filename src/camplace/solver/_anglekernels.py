@@ -213,6 +213,22 @@ def _exact_bits(x, wd, pa, pb, pts, theta_deg, cos_t):  # pragma: no cover - com
     return out
 
 
+@numba.njit(inline="always", **_JIT)
+def _pair_bits(x, exact, c1, i1, c2, i2, wd, possible, always, pa, pb, pts, theta_deg, cos_t):  # pragma: no cover - compiled
+    """The bits of ``x`` (rows of word ``wd``) that a camera of cluster ``i1`` and one of ``i2``
+    can see under the angle: all of ``x`` when the clusters' cones allow it everywhere, none when
+    nowhere, else (``exact``, one camera each at ``pa`` / ``pb``) the rows checked one by one;
+    without ``exact`` every row the cones do not rule out."""
+    if not exact:
+        return x if _possible(c1, i1, c2, i2, wd, possible) else np.uint64(0)
+    s = _pair_state(c1, i1, c2, i2, wd, possible, always)
+    if s == 0:
+        return np.uint64(0)
+    if s == 2:
+        return x
+    return _exact_bits(x, wd, pa, pb, pts, theta_deg, cos_t)
+
+
 @numba.njit(**_JIT)
 def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes, last_mask,
                     need, acc, gnode, gcnt, pw, exact, pts, possible, always, self_ok, theta_deg, cos_t):  # pragma: no cover - compiled
@@ -286,34 +302,14 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                 for b in range(a + 1, ng):
                     vb = gnode[b]
                     x = xa & levels[0, vb, ww] & ~ph
-                    if x == 0:
-                        continue
-                    if not exact:
-                        if _possible(cones, va, cones, vb, ww, possible):
-                            ph |= x
-                        continue
-                    s = _pair_state(cones, va, cones, vb, ww, possible, always)
-                    if s == 0:
-                        continue
-                    if s == 2:
-                        ph |= x
-                    else:
-                        ph |= _exact_bits(x, ww, campos[lo[va]], campos[lo[vb]], pts, theta_deg, cos_t)
+                    if x:
+                        ph |= _pair_bits(x, exact, cones, va, cones, vb, ww, possible, always, campos[lo[va]],
+                                         campos[lo[vb]], pts, theta_deg, cos_t)
                 for f in range(r):
                     x = xa & fbits[f, ww] & ~ph
-                    if x == 0:
-                        continue
-                    if not exact:
-                        if _possible(cones, va, fcones, f, ww, possible):
-                            ph |= x
-                        continue
-                    s = _pair_state(cones, va, fcones, f, ww, possible, always)
-                    if s == 0:
-                        continue
-                    if s == 2:
-                        ph |= x
-                    else:
-                        ph |= _exact_bits(x, ww, campos[lo[va]], fpos[f], pts, theta_deg, cos_t)
+                    if x:
+                        ph |= _pair_bits(x, exact, cones, va, fcones, f, ww, possible, always, campos[lo[va]],
+                                         fpos[f], pts, theta_deg, cos_t)
             if views > 2 and ph:
                 acc[0] = ~np.uint64(0)
                 for t in range(1, views + 1):
