@@ -494,6 +494,19 @@ def _best_swap(i, budget, cptr, crow, rptr, rcol, cost, cov, csum, pw, score, st
     return bk, bj
 
 
+@numba.njit(inline="always", **_JIT)
+def _stop(ist, fst, target, stop_it, patience):  # pragma: no cover - compiled
+    """Why a search stops before its next step (as :func:`search` returns it), 0 to go on: 1 the
+    target cost is reached, 2 the iteration budget is spent, 4 patience (work since the best) ran out."""
+    if fst[BEST_COST] <= target:
+        return 1
+    if ist[IT] >= stop_it:
+        return 2
+    if ist[WORK] - 2 * ist[BEST_WORK] >= patience:
+        return 4
+    return 0
+
+
 @numba.njit(**_JIT)
 def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
            best, ist, fst, rng, steps, target, stop_it, patience, max_cand, joint):  # pragma: no cover - compiled
@@ -528,12 +541,9 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
     order_buf = np.empty(cost.shape[0])
     for _ in range(steps):
         tol = 1e-9 * abs(fst[BEST_COST])
-        if fst[BEST_COST] <= target:
-            return 1
-        if ist[IT] >= stop_it:
-            return 2
-        if ist[WORK] - 2 * ist[BEST_WORK] >= patience:
-            return 4
+        why = _stop(ist, fst, target, stop_it, patience)
+        if why:
+            return why
         ist[IT] += 1
         if _feasible(need, ist, fst):
             _record(x, best, cov, roww, need, ist, fst)
@@ -648,12 +658,9 @@ def search_rwls(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, scor
         As :func:`search`.
     """
     for _ in range(steps):
-        if fst[BEST_COST] <= target:
-            return 1
-        if ist[IT] >= stop_it:
-            return 2
-        if ist[WORK] - 2 * ist[BEST_WORK] >= patience:
-            return 4
+        why = _stop(ist, fst, target, stop_it, patience)
+        if why:
+            return why
         ist[IT] += 1
         while ist[NUNC] == 0:
             _record(x, best, cov, roww, need, ist, fst)
