@@ -224,8 +224,10 @@ def test_render_validate_export(reported_run, tmp_path) -> None:
     masks = sorted((out / "render").glob("*mask*.png"))
     assert len(masks) == k, masks
     val = tmp_path / "val"
-    camplace("validate", str(out), "--random-systems", "3", "-o", str(val), cwd=tmp_path)
+    camplace("validate", str(out), "--random-systems", "1", "-o", str(val), cwd=tmp_path)
     report = json.loads((val / "validation.json").read_text())
+    assert len(report["systems"]) == 2  # the optimised system and the random one it is compared with
+    assert len(report["cameras"]) == 2 * k
     # the emulated camera is perfect here: like for like it must agree with its own prediction
     views = [c for c in report["cameras"] if (c.get("target_px") or 0) >= 500]
     assert report["agreement"]["n_views"] == len(views)
