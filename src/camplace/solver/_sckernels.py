@@ -230,10 +230,11 @@ def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stam
             fst[COVW] += roww[i]
             _unc_del(i, unc, uncpos, ist)
             ist[WORK] += rptr[i + 1] - rptr[i]
+            w = pw[i]  # a local: the stores into score could alias pw for the compiler
             for q in range(rptr[i], rptr[i + 1]):
                 k = rcol[q]
                 if k != j:
-                    score[k] -= pw[i]
+                    score[k] -= w
         elif c == 1:
             score[csum[i]] += pw[i]
         cov[i] = c + 1
@@ -270,10 +271,11 @@ def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, s
                 d = inc if pinc is None else inc * pinc[i]
                 pw[i] += d
                 score[j] += d
+            w = pw[i]
             for q in range(rptr[i], rptr[i + 1]):
                 k = rcol[q]
                 if k != j:
-                    score[k] += pw[i]
+                    score[k] += w
         elif c == 1:
             score[csum[i]] -= pw[i]
 
