@@ -325,3 +325,19 @@ def test_timed_solve_with_searches_side_by_side_equals_enumeration_bounds(inst) 
     assert_le(out.bound, best)
     if out.status == "optimal":
         assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
+
+
+def test_side_by_side_searches_stop_together_at_the_target() -> None:
+    """With a time limit, the first search to reach the target (here the enumerated optimum of a
+    small instance) stops the other long before the limit."""
+    rng = np.random.default_rng(8)
+    dense = rng.random((25, 12)) < 0.3
+    dense = dense[dense.any(axis=1)]
+    best = enumerate_cover(dense, np.ones(12), np.ones(dense.shape[0]), None)
+    red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(12))
+    searches = [S.LocalSearch(red, seed=2, stream=k) for k in range(2)]
+    t0 = __import__("time").perf_counter()
+    whys = S.run_searches(searches, time_limit_s=30.0, target=best - red.forced_cost)
+    assert __import__("time").perf_counter() - t0 < 10.0
+    assert "target" in whys and set(whys) <= {"target", "stopped"}
+    assert min(s.best_cost for s in searches) + red.forced_cost == best

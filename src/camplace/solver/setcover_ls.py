@@ -501,7 +501,8 @@ class LocalSearch:
         return int(self.ist[K.BEST_IT])
 
     def run(self, *, max_iterations: int | None = None, time_limit_s: float | None = None, target: float = -math.inf,
-            patience: int | None = None, stop: threading.Event | None = None) -> str:
+            patience: int | None = None, stop: threading.Event | None = None,
+            reached: threading.Event | None = None) -> str:
         """Search until an iteration budget, a time limit, the target cost or a stall.
 
         Parameters
@@ -517,7 +518,9 @@ class LocalSearch:
             on the machine) exceeds ``patience`` plus the work it took to find it: the search goes
             on while improvements keep coming (deterministic).
         stop : threading.Event, optional
-            Stop once it is set (checked between compiled chunks); set when the target is reached.
+            Stop once it is set (checked between compiled chunks).
+        reached : threading.Event, optional
+            Set when the target is reached.
 
         With :attr:`restart_work` set, the search restarts (:meth:`restart`) whenever the work since
         its last improvement or restart reaches ``restart_work`` times the next term of the Luby
@@ -560,8 +563,8 @@ class LocalSearch:
                 self.restart()
                 args = self._args()
                 continue
-            if code == 1 and stop is not None:
-                stop.set()
+            if code == 1 and reached is not None:
+                reached.set()
             if code:
                 return {1: "target", 2: "iterations", 3: "stuck", 4: "patience"}[code]
             if dt < _CHUNK_S / 2:
@@ -609,15 +612,14 @@ def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = No
     """
     if len(searches) == 1:
         return [searches[0].run(time_limit_s=time_limit_s, target=target, patience=patience)]
-    ev = threading.Event() if time_limit_s is not None else None
+    ev = threading.Event()  # also stops the threads when the main one is interrupted (Ctrl-C)
     with ThreadPoolExecutor(max_workers=len(searches), thread_name_prefix="setcover-search") as ex:
-        futs = [ex.submit(s.run, time_limit_s=time_limit_s, target=target, patience=patience, stop=ev)
-                for s in searches]
+        futs = [ex.submit(s.run, time_limit_s=time_limit_s, target=target, patience=patience, stop=ev,
+                          reached=ev if time_limit_s is not None else None) for s in searches]
         try:
             return [f.result() for f in futs]
         finally:
-            if ev is not None:
-                ev.set()
+            ev.set()
 
 
 def local_search(red: CoverReduction, *, seed: int = 0, max_iterations: int | None = None,
