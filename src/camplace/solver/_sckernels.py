@@ -25,8 +25,8 @@ Local-search state (arrays, updated in place):
 ``best`` (n,) int8
     The cheapest feasible solution seen.
 ``ist`` int64: [iteration, |S|, uncovered rows, last added, last removed, iteration of the best,
-improvements, work, work at the best, work at the last improvement or restart, restarts]; ``fst`` float64: [cost of S, covered row weight, cost of
-the best]; ``rng`` uint64 [1]. Work counts the inner-loop steps (score updates, candidates), a
+improvements, work, work at the best, work at the last improvement or restart, restarts]; ``fst``
+float64: [cost of S, covered row weight, cost of the best]; ``rng`` uint64 [1]. Work counts the inner-loop steps (score updates, candidates), a
 measure of effort that does not depend on the machine.
 """
 
@@ -517,7 +517,8 @@ def _stop(ist, fst, target, stop_it, patience, restart):  # pragma: no cover - c
 
 @numba.njit(**_JIT)
 def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
-           best, ist, fst, rng, steps, target, stop_it, patience, max_cand, joint, pinc, restart):  # pragma: no cover - compiled
+           best, ist, fst, rng, steps, target, stop_it, patience, max_cand, joint, pinc,
+           restart):  # pragma: no cover - compiled
     """Row-weighting local search for ``steps`` iterations (after RWLS of Gao, Weise and Li 2015, with
     the joint swap move of fontanf/setcoveringsolver and costs).
 
@@ -528,9 +529,9 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
     smallest loss per cost (not the one just added) while S plus the cheapest column would not be
     cheaper than the best, add the column of largest gain per cost covering a random uncovered row
     (not the one just removed; one that keeps S cheaper than the best if any), and make room for it
-    if needed. Then raise by 1 the penalty of every uncovered row (partial covers: of one random
-    uncovered row). Stops early when the best cost reaches ``target``, the iteration count
-    ``stop_it`` or on patience.
+    if needed. Then raise the penalty of every uncovered row ``i`` by ``pinc[i]`` (partial covers: of
+    one random uncovered row, by 1). Stops early when the best cost reaches ``target``, the iteration
+    count ``stop_it``, on patience or for a restart (``restart``, see :func:`_stop`).
 
     Returns
     -------
@@ -538,7 +539,8 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
         1 if ``target`` was reached, 2 if ``stop_it`` was, 3 if every row is covered and the
         required weight still not reached (partial cover with ``need`` above the total), 4 if the
         work since the best cover (score updates, counted in ``ist[WORK]``) exceeds ``patience``
-        plus the work it took to find it, else 0.
+        plus the work it took to find it, 5 if the work since the last improvement or restart
+        reached ``restart``, else 0.
     """
     cmin = np.inf
     unit = joint

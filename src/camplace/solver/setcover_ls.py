@@ -74,7 +74,8 @@ from camplace.solver import _sckernels as K
 from camplace.solver._common import OverBudget, memory_budget_bytes
 
 __all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "CoverOutcome",
-           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work"]
+           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work", "restart_unit_work",
+           "run_searches", "search_threads"]
 
 log = logging.getLogger(__name__)
 
@@ -91,14 +92,14 @@ _MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resu
 MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
 # unit costs, full cover: RWLS moves (:func:`_sckernels.search_rwls`); penalties raised on the rows the
 # removed column leaves uncovered (1; 2 also after the removals from a cover, as in
-# fontanf/setcoveringsolver's row weighting 1) or on every uncovered row after the move (0, RWLS);
-# configuration checking freed by additions only
+# fontanf/setcoveringsolver's row weighting 1) or on every uncovered row after the move (0, RWLS)
 RWLS_PENALTY_MODE = 1
 # configuration checking of the RWLS moves: 0 none (only the column just removed is tabu), 1 freed by
 # additions, 2 freed by additions and removals
 RWLS_CC_MODE = 1
-# penalty step of a row in the RWLS moves: max(1, floor(RWLS_ROW_STEP / columns covering it)), and its
-# starting penalty (rows few columns cover weigh more; integers keep the incremental sums exact); 0: 1
+# penalty step of a row with equal costs and a full cover (RWLS moves and joint swaps):
+# max(1, floor(RWLS_ROW_STEP / columns covering it)), also its starting penalty (rows few columns
+# cover weigh more; integers keep the incremental sums exact); 0: every step 1
 RWLS_ROW_STEP = 10_000
 # restarts of the long search (solve_cover's second phase): from the best cover less this share of
 # its columns, after RESTART_WORK_PER_NNZ work units a nonzero (between the limits) times the Luby sequence
@@ -108,11 +109,6 @@ RESTART_WORK_MIN = 50_000_000
 RESTART_WORK_MAX = 2_000_000_000
 # searches side by side in solve_cover's second phase (one thread each, at most the cores available)
 SEARCH_THREADS = 2
-
-
-def restart_work(nnz: int) -> int:
-    """Work unit of the restart schedule (see :data:`RESTART_WORK_PER_NNZ`)."""
-    return int(min(max(RESTART_WORK_PER_NNZ * nnz, RESTART_WORK_MIN), RESTART_WORK_MAX))
 # patience of the search, in work units (score updates; about 1e8 to 1e9 a second): 2,000 per
 # nonzero of the reduced matrix, between these limits; a tenth of it for the first search (the one
 # before SCIP / CP-SAT may run)
@@ -125,6 +121,11 @@ def patience_work(nnz: int, before_model: bool = False) -> int:
     """Work without improvement after which the search stops (see :data:`PATIENCE_PER_NNZ`)."""
     p = int(min(max(PATIENCE_PER_NNZ * nnz, PATIENCE_WORK_MIN), PATIENCE_WORK))
     return p // 10 if before_model else p
+
+
+def restart_unit_work(nnz: int) -> int:
+    """Work unit of the restart schedule (see :data:`RESTART_WORK_PER_NNZ`)."""
+    return int(min(max(RESTART_WORK_PER_NNZ * nnz, RESTART_WORK_MIN), RESTART_WORK_MAX))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -947,7 +948,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         searches = [ls] + [LocalSearch(red, seed=seed, stream=k, start=np.flatnonzero(ls.best))
                            for k in range(1, search_threads())]
         for s in searches:
-            s.restart_work = restart_work(red.nnz)
+            s.restart_work = restart_unit_work(red.nnz)
         whys = run_searches(searches, time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
                             patience=None if rem is not None else patience_work(red.nnz))
         costs2 = [s.best_cost for s in searches]
