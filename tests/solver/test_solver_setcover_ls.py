@@ -167,21 +167,28 @@ def _recount_scores(red: S.CoverReduction, x: np.ndarray, pw: np.ndarray) -> tup
     return cov, np.where(x > 0, -loss, gain)
 
 
-@pytest.mark.parametrize("mode,cc_remove,rwls",
-                         [(0, False, True), (1, False, True), (2, True, True), (1, False, False)])
-def test_unicost_incremental_state_matches_a_recount(monkeypatch, mode: int, cc_remove: bool, rwls: bool) -> None:
+@pytest.mark.parametrize("mode,cc_mode,step,rwls",
+                         [(0, 1, 0, True), (1, 1, 10_000, True), (2, 2, 10_000, True), (1, 0, 7, True),
+                          (1, 1, 10_000, False)])
+def test_unicost_incremental_state_matches_a_recount(monkeypatch, mode: int, cc_mode: int, step: int,
+                                                     rwls: bool) -> None:
     """Unit costs use the RWLS moves by default (the joint swaps on request); after any number of
-    iterations (the three penalty schemes, with and without configuration checking on removals) the
+    iterations (the three penalty schemes, configuration checking off, on additions, on both, unit
+    or per-row penalty steps, restarts) the
     incremental coverage and scores equal a recount, the uncovered-row list is exact, and the best
     solution is a cover of the recorded size."""
     monkeypatch.setattr(S, "RWLS_PENALTY_MODE", mode)
-    monkeypatch.setattr(S, "RWLS_CC_ON_REMOVE", cc_remove)
+    monkeypatch.setattr(S, "RWLS_CC_MODE", cc_mode)
+    monkeypatch.setattr(S, "RWLS_ROW_STEP", step)
     rng = np.random.default_rng(11)
     dense = rng.random((120, 150)) < 0.05
     dense = dense[dense.any(axis=1)]
     red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(150))
     ls = S.LocalSearch(red, seed=1, rwls=None if rwls else False)
     assert ls.rwls == rwls
+    deg = np.diff(red.rptr)
+    assert np.array_equal(ls.pinc, np.maximum(1, step // deg) if step else np.ones(deg.size))
+    ls.restart_work = 20_000
     for stop in (1, 50, 777, 5000):
         ls.run(max_iterations=stop)
         cov, score = _recount_scores(red, ls.x, ls.pw)
@@ -192,7 +199,8 @@ def test_unicost_incremental_state_matches_a_recount(monkeypatch, mode: int, cc_
         assert int(ls.ist[S.K.NSEL]) == int(ls.x.sum()) == float(red.cost[ls.x > 0].sum()) == ls.fst[S.K.COST]
         best_cov, _ = _recount_scores(red, ls.best, ls.pw)
         assert np.all(best_cov > 0) and float(ls.best.sum()) == ls.best_cost
-    assert ls.pw.max() > 1.0  # the penalties did move
+    assert not np.array_equal(ls.pw, ls.pinc)  # the penalties did move
+    assert ls.ist[S.K.RESTARTS] > 0
 
 
 def test_weighted_or_partial_covers_keep_the_weighted_search() -> None:
@@ -250,3 +258,86 @@ def test_model_too_big_for_memory_falls_back_to_the_search(monkeypatch) -> None:
     assert res.engine == "local-search"
     assert _covers(dense, np.ones(dense.shape[0]), None, res.selected)
     assert res.objective >= best and res.bound <= best
+
+
+def test_luby_sequence_doubles_its_prefix_then_adds_a_power_of_two() -> None:
+    """The Luby sequence (restart schedule): its first 2^k - 1 terms are the first 2^(k-1) - 1 terms
+    twice, then 2^(k-1) (Luby, Sinclair and Zuckerman 1993)."""
+    seq = [S._luby(i) for i in range(1, 2**9)]
+    assert seq[0] == 1
+    for k in range(2, 10):
+        half = seq[: 2 ** (k - 1) - 1]
+        assert seq[: 2**k - 1] == half + half + [2 ** (k - 1)]
+
+
+def _hard_unicost(seed: int, m: int = 200, n: int = 400, density: float = 0.03) -> sp.csr_matrix:
+    rng = np.random.default_rng(seed)
+    dense = rng.random((m, n)) < density
+    dense = dense[dense.any(axis=1)]
+    return sp.csr_matrix(dense.astype(float))
+
+
+def test_restarts_and_side_by_side_searches_same_seed_same_answer(monkeypatch) -> None:
+    """Without a time limit the second phase (restarts, searches side by side in threads) stops on
+    patience, counted in work: the same seed gives the same cover; another seed is another run."""
+    monkeypatch.setattr(S, "AUTO_MODEL_NNZ", 0)  # no SCIP: the search phases only
+    monkeypatch.setattr(S, "RESTART_WORK_MIN", 100_000)
+    monkeypatch.setattr(S, "RESTART_WORK_PER_NNZ", 50)
+    a = _hard_unicost(4)
+    out = [S.solve_cover(a, np.ones(a.shape[1]), seed=s) for s in (5, 5)]
+    ls = out[0].stats["local_search"]
+    assert ls.get("resumed") and ls["searches"] == S.search_threads() and ls["restarts"] > 0
+    assert out[0].selected == out[1].selected and out[0].cost == out[1].cost
+    assert out[0].stats["local_search"]["iterations"] == out[1].stats["local_search"]["iterations"]
+    assert bool(np.all(np.diff(a[:, list(out[0].selected)].tocsr().indptr) > 0))
+    assert out[0].cost == len(out[0].selected) >= out[0].bound
+
+
+def test_time_limit_is_kept_and_the_answer_is_a_cover() -> None:
+    a = _hard_unicost(9, m=300, n=2000, density=0.02)
+    S.solve_cover(a[:30], np.ones(a.shape[1]), max_iterations=100)  # compile (or load) the kernels first
+    t0 = __import__("time").perf_counter()
+    out = S.solve_cover(a, np.ones(a.shape[1]), time_limit_s=1.0, seed=1)
+    elapsed = __import__("time").perf_counter() - t0
+    assert elapsed < 1.0 + 0.5, elapsed
+    assert out.stats["local_search"].get("resumed") and out.status == "feasible"
+    assert bool(np.all(np.diff(a[:, list(out.selected)].tocsr().indptr) > 0))
+    assert out.cost == len(out.selected) >= out.bound
+
+
+@settings(max_examples=25, **_SETTINGS)
+@given(inst=covers())
+def test_timed_solve_with_searches_side_by_side_equals_enumeration_bounds(inst) -> None:
+    """A short time limit (the second phase runs its searches side by side, with restarts): the
+    answer is a cover (or partial cover) no cheaper than the optimum, the bound no higher."""
+    dense, costs, w, need = inst
+    best = enumerate_cover(dense, costs, w, need)
+    old = S.AUTO_MODEL_NNZ, S.RESTART_WORK_MIN
+    S.AUTO_MODEL_NNZ, S.RESTART_WORK_MIN = 0, 1000
+    try:
+        out = S.solve_cover(sp.csr_matrix(dense.astype(float)), costs, None if need is None else w, need,
+                            time_limit_s=0.05)
+    finally:
+        S.AUTO_MODEL_NNZ, S.RESTART_WORK_MIN = old
+    assert _covers(dense, w, need, out.selected)
+    assert out.cost == pytest.approx(float(costs[list(out.selected)].sum()), rel=1e-12, abs=1e-12)
+    assert_ge(out.cost, best)
+    assert_le(out.bound, best)
+    if out.status == "optimal":
+        assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
+
+
+def test_side_by_side_searches_stop_together_at_the_target() -> None:
+    """With a time limit, the first search to reach the target (here the enumerated optimum of a
+    small instance) stops the other long before the limit."""
+    rng = np.random.default_rng(8)
+    dense = rng.random((25, 12)) < 0.3
+    dense = dense[dense.any(axis=1)]
+    best = enumerate_cover(dense, np.ones(12), np.ones(dense.shape[0]), None)
+    red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(12))
+    searches = [S.LocalSearch(red, seed=2, stream=k) for k in range(2)]
+    t0 = __import__("time").perf_counter()
+    whys = S.run_searches(searches, time_limit_s=30.0, target=best - red.forced_cost)
+    assert __import__("time").perf_counter() - t0 < 10.0
+    assert "target" in whys and set(whys) <= {"target", "stopped"}
+    assert min(s.best_cost for s in searches) + red.forced_cost == best

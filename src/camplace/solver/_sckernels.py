@@ -25,8 +25,8 @@ Local-search state (arrays, updated in place):
 ``best`` (n,) int8
     The cheapest feasible solution seen.
 ``ist`` int64: [iteration, |S|, uncovered rows, last added, last removed, iteration of the best,
-improvements, work, work at the best]; ``fst`` float64: [cost of S, covered row weight, cost of
-the best]; ``rng`` uint64 [1]. Work counts the inner-loop steps (score updates, candidates), a
+improvements, work, work at the best, work at the last improvement or restart, restarts]; ``fst``
+float64: [cost of S, covered row weight, cost of the best]; ``rng`` uint64 [1]. Work counts the inner-loop steps (score updates, candidates), a
 measure of effort that does not depend on the machine.
 """
 
@@ -38,8 +38,8 @@ import numpy as np
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 # ist slots
-IT, NSEL, NUNC, LADD, LREM, BEST_IT, IMPROVED, WORK, BEST_WORK = 0, 1, 2, 3, 4, 5, 6, 7, 8
-N_IST = 9
+IT, NSEL, NUNC, LADD, LREM, BEST_IT, IMPROVED, WORK, BEST_WORK, EPOCH_WORK, RESTARTS = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10
+N_IST = 11
 # fst slots
 COST, COVW, BEST_COST = 0, 1, 2
 N_FST = 3
@@ -230,10 +230,11 @@ def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stam
             fst[COVW] += roww[i]
             _unc_del(i, unc, uncpos, ist)
             ist[WORK] += rptr[i + 1] - rptr[i]
+            w = pw[i]  # a local: the stores into score could alias pw for the compiler
             for q in range(rptr[i], rptr[i + 1]):
                 k = rcol[q]
                 if k != j:
-                    score[k] -= pw[i]
+                    score[k] -= w
         elif c == 1:
             score[csum[i]] += pw[i]
         cov[i] = c + 1
@@ -242,9 +243,10 @@ def add_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stam
 
 @numba.njit(**_JIT)
 def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
-               uncpos, ist, fst, inc=0.0):  # pragma: no cover - compiled
+               uncpos, ist, fst, inc=0.0, pinc=None):  # pragma: no cover - compiled
     """Take column ``j`` out of the solution and update every score incrementally; the penalty of
-    every row it leaves uncovered rises by ``inc`` on the way (the same as :func:`_bump` after)."""
+    every row ``i`` it leaves uncovered rises by ``inc`` (times ``pinc[i]`` when given) on the way
+    (the same as :func:`_bump` after)."""
     x[j] = 0
     p0 = selpos[j]
     last = sel[ist[NSEL] - 1]
@@ -266,12 +268,14 @@ def remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, s
             _unc_add(i, unc, uncpos, ist)
             ist[WORK] += rptr[i + 1] - rptr[i]
             if inc != 0.0:
-                pw[i] += inc
-                score[j] += inc
+                d = inc if pinc is None else inc * pinc[i]
+                pw[i] += d
+                score[j] += d
+            w = pw[i]
             for q in range(rptr[i], rptr[i + 1]):
                 k = rcol[q]
                 if k != j:
-                    score[k] += pw[i]
+                    score[k] += w
         elif c == 1:
             score[csum[i]] -= pw[i]
 
@@ -419,6 +423,7 @@ def _record(x, best, cov, roww, need, ist, fst):  # pragma: no cover - compiled
     fst[BEST_COST] = fst[COST]
     ist[BEST_IT] = ist[IT]
     ist[BEST_WORK] = ist[WORK]
+    ist[EPOCH_WORK] = ist[WORK]
     ist[IMPROVED] += 1
 
 
@@ -495,21 +500,25 @@ def _best_swap(i, budget, cptr, crow, rptr, rcol, cost, cov, csum, pw, score, st
 
 
 @numba.njit(inline="always", **_JIT)
-def _stop(ist, fst, target, stop_it, patience):  # pragma: no cover - compiled
+def _stop(ist, fst, target, stop_it, patience, restart):  # pragma: no cover - compiled
     """Why a search stops before its next step (as :func:`search` returns it), 0 to go on: 1 the
-    target cost is reached, 2 the iteration budget is spent, 4 patience (work since the best) ran out."""
+    target cost is reached, 2 the iteration budget is spent, 4 patience (work since the best) ran out,
+    5 the work since the last improvement or restart reached ``restart`` (time to restart)."""
     if fst[BEST_COST] <= target:
         return 1
     if ist[IT] >= stop_it:
         return 2
     if ist[WORK] - 2 * ist[BEST_WORK] >= patience:
         return 4
+    if ist[WORK] - ist[EPOCH_WORK] >= restart:
+        return 5
     return 0
 
 
 @numba.njit(**_JIT)
 def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
-           best, ist, fst, rng, steps, target, stop_it, patience, max_cand, joint):  # pragma: no cover - compiled
+           best, ist, fst, rng, steps, target, stop_it, patience, max_cand, joint, pinc,
+           restart):  # pragma: no cover - compiled
     """Row-weighting local search for ``steps`` iterations (after RWLS of Gao, Weise and Li 2015, with
     the joint swap move of fontanf/setcoveringsolver and costs).
 
@@ -520,9 +529,9 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
     smallest loss per cost (not the one just added) while S plus the cheapest column would not be
     cheaper than the best, add the column of largest gain per cost covering a random uncovered row
     (not the one just removed; one that keeps S cheaper than the best if any), and make room for it
-    if needed. Then raise by 1 the penalty of every uncovered row (partial covers: of one random
-    uncovered row). Stops early when the best cost reaches ``target``, the iteration count
-    ``stop_it`` or on patience.
+    if needed. Then raise the penalty of every uncovered row ``i`` by ``pinc[i]`` (partial covers: of
+    one random uncovered row, by 1). Stops early when the best cost reaches ``target``, the iteration
+    count ``stop_it``, on patience or for a restart (``restart``, see :func:`_stop`).
 
     Returns
     -------
@@ -530,7 +539,8 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
         1 if ``target`` was reached, 2 if ``stop_it`` was, 3 if every row is covered and the
         required weight still not reached (partial cover with ``need`` above the total), 4 if the
         work since the best cover (score updates, counted in ``ist[WORK]``) exceeds ``patience``
-        plus the work it took to find it, else 0.
+        plus the work it took to find it, 5 if the work since the last improvement or restart
+        reached ``restart``, else 0.
     """
     cmin = np.inf
     unit = joint
@@ -541,7 +551,7 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
     order_buf = np.empty(cost.shape[0])
     for _ in range(steps):
         tol = 1e-9 * abs(fst[BEST_COST])
-        why = _stop(ist, fst, target, stop_it, patience)
+        why = _stop(ist, fst, target, stop_it, patience, restart)
         if why:
             return why
         ist[IT] += 1
@@ -593,7 +603,7 @@ def search(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, st
             ist[LADD] = k
         if need < 0:
             for t in range(ist[NUNC]):
-                _bump(unc[t], rptr, rcol, pw, score, 1.0, ist)
+                _bump(unc[t], rptr, rcol, pw, score, pinc[unc[t]], ist)
         elif ist[NUNC] > 0:
             _bump(unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))], rptr, rcol, pw, score, 1.0,
                   ist)
@@ -625,32 +635,34 @@ def _cc_ok(c, cptr, crow, rchg, cblk, ist):  # pragma: no cover - compiled
 
 @numba.njit(**_JIT)
 def _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
-                 ist, fst, rchg, cblk, clk, cc_remove, inc):  # pragma: no cover - compiled
+                 ist, fst, rchg, cblk, clk, ccmode, inc, pinc):  # pragma: no cover - compiled
     remove_col(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos, ist,
-               fst, inc)
-    if cc_remove:
+               fst, inc, pinc)
+    if ccmode == 2:
         _cc_touch(j, cptr, crow, rchg, clk)
     clk[0] += 1
-    cblk[j] = clk[0]
+    cblk[j] = clk[0] if ccmode > 0 else 0
 
 
 @numba.njit(**_JIT)
 def search_rwls(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, score, stamp, sel, selpos, unc, uncpos,
-                best, ist, fst, rng, steps, target, stop_it, patience, rchg, cblk, clk, cc_remove,
-                wmode):  # pragma: no cover - compiled
+                best, ist, fst, rng, steps, target, stop_it, patience, rchg, cblk, clk, ccmode, wmode,
+                pinc, restart):  # pragma: no cover - compiled
     """RWLS (Gao, Weise and Li 2015) for unit costs and full covers, ``steps`` iterations.
 
     One iteration: while S is a cover, it is recorded and its column of highest score (least loss;
     ties: unchanged for longest) removed. Then the column of S of highest score other than the one
     just added is removed, a random uncovered row drawn and its column of highest score that
     configuration checking allows (ties: unchanged for longest; the best one anyway if all are
-    blocked) added. Configuration checking: a
+    blocked) added. Configuration checking (``ccmode`` 1, or 2 to free on removals too): a
     removed column may not be added back until a column sharing a row with it is added (or, with
-    ``cc_remove``, removed); kept lazily as the last event of every row (``rchg``, (m,) int64)
+    2, removed); kept lazily as the last event of every row (``rchg``, (m,) int64)
     and the removal event of every column (``cblk``, (n,) int64, 0: free), ``clk`` (1,) int64
-    the event counter. Penalties (``wmode``): 0 (RWLS) raise every uncovered row by 1 after the
+    the event counter; ``ccmode`` 0: only the column just removed may not be added back (tabu).
+    Penalties (``wmode``): 0 (RWLS) raise every uncovered row after the
     move; 1 raise the rows the removed column leaves uncovered, before the addition; 2 as 1, and
-    also after the removals from a cover (fontanf/setcoveringsolver's row weighting 1).
+    also after the removals from a cover (fontanf/setcoveringsolver's row weighting 1). Row ``i``
+    rises by ``pinc[i]`` (1, or more for rows few columns cover).
 
     Returns
     -------
@@ -658,7 +670,7 @@ def search_rwls(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, scor
         As :func:`search`.
     """
     for _ in range(steps):
-        why = _stop(ist, fst, target, stop_it, patience)
+        why = _stop(ist, fst, target, stop_it, patience, restart)
         if why:
             return why
         ist[IT] += 1
@@ -668,17 +680,20 @@ def search_rwls(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, scor
                 return 1
             j = _pick_remove(-1, cost, score, stamp, sel, ist)
             _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
-                         uncpos, ist, fst, rchg, cblk, clk, cc_remove, 1.0 if wmode == 2 else 0.0)
+                         uncpos, ist, fst, rchg, cblk, clk, ccmode, 1.0 if wmode == 2 else 0.0, pinc)
         if ist[NSEL] > 1:
             j = _pick_remove(ist[LADD], cost, score, stamp, sel, ist)
             _rwls_remove(j, cptr, crow, rptr, rcol, cost, roww, x, cov, csum, pw, score, stamp, sel, selpos, unc,
-                         uncpos, ist, fst, rchg, cblk, clk, cc_remove, 1.0 if wmode >= 1 else 0.0)
+                         uncpos, ist, fst, rchg, cblk, clk, ccmode, 1.0 if wmode >= 1 else 0.0, pinc)
             ist[LREM] = j
         i = unc[np.int64((_rand(rng) >> np.uint64(11)) % np.uint64(ist[NUNC]))]
         ist[WORK] += rptr[i + 1] - rptr[i]
+        tabu = ist[LREM] if ccmode == 0 and rptr[i + 1] - rptr[i] > 1 else -1
         k = -1
         for q in range(rptr[i], rptr[i + 1]):
             c = rcol[q]
+            if c == tabu:
+                continue
             if k >= 0 and (score[c] < score[k] or (score[c] == score[k] and stamp[c] >= stamp[k])):
                 continue
             if _cc_ok(c, cptr, crow, rchg, cblk, ist):
@@ -695,7 +710,7 @@ def search_rwls(cptr, crow, rptr, rcol, cost, roww, need, x, cov, csum, pw, scor
         ist[LADD] = k
         if wmode == 0:
             for t in range(ist[NUNC]):
-                _bump(unc[t], rptr, rcol, pw, score, 1.0, ist)
+                _bump(unc[t], rptr, rcol, pw, score, pinc[unc[t]], ist)
     return 0
 
 

@@ -42,7 +42,8 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--iterations", type=int, default=None,
                    help="iteration budget of the local search (with it and no time limit the answer is reproducible)")
     p.add_argument("--json", action="store_true",
-                   help="print one JSON object: cost, bound, status, time_s, selected, engine, uncoverable_rows")
+                   help="print one JSON object: cost, bound, status, time_s, selected, engine, uncoverable_rows, "
+                        "time_to_best_s")
     return {"solve": _cmd_solve, "setcover": _cmd_setcover}
 
 
@@ -172,6 +173,7 @@ def _cmd_setcover(args: argparse.Namespace) -> int:
             "selected": list(res.selected),
             "engine": res.engine,
             "uncoverable_rows": unc,
+            "time_to_best_s": (res.stats.get("setcover") or {}).get("time_to_best_s"),
         }
         print(json.dumps(out))
     else:

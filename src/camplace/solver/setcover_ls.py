@@ -12,7 +12,7 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    taken from an item's rarest element.
 2. **Local search** (:class:`LocalSearch`): greedy (best gain per cost) plus redundancy removal,
    then row-weighting local search after RWLS (Gao, Weise and Li 2015): every row has a penalty
-   weight, raised by 1 while it is uncovered, and a column's score is the
+   weight, raised while it is uncovered, and a column's score is the
    penalty it would cover (outside the solution) or leave uncovered (inside). Whenever the
    solution covers everything it is recorded and its least useful column removed, so the search
    always looks for a cover one column cheaper than the best. With equal costs (full covers) a
@@ -20,7 +20,9 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    just added), add the column of largest gain covering a random uncovered row that configuration
    checking allows (a removed column waits until a column sharing a row with it is added), the
    penalties raised on the rows the removed column leaves uncovered (close to
-   fontanf/setcoveringsolver's row weighting 1, :data:`RWLS_PENALTY_MODE`); ``rwls=False`` gives
+   fontanf/setcoveringsolver's row weighting 1, :data:`RWLS_PENALTY_MODE`), each by its own step,
+   larger for rows few columns cover (:data:`RWLS_ROW_STEP`, also their starting penalty and the
+   greedy's row weights); ``rwls=False`` gives
    the best joint swap of its row weighting 2 instead (add one of the columns covering a random
    uncovered row and remove one column, chosen together, candidates tried by decreasing gain with
    an exact cut-off). With costs, RWLS moves with gain / cost ratios, penalties raised on every
@@ -30,7 +32,14 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    its coverers' indices). The search stops at an iteration budget, a time limit, the bound, or
    on patience, counted in work units (score updates), not seconds: a seed and an iteration
    budget (or no time limit) give the same answer on any machine; a time limit (checked between
-   compiled chunks) makes it depend on speed.
+   compiled chunks) makes it depend on speed. The long search (after the model, or instead of it)
+   restarts from its best cover less a random fifth of its columns, completed greedily, penalties
+   back at their start, whenever the work since its last improvement or restart reaches a Luby
+   sequence of units (:data:`RESTART_WORK_PER_NNZ`), and runs beside a second search with its own
+   random stream started from the same cover, one thread each (:func:`run_searches`,
+   :data:`SEARCH_THREADS`, the cores the process may use): the time a search needs to find the
+   next cover varies by orders of magnitude between runs, so several independent tries do better
+   than one long one.
 3. **Lower bound** (:func:`lagrangian_bound`): subgradient optimisation of the Lagrangian
    relaxation of the covering rows (Beasley 1990), rounded up for integral costs; it also stops
    the local search once the two meet (the cover is then optimal).
@@ -49,7 +58,10 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,7 +74,8 @@ from camplace.solver import _sckernels as K
 from camplace.solver._common import OverBudget, memory_budget_bytes
 
 __all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "CoverOutcome",
-           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work"]
+           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work", "restart_unit_work",
+           "run_searches", "search_threads"]
 
 log = logging.getLogger(__name__)
 
@@ -79,10 +92,23 @@ _MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resu
 MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
 # unit costs, full cover: RWLS moves (:func:`_sckernels.search_rwls`); penalties raised on the rows the
 # removed column leaves uncovered (1; 2 also after the removals from a cover, as in
-# fontanf/setcoveringsolver's row weighting 1) or on every uncovered row after the move (0, RWLS);
-# configuration checking freed by additions only
+# fontanf/setcoveringsolver's row weighting 1) or on every uncovered row after the move (0, RWLS)
 RWLS_PENALTY_MODE = 1
-RWLS_CC_ON_REMOVE = False
+# configuration checking of the RWLS moves: 0 none (only the column just removed is tabu), 1 freed by
+# additions, 2 freed by additions and removals
+RWLS_CC_MODE = 1
+# penalty step of a row with equal costs and a full cover (RWLS moves and joint swaps):
+# max(1, floor(RWLS_ROW_STEP / columns covering it)), also its starting penalty (rows few columns
+# cover weigh more; integers keep the incremental sums exact); 0: every step 1
+RWLS_ROW_STEP = 10_000
+# restarts of the long search (solve_cover's second phase): from the best cover less this share of
+# its columns, after RESTART_WORK_PER_NNZ work units a nonzero (between the limits) times the Luby sequence
+RESTART_DROP = 0.2
+RESTART_WORK_PER_NNZ = 10_000
+RESTART_WORK_MIN = 50_000_000
+RESTART_WORK_MAX = 2_000_000_000
+# searches side by side in solve_cover's second phase (one thread each, at most the cores available)
+SEARCH_THREADS = 2
 # patience of the search, in work units (score updates; about 1e8 to 1e9 a second): 2,000 per
 # nonzero of the reduced matrix, between these limits; a tenth of it for the first search (the one
 # before SCIP / CP-SAT may run)
@@ -95,6 +121,11 @@ def patience_work(nnz: int, before_model: bool = False) -> int:
     """Work without improvement after which the search stops (see :data:`PATIENCE_PER_NNZ`)."""
     p = int(min(max(PATIENCE_PER_NNZ * nnz, PATIENCE_WORK_MIN), PATIENCE_WORK))
     return p // 10 if before_model else p
+
+
+def restart_unit_work(nnz: int) -> int:
+    """Work unit of the restart schedule (see :data:`RESTART_WORK_PER_NNZ`)."""
+    return int(min(max(RESTART_WORK_PER_NNZ * nnz, RESTART_WORK_MIN), RESTART_WORK_MAX))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -362,20 +393,48 @@ class LocalSearch:
     rwls : bool, optional
         RWLS moves (:func:`_sckernels.search_rwls`); default: when every reduced column costs the
         same and every row must be covered (never for partial covers).
+    stream : int
+        Random stream of the seed (0: the seed's own; others: independent streams of the same seed,
+        for searches run side by side).
     """
 
     def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None,
-                 max_cand: int = MAX_CANDIDATES, joint: bool = True, rwls: bool | None = None) -> None:
+                 max_cand: int = MAX_CANDIDATES, joint: bool = True, rwls: bool | None = None,
+                 stream: int = 0) -> None:
         self.max_cand = int(max_cand)
         self.joint = bool(joint)
         m, n = red.shape
         unit = bool(n == 0 or np.all(red.cost == red.cost[0]))
         self.rwls = (unit and not red.partial) if rwls is None else bool(rwls) and not red.partial
+        self.red = red
+        self.pinc = np.ones(m)
+        if unit and not red.partial and RWLS_ROW_STEP > 0:
+            self.pinc = np.maximum(1.0, np.floor(RWLS_ROW_STEP / np.maximum(np.diff(red.rptr), 1)))
+        self.cc_mode = int(RWLS_CC_MODE)
+        self.restart_work: int | None = None
+        self.stamp = np.zeros(n, dtype=np.int64)
+        self.best = np.zeros(n, dtype=np.int8)
+        self.ist = np.zeros(K.N_IST, dtype=np.int64)
+        self.fst = np.zeros(K.N_FST, dtype=np.float64)
+        self.rng = np.array([_splitmix(seed) if stream == 0 else _splitmix(int(_splitmix(seed)) + int(stream))],
+                            dtype=np.uint64)
+        self.need = red.need * (1.0 - 1e-12) if red.partial else -1.0
+        self._start(start)
+        self.best[:] = self.x
+        self.fst[K.BEST_COST] = self.fst[K.COST]
+        self.ist[K.BEST_WORK] = self.ist[K.EPOCH_WORK] = self.ist[K.WORK]
+        self.best_time = time.perf_counter()  # clock (perf_counter) when the best cover was found, to a chunk
+        self.greedy_cost = float(self.fst[K.COST])
+
+    def _start(self, start: Any) -> None:
+        """Fresh state (every row uncovered, penalties at their start, configuration checking
+        cleared), then the greedy cover completed from the columns ``start`` (None: none)."""
+        red = self.red
+        m, n = red.shape
         # configuration checking of RWLS: last event of every row, removal event of every column, counter
         self.rchg = np.zeros(m, dtype=np.int64)
         self.cblk = np.zeros(n, dtype=np.int64)
         self.clk = np.zeros(1, dtype=np.int64)
-        self.red = red
         self.x = np.zeros(n, dtype=np.int8)
         self.cov = np.zeros(m, dtype=np.int32)
         self.csum = np.zeros(m, dtype=np.int64)
@@ -383,37 +442,38 @@ class LocalSearch:
             pos = red.roww[red.roww > 0]
             self.pw = red.roww / (float(pos.mean()) if pos.size else 1.0)
         else:
-            self.pw = np.ones(m)
+            self.pw = self.pinc.copy()
         col_of = np.repeat(np.arange(n), np.diff(red.cptr))
         self.score = np.bincount(col_of, weights=self.pw[red.crow], minlength=n).astype(np.float64)
-        self.stamp = np.zeros(n, dtype=np.int64)
         self.sel = np.zeros(n, dtype=np.int32)
         self.selpos = np.full(n, -1, dtype=np.int32)
         self.unc = np.arange(m, dtype=np.int32)
         self.uncpos = np.arange(m, dtype=np.int32)
-        self.best = np.zeros(n, dtype=np.int8)
-        self.ist = np.zeros(K.N_IST, dtype=np.int64)
+        self.ist[K.NSEL] = 0
         self.ist[K.NUNC] = m
         self.ist[K.LADD] = self.ist[K.LREM] = -1
-        self.fst = np.zeros(K.N_FST, dtype=np.float64)
-        self.rng = np.array([_splitmix(seed)], dtype=np.uint64)
-        self.need = red.need * (1.0 - 1e-12) if red.partial else -1.0
+        self.fst[K.COST] = self.fst[K.COVW] = 0.0
         with ctrl_c_deferred():
-            if start is None:
-                K.greedy(*self._args())
-            else:
+            if start is not None:
                 move = self._args()
                 move = move[:6] + move[7:]  # add_col takes no 'need'
                 for j in start:
                     if not self.x[int(j)]:
                         K.add_col(int(j), *move)
-                K.prune(*self._args())
+            K.greedy(*self._args())
         if not self.feasible():
             raise CamplaceError("setcover local search: the start is not a cover (internal error)")
-        self.best[:] = self.x
-        self.fst[K.BEST_COST] = self.fst[K.COST]
-        self.ist[K.BEST_WORK] = self.ist[K.WORK]
-        self.greedy_cost = float(self.fst[K.COST])
+
+    def restart(self) -> None:
+        """Start again from the best cover less a random share (:data:`RESTART_DROP`) of its columns,
+        completed greedily, with every penalty back at its start (the best cover is kept; the
+        random draws come from the search's own generator: deterministic)."""
+        cols = np.flatnonzero(self.best)
+        r = np.random.default_rng(int(K._rand(self.rng)))
+        keep = cols[r.random(cols.size) >= RESTART_DROP]
+        self._start(keep)
+        self.ist[K.EPOCH_WORK] = self.ist[K.WORK]
+        self.ist[K.RESTARTS] += 1
 
     def _args(self) -> tuple:
         r = self.red
@@ -442,7 +502,8 @@ class LocalSearch:
         return int(self.ist[K.BEST_IT])
 
     def run(self, *, max_iterations: int | None = None, time_limit_s: float | None = None, target: float = -math.inf,
-            patience: int | None = None) -> str:
+            patience: int | None = None, stop: threading.Event | None = None,
+            reached: threading.Event | None = None) -> str:
         """Search until an iteration budget, a time limit, the target cost or a stall.
 
         Parameters
@@ -457,31 +518,54 @@ class LocalSearch:
             Stop once the work since the best cover (score updates, a count that does not depend
             on the machine) exceeds ``patience`` plus the work it took to find it: the search goes
             on while improvements keep coming (deterministic).
+        stop : threading.Event, optional
+            Stop once it is set (checked between compiled chunks).
+        reached : threading.Event, optional
+            Set when the target is reached.
+
+        With :attr:`restart_work` set, the search restarts (:meth:`restart`) whenever the work since
+        its last improvement or restart reaches ``restart_work`` times the next term of the Luby
+        sequence (1, 1, 2, 1, 1, 2, 4, ...): short runs often, long ones now and then, which suits
+        searches whose time to the best cover varies by orders of magnitude from run to run.
 
         Returns
         -------
         str
-            Why it stopped: ``"target"``, ``"iterations"``, ``"patience"``, ``"time"`` or ``"stuck"``
-            (every row covered, the required weight not reached).
+            Why it stopped: ``"target"``, ``"iterations"``, ``"patience"``, ``"time"``, ``"stuck"``
+            (every row covered, the required weight not reached) or ``"stopped"``.
         """
         t0 = time.perf_counter()
         chunk = 64
         stop_it = np.iinfo(np.int64).max if max_iterations is None else int(max_iterations)
         pat = np.iinfo(np.int64).max // 4 if patience is None else int(patience)
         args = self._args()
+        improved = int(self.ist[K.IMPROVED])
         while True:
             if time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
                 return "time"
+            if stop is not None and stop.is_set():
+                return "stopped"
+            rst = np.iinfo(np.int64).max // 4 if self.restart_work is None else \
+                int(self.restart_work) * _luby(int(self.ist[K.RESTARTS]) + 1)
             c0 = time.perf_counter()
             with ctrl_c_deferred():
                 if self.rwls:
                     code = K.search_rwls(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target),
-                                         stop_it, pat, self.rchg, self.cblk, self.clk, RWLS_CC_ON_REMOVE,
-                                         RWLS_PENALTY_MODE)
+                                         stop_it, pat, self.rchg, self.cblk, self.clk, self.cc_mode,
+                                         RWLS_PENALTY_MODE, self.pinc, rst)
                 else:
                     code = K.search(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target),
-                                    stop_it, pat, self.max_cand, self.joint)
+                                    stop_it, pat, self.max_cand, self.joint, self.pinc, rst)
             dt = time.perf_counter() - c0
+            if self.ist[K.IMPROVED] != improved:
+                improved = int(self.ist[K.IMPROVED])
+                self.best_time = c0 + dt
+            if code == 5:
+                self.restart()
+                args = self._args()
+                continue
+            if code == 1 and reached is not None:
+                reached.set()
             if code:
                 return {1: "target", 2: "iterations", 3: "stuck", 4: "patience"}[code]
             if dt < _CHUNK_S / 2:
@@ -493,6 +577,50 @@ class LocalSearch:
         """Reduced columns of the best cover after removing redundant columns (dearest first)."""
         fresh = LocalSearch(self.red, start=np.flatnonzero(self.best))
         return np.flatnonzero(fresh.x).astype(np.int64)
+
+
+def _luby(i: int) -> int:
+    """The ``i``-th term (from 1) of the Luby sequence 1, 1, 2, 1, 1, 2, 4, 1, 1, 2, 1, 1, 2, 4, 8, ..."""
+    while True:
+        k = i.bit_length()
+        if i == (1 << k) - 1:
+            return 1 << (k - 1)
+        i -= (1 << (k - 1)) - 1
+
+
+def search_threads() -> int:
+    """Searches run side by side (:func:`run_searches`): the cores this process may use, at most
+    :data:`SEARCH_THREADS`."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(SEARCH_THREADS, cores))
+
+
+def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = None, target: float = -math.inf,
+                 patience: int | None = None) -> list[str]:
+    """Run several searches side by side, one thread each (the compiled kernels release the GIL).
+
+    With a time limit, the first to reach ``target`` stops the others (the answer then depends on
+    the machine's speed, as any timed search does); without one, each runs to its own end, so the
+    outcome of every search is that of running it alone (deterministic).
+
+    Returns
+    -------
+    list of str
+        Why each stopped (:meth:`LocalSearch.run`).
+    """
+    if len(searches) == 1:
+        return [searches[0].run(time_limit_s=time_limit_s, target=target, patience=patience)]
+    ev = threading.Event()  # also stops the threads when the main one is interrupted (Ctrl-C)
+    with ThreadPoolExecutor(max_workers=len(searches), thread_name_prefix="setcover-search") as ex:
+        futs = [ex.submit(s.run, time_limit_s=time_limit_s, target=target, patience=patience, stop=ev,
+                          reached=ev if time_limit_s is not None else None) for s in searches]
+        try:
+            return [f.result() for f in futs]
+        finally:
+            ev.set()
 
 
 def local_search(red: CoverReduction, *, seed: int = 0, max_iterations: int | None = None,
@@ -774,6 +902,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
                  target=lb, patience=None if max_iterations is not None else patience_work(red.nnz, before_model=True))
     sel_r = ls.best_cover()
     cost_r = float(red.cost[sel_r].sum())
+    found_s = ls.best_time - t0  # when the cover kept so far was found
     ls_stats = {"greedy_cost": ls.greedy_cost + red.forced_cost, "cost": cost_r + red.forced_cost,
                 "iterations": ls.iterations, "best_iteration": ls.best_iteration, "work": int(ls.ist[K.WORK]),
                 "stopped_by": why, "seed": int(seed)}
@@ -801,6 +930,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
             mcost = float(red.cost[msel].sum())
             if mcost < cost_r - 1e-9 * max(1.0, abs(cost_r)):
                 sel_r, cost_r = msel, mcost
+                found_s = time.perf_counter() - t0
         elif msel is not None:
             log.warning("setcover: the %s answer does not cover the required weight (integer rounding); kept the "
                         "local-search cover", backend)
@@ -811,19 +941,29 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
     rem = left()
     if not proven and why in ("patience", "time") and (rem is None or rem > 0.02 * float(time_limit_s)):
-        # the search goes on from where it was: until the time limit when there is one, else with
-        # the full patience counted from now
+        # the search goes on from where it was, with restarts, beside a second one started from its
+        # best cover (own random stream), one thread each: until the time limit when there is one,
+        # else each with the full patience counted from now
         ls.ist[K.BEST_WORK] = max(int(ls.ist[K.BEST_WORK]), int(ls.ist[K.WORK]) // 2)
-        why = ls.run(time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
-                     patience=None if rem is not None else patience_work(red.nnz))
-        sel2 = ls.best_cover()
+        searches = [ls] + [LocalSearch(red, seed=seed, stream=k, start=np.flatnonzero(ls.best))
+                           for k in range(1, search_threads())]
+        for s in searches:
+            s.restart_work = restart_unit_work(red.nnz)
+        whys = run_searches(searches, time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
+                            patience=None if rem is not None else patience_work(red.nnz))
+        costs2 = [s.best_cost for s in searches]
+        k_best = int(np.argmin(costs2))  # ties: the first
+        sel2 = searches[k_best].best_cover()
         cost2 = float(red.cost[sel2].sum())
         if cost2 < cost_r - 1e-9 * max(1.0, abs(cost_r)):
             sel_r, cost_r = sel2, cost2
+            found_s = searches[k_best].best_time - t0
             proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
-        ls_stats.update({"cost": cost2 + red.forced_cost, "iterations": ls.iterations,
-                         "best_iteration": ls.best_iteration, "work": int(ls.ist[K.WORK]), "stopped_by": why,
-                         "resumed": True})
+        ls_stats.update({"cost": cost2 + red.forced_cost, "iterations": sum(s.iterations for s in searches),
+                         "best_iteration": searches[k_best].best_iteration,
+                         "work": int(sum(int(s.ist[K.WORK]) for s in searches)), "stopped_by": whys[k_best],
+                         "resumed": True, "searches": len(searches),
+                         "restarts": int(sum(int(s.ist[K.RESTARTS]) for s in searches)), "best_search": k_best})
     sel = _prune_input(pattern, c, weights, need, red.input_columns(sel_r))
     cost = float(c[list(sel)].sum())
     bound = min(bound_r + red.forced_cost, cost)
@@ -831,6 +971,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     if status == "optimal":
         bound = cost
     stats["time_s"] = time.perf_counter() - t0
+    stats["time_to_best_s"] = max(0.0, found_s)
     log.info("setcover: %s cost %.9g bound %.9g (%s) in %.2f s", status, cost, bound, name, stats["time_s"])
     return CoverOutcome(sel, status, cost, bound, name, stats)
 
