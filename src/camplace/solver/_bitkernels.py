@@ -626,6 +626,71 @@ def split_tuple(cur, lo, hi, left, right, out):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
+def union_weights(bits, w, planes):  # pragma: no cover - compiled
+    """(N,) float64: the weight of the rows set in each bitset of ``bits`` (N, n_words) (popcounts
+    over ``planes`` when it has rows, else the set bits one by one)."""
+    n, n_words = bits.shape
+    n_planes = planes.shape[0]
+    out = np.zeros(n)
+    for v in range(n):
+        acc = 0.0
+        for wd in range(n_words):
+            x = bits[v, wd]
+            if n_planes > 0:
+                for b in range(n_planes):
+                    acc += float(_popcount(x & planes[b, wd]) << np.uint64(b))
+            else:
+                acc += _bits_weight(x, wd, w)
+        out[v] = acc
+    return out
+
+
+@numba.njit(**_JIT)
+def split_tuple_by(cur, score, lo, hi, left, right, out):  # pragma: no cover - compiled
+    """:func:`split_tuple` splitting the node of largest ``score`` ((N,) float64, >= 0 for every
+    node of two or more columns; ties: the first) instead of the largest node; each child is
+    sorted (equal nodes adjacent). Any choice keeps every column set in exactly one child."""
+    k = cur.shape[0]
+    jbest = -1
+    sbest = -1.0
+    for j in range(k):
+        v = cur[j]
+        if hi[v] - lo[v] > 1 and score[v] > sbest:
+            sbest = score[v]
+            jbest = j
+    if jbest < 0:
+        return 0
+    v = cur[jbest]
+    first = jbest
+    while first > 0 and cur[first - 1] == v:
+        first -= 1
+    last = jbest
+    while last < k - 1 and cur[last + 1] == v:
+        last += 1
+    cnt = last - first + 1
+    lch = left[v]
+    rch = right[v]
+    n_out = 0
+    for nl in range(cnt, -1, -1):  # nl copies of L, then cnt - nl copies of R
+        nr = cnt - nl
+        if nl > hi[lch] - lo[lch] or nr > hi[rch] - lo[rch]:
+            continue
+        for j in range(k):
+            out[n_out, j] = cur[j]
+        for j in range(cnt):
+            out[n_out, first + j] = lch if j < nl else rch
+        for i in range(1, k):  # insertion sort (k <= 8)
+            x = out[n_out, i]
+            j = i - 1
+            while j >= 0 and out[n_out, j] > x:
+                out[n_out, j + 1] = out[n_out, j]
+                j -= 1
+            out[n_out, j + 1] = x
+        n_out += 1
+    return n_out
+
+
+@numba.njit(**_JIT)
 def child_bound(levels, child, m, w, planes, last_mask, total, beat, colmax, acc, pw):  # pragma: no cover - compiled
     """Bound of a node tuple: ``total - shortfall``, also at most ``sum_t colmax[v_t] / m`` when
     ``colmax`` is given (a counted row is observed by ``m`` chosen columns). Returns ``-inf`` as
@@ -645,7 +710,7 @@ def child_bound(levels, child, m, w, planes, last_mask, total, beat, colmax, acc
 
 @numba.njit(**_JIT)
 def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, margin, stack, stack_bound, sp, best, best_set,
-                 budget, colmax):  # pragma: no cover - compiled
+                 budget, colmax, pw, score):  # pragma: no cover - compiled
     """Depth-first search over k-tuples of tree nodes with the union bound (resumable).
 
     A stack entry is a non-decreasing tuple of nodes (``stack[i, :k]``) standing for every k-subset
@@ -655,7 +720,9 @@ def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, ma
     With ``m > 1`` and ``colmax`` (per node, the largest weight one of its columns observes) the
     bound is also at most ``sum_t colmax[v_t] / m``: a row that counts is observed by at least m
     chosen columns, so m times the value is at most the sum of their weights. That check comes
-    first and skips the row scan when it already prunes.
+    first and skips the row scan when it already prunes. ``pw``: the opposite-pairs layout (see
+    :func:`shortfall`; 0 for none). A non-empty ``score`` chooses the node to split
+    (:func:`split_tuple_by`); otherwise the largest is split.
     A popped tuple whose bound cannot beat ``best`` (by more than ``margin``) is dropped;
     otherwise its largest node is split into its two children L < R, and the positions it holds
     are replaced by every non-decreasing mix of L and R (a leaf never twice, a node never more
@@ -682,12 +749,15 @@ def tuple_search(lo, hi, left, right, levels, m, w, planes, last_mask, total, ma
         sp -= 1
         if stack_bound[sp] <= best + margin:
             continue
-        n_kids = split_tuple(stack[sp], lo, hi, left, right, kids)
+        if score.shape[0] > 0:
+            n_kids = split_tuple_by(stack[sp], score, lo, hi, left, right, kids)
+        else:
+            n_kids = split_tuple(stack[sp], lo, hi, left, right, kids)
         nc = 0
         for c in range(n_kids):
             child = kids[c]
             evaluated += 1
-            bnd = child_bound(levels, child, m, w, planes, last_mask, total, best + margin, colmax, acc, 0)
+            bnd = child_bound(levels, child, m, w, planes, last_mask, total, best + margin, colmax, acc, pw)
             if bnd <= best + margin:
                 continue
             if all_leaves(child, lo, hi):
