@@ -84,7 +84,7 @@ _PAIRS_MIN_SHARE = 0.05  # the opposite-pairs layout when it matches at least th
 _PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
 _CHUNK = 8192  # tuples per stack entry of the opposite-pairs search
 _BATCH = 1 << 16  # tuples expanded per parallel call there (the top stack entries together)
-_ROOT_CHUNK = 64  # tuples per frontier entry of the search for views > 1 on the plain layout ...
+_ROOT_CHUNK = 16  # tuples per frontier entry of the search for views > 1 on the plain layout ...
 _ROOT_BUDGET = 20_000  # ... bound evaluations of the depth-first search from each root there ...
 _ROOTS_MIN, _ROOTS_MAX = 4, 512  # ... roots per parallel call ...
 _BATCH_S = 0.5  # ... which should take this long (the deadline is checked between calls)
@@ -325,8 +325,8 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
     cache-friendly order of the serial search); what is left on their stacks goes back to the
     frontier. The reported bound (the frontier's largest) falls as the search goes; while more
     than ``_DEPTH_FIRST_OPEN`` tuples are open the newest chunks are taken first (memory). A round
-    takes about ``_BATCH_S`` seconds (at most a quarter of the time left); the deadline is checked
-    between rounds.
+    takes at most about ``_BATCH_S`` seconds (and a quarter of the time left) at the rate of the
+    previous one; the deadline is checked between rounds.
 
     Returns the status and the bound (in ``st`` units); improvements go to ``st.offer``.
     """
@@ -360,10 +360,12 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
                 0, _ROOT_BUDGET, cap, score)
         if overflow:
             raise RuntimeError("bitset search stack overflow")  # cannot happen: depth <= k * log2(n) levels
-        per = (time.perf_counter() - t_round) / roots.shape[0]
+        # next round: at the bounds-per-second just seen, even roots that use their whole budget
+        # take about _BATCH_S seconds (at most a quarter of the time left)
+        rate = int(n_made) / max(time.perf_counter() - t_round, 1e-9)
         left_s = deadline.remaining()
         want = _BATCH_S if left_s is None else min(_BATCH_S, 0.25 * left_s)
-        n_roots = int(min(_ROOTS_MAX, max(_ROOTS_MIN, want / max(per, 1e-9))))
+        n_roots = int(min(_ROOTS_MAX, max(_ROOTS_MIN, want * rate / _ROOT_BUDGET)))
         evaluated += int(n_made)
         f = int(np.argmax(found))
         if found[f] > st.best:
