@@ -40,7 +40,7 @@ def test_split_by_score_reaches_every_set_once(n: int, k: int, seed: int) -> Non
     of the n columns exactly once (the search misses no set and repeats none)."""
     k = min(k, n)
     lo, hi, left, right = K.tree_shape(n)
-    score = np.random.default_rng(seed).uniform(0.0, 1.0, lo.shape[0])
+    score = np.random.default_rng(seed).uniform(-1.0, 1.0, lo.shape[0])
     found: list[tuple[int, ...]] = []
     todo = [np.zeros(k, dtype=np.int64)]
     out = np.empty((k + 1, k), dtype=np.int64)

@@ -647,12 +647,12 @@ def union_weights(bits, w, planes):  # pragma: no cover - compiled
 
 @numba.njit(**_JIT)
 def split_tuple_by(cur, score, lo, hi, left, right, out):  # pragma: no cover - compiled
-    """:func:`split_tuple` splitting the node of largest ``score`` ((N,) float64, >= 0 for every
-    node of two or more columns; ties: the first) instead of the largest node; each child is
-    sorted (equal nodes adjacent). Any choice keeps every column set in exactly one child."""
+    """:func:`split_tuple` splitting, among the nodes of two or more columns, the one of largest
+    ``score`` ((N,) float64; ties: the first) instead of the largest node; each child is sorted
+    (equal nodes adjacent). Any choice keeps every column set in exactly one child."""
     k = cur.shape[0]
     jbest = -1
-    sbest = -1.0
+    sbest = -np.inf
     for j in range(k):
         v = cur[j]
         if hi[v] - lo[v] > 1 and score[v] > sbest:

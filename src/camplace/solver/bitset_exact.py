@@ -337,7 +337,7 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
     # split the node whose union most exceeds its heaviest column: where the bound is loosest
     # (on comet-67p-bunker, every surface point, 3 views, k = 6: 4.2 times fewer bounds than the largest node)
     union = K.union_weights(levels[0], st.w, st.planes)
-    score = np.where(hi - lo > 1, np.maximum(union - colmax, 0.0), -1.0)
+    score = union - colmax
     stats["time_setup_s"] = deadline.elapsed()
     front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([min(root, st.total)]), _DEPTH_FIRST_OPEN, _ROOT_CHUNK)
     evaluated = rounds = 0
