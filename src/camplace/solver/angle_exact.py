@@ -33,7 +33,6 @@ over the columns, depth-first in parallel batches), with the angle added to the 
 
 from __future__ import annotations
 
-import heapq
 import logging
 import math
 import time
@@ -47,7 +46,7 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.solver import _anglekernels as AK
 from camplace.solver import _bitkernels as K
-from camplace.solver._common import Deadline, OverBudget, best_leaf
+from camplace.solver._common import Deadline, Frontier, OverBudget, best_leaf
 from camplace.solver.pair_cap import match_opposite, opposite_pair_bytes
 
 __all__ = ["AngleOutcome", "angle_bytes", "greedy_angle", "solve_angle"]
@@ -371,72 +370,6 @@ class _Tree:
         return tuple(sorted(int(self.cols_ord[self.lo[x]]) for x in nodes))
 
 
-class _Frontier:
-    """Open node tuples in chunks: best-first (a heap on each chunk's largest bound, so the
-    reported bound falls as the search goes), depth-first from the newest chunks while more than
-    ``depth_first_open`` tuples are open (memory)."""
-
-    def __init__(self, tuples: np.ndarray, bounds: np.ndarray, depth_first_open: int) -> None:
-        self.depth_first_open = depth_first_open
-        self.heap: list[tuple[float, int, np.ndarray, np.ndarray]] = []
-        self.lifo: list[tuple[float, np.ndarray, np.ndarray]] = []
-        self.seq = 0
-        self.n_open = 0
-        self.peak = 0
-        self.lifo_batches = 0
-        self._add(tuples, bounds, lifo=False)
-
-    def _add(self, tuples: np.ndarray, bounds: np.ndarray, lifo: bool) -> None:
-        key = float(bounds.max())
-        if lifo:
-            self.lifo.append((key, tuples, bounds))
-        else:
-            self.seq += 1
-            heapq.heappush(self.heap, (-key, self.seq, tuples, bounds))
-        self.n_open += bounds.shape[0]
-        self.peak = max(self.peak, self.n_open)
-
-    def top(self) -> float:
-        """Largest bound still open (-inf if none)."""
-        out = -self.heap[0][0] if self.heap else -math.inf
-        return max([out, *(key for key, _, _ in self.lifo)])
-
-    def pop_batch(self, size: int, threshold: float) -> np.ndarray:
-        """Up to about ``size`` open tuples whose bound beats ``threshold`` (newest depth-first
-        chunks first, else the best chunks)."""
-        parts: list[np.ndarray] = []
-        got = 0
-        from_lifo = bool(self.lifo)
-        while got < size and (self.lifo if from_lifo else self.heap):
-            if from_lifo:
-                _, tup, tb = self.lifo.pop()
-            else:
-                if -self.heap[0][0] <= threshold:  # nothing left in the heap can win
-                    self.n_open -= sum(e[3].shape[0] for e in self.heap)
-                    self.heap.clear()
-                    break
-                _, _, tup, tb = heapq.heappop(self.heap)
-            self.n_open -= tb.shape[0]
-            keep = tb > threshold
-            parts.append(tup[keep])
-            got += int(keep.sum())
-        self.lifo_batches += int(from_lifo)
-        if not parts:
-            return np.zeros((0, 0), dtype=np.int64)
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
-
-    def push(self, children: np.ndarray, value: np.ndarray, leaf: np.ndarray, threshold: float) -> None:
-        """The children that are not tuples of leaves and beat ``threshold``, in chunks of similar
-        bounds (pushed so that the most promising chunk is popped first)."""
-        keep = np.isfinite(value) & ~leaf & (value > threshold)
-        ch, cv = children[keep], value[keep]
-        idx = np.argsort(cv, kind="stable")
-        ch, cv = ch[idx], cv[idx]
-        lifo = self.n_open + cv.shape[0] > self.depth_first_open
-        for c0 in range(0, cv.shape[0], _CHUNK):
-            self._add(ch[c0 : c0 + _CHUNK], cv[c0 : c0 + _CHUNK], lifo)
-
-
 def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
                  pts: np.ndarray, fixed: np.ndarray, free: np.ndarray, *,
                  time_limit_s: float | None = None) -> tuple[int, ...]:
@@ -583,7 +516,7 @@ def solve_angle(
     # the incumbent (in layout units: its value on the search rows), then best-first search
     best = inc.best
     best_set = inc.best_set
-    front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap))
+    front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap), _CHUNK)
     evaluated = batches = exact_evals = 0
     batch = min(_BATCH, _BATCH_MIN)
     status, open_bound = "optimal", -math.inf

@@ -30,8 +30,9 @@ columns ``S``, with ``wq_ij = w_i Q_ij``.
 Multiview (``views`` sightings per point) has no useful linear relaxation (on comet-67p-bunker with
 every surface point, 3 views, k = 6, it is no better than the k heaviest columns / ``views``), so
 :func:`run_large_k` combines :func:`views_incumbent` (the same local search with exact m-view
-values) with the bitset engine of :mod:`camplace.solver.bitset_exact` started from its set, and,
-under ``auto`` on sparse enough merged rows, SCIP hinted with the best set.
+values) with the bitset engine of :mod:`camplace.solver.bitset_exact` started from its set (it
+proves that instance, 2,000 x 10,000, with 5 million bounds in 20-30 s of CPU), and, under ``auto``
+on sparse enough merged rows, SCIP hinted with the best set.
 """
 
 from __future__ import annotations
@@ -520,8 +521,9 @@ _MAXCOVER_FIRST_S = 5.0
 _VIEWS_SHARE = 0.15  # multiview: this share of the time for the local search, ...
 _VIEWS_SEARCH_SHARE = 0.4  # ... then this share of the rest for the bitset search (under auto SCIP gets the rest ...
 # ... when the merged rows have at most this many entries: on comet-67p-bunker 2,000 x 10,000, k = 6, 3 views, the
-# lit side (2.4e6) gets its gap from 0.22 % to 0.12 % that way; with every surface point (6.3e6) SCIP's root LP does
-# not finish in a minute, overruns the time limit by 10 s and takes 3 GB, for no better bound
+# lit side (2.4e6) got its gap from 0.22 % to 0.12 % that way before the bitset search for views > 1 improved (it now
+# proves it within its share, 25 s in all); with every surface point (6.3e6) SCIP's root LP does not finish in a
+# minute, overruns the time limit by 10 s and takes 3 GB, for no better bound
 _VIEWS_SCIP_MAX_NNZ = 4_000_000
 
 
