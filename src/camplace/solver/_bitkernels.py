@@ -584,24 +584,14 @@ def all_leaves(tup, lo, hi):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def split_tuple(cur, lo, hi, left, right, out):  # pragma: no cover - compiled
-    """Children of a non-decreasing tuple of tree nodes: its largest node v is split into its
-    children L < R and the positions v holds are replaced by every non-decreasing mix of L and R
-    (a leaf never twice, a node never more often than it has columns).
-
-    Writes the children to ``out`` ((k + 1, k) int64) and returns their number (0 for a tuple
-    of leaves).
-    """
-    k = cur.shape[0]
-    jbest = -1
-    sbest = 1
-    for j in range(k):
-        s = hi[cur[j]] - lo[cur[j]]
-        if s > sbest:
-            sbest = s
-            jbest = j
+def _split_at(cur, jbest, lo, hi, left, right, out, sort):  # pragma: no cover - compiled
+    """The children of ``cur`` when the node at position ``jbest`` (-1: none) is split: the
+    positions that node holds get every mix of its children L and R (a leaf never twice, a node
+    never more often than it has columns); ``sort`` sorts each child (equal nodes adjacent).
+    Writes them to ``out`` ((k + 1, k) int64) and returns their number."""
     if jbest < 0:
         return 0
+    k = cur.shape[0]
     v = cur[jbest]
     first = jbest
     while first > 0 and cur[first - 1] == v:
@@ -621,8 +611,36 @@ def split_tuple(cur, lo, hi, left, right, out):  # pragma: no cover - compiled
             out[n_out, j] = cur[j]
         for j in range(cnt):
             out[n_out, first + j] = lch if j < nl else rch
+        if sort:
+            for i in range(1, k):  # insertion sort (k <= 8)
+                x = out[n_out, i]
+                j = i - 1
+                while j >= 0 and out[n_out, j] > x:
+                    out[n_out, j + 1] = out[n_out, j]
+                    j -= 1
+                out[n_out, j + 1] = x
         n_out += 1
     return n_out
+
+
+@numba.njit(**_JIT)
+def split_tuple(cur, lo, hi, left, right, out):  # pragma: no cover - compiled
+    """Children of a non-decreasing tuple of tree nodes: its largest node v is split into its
+    children L < R and the positions v holds are replaced by every non-decreasing mix of L and R
+    (a leaf never twice, a node never more often than it has columns).
+
+    Writes the children to ``out`` ((k + 1, k) int64) and returns their number (0 for a tuple
+    of leaves).
+    """
+    k = cur.shape[0]
+    jbest = -1
+    sbest = 1
+    for j in range(k):
+        s = hi[cur[j]] - lo[cur[j]]
+        if s > sbest:
+            sbest = s
+            jbest = j
+    return _split_at(cur, jbest, lo, hi, left, right, out, False)
 
 
 @numba.njit(**_JIT)
@@ -658,36 +676,7 @@ def split_tuple_by(cur, score, lo, hi, left, right, out):  # pragma: no cover - 
         if hi[v] - lo[v] > 1 and score[v] > sbest:
             sbest = score[v]
             jbest = j
-    if jbest < 0:
-        return 0
-    v = cur[jbest]
-    first = jbest
-    while first > 0 and cur[first - 1] == v:
-        first -= 1
-    last = jbest
-    while last < k - 1 and cur[last + 1] == v:
-        last += 1
-    cnt = last - first + 1
-    lch = left[v]
-    rch = right[v]
-    n_out = 0
-    for nl in range(cnt, -1, -1):  # nl copies of L, then cnt - nl copies of R
-        nr = cnt - nl
-        if nl > hi[lch] - lo[lch] or nr > hi[rch] - lo[rch]:
-            continue
-        for j in range(k):
-            out[n_out, j] = cur[j]
-        for j in range(cnt):
-            out[n_out, first + j] = lch if j < nl else rch
-        for i in range(1, k):  # insertion sort (k <= 8)
-            x = out[n_out, i]
-            j = i - 1
-            while j >= 0 and out[n_out, j] > x:
-                out[n_out, j + 1] = out[n_out, j]
-                j -= 1
-            out[n_out, j + 1] = x
-        n_out += 1
-    return n_out
+    return _split_at(cur, jbest, lo, hi, left, right, out, True)
 
 
 @numba.njit(**_JIT)
