@@ -104,7 +104,7 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
     levels = max(1, min(int(views), int(k)))
     bits = words * 8 * (2 * int(n_cols) + levels * nodes)
-    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS)
+    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS) + 32 * (int(n_cols) + int(n_fixed))
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
     frontier = (int(open_tuples) + (k + 1) * _BATCH) * _tuple_bytes(k)
@@ -186,6 +186,21 @@ def _pairs_layout(match, wu_unit: float | None, seen: np.ndarray, pts: np.ndarra
     if wu_unit is not None:
         w = np.round(w)
     return _Layout(rows, w, pw)
+
+
+def _sphere_directions(p: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions (c, 3) from the centre of a sphere around the points ``p`` (q, 3) to the
+    cameras ``cams`` (c, 3), and each camera's parallax over it, ``asin(radius / distance)``
+    radians (``pi / 2`` inside it): a camera's direction from any point of the sphere is within
+    its parallax of its direction from the centre."""
+    c = 0.5 * (p.min(axis=0) + p.max(axis=0)) if p.shape[0] else np.zeros(3)
+    rad = (float(np.linalg.norm(p - c, axis=1).max()) if p.shape[0] else 0.0) * (1.0 + 1e-9) + 1e-12
+    d = cams - c
+    dist = np.linalg.norm(d, axis=1)
+    inside = dist <= rad * (1.0 + 1e-9)
+    dirs = np.where(inside[:, None], 0.0, d / np.where(inside, 1.0, dist)[:, None])
+    par = np.where(inside, 0.5 * math.pi, np.arcsin(np.minimum(1.0, rad / np.where(inside, 1.0, dist))) + 1e-9)
+    return np.ascontiguousarray(dirs), np.ascontiguousarray(par)
 
 
 def _blocks(rows: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -343,6 +358,9 @@ class _Tree:
             none = np.full(fixed.size, -1, dtype=np.int64)
             AK.node_cones(self.fpos, np.arange(fixed.size, dtype=np.int64), none, none, centers, radius, self.fcones)
             self.fpair = AK.fixed_pairs(self.fbits, self.fpos, self.pts, theta_deg)
+            # one sphere around every point: node pairs the angle cannot split (AK.angle_free)
+            self.dirs, self.par = _sphere_directions(self.pts[: rows.size][rows >= 0],
+                                                     np.concatenate([self.campos, self.fpos]))
         self.planes = K.weight_planes(lw) if integer else np.zeros((0, n_words), np.uint64)
         self.mask = _last_mask(rows.size)
         f = colw[self.cols_ord]
@@ -359,12 +377,12 @@ class _Tree:
         """Children of the tuples ``tup`` (F, k) and their bounds (:func:`_anglekernels.expand`)."""
         possible, always, self_ok = self.tables
         with ctrl_c_deferred(), numba.parallel_chunksize(_PAR_CHUNK):  # dynamic: evaluations vary in cost
-            children, value, leaf, n_made, n_exact = AK.expand(
+            children, value, leaf, n_made, n_exact, n_cheap, n_free = AK.expand(
                 tup, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
-                self.cos_t)
-        return children, value, leaf, int(n_made), int(n_exact)
+                self.cos_t, self.dirs, self.par)
+        return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free)
 
     def columns(self, nodes: np.ndarray) -> tuple[int, ...]:
         """Original columns of a tuple of leaves, sorted."""
@@ -584,7 +602,7 @@ def solve_angle(
     best = inc.best
     best_set = inc.best_set
     front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap))
-    evaluated = batches = exact_evals = 0
+    evaluated = batches = exact_evals = cheap_prunes = angle_free = 0
     batch = min(_BATCH, _BATCH_MIN)
     status, open_bound = "optimal", -math.inf
     while front.n_open:
@@ -598,23 +616,28 @@ def solve_angle(
             continue
         batches += 1
         t_batch = time.perf_counter()
-        children, value, leaf, n_made, n_exact = tree.expand(tup, best, margin)
+        children, value, leaf, n_made, n_exact, n_cheap, n_free = tree.expand(tup, best, margin)
         # next batch: about _BATCH_S seconds, and at most a quarter of the time left
         per = (time.perf_counter() - t_batch) / tup.shape[0]
         want = _BATCH_S if deadline.remaining() is None else min(_BATCH_S, 0.25 * (deadline.remaining() or 0.0))
         batch = int(min(_BATCH, max(_BATCH_MIN, want / max(per, 1e-9))))
         evaluated += n_made
         exact_evals += n_exact
+        cheap_prunes += n_cheap
+        angle_free += n_free
         top = best_leaf(children, value, leaf)
         if top is not None and top[0] > best:
             best, best_set = top[0], tree.columns(top[1])
             log.debug("angle: incumbent %.9g %s", const + best * scale, best_set)
         front.push(children, value, leaf, best + margin)
+        log.debug("angle: %d bounds (%d pruned without the angle, %d angle-free), open %d, top %.6g, %.1f s",
+                  evaluated, cheap_prunes, angle_free, front.n_open, const + front.top() * scale, deadline.elapsed())
     bound = max(best, open_bound)
     if bound <= best + margin:
         status, bound = "optimal", best
     stats.update({"search": "opposite pairs" if layout.pw > 0 else "blocks", "bound_evaluations": int(evaluated),
-                  "exact_evaluations": int(exact_evals), "batches": batches, "peak_open": int(front.peak),
+                  "exact_evaluations": int(exact_evals), "pruned_without_angle": int(cheap_prunes),
+                  "angle_free": int(angle_free), "batches": batches, "peak_open": int(front.peak),
                   "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
                   "time_search_s": deadline.elapsed() - stats["time_setup_s"]})
     log.info("angle: k=%d views=%d angle %.3g deg on %d rows x %d columns, %s value %.9g bound %.9g, %d bound "
