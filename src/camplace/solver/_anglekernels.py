@@ -440,16 +440,40 @@ def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, 
 
 @numba.njit(**_PJIT)
 def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
-           best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t, dirs, par):  # pragma: no cover - compiled
+           best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t, dirs, par, refine,
+           sample):  # pragma: no cover - compiled
     """Split every tuple of ``front`` (F, k) once and bound the children.
 
     A child's bound is ``min((sum of its nodes' heaviest column weights + the fixed cameras'
-    weights) / views, total - shortfall)``; for a tuple of single columns the shortfall is exact,
-    so the value is the set's exact value.
+    weights) / views, total - shortfall)``. The shortfall is first the count's
+    (:func:`count_shortfall`, angles ignored; it prunes most children); a child that survives it
+    gets the cone refinement of :func:`angle_shortfall` unless :func:`angle_free` says the angle
+    cannot remove credit from it, and (for a tuple of several columns in some node) only where
+    ``refine[level]`` is set for the level ``floor(log2(largest node's columns))``, or on one child
+    in ``sample``. Every choice gives a valid bound; a tuple of single columns is always decided
+    exactly, so its value is the set's exact value.
 
-    Returns ``children`` (F, k + 1, k), ``value`` (F, k + 1) (-inf: not made, or cannot beat
-    ``best + margin``), ``leaf`` (F, k + 1) bool, the number of children bounded and how many of
-    them were tuples of single columns evaluated exactly.
+    Parameters
+    ----------
+    dirs, par
+        See :func:`angle_free`.
+    refine : (64,) bool
+        Levels where non-leaf tuples get the cone refinement.
+    sample : int
+        One child in ``sample`` gets it anyway (so the caller can judge the levels).
+
+    Returns
+    -------
+    children : (F, k + 1, k) int64
+    value : (F, k + 1) float64
+        -inf: not made, or cannot beat ``best + margin``.
+    leaf : (F, k + 1) bool
+    made, exact, pruned_by_count, angle_free, pruned_after_refinement : int
+        Children bounded, tuples of single columns among them, children the count bound pruned,
+        children found angle-free, and children pruned after the refinement.
+    refined : (F, k + 1) int8
+        ``level + 1`` for a child the refinement did not prune, ``-(level + 1)`` for one it did,
+        0 where it did not run.
     """
     f_count, k = front.shape
     children = np.zeros((f_count, k + 1, k), dtype=np.int64)
@@ -459,6 +483,8 @@ def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcon
     exact = np.zeros(f_count, dtype=np.int64)
     filtered = np.zeros(f_count, dtype=np.int64)
     free = np.zeros(f_count, dtype=np.int64)
+    by_angle = np.zeros(f_count, dtype=np.int64)
+    refined = np.zeros((f_count, k + 1), dtype=np.int8)
     theta = math.radians(theta_deg)
     beat = best + margin
     for f in prange(f_count):
@@ -481,18 +507,26 @@ def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcon
                 continue  # cannot win even without the angle
             is_leaf = all_leaves(child, lo, hi)
             exact[f] += is_leaf
+            big = 1
+            for j in range(k):
+                big = max(big, hi[child[j]] - lo[child[j]])
+            lvl = 0
+            while (1 << (lvl + 1)) <= big:
+                lvl += 1
             if angle_free(child, k, lo, hi, dirs, par, fbits.shape[0], theta):
                 free[f] += 1  # sf (complete: the sum did not stop early) is the angle shortfall too
-            else:
+            elif is_leaf or refine[lvl] or (f * (k + 1) + q) % sample == 0:
                 sf = angle_shortfall(levels, cones, child, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
                                      mask, total - beat, acc, gnode, gcnt, pw, is_leaf, pts, possible, always, self_ok,
                                      theta_deg, cos_t)
+                refined[f, q] = lvl + 1 if total - sf > beat else -(lvl + 1)
             b = min(wcap, total - sf)
             if b <= beat:
+                by_angle[f] += 1
                 continue
             value[f, q] = b
             leaf[f, q] = is_leaf
-    return children, value, leaf, made.sum(), exact.sum(), filtered.sum(), free.sum()
+    return children, value, leaf, made.sum(), exact.sum(), filtered.sum(), free.sum(), by_angle.sum(), refined
 
 
 @numba.njit(**_JIT)

@@ -65,8 +65,11 @@ _BATCH = 1 << 14  # tuples expanded per parallel call, at most ...
 _BATCH_MIN = 256  # ... and at least
 _BATCH_S = 0.5  # seconds a batch should take (the deadline is checked between batches)
 _PAR_CHUNK = 16  # tuples a thread takes at a time
-_FRONTIER_MAX = 4_000_000  # open tuples at most (fewer when the memory budget is tight) ...
+_FRONTIER_MAX = 12_000_000  # open tuples at most (fewer when the memory budget is tight) ...
 _FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not run
+_REFINE_MIN_SHARE = 0.05  # cone refinement of a tuple level stays on while it prunes this share of its tries ...
+_REFINE_TRIALS = 2000  # ... judged after this many tries ...
+_REFINE_SAMPLE = 8  # ... and tried on 1 in this many tuples of a level where it is off
 _DEPTH_FIRST_SHARE = 0.25  # depth-first (newest chunks) while more than this share of the cap is open
 
 
@@ -371,18 +374,35 @@ class _Tree:
         self.fixed_colsum = float(colw[fixed].sum())
         self.root = min(self.total, (float(np.sort(f)[-k:].sum()) + self.fixed_colsum) / views)
         self.tables = AK.angle_tables(math.radians(theta_deg))
+        self.refine = np.ones(64, dtype=np.bool_)
+        self.tries = np.zeros(64, dtype=np.int64)
+        self.wins = np.zeros(64, dtype=np.int64)
         self.cos_t = math.cos(math.radians(theta_deg))
 
-    def expand(self, tup: np.ndarray, best: float, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
-        """Children of the tuples ``tup`` (F, k) and their bounds (:func:`_anglekernels.expand`)."""
+    def expand(self, tup: np.ndarray, best: float, margin: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, int, int]:
+        """Children of the tuples ``tup`` (F, k) and their bounds (:func:`_anglekernels.expand`):
+        children, values, leaf flags, and the numbers of bounds, exact evaluations, prunes by the
+        count bound, angle-free tuples and prunes after the cone refinement."""
         possible, always, self_ok = self.tables
         with ctrl_c_deferred(), numba.parallel_chunksize(_PAR_CHUNK):  # dynamic: evaluations vary in cost
-            children, value, leaf, n_made, n_exact, n_cheap, n_free = AK.expand(
+            children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, refined = AK.expand(
                 tup, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
-                self.cos_t, self.dirs, self.par)
-        return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free)
+                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE)
+        self._learn(refined)
+        return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle)
+
+    def _learn(self, refined: np.ndarray) -> None:
+        """Cone refinement per level of the tuples' largest node (log2 of its columns): kept on
+        while at least _REFINE_MIN_SHARE of the refined tuples it tried were pruned by it (after
+        _REFINE_TRIALS tries; a sample of 1 in _REFINE_SAMPLE goes on being tried), since it costs
+        about three count bounds."""
+        r = refined.ravel().astype(np.int64)
+        self.tries += np.bincount(np.abs(r), minlength=65)[1:65]
+        self.wins += np.bincount(-r[r < 0], minlength=65)[1:65]
+        self.refine = (self.tries < _REFINE_TRIALS) | (self.wins >= _REFINE_MIN_SHARE * self.tries)
 
     def columns(self, nodes: np.ndarray) -> tuple[int, ...]:
         """Original columns of a tuple of leaves, sorted."""
@@ -602,7 +622,9 @@ def solve_angle(
     best = inc.best
     best_set = inc.best_set
     front = _Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap))
-    evaluated = batches = exact_evals = cheap_prunes = angle_free = 0
+    cpu_search = time.process_time()
+    t_expand = 0.0
+    evaluated = batches = exact_evals = cheap_prunes = angle_free = angle_prunes = 0
     batch = min(_BATCH, _BATCH_MIN)
     status, open_bound = "optimal", -math.inf
     while front.n_open:
@@ -616,8 +638,9 @@ def solve_angle(
             continue
         batches += 1
         t_batch = time.perf_counter()
-        children, value, leaf, n_made, n_exact, n_cheap, n_free = tree.expand(tup, best, margin)
+        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle = tree.expand(tup, best, margin)
         # next batch: about _BATCH_S seconds, and at most a quarter of the time left
+        t_expand += time.perf_counter() - t_batch
         per = (time.perf_counter() - t_batch) / tup.shape[0]
         want = _BATCH_S if deadline.remaining() is None else min(_BATCH_S, 0.25 * (deadline.remaining() or 0.0))
         batch = int(min(_BATCH, max(_BATCH_MIN, want / max(per, 1e-9))))
@@ -625,6 +648,7 @@ def solve_angle(
         exact_evals += n_exact
         cheap_prunes += n_cheap
         angle_free += n_free
+        angle_prunes += n_angle
         top = best_leaf(children, value, leaf)
         if top is not None and top[0] > best:
             best, best_set = top[0], tree.columns(top[1])
@@ -637,9 +661,10 @@ def solve_angle(
         status, bound = "optimal", best
     stats.update({"search": "opposite pairs" if layout.pw > 0 else "blocks", "bound_evaluations": int(evaluated),
                   "exact_evaluations": int(exact_evals), "pruned_without_angle": int(cheap_prunes),
-                  "angle_free": int(angle_free), "batches": batches, "peak_open": int(front.peak),
+                  "angle_free": int(angle_free), "pruned_by_angle": int(angle_prunes), "batches": batches, "peak_open": int(front.peak),
                   "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
-                  "time_search_s": deadline.elapsed() - stats["time_setup_s"]})
+                  "time_search_s": deadline.elapsed() - stats["time_setup_s"],
+                  "cpu_search_s": time.process_time() - cpu_search, "time_expand_s": t_expand})
     log.info("angle: k=%d views=%d angle %.3g deg on %d rows x %d columns, %s value %.9g bound %.9g, %d bound "
              "evaluations, %.3f s", k, views, theta_deg, layout.rows.size, tree.cols_ord.size, status, const + best * scale,
              const + bound * scale, evaluated, deadline.elapsed())
