@@ -389,17 +389,64 @@ def angle_free(nodes, k, lo, hi, dirs, par, n_fixed, theta):  # pragma: no cover
     return True
 
 
+@numba.njit(inline="always", **_JIT)
+def _two_views(levels, gnode, gcnt, ng, two_levels, ww):  # pragma: no cover - compiled
+    """Rows of word ``ww`` that two cameras of the grouped tuple can observe (no angle)."""
+    one = np.uint64(0)
+    two = np.uint64(0)
+    for a in range(ng):
+        x = levels[0, gnode[a], ww]
+        two |= one & x
+        if two_levels and gcnt[a] >= 2:
+            two |= levels[1, gnode[a], ww]
+        one |= x
+    return two
+
+
 @numba.njit(**_JIT)
-def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, pw):  # pragma: no cover - compiled
+def _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt):  # pragma: no cover - compiled
+    """:func:`count_shortfall` for two views without fixed cameras: the tuple grouped once, the
+    counter unrolled (a quarter faster than the general counter)."""
+    ng = 0
+    g = 0
+    while g < k:
+        v = nodes[g]
+        c = 1
+        while g + c < k and nodes[g + c] == v:
+            c += 1
+        gnode[ng] = v
+        gcnt[ng] = c
+        ng += 1
+        g += c
+    two_levels = levels.shape[0] >= 2
+    n_words = levels.shape[2]
+    n_planes = planes.shape[0]
+    total = 0.0
+    for wd in range(n_words):
+        if pw <= wd < 2 * pw:
+            continue  # second rows of pairs: counted with their first rows
+        hit = _two_views(levels, gnode, gcnt, ng, two_levels, wd)
+        if wd < pw:
+            hit |= _two_views(levels, gnode, gcnt, ng, two_levels, wd + pw)
+        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
+        if total >= need:
+            return total
+    return total
+
+
+@numba.njit(**_JIT)
+def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, gnode, gcnt, pw):  # pragma: no cover - compiled
     """Weight of the rows that fewer than ``views`` cameras of the node tuple and the fixed cameras
     can observe, angles ignored (stops once it reaches ``need``).
 
     The angle only removes credit, so this is at most :func:`angle_shortfall` of the same tuple:
     a cheap first test (the bit-parallel counter of :func:`camplace.solver._bitkernels.shortfall`,
     a few word operations per block) that prunes most tuples before any cone is read.
-    Arguments are those of :func:`angle_shortfall`.
+    Arguments are those of :func:`angle_shortfall` (``gnode``, ``gcnt``: (k,) int64 scratch).
     """
     r = fbits.shape[0]
+    if r == 0 and views == 2:
+        return _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt)
     if r == 0:
         return shortfall(levels, nodes, k, views, w, planes, last_mask, need, acc, pw)
     n_words = levels.shape[2]
@@ -501,7 +548,7 @@ def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcon
             wcap /= views
             if wcap <= beat:
                 continue
-            sf = count_shortfall(levels, child, k, views, fbits, w, planes, mask, total - beat, acc, pw)
+            sf = count_shortfall(levels, child, k, views, fbits, w, planes, mask, total - beat, acc, gnode, gcnt, pw)
             if total - sf <= beat:
                 filtered[f] += 1
                 continue  # cannot win even without the angle
