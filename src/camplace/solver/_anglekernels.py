@@ -435,7 +435,8 @@ def _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, g
 
 
 @numba.njit(**_JIT)
-def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, gnode, gcnt, pw):  # pragma: no cover - compiled
+def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, gnode, gcnt,
+                    pw):  # pragma: no cover - compiled
     """Weight of the rows that fewer than ``views`` cameras of the node tuple and the fixed cameras
     can observe, angles ignored (stops once it reaches ``need``).
 

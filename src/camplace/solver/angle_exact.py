@@ -5,7 +5,7 @@ see it under an angle of at least ``min_angle_deg`` (the angle at the point betw
 point -> camera; :func:`camplace.solver.modes.mode_value` is the definition).
 
 The search is that of :mod:`camplace.solver.bitset_exact` (tuples of nodes of a bisection tree
-over the columns, depth-first in parallel batches), with the angle added to the bound:
+over the columns, in parallel batches, here best-first), with the angle added to the bound:
 
 * **Blocks.** The countable rows are ordered spatially (recursive bisection of the points along
   their widest axis), so every 64-row word is a block of nearby points with a small bounding
@@ -18,6 +18,13 @@ over the columns, depth-first in parallel batches), with the angle added to the 
   angle; a node repeated in the tuple provides pairs only if its own cone is at least the angle
   wide. Leaves (single cameras) decide doubtful blocks row by row, so a tuple of leaves gets its
   exact value.
+* **Bound steps.** A child tuple gets the count bound first (rows ``views`` of its cameras may
+  observe, angles ignored: :func:`~camplace.solver._anglekernels.count_shortfall`), which prunes
+  most losers without reading a cone; a survivor whose nodes all hold camera pairs making the
+  angle at every point (directions from the centre of a sphere around the points, apart by the
+  angle plus both parallaxes: :func:`~camplace.solver._anglekernels.angle_free`) keeps that bound,
+  exact for single cameras; the others get the cone refinement, for tuples of clusters only on the
+  levels (log2 of the largest node) where it has been pruning (:meth:`_Tree._learn`).
 * **Caps.** A counted row is observed by ``views`` chosen cameras, so the value is at most the
   chosen columns' weights over ``views``. With fewer cameras than ``2 * views`` the
   opposite-pairs layout of :mod:`camplace.solver.pair_cap` applies unchanged (the angle only
@@ -67,10 +74,10 @@ _BATCH_S = 0.5  # seconds a batch should take (the deadline is checked between b
 _PAR_CHUNK = 16  # tuples a thread takes at a time
 _FRONTIER_MAX = 12_000_000  # open tuples at most (fewer when the memory budget is tight) ...
 _FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not run
-_REFINE_MIN_SHARE = 0.05  # cone refinement of a tuple level stays on while it prunes this share of its tries ...
+_REFINE_MIN_SHARE = 0.15  # cone refinement of a tuple level stays on while it prunes this share of its tries ...
 _REFINE_TRIALS = 2000  # ... judged after this many tries ...
 _REFINE_SAMPLE = 8  # ... and tried on 1 in this many tuples of a level where it is off
-_DEPTH_FIRST_SHARE = 0.25  # depth-first (newest chunks) while more than this share of the cap is open
+_DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
 
 
 @dataclass(frozen=True)
@@ -398,7 +405,7 @@ class _Tree:
         """Cone refinement per level of the tuples' largest node (log2 of its columns): kept on
         while at least _REFINE_MIN_SHARE of the refined tuples it tried were pruned by it (after
         _REFINE_TRIALS tries; a sample of 1 in _REFINE_SAMPLE goes on being tried), since it costs
-        about three count bounds."""
+        about five count bounds."""
         r = refined.ravel().astype(np.int64)
         self.tries += np.bincount(np.abs(r), minlength=65)[1:65]
         self.wins += np.bincount(-r[r < 0], minlength=65)[1:65]
@@ -661,7 +668,9 @@ def solve_angle(
         status, bound = "optimal", best
     stats.update({"search": "opposite pairs" if layout.pw > 0 else "blocks", "bound_evaluations": int(evaluated),
                   "exact_evaluations": int(exact_evals), "pruned_without_angle": int(cheap_prunes),
-                  "angle_free": int(angle_free), "pruned_by_angle": int(angle_prunes), "batches": batches, "peak_open": int(front.peak),
+                  "angle_free": int(angle_free), "refined": int(tree.tries.sum()),
+                  "pruned_by_angle": int(angle_prunes), "batches": batches,
+                  "peak_open": int(front.peak),
                   "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
                   "time_search_s": deadline.elapsed() - stats["time_setup_s"],
                   "cpu_search_s": time.process_time() - cpu_search, "time_expand_s": t_expand})
