@@ -405,15 +405,18 @@ def test_angle_free_tuples_make_the_angle_at_every_point(seed) -> None:
         assert not ae.AK.angle_free(nodes, 3, lo, hi, dirs, par, 0, np.radians(theta))
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_angle_engine_far_cameras_equals_enumeration(seed) -> None:
+@pytest.mark.parametrize(("seed", "fixed", "views"), [(0, (), 2), (1, (), 2), (2, (4,), 2), (3, (), 3)])
+def test_angle_engine_far_cameras_equals_enumeration(seed, fixed, views) -> None:
     """Far cameras: most tuples are angle-free (their count bound is their angle bound, and for
-    single cameras their exact value)."""
+    single cameras their exact value), also with a fixed camera and with three views."""
     dense, w, pos, pts = _far_instance(260, 15, seed)
-    best, _ = _enumerate(dense, w, pos, pts, 3, 2, 30.0)
-    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=30.0, positions=pos, points=pts, engine="exact")
+    k = 3 - len(fixed)
+    best, _ = _enumerate(dense, w, pos, pts, k, views, 30.0, fixed)
+    res = solve(dense, w, k, mode="multiview", views=views, min_angle_deg=30.0, positions=pos, points=pts,
+                fixed=fixed, engine="exact")
     assert res.status == "optimal" and res.objective == pytest.approx(best, rel=1e-9)
-    assert _value(dense, w, pos, pts, res.selected, 2, 30.0) == pytest.approx(best, rel=1e-9)
+    assert set(fixed) <= set(res.selected)
+    assert _value(dense, w, pos, pts, res.selected, views, 30.0) == pytest.approx(best, rel=1e-9)
     assert res.stats["engine_stats"]["angle_free"] > 0
 
 
