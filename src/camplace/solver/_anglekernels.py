@@ -487,13 +487,14 @@ def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, 
 
 
 @numba.njit(**_PJIT)
-def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
+def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
            best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t, dirs, par, refine,
            sample):  # pragma: no cover - compiled
-    """Split every tuple of ``front`` (F, k) once and bound the children.
+    """Split every tuple of ``front`` (F, k) (bounds ``front_bound`` (F,)) once and bound the children.
 
-    A child's bound is ``min((sum of its nodes' heaviest column weights + the fixed cameras'
-    weights) / views, total - shortfall)``. The shortfall is first the count's
+    A child's bound is ``min(its parent's bound, (sum of its nodes' heaviest column weights + the
+    fixed cameras' weights) / views, total - shortfall)`` (a parent's bound holds for every set of
+    its children, so a refined parent keeps its children below it). The shortfall is first the count's
     (:func:`count_shortfall`, angles ignored; it prunes most children); a child that survives it
     gets the cone refinement of :func:`angle_shortfall` unless :func:`angle_free` says the angle
     cannot remove credit from it, and (for a tuple of several columns in some node) only where
@@ -546,7 +547,7 @@ def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcon
             wcap = fixed_colsum
             for j in range(k):
                 wcap += colmax[child[j]]
-            wcap /= views
+            wcap = min(wcap / views, front_bound[f])
             if wcap <= beat:
                 continue
             sf = count_shortfall(levels, child, k, views, fbits, w, planes, mask, total - beat, acc, gnode, gcnt, pw)

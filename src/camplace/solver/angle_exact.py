@@ -386,15 +386,16 @@ class _Tree:
         self.wins = np.zeros(64, dtype=np.int64)
         self.cos_t = math.cos(math.radians(theta_deg))
 
-    def expand(self, tup: np.ndarray, best: float, margin: float
+    def expand(self, tup: np.ndarray, tup_bound: np.ndarray, best: float, margin: float
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, int, int]:
-        """Children of the tuples ``tup`` (F, k) and their bounds (:func:`_anglekernels.expand`):
+        """Children of the tuples ``tup`` (F, k) whose bounds are ``tup_bound`` (F,) and the
+        children's bounds (at most their parent's; :func:`_anglekernels.expand`):
         children, values, leaf flags, and the numbers of bounds, exact evaluations, prunes by the
         count bound, angle-free tuples and prunes after the cone refinement."""
         possible, always, self_ok = self.tables
         with ctrl_c_deferred(), numba.parallel_chunksize(_PAR_CHUNK):  # dynamic: evaluations vary in cost
             children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, refined = AK.expand(
-                tup, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
+                tup, tup_bound, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
                 self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE)
@@ -446,10 +447,11 @@ class _Frontier:
         out = -self.heap[0][0] if self.heap else -math.inf
         return max([out, *(key for key, _, _ in self.lifo)])
 
-    def pop_batch(self, size: int, threshold: float) -> np.ndarray:
+    def pop_batch(self, size: int, threshold: float) -> tuple[np.ndarray, np.ndarray]:
         """Up to about ``size`` open tuples whose bound beats ``threshold`` (newest depth-first
-        chunks first, else the best chunks)."""
+        chunks first, else the best chunks), and their bounds."""
         parts: list[np.ndarray] = []
+        bparts: list[np.ndarray] = []
         got = 0
         from_lifo = bool(self.lifo)
         while got < size and (self.lifo if from_lifo else self.heap):
@@ -464,11 +466,14 @@ class _Frontier:
             self.n_open -= tb.shape[0]
             keep = tb > threshold
             parts.append(tup[keep])
+            bparts.append(tb[keep])
             got += int(keep.sum())
         self.lifo_batches += int(from_lifo)
         if not parts:
-            return np.zeros((0, 0), dtype=np.int64)
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+            return np.zeros((0, 0), dtype=np.int64), np.zeros(0)
+        if len(parts) == 1:
+            return parts[0], bparts[0]
+        return np.concatenate(parts), np.concatenate(bparts)
 
     def push(self, children: np.ndarray, value: np.ndarray, leaf: np.ndarray, threshold: float) -> None:
         """The children that are not tuples of leaves and beat ``threshold``, in chunks of similar
@@ -640,12 +645,12 @@ def solve_angle(
             open_bound = front.top()
             stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
             break
-        tup = front.pop_batch(batch, best + margin)
+        tup, tup_bound = front.pop_batch(batch, best + margin)
         if tup.shape[0] == 0:
             continue
         batches += 1
         t_batch = time.perf_counter()
-        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle = tree.expand(tup, best, margin)
+        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle = tree.expand(tup, tup_bound, best, margin)
         # next batch: about _BATCH_S seconds, and at most a quarter of the time left
         t_expand += time.perf_counter() - t_batch
         per = (time.perf_counter() - t_batch) / tup.shape[0]
