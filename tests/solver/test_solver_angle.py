@@ -353,3 +353,113 @@ def test_angle_engine_sizes_its_frontier_to_the_budget(medium) -> None:
     assert ae._FRONTIER_MIN <= es["open_tuples_max"] < ae._FRONTIER_MAX
     assert es["memory_estimate_bytes"] <= 40 << 20
     assert res.status == "optimal" and res.objective == pytest.approx(best, rel=1e-9)
+
+
+# ---- bounds: the count first, angle-free tuples, cone refinement only where it prunes ----------
+
+
+def _far_instance(m: int, n: int, seed: int):
+    """Points on a unit sphere, cameras 20..60 units away (small parallax: many tuples angle-free)."""
+    dense, w, pos, pts = _sphere_instance(m, n, seed)
+    pos = pos / np.linalg.norm(pos, axis=1, keepdims=True) * np.random.default_rng(seed).uniform(20, 60, (n, 1))
+    ray = pos[None, :, :] - pts[:, None, :]
+    dense = (np.einsum("id,ijd->ij", pts, ray) > 0).astype(float)
+    return dense, w, pos, pts
+
+
+def _angles_deg(pos: np.ndarray, pts: np.ndarray, a: int, b: int) -> np.ndarray:
+    """(m,) angle at every point between the rays to cameras a and b (arctan2, as the oracle)."""
+    u, v = pos[a] - pts, pos[b] - pts
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.einsum("id,id->i", u, v)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_angle_free_tuples_make_the_angle_at_every_point(seed) -> None:
+    """A tuple of single cameras called angle-free has every pair making the angle at every point
+    (checked with arctan2 at every point); and such tuples exist here (the test can fail)."""
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(300, 3))
+    n = 24
+    pos = rng.normal(size=(n, 3))
+    pos = pos / np.linalg.norm(pos, axis=1, keepdims=True) * rng.uniform(0.5, 30.0, (n, 1))  # some inside
+    dirs, par = ae._sphere_directions(pts, pos)
+    lo = np.arange(n, dtype=np.int64)
+    hi = lo + 1
+    theta = 25.0
+    found = 0
+    for tup in itertools.combinations(range(n), 3):
+        nodes = np.asarray(tup, dtype=np.int64)
+        if not ae.AK.angle_free(nodes, 3, lo, hi, dirs, par, 0, np.radians(theta)):
+            continue
+        found += 1
+        for a, b in itertools.combinations(tup, 2):
+            assert _angles_deg(pos, pts, a, b).min() >= theta
+    assert found > 0
+    # a camera inside the points' sphere is never part of an angle-free pair
+    inside = np.flatnonzero(np.linalg.norm(pos - 0.5 * (pts.min(0) + pts.max(0)), axis=1)
+                            <= np.linalg.norm(pts - 0.5 * (pts.min(0) + pts.max(0)), axis=1).max())
+    assert inside.size > 0
+    for c in inside:
+        others = [j for j in range(n) if j != c][:2]
+        nodes = np.sort(np.asarray([c, *others], dtype=np.int64))
+        assert not ae.AK.angle_free(nodes, 3, lo, hi, dirs, par, 0, np.radians(theta))
+
+
+@pytest.mark.parametrize(("seed", "fixed", "views"), [(0, (), 2), (1, (), 2), (2, (4,), 2), (3, (), 3)])
+def test_angle_engine_far_cameras_equals_enumeration(seed, fixed, views) -> None:
+    """Far cameras: most tuples are angle-free (their count bound is their angle bound, and for
+    single cameras their exact value), also with a fixed camera and with three views."""
+    dense, w, pos, pts = _far_instance(260, 15, seed)
+    k = 3 - len(fixed)
+    best, _ = _enumerate(dense, w, pos, pts, k, views, 30.0, fixed)
+    res = solve(dense, w, k, mode="multiview", views=views, min_angle_deg=30.0, positions=pos, points=pts,
+                fixed=fixed, engine="exact")
+    assert res.status == "optimal" and res.objective == pytest.approx(best, rel=1e-9)
+    assert set(fixed) <= set(res.selected)
+    assert _value(dense, w, pos, pts, res.selected, views, 30.0) == pytest.approx(best, rel=1e-9)
+    assert res.stats["engine_stats"]["angle_free"] > 0
+
+
+@pytest.mark.parametrize("sample", [3, 10**9])
+@pytest.mark.parametrize("seed", [0, 2, 3])
+def test_angle_engine_without_cone_refinement_equals_enumeration(monkeypatch, seed, sample) -> None:
+    """With the cone refinement switched off for every tuple of clusters after the root (tried on
+    one child in ``sample`` only), bounds stay valid: the optimum is still proven."""
+    dense, w, pos, pts = _sphere_instance(300, 16, seed, spread=1.0 if seed < 2 else 0.03)
+    angle = (20.0, 35.0, 12.5, 50.0)[seed]
+    best, _ = _enumerate(dense, w, pos, pts, 3, 2, angle)
+    monkeypatch.setattr(ae._Tree, "_learn", lambda self, refined: self.refine.fill(False))
+    monkeypatch.setattr(ae, "_REFINE_SAMPLE", sample)
+    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=angle, positions=pos, points=pts,
+                engine="exact")
+    assert res.status == "optimal" and res.objective == pytest.approx(best, rel=1e-9)
+    assert _value(dense, w, pos, pts, res.selected, 2, angle) == pytest.approx(best, rel=1e-9)
+
+
+@pytest.mark.parametrize("checks", [1, 3, 6])
+def test_angle_engine_interrupted_without_refinement_keeps_a_valid_bound(monkeypatch, medium, checks) -> None:
+    dense, w, pos, pts, best = medium
+    monkeypatch.setattr(ae, "Deadline", ExpiringDeadline)
+    monkeypatch.setattr(ae, "_BATCH", 4)
+    monkeypatch.setattr(ae, "_CHUNK", 2)
+    monkeypatch.setattr(ae._Tree, "_learn", lambda self, refined: self.refine.fill(False))
+    ExpiringDeadline.checks = checks
+    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
+    v = _value(dense, w, pos, pts, res.selected, 2, 20.0)
+    assert res.objective == pytest.approx(v, rel=1e-9)
+    assert res.bound >= best * (1 - 1e-9) and best >= v * (1 - 1e-9)
+
+
+def test_refinement_levels_follow_their_prunes() -> None:
+    """A level stays refined while its tries prune at least the share, and goes off below it."""
+    t = ae._Tree.__new__(ae._Tree)
+    t.refine = np.ones(64, dtype=np.bool_)
+    t.tries = np.zeros(64, dtype=np.int64)
+    t.wins = np.zeros(64, dtype=np.int64)
+    n = ae._REFINE_TRIALS
+    good = int(np.ceil(ae._REFINE_MIN_SHARE * n))
+    # level 2 (tuples whose largest node has 4..7 columns): enough prunes; level 5: almost none
+    codes = np.concatenate([np.full(good, -3), np.full(n - good, 3), np.full(1, -6), np.full(n, 6)])
+    t._learn(codes.astype(np.int8).reshape(1, -1))
+    assert t.refine[2] and not t.refine[5] and t.refine[0] and t.refine[9]
+    assert t.tries[2] == n and t.wins[2] == good and t.tries[5] == n + 1 and t.wins[5] == 1

@@ -24,7 +24,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from camplace.solver._bitkernels import _ctz, _missed_weight, all_leaves, split_tuple
+from camplace.solver._bitkernels import _ctz, _missed_weight, all_leaves, shortfall, split_tuple
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _PJIT = dict(_JIT, parallel=True)
@@ -334,18 +334,195 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
     return total
 
 
+@numba.njit(inline="always", **_JIT)
+def _far(dirs, par, a, b, theta):  # pragma: no cover - compiled
+    """Cameras ``a`` and ``b`` (rows of ``dirs`` / ``par``) make at least ``theta`` at every point
+    of the sphere: their directions from its centre are ``theta`` plus both parallaxes apart."""
+    lim = theta + par[a] + par[b] + 1e-6
+    if lim >= math.pi:
+        return False
+    d = dirs[a, 0] * dirs[b, 0] + dirs[a, 1] * dirs[b, 1] + dirs[a, 2] * dirs[b, 2]
+    return d <= math.cos(lim) - 1e-12
+
+
+@numba.njit(**_JIT)
+def angle_free(nodes, k, lo, hi, dirs, par, n_fixed, theta):  # pragma: no cover - compiled
+    """True when the angle removes no credit from the node tuple ``nodes``: every two of its
+    nodes (and every node and the fixed camera; at most one) hold two cameras that make the angle
+    at every point (:func:`_far` on the nodes' first and last cameras, rows ``lo`` / ``hi - 1`` of
+    ``dirs`` and ``par``, fixed camera at row ``n``), a repeated node too.
+
+    Then no two nodes' cones can be "never" on a block (the cones hold those cameras), so
+    :func:`angle_shortfall` equals :func:`count_shortfall`; for a tuple of single columns every
+    observed pair makes the angle, so the count value is the exact value.
+
+    Parameters
+    ----------
+    dirs : (n + r, 3) float64
+        Unit directions from the centre of a sphere around every point to the cameras (tree order),
+        then to the fixed cameras.
+    par : (n + r,) float64
+        Their parallax over that sphere, ``asin(radius / distance)`` (``pi / 2`` inside it), radians.
+    n_fixed : int
+        Fixed cameras (more than one: False, their own pairs need the angle).
+    theta : float
+        The minimum angle, radians.
+    """
+    if n_fixed > 1:
+        return False
+    n = dirs.shape[0] - 1  # the fixed camera's row
+    for a in range(k):
+        va = nodes[a]
+        if a > 0 and nodes[a - 1] == va:
+            if not _far(dirs, par, lo[va], hi[va] - 1, theta):
+                return False
+            continue
+        for b in range(a + 1, k):
+            vb = nodes[b]
+            if vb == va:
+                continue
+            if not (_far(dirs, par, lo[va], lo[vb], theta) or _far(dirs, par, lo[va], hi[vb] - 1, theta)
+                    or _far(dirs, par, hi[va] - 1, lo[vb], theta) or _far(dirs, par, hi[va] - 1, hi[vb] - 1, theta)):
+                return False
+        if n_fixed == 1 and not (_far(dirs, par, lo[va], n, theta) or _far(dirs, par, hi[va] - 1, n, theta)):
+            return False
+    return True
+
+
+@numba.njit(inline="always", **_JIT)
+def _two_views(levels, gnode, gcnt, ng, two_levels, ww):  # pragma: no cover - compiled
+    """Rows of word ``ww`` that two cameras of the grouped tuple can observe (no angle)."""
+    one = np.uint64(0)
+    two = np.uint64(0)
+    for a in range(ng):
+        x = levels[0, gnode[a], ww]
+        two |= one & x
+        if two_levels and gcnt[a] >= 2:
+            two |= levels[1, gnode[a], ww]
+        one |= x
+    return two
+
+
+@numba.njit(**_JIT)
+def _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt):  # pragma: no cover - compiled
+    """:func:`count_shortfall` for two views without fixed cameras: the tuple grouped once, the
+    counter unrolled (a quarter faster than the general counter)."""
+    ng = 0
+    g = 0
+    while g < k:
+        v = nodes[g]
+        c = 1
+        while g + c < k and nodes[g + c] == v:
+            c += 1
+        gnode[ng] = v
+        gcnt[ng] = c
+        ng += 1
+        g += c
+    two_levels = levels.shape[0] >= 2
+    n_words = levels.shape[2]
+    n_planes = planes.shape[0]
+    total = 0.0
+    for wd in range(n_words):
+        if pw <= wd < 2 * pw:
+            continue  # second rows of pairs: counted with their first rows
+        hit = _two_views(levels, gnode, gcnt, ng, two_levels, wd)
+        if wd < pw:
+            hit |= _two_views(levels, gnode, gcnt, ng, two_levels, wd + pw)
+        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
+        if total >= need:
+            return total
+    return total
+
+
+@numba.njit(**_JIT)
+def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, gnode, gcnt,
+                    pw):  # pragma: no cover - compiled
+    """Weight of the rows that fewer than ``views`` cameras of the node tuple and the fixed cameras
+    can observe, angles ignored (stops once it reaches ``need``).
+
+    The angle only removes credit, so this is at most :func:`angle_shortfall` of the same tuple:
+    a cheap first test (the bit-parallel counter of :func:`camplace.solver._bitkernels.shortfall`,
+    a few word operations per block) that prunes most tuples before any cone is read.
+    Arguments are those of :func:`angle_shortfall` (``gnode``, ``gcnt``: (k,) int64 scratch).
+    """
+    r = fbits.shape[0]
+    if r == 0 and views == 2:
+        return _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt)
+    if r == 0:
+        return shortfall(levels, nodes, k, views, w, planes, last_mask, need, acc, pw)
+    n_words = levels.shape[2]
+    n_levels = levels.shape[0]
+    n_planes = planes.shape[0]
+    total = 0.0
+    for wd in range(n_words):
+        if pw <= wd < 2 * pw:
+            continue  # second rows of pairs: counted with their first rows
+        hit = np.uint64(0)
+        for ww in range(wd, wd + pw + 1, pw) if wd < pw else range(wd, wd + 1):
+            acc[0] = ~np.uint64(0)
+            for t in range(1, views + 1):
+                acc[t] = 0
+            g = 0
+            while g < k:
+                v = nodes[g]
+                c = 1
+                while g + c < k and nodes[g + c] == v:
+                    c += 1
+                g += c
+                cm = min(c, n_levels)
+                for t in range(views, 0, -1):
+                    add = np.uint64(0)
+                    for j in range(1, min(cm, t) + 1):
+                        add |= acc[t - j] & levels[j - 1, v, ww]
+                    acc[t] |= add
+            for f in range(r):
+                y = fbits[f, ww]
+                for t in range(views, 0, -1):
+                    acc[t] |= acc[t - 1] & y
+            hit |= acc[views]
+        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
+        if total >= need:
+            return total
+    return total
+
+
 @numba.njit(**_PJIT)
-def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
-           best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t):  # pragma: no cover - compiled
-    """Split every tuple of ``front`` (F, k) once and bound the children.
+def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
+           best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t, dirs, par, refine,
+           sample):  # pragma: no cover - compiled
+    """Split every tuple of ``front`` (F, k) (bounds ``front_bound`` (F,)) once and bound the children.
 
-    A child's bound is ``min((sum of its nodes' heaviest column weights + the fixed cameras'
-    weights) / views, total - shortfall)``; for a tuple of single columns the shortfall is exact,
-    so the value is the set's exact value.
+    A child's bound is ``min(its parent's bound, (sum of its nodes' heaviest column weights + the
+    fixed cameras' weights) / views, total - shortfall)`` (a parent's bound holds for every set of
+    its children, so a refined parent keeps its children below it). The shortfall is first the count's
+    (:func:`count_shortfall`, angles ignored; it prunes most children); a child that survives it
+    gets the cone refinement of :func:`angle_shortfall` unless :func:`angle_free` says the angle
+    cannot remove credit from it, and (for a tuple of several columns in some node) only where
+    ``refine[level]`` is set for the level ``floor(log2(largest node's columns))``, or on one child
+    in ``sample``. Every choice gives a valid bound; a tuple of single columns is always decided
+    exactly, so its value is the set's exact value.
 
-    Returns ``children`` (F, k + 1, k), ``value`` (F, k + 1) (-inf: not made, or cannot beat
-    ``best + margin``), ``leaf`` (F, k + 1) bool, the number of children bounded and how many of
-    them were tuples of single columns evaluated exactly.
+    Parameters
+    ----------
+    dirs, par
+        See :func:`angle_free`.
+    refine : (64,) bool
+        Levels where non-leaf tuples get the cone refinement.
+    sample : int
+        One child in ``sample`` gets it anyway (so the caller can judge the levels).
+
+    Returns
+    -------
+    children : (F, k + 1, k) int64
+    value : (F, k + 1) float64
+        -inf: not made, or cannot beat ``best + margin``.
+    leaf : (F, k + 1) bool
+    made, exact, pruned_by_count, angle_free, pruned_after_refinement : int
+        Children bounded, tuples of single columns among them, children the count bound pruned,
+        children found angle-free, and children pruned after the refinement.
+    refined : (F, k + 1) int8
+        ``level + 1`` for a child the refinement did not prune, ``-(level + 1)`` for one it did,
+        0 where it did not run.
     """
     f_count, k = front.shape
     children = np.zeros((f_count, k + 1, k), dtype=np.int64)
@@ -353,6 +530,11 @@ def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcon
     leaf = np.zeros((f_count, k + 1), dtype=np.bool_)
     made = np.zeros(f_count, dtype=np.int64)
     exact = np.zeros(f_count, dtype=np.int64)
+    filtered = np.zeros(f_count, dtype=np.int64)
+    free = np.zeros(f_count, dtype=np.int64)
+    by_angle = np.zeros(f_count, dtype=np.int64)
+    refined = np.zeros((f_count, k + 1), dtype=np.int8)
+    theta = math.radians(theta_deg)
     beat = best + margin
     for f in prange(f_count):
         acc = np.zeros(views + 1, dtype=np.uint64)
@@ -365,20 +547,35 @@ def expand(front, lo, hi, left, right, levels, cones, views, campos, fbits, fcon
             wcap = fixed_colsum
             for j in range(k):
                 wcap += colmax[child[j]]
-            wcap /= views
+            wcap = min(wcap / views, front_bound[f])
             if wcap <= beat:
                 continue
+            sf = count_shortfall(levels, child, k, views, fbits, w, planes, mask, total - beat, acc, gnode, gcnt, pw)
+            if total - sf <= beat:
+                filtered[f] += 1
+                continue  # cannot win even without the angle
             is_leaf = all_leaves(child, lo, hi)
             exact[f] += is_leaf
-            sf = angle_shortfall(levels, cones, child, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
-                                 mask, total - beat, acc, gnode, gcnt, pw, is_leaf, pts, possible, always, self_ok,
-                                 theta_deg, cos_t)
+            big = 1
+            for j in range(k):
+                big = max(big, hi[child[j]] - lo[child[j]])
+            lvl = 0
+            while (1 << (lvl + 1)) <= big:
+                lvl += 1
+            if angle_free(child, k, lo, hi, dirs, par, fbits.shape[0], theta):
+                free[f] += 1  # sf (complete: the sum did not stop early) is the angle shortfall too
+            elif is_leaf or refine[lvl] or (f * (k + 1) + q) % sample == 0:
+                sf = angle_shortfall(levels, cones, child, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
+                                     mask, total - beat, acc, gnode, gcnt, pw, is_leaf, pts, possible, always, self_ok,
+                                     theta_deg, cos_t)
+                refined[f, q] = lvl + 1 if total - sf > beat else -(lvl + 1)
             b = min(wcap, total - sf)
             if b <= beat:
+                by_angle[f] += 1
                 continue
             value[f, q] = b
             leaf[f, q] = is_leaf
-    return children, value, leaf, made.sum(), exact.sum()
+    return children, value, leaf, made.sum(), exact.sum(), filtered.sum(), free.sum(), by_angle.sum(), refined
 
 
 @numba.njit(**_JIT)

@@ -401,10 +401,11 @@ class Frontier:
         out = -self.heap[0][0] if self.heap else -math.inf
         return max([out, *(key for key, _, _ in self.lifo)])
 
-    def pop_batch(self, size: int, threshold: float) -> np.ndarray:
+    def pop_batch(self, size: int, threshold: float) -> tuple[np.ndarray, np.ndarray]:
         """Up to about ``size`` open tuples whose bound beats ``threshold`` (newest depth-first
-        chunks first, else the best chunks)."""
+        chunks first, else the best chunks), and their bounds."""
         parts: list[np.ndarray] = []
+        bparts: list[np.ndarray] = []
         got = 0
         from_lifo = bool(self.lifo)
         while got < size and (self.lifo if from_lifo else self.heap):
@@ -419,11 +420,14 @@ class Frontier:
             self.n_open -= tb.shape[0]
             keep = tb > threshold
             parts.append(tup[keep])
+            bparts.append(tb[keep])
             got += int(keep.sum())
         self.lifo_batches += int(from_lifo)
         if not parts:
-            return np.zeros((0, 0), dtype=np.int64)
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+            return np.zeros((0, 0), dtype=np.int64), np.zeros(0)
+        if len(parts) == 1:
+            return parts[0], bparts[0]
+        return np.concatenate(parts), np.concatenate(bparts)
 
     def push(self, children: np.ndarray, value: np.ndarray, leaf: np.ndarray, threshold: float) -> None:
         """The children that are not tuples of leaves and beat ``threshold``, in chunks of similar

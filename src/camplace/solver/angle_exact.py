@@ -5,7 +5,7 @@ see it under an angle of at least ``min_angle_deg`` (the angle at the point betw
 point -> camera; :func:`camplace.solver.modes.mode_value` is the definition).
 
 The search is that of :mod:`camplace.solver.bitset_exact` (tuples of nodes of a bisection tree
-over the columns, depth-first in parallel batches), with the angle added to the bound:
+over the columns, in parallel batches, here best-first), with the angle added to the bound:
 
 * **Blocks.** The countable rows are ordered spatially (recursive bisection of the points along
   their widest axis), so every 64-row word is a block of nearby points with a small bounding
@@ -18,6 +18,13 @@ over the columns, depth-first in parallel batches), with the angle added to the 
   angle; a node repeated in the tuple provides pairs only if its own cone is at least the angle
   wide. Leaves (single cameras) decide doubtful blocks row by row, so a tuple of leaves gets its
   exact value.
+* **Bound steps.** A child tuple gets the count bound first (rows ``views`` of its cameras may
+  observe, angles ignored: :func:`~camplace.solver._anglekernels.count_shortfall`), which prunes
+  most losers without reading a cone; a survivor whose nodes all hold camera pairs making the
+  angle at every point (directions from the centre of a sphere around the points, apart by the
+  angle plus both parallaxes: :func:`~camplace.solver._anglekernels.angle_free`) keeps that bound,
+  exact for single cameras; the others get the cone refinement, for tuples of clusters only on the
+  levels (log2 of the largest node) where it has been pruning (:meth:`_Tree._learn`).
 * **Caps.** A counted row is observed by ``views`` chosen cameras, so the value is at most the
   chosen columns' weights over ``views``. With fewer cameras than ``2 * views`` the
   opposite-pairs layout of :mod:`camplace.solver.pair_cap` applies unchanged (the angle only
@@ -64,9 +71,12 @@ _BATCH = 1 << 14  # tuples expanded per parallel call, at most ...
 _BATCH_MIN = 256  # ... and at least
 _BATCH_S = 0.5  # seconds a batch should take (the deadline is checked between batches)
 _PAR_CHUNK = 16  # tuples a thread takes at a time
-_FRONTIER_MAX = 4_000_000  # open tuples at most (fewer when the memory budget is tight) ...
+_FRONTIER_MAX = 12_000_000  # open tuples at most (fewer when the memory budget is tight) ...
 _FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not run
-_DEPTH_FIRST_SHARE = 0.25  # depth-first (newest chunks) while more than this share of the cap is open
+_REFINE_MIN_SHARE = 0.15  # cone refinement of a tuple level stays on while it prunes this share of its tries ...
+_REFINE_TRIALS = 2000  # ... judged after this many tries ...
+_REFINE_SAMPLE = 8  # ... and tried on 1 in this many tuples of a level where it is off
+_DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
 
 
 @dataclass(frozen=True)
@@ -103,7 +113,7 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
     levels = max(1, min(int(views), int(k)))
     bits = words * 8 * (2 * int(n_cols) + levels * nodes)
-    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS)
+    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS) + 32 * (int(n_cols) + int(n_fixed))
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
     frontier = (int(open_tuples) + (k + 1) * _BATCH) * _tuple_bytes(k)
@@ -185,6 +195,21 @@ def _pairs_layout(match, wu_unit: float | None, seen: np.ndarray, pts: np.ndarra
     if wu_unit is not None:
         w = np.round(w)
     return _Layout(rows, w, pw)
+
+
+def _sphere_directions(p: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions (c, 3) from the centre of a sphere around the points ``p`` (q, 3) to the
+    cameras ``cams`` (c, 3), and each camera's parallax over it, ``asin(radius / distance)``
+    radians (``pi / 2`` inside it): a camera's direction from any point of the sphere is within
+    its parallax of its direction from the centre."""
+    c = 0.5 * (p.min(axis=0) + p.max(axis=0)) if p.shape[0] else np.zeros(3)
+    rad = (float(np.linalg.norm(p - c, axis=1).max()) if p.shape[0] else 0.0) * (1.0 + 1e-9) + 1e-12
+    d = cams - c
+    dist = np.linalg.norm(d, axis=1)
+    inside = dist <= rad * (1.0 + 1e-9)
+    dirs = np.where(inside[:, None], 0.0, d / np.where(inside, 1.0, dist)[:, None])
+    par = np.where(inside, 0.5 * math.pi, np.arcsin(np.minimum(1.0, rad / np.where(inside, 1.0, dist))) + 1e-9)
+    return np.ascontiguousarray(dirs), np.ascontiguousarray(par)
 
 
 def _blocks(rows: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -342,6 +367,9 @@ class _Tree:
             none = np.full(fixed.size, -1, dtype=np.int64)
             AK.node_cones(self.fpos, np.arange(fixed.size, dtype=np.int64), none, none, centers, radius, self.fcones)
             self.fpair = AK.fixed_pairs(self.fbits, self.fpos, self.pts, theta_deg)
+            # one sphere around every point: node pairs the angle cannot split (AK.angle_free)
+            self.dirs, self.par = _sphere_directions(self.pts[: rows.size][rows >= 0],
+                                                     np.concatenate([self.campos, self.fpos]))
         self.planes = K.weight_planes(lw) if integer else np.zeros((0, n_words), np.uint64)
         self.mask = _last_mask(rows.size)
         f = colw[self.cols_ord]
@@ -352,18 +380,36 @@ class _Tree:
         self.fixed_colsum = float(colw[fixed].sum())
         self.root = min(self.total, (float(np.sort(f)[-k:].sum()) + self.fixed_colsum) / views)
         self.tables = AK.angle_tables(math.radians(theta_deg))
+        self.refine = np.ones(64, dtype=np.bool_)
+        self.tries = np.zeros(64, dtype=np.int64)
+        self.wins = np.zeros(64, dtype=np.int64)
         self.cos_t = math.cos(math.radians(theta_deg))
 
-    def expand(self, tup: np.ndarray, best: float, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
-        """Children of the tuples ``tup`` (F, k) and their bounds (:func:`_anglekernels.expand`)."""
+    def expand(self, tup: np.ndarray, tup_bound: np.ndarray, best: float, margin: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, int, int]:
+        """Children of the tuples ``tup`` (F, k) whose bounds are ``tup_bound`` (F,) and the
+        children's bounds (at most their parent's; :func:`_anglekernels.expand`):
+        children, values, leaf flags, and the numbers of bounds, exact evaluations, prunes by the
+        count bound, angle-free tuples and prunes after the cone refinement."""
         possible, always, self_ok = self.tables
         with ctrl_c_deferred(), numba.parallel_chunksize(_PAR_CHUNK):  # dynamic: evaluations vary in cost
-            children, value, leaf, n_made, n_exact = AK.expand(
-                tup, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
+            children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, refined = AK.expand(
+                tup, tup_bound, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
-                self.cos_t)
-        return children, value, leaf, int(n_made), int(n_exact)
+                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE)
+        self._learn(refined)
+        return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle)
+
+    def _learn(self, refined: np.ndarray) -> None:
+        """Cone refinement per level of the tuples' largest node (log2 of its columns): kept on
+        while at least _REFINE_MIN_SHARE of the refined tuples it tried were pruned by it (after
+        _REFINE_TRIALS tries; a sample of 1 in _REFINE_SAMPLE goes on being tried), since it costs
+        about five count bounds."""
+        r = refined.ravel().astype(np.int64)
+        self.tries += np.bincount(np.abs(r), minlength=65)[1:65]
+        self.wins += np.bincount(-r[r < 0], minlength=65)[1:65]
+        self.refine = (self.tries < _REFINE_TRIALS) | (self.wins >= _REFINE_MIN_SHARE * self.tries)
 
     def columns(self, nodes: np.ndarray) -> tuple[int, ...]:
         """Original columns of a tuple of leaves, sorted."""
@@ -517,7 +563,9 @@ def solve_angle(
     best = inc.best
     best_set = inc.best_set
     front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap), _CHUNK)
-    evaluated = batches = exact_evals = 0
+    cpu_search = time.process_time()
+    t_expand = 0.0
+    evaluated = batches = exact_evals = cheap_prunes = angle_free = angle_prunes = 0
     batch = min(_BATCH, _BATCH_MIN)
     status, open_bound = "optimal", -math.inf
     while front.n_open:
@@ -526,30 +574,40 @@ def solve_angle(
             open_bound = front.top()
             stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
             break
-        tup = front.pop_batch(batch, best + margin)
+        tup, tup_bound = front.pop_batch(batch, best + margin)
         if tup.shape[0] == 0:
             continue
         batches += 1
         t_batch = time.perf_counter()
-        children, value, leaf, n_made, n_exact = tree.expand(tup, best, margin)
+        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle = tree.expand(tup, tup_bound, best, margin)
         # next batch: about _BATCH_S seconds, and at most a quarter of the time left
+        t_expand += time.perf_counter() - t_batch
         per = (time.perf_counter() - t_batch) / tup.shape[0]
         want = _BATCH_S if deadline.remaining() is None else min(_BATCH_S, 0.25 * (deadline.remaining() or 0.0))
         batch = int(min(_BATCH, max(_BATCH_MIN, want / max(per, 1e-9))))
         evaluated += n_made
         exact_evals += n_exact
+        cheap_prunes += n_cheap
+        angle_free += n_free
+        angle_prunes += n_angle
         top = best_leaf(children, value, leaf)
         if top is not None and top[0] > best:
             best, best_set = top[0], tree.columns(top[1])
             log.debug("angle: incumbent %.9g %s", const + best * scale, best_set)
         front.push(children, value, leaf, best + margin)
+        log.debug("angle: %d bounds (%d pruned without the angle, %d angle-free), open %d, top %.6g, %.1f s",
+                  evaluated, cheap_prunes, angle_free, front.n_open, const + front.top() * scale, deadline.elapsed())
     bound = max(best, open_bound)
     if bound <= best + margin:
         status, bound = "optimal", best
     stats.update({"search": "opposite pairs" if layout.pw > 0 else "blocks", "bound_evaluations": int(evaluated),
-                  "exact_evaluations": int(exact_evals), "batches": batches, "peak_open": int(front.peak),
+                  "exact_evaluations": int(exact_evals), "pruned_without_angle": int(cheap_prunes),
+                  "angle_free": int(angle_free), "refined": int(tree.tries.sum()),
+                  "pruned_by_angle": int(angle_prunes), "batches": batches,
+                  "peak_open": int(front.peak),
                   "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
-                  "time_search_s": deadline.elapsed() - stats["time_setup_s"]})
+                  "time_search_s": deadline.elapsed() - stats["time_setup_s"],
+                  "cpu_search_s": time.process_time() - cpu_search, "time_expand_s": t_expand})
     log.info("angle: k=%d views=%d angle %.3g deg on %d rows x %d columns, %s value %.9g bound %.9g, %d bound "
              "evaluations, %.3f s", k, views, theta_deg, layout.rows.size, tree.cols_ord.size, status, const + best * scale,
              const + bound * scale, evaluated, deadline.elapsed())

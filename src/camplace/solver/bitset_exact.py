@@ -349,7 +349,7 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
             open_bound = front.top()
             stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
             break
-        roots = front.pop_batch(n_roots, st.best + st.margin)
+        roots, _ = front.pop_batch(n_roots, st.best + st.margin)
         if roots.shape[0] == 0:
             continue
         rounds += 1
