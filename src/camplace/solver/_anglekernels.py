@@ -24,7 +24,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from camplace.solver._bitkernels import _ctz, _missed_weight, all_leaves, shortfall, split_tuple
+from camplace.solver._bitkernels import _ctz, _missed_weight, all_leaves, shortfall, shortfall_fixed, split_tuple
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _PJIT = dict(_JIT, parallel=True)
@@ -450,40 +450,7 @@ def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, 
         return _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt)
     if r == 0:
         return shortfall(levels, nodes, k, views, w, planes, last_mask, need, acc, pw)
-    n_words = levels.shape[2]
-    n_levels = levels.shape[0]
-    n_planes = planes.shape[0]
-    total = 0.0
-    for wd in range(n_words):
-        if pw <= wd < 2 * pw:
-            continue  # second rows of pairs: counted with their first rows
-        hit = np.uint64(0)
-        for ww in range(wd, wd + pw + 1, pw) if wd < pw else range(wd, wd + 1):
-            acc[0] = ~np.uint64(0)
-            for t in range(1, views + 1):
-                acc[t] = 0
-            g = 0
-            while g < k:
-                v = nodes[g]
-                c = 1
-                while g + c < k and nodes[g + c] == v:
-                    c += 1
-                g += c
-                cm = min(c, n_levels)
-                for t in range(views, 0, -1):
-                    add = np.uint64(0)
-                    for j in range(1, min(cm, t) + 1):
-                        add |= acc[t - j] & levels[j - 1, v, ww]
-                    acc[t] |= add
-            for f in range(r):
-                y = fbits[f, ww]
-                for t in range(views, 0, -1):
-                    acc[t] |= acc[t - 1] & y
-            hit |= acc[views]
-        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
-        if total >= need:
-            return total
-    return total
+    return shortfall_fixed(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, pw)
 
 
 @numba.njit(**_PJIT)

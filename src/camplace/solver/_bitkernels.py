@@ -481,6 +481,9 @@ def _shortfall3(levels, nodes, k, w, planes, last_mask, need, pw):  # pragma: no
     return total
 
 
+_NO_FIXED = np.zeros((0, 1), dtype=np.uint64)  # no fixed columns (shortfall_fixed's fbits)
+
+
 @numba.njit(**_JIT)
 def shortfall(levels, nodes, k, m, w, planes, last_mask, need, acc, pw):  # pragma: no cover - compiled
     """Weight of the rows that fewer than ``m`` columns of the node tuple can observe.
@@ -513,11 +516,22 @@ def shortfall(levels, nodes, k, m, w, planes, last_mask, need, acc, pw):  # prag
             if total >= need:
                 return total
         return total
+    return shortfall_fixed(levels, nodes, k, m, _NO_FIXED, w, planes, last_mask, need, acc, pw)
+
+
+@numba.njit(**_JIT)
+def shortfall_fixed(levels, nodes, k, m, fbits, w, planes, last_mask, need, acc, pw):  # pragma: no cover - compiled
+    """:func:`shortfall` with fixed columns: ``fbits`` (r, n_words) uint64 holds the bitsets of r
+    columns that are part of every set (r = 0: none), each adding one view where it observes a
+    row. The general bit-parallel counter (``acc`` (m + 1,) uint64 scratch), any ``m``."""
+    n_words = levels.shape[2]
     n_levels = levels.shape[0]
     n_planes = planes.shape[0]
+    r = fbits.shape[0]
+    total = 0.0
     for wd in range(n_words):
         if pw <= wd < 2 * pw:
-            continue
+            continue  # second rows of pairs: counted with their first rows
         hit = np.uint64(0)
         for ww in range(wd, wd + pw + 1, pw) if wd < pw else range(wd, wd + 1):
             acc[0] = ~np.uint64(0)
@@ -536,11 +550,16 @@ def shortfall(levels, nodes, k, m, w, planes, last_mask, need, acc, pw):  # prag
                     for j in range(1, min(cm, t) + 1):
                         add |= acc[t - j] & levels[j - 1, v, ww]
                     acc[t] |= add
+            for f in range(r):
+                y = fbits[f, ww]
+                for t in range(m, 0, -1):
+                    acc[t] |= acc[t - 1] & y
             hit |= acc[m]
         total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
         if total >= need:
             return total
     return total
+
 
 
 @numba.njit(**_JIT)
