@@ -8,6 +8,8 @@ import numpy as np
 import scipy.sparse as sp
 from hypothesis import strategies as st
 
+from camplace.solver._common import Deadline
+
 
 def brute_force(matrix: sp.spmatrix | np.ndarray, weights: np.ndarray, k: int) -> tuple[float, list[tuple[int, ...]]]:
     """Optimum of max coverage by enumerating every k-subset.
@@ -180,3 +182,18 @@ class ExpiringDeadline:
 
     def remaining(self) -> float:
         return 0.0 if self.left < 0 else 1.0
+
+
+class CountingDeadline(Deadline):
+    """Expires after a fixed number of checks: interrupts an engine at a deterministic point."""
+
+    def __init__(self, after: int) -> None:
+        super().__init__(None)
+        self.after, self.calls = after, 0
+
+    def expired(self) -> bool:
+        self.calls += 1
+        return self.calls > self.after
+
+    def remaining(self) -> float | None:
+        return 1e-3 if self.calls > self.after else None

@@ -18,7 +18,7 @@ from camplace.solver._common import Deadline
 from camplace.solver._synthetic import structured_instance
 from camplace.solver.bitset_exact import solve_bitset
 from camplace.solver.presolve import presolve
-from tests.solver._oracle import tolerance
+from tests.solver._oracle import CountingDeadline, tolerance
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
@@ -97,21 +97,6 @@ def test_views_search_equals_enumeration(inst, budget: int) -> None:
         assert out.stats["search"] == "best-first roots, depth-first below"
 
 
-class _CountingDeadline(Deadline):
-    """Expires after a fixed number of checks (a deterministic interruption)."""
-
-    def __init__(self, after: int) -> None:
-        super().__init__(None)
-        self.after, self.calls = after, 0
-
-    def expired(self) -> bool:
-        self.calls += 1
-        return self.calls > self.after
-
-    def remaining(self) -> float | None:
-        return 1e-3 if self.calls > self.after else None
-
-
 @settings(max_examples=40, **_SETTINGS)
 @given(inst=_instances(), after=st.integers(0, 12), budget=st.integers(1, 5))
 def test_views_search_interrupted_keeps_a_valid_bound(inst, after: int, budget: int) -> None:
@@ -119,7 +104,7 @@ def test_views_search_interrupted_keeps_a_valid_bound(inst, after: int, budget: 
     pre = presolve(sp.csr_matrix(dense.astype(np.float64)), w, k, dominance=False)
     mp = pytest.MonkeyPatch()
     mp.setattr(bitset_mod, "_ROOT_BUDGET", budget)
-    mp.setattr(bitset_mod, "Deadline", lambda _limit: _CountingDeadline(after))
+    mp.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
     try:
         out = solve_bitset(pre, views=views, time_limit_s=10.0)
     finally:
@@ -143,7 +128,7 @@ def test_views_search_structured(after: int, views: int, k: int, monkeypatch) ->
     best = _best(dense, w, k, views)
     pre = presolve(matrix, w, k, dominance=False)
     monkeypatch.setattr(bitset_mod, "_ROOT_BUDGET", 3)
-    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: _CountingDeadline(after))
+    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
     out = solve_bitset(pre, views=views, time_limit_s=10.0)
     assert out.bound >= best - tolerance(w)
     assert _value(dense, w, pre.original_columns(out.selected), views) <= best + tolerance(w)

@@ -14,11 +14,10 @@ from hypothesis import strategies as st
 from camplace.errors import CamplaceError
 from camplace.solver import bitset_exact as bitset_mod
 from camplace.solver import large_k as lk_mod
-from camplace.solver._common import Deadline
 from camplace.solver._synthetic import structured_instance
 from camplace.solver.large_k import solve_large_k, views_incumbent
 from camplace.solver.modes import solve
-from tests.solver._oracle import brute_force_mode
+from tests.solver._oracle import CountingDeadline, brute_force_mode
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 _TOL = 1e-9
@@ -119,21 +118,6 @@ def test_engine_equals_enumeration(inst, binary: bool, seed: int) -> None:
     assert out.bound == pytest.approx(best, abs=_TOL)
 
 
-class _CountingDeadline(Deadline):
-    """Expires after a fixed number of checks: interrupts the engine at a deterministic point."""
-
-    def __init__(self, after: int) -> None:
-        super().__init__(None)
-        self.after, self.calls = after, 0
-
-    def expired(self) -> bool:
-        self.calls += 1
-        return self.calls > self.after
-
-    def remaining(self) -> float | None:
-        return 1e-3 if self.calls > self.after else None
-
-
 @pytest.mark.parametrize("after", [0, 1, 2, 3, 5, 8, 13, 30, 80])
 @pytest.mark.parametrize("mode", ["maxcover", "quality", "multiview"])
 def test_interrupted_anywhere_keeps_a_valid_bound(monkeypatch, mode: str, after: int) -> None:
@@ -143,8 +127,8 @@ def test_interrupted_anywhere_keeps_a_valid_bound(monkeypatch, mode: str, after:
         dense = dense * np.random.default_rng(1).uniform(0.2, 1.0, size=dense.shape)
     views, k = (3, 6) if mode == "multiview" else (1, 7)
     opt = _enumerate(dense, w, k, mode, views)
-    monkeypatch.setattr(lk_mod, "Deadline", lambda _limit: _CountingDeadline(after))
-    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: _CountingDeadline(after))  # multiview's search
+    monkeypatch.setattr(lk_mod, "Deadline", lambda _limit: CountingDeadline(after))
+    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))  # multiview's search
     monkeypatch.setattr(bitset_mod, "_SLICE", 3)  # deadline checks every 3 bound evaluations
     res = solve(sp.csr_matrix(dense), w, k, mode=mode, views=views, time_limit_s=30.0)
     assert res.status in ("optimal", "feasible")

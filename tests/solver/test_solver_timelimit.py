@@ -10,22 +10,9 @@ import scipy.sparse as sp
 
 from camplace.solver import SolverResult, solve_maxcover
 from camplace.solver import bitset_exact as bitset_mod
-from camplace.solver._common import Deadline
 from camplace.solver._synthetic import structured_instance
 from camplace.solver.result import relative_gap
-
-
-class _CountingDeadline(Deadline):
-    """Expires after a fixed number of checks: interrupts the search at a deterministic point."""
-
-    def __init__(self, after: int) -> None:
-        super().__init__(None)
-        self.after = after
-        self.calls = 0
-
-    def expired(self) -> bool:
-        self.calls += 1
-        return self.calls > self.after
+from tests.solver._oracle import CountingDeadline
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +48,7 @@ def _check_honest(res: SolverResult, opt: float) -> None:
 @pytest.mark.parametrize("after", [0, 1, 2, 3, 5, 8, 13, 30, 80, 200])
 def test_exact_interrupted_anywhere_has_valid_bound(instance, optimum, monkeypatch, k: int, after: int) -> None:
     matrix, weights = instance
-    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: _CountingDeadline(after))
+    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
     monkeypatch.setattr(bitset_mod, "_SLICE", 3)  # deadline checks every 3 bound evaluations
     res = solve_maxcover(matrix, weights, k, engine="exact", time_limit_s=10.0)
     _check_honest(res, optimum[k])

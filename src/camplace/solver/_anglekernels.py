@@ -230,6 +230,24 @@ def _pair_bits(x, exact, c1, i1, c2, i2, wd, possible, always, pa, pb, pts, thet
 
 
 @numba.njit(**_JIT)
+def _group(nodes, k, gnode, gcnt):  # pragma: no cover - compiled
+    """Groups a non-decreasing tuple of ``k`` nodes: writes each distinct node to ``gnode`` and how
+    often it occurs to ``gcnt`` ((k,) int64 each) and returns the number of groups."""
+    ng = 0
+    g = 0
+    while g < k:
+        v = nodes[g]
+        c = 1
+        while g + c < k and nodes[g + c] == v:
+            c += 1
+        gnode[ng] = v
+        gcnt[ng] = c
+        ng += 1
+        g += c
+    return ng
+
+
+@numba.njit(**_JIT)
 def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes, last_mask,
                     need, acc, gnode, gcnt, pw, exact, pts, possible, always, self_ok, theta_deg, cos_t):  # pragma: no cover - compiled
     """Weight of the rows a node tuple cannot make count (stops once it reaches ``need``).
@@ -272,17 +290,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
     n_levels = levels.shape[0]
     n_planes = planes.shape[0]
     r = fbits.shape[0]
-    ng = 0
-    g = 0
-    while g < k:
-        v = nodes[g]
-        c = 1
-        while g + c < k and nodes[g + c] == v:
-            c += 1
-        gnode[ng] = v
-        gcnt[ng] = c
-        ng += 1
-        g += c
+    ng = _group(nodes, k, gnode, gcnt)
     total = 0.0
     for wd in range(n_words):
         if pw <= wd < 2 * pw:
@@ -407,17 +415,7 @@ def _two_views(levels, gnode, gcnt, ng, two_levels, ww):  # pragma: no cover - c
 def _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt):  # pragma: no cover - compiled
     """:func:`count_shortfall` for two views without fixed cameras: the tuple grouped once, the
     counter unrolled (a quarter faster than the general counter)."""
-    ng = 0
-    g = 0
-    while g < k:
-        v = nodes[g]
-        c = 1
-        while g + c < k and nodes[g + c] == v:
-            c += 1
-        gnode[ng] = v
-        gcnt[ng] = c
-        ng += 1
-        g += c
+    ng = _group(nodes, k, gnode, gcnt)
     two_levels = levels.shape[0] >= 2
     n_words = levels.shape[2]
     n_planes = planes.shape[0]
