@@ -428,7 +428,7 @@ def test_angle_engine_without_cone_refinement_equals_enumeration(monkeypatch, se
     dense, w, pos, pts = _sphere_instance(300, 16, seed, spread=1.0 if seed < 2 else 0.03)
     angle = (20.0, 35.0, 12.5, 50.0)[seed]
     best, _ = _enumerate(dense, w, pos, pts, 3, 2, angle)
-    monkeypatch.setattr(ae._Tree, "_learn", lambda self, refined: self.refine.fill(False))
+    monkeypatch.setattr(ae._Tree, "_learn", lambda self, refined, cut: self.refine.fill(False))
     monkeypatch.setattr(ae, "_REFINE_SAMPLE", sample)
     res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=angle, positions=pos, points=pts,
                 engine="exact")
@@ -442,7 +442,7 @@ def test_angle_engine_interrupted_without_refinement_keeps_a_valid_bound(monkeyp
     monkeypatch.setattr(ae, "Deadline", ExpiringDeadline)
     monkeypatch.setattr(ae, "_BATCH", 4)
     monkeypatch.setattr(ae, "_CHUNK", 2)
-    monkeypatch.setattr(ae._Tree, "_learn", lambda self, refined: self.refine.fill(False))
+    monkeypatch.setattr(ae._Tree, "_learn", lambda self, refined, cut: self.refine.fill(False))
     ExpiringDeadline.checks = checks
     res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
     v = _value(dense, w, pos, pts, res.selected, 2, 20.0)
@@ -450,16 +450,42 @@ def test_angle_engine_interrupted_without_refinement_keeps_a_valid_bound(monkeyp
     assert res.bound >= best * (1 - 1e-9) and best >= v * (1 - 1e-9)
 
 
-def test_refinement_levels_follow_their_prunes() -> None:
-    """A level stays refined while its tries prune at least the share, and goes off below it."""
+def test_refinement_levels_follow_the_margin_they_remove() -> None:
+    """A level stays refined while its tries remove at least the share of their margins over the
+    incumbent on average (a prune removes all of it), and goes off below it: level 2 prunes few
+    tuples but trims the others a lot (the angle binds), level 5 prunes as many and trims the
+    others hardly at all, level 7 prunes none and trims half."""
     t = ae._Tree.__new__(ae._Tree)
     t.refine = np.ones(64, dtype=np.bool_)
     t.tries = np.zeros(64, dtype=np.int64)
     t.wins = np.zeros(64, dtype=np.int64)
+    t.cuts = np.zeros(64)
     n = ae._REFINE_TRIALS
-    good = int(np.ceil(ae._REFINE_MIN_SHARE * n))
-    # level 2 (tuples whose largest node has 4..7 columns): enough prunes; level 5: almost none
-    codes = np.concatenate([np.full(good, -3), np.full(n - good, 3), np.full(1, -6), np.full(n, 6)])
-    t._learn(codes.astype(np.int8).reshape(1, -1))
-    assert t.refine[2] and not t.refine[5] and t.refine[0] and t.refine[9]
-    assert t.tries[2] == n and t.wins[2] == good and t.tries[5] == n + 1 and t.wins[5] == 1
+    pruned = n // 10
+    codes = np.concatenate([np.full(pruned, -3), np.full(n - pruned, 3), np.full(pruned, -6), np.full(n - pruned, 6),
+                            np.full(n, 8)])
+    cut = np.concatenate([np.ones(pruned), np.full(n - pruned, 0.4), np.ones(pruned), np.full(n - pruned, 0.02),
+                          np.full(n, 0.5)])
+    t._learn(codes.astype(np.int8).reshape(1, -1), cut.reshape(1, -1))
+    assert t.refine[2] and not t.refine[5] and t.refine[7] and t.refine[0] and t.refine[9]
+    assert t.tries[2] == n and t.wins[2] == pruned and t.tries[5] == n and t.wins[5] == pruned and t.wins[7] == 0
+    assert t.cuts[2] == pytest.approx(pruned + 0.4 * (n - pruned))
+
+
+def test_lazy_refinement_requeues_and_still_equals_enumeration(monkeypatch) -> None:
+    """With batches of a few tuples, a tuple the refinement pushes below the best open bound goes
+    back to the open set unsplit (``requeued``); the optimum is still the enumerated one."""
+    monkeypatch.setattr(ae, "_BATCH", 4)
+    monkeypatch.setattr(ae, "_BATCH_MIN", 1)
+    monkeypatch.setattr(ae, "_CHUNK", 1)
+    requeued = 0
+    for seed in (3, 4, 5):
+        dense, w, pos, pts = _sphere_instance(300, 20 if seed > 3 else 16, seed, spread=0.03)
+        angle = 50.0 if seed == 3 else 60.0
+        best, _ = _enumerate(dense, w, pos, pts, 3, 2, angle)
+        res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=angle, positions=pos, points=pts,
+                    engine="exact")
+        assert res.status == "optimal" and res.objective == pytest.approx(best, rel=1e-9)
+        assert _value(dense, w, pos, pts, res.selected, 2, angle) == pytest.approx(best, rel=1e-9)
+        requeued += res.stats["engine_stats"]["requeued"]
+    assert requeued > 0

@@ -451,46 +451,73 @@ def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, 
     return shortfall_fixed(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, pw)
 
 
+@numba.njit(inline="always", **_JIT)
+def _level(nodes, k, lo, hi):  # pragma: no cover - compiled
+    """floor(log2) of the largest node's column count of a tuple."""
+    big = 1
+    for j in range(k):
+        big = max(big, hi[nodes[j]] - lo[nodes[j]])
+    lvl = 0
+    while (1 << (lvl + 1)) <= big:
+        lvl += 1
+    return lvl
+
+
 @numba.njit(**_PJIT)
 def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
            best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t, dirs, par, refine,
-           sample):  # pragma: no cover - compiled
-    """Split every tuple of ``front`` (F, k) (bounds ``front_bound`` (F,)) once and bound the children.
+           sample, rest):  # pragma: no cover - compiled
+    """Refine (if it is due) and split every tuple of ``front`` (F, k + 1) once and bound the children.
+
+    A tuple's last entry says whether its bound already holds the angle (1) or is the count
+    bound only (0). The cone refinement (:func:`angle_shortfall`) is lazy: it runs when a tuple is
+    taken from the open set to be split (so the many tuples that never reach the top of the
+    best-first order never pay for it), where ``refine[level]`` is set for the level
+    ``floor(log2(largest node's columns))`` or on one tuple in ``sample``; a tuple it prunes is
+    not split, one whose refined bound fell below ``rest`` (the best bound still open) comes back
+    unsplit as its own only child (flag 1), and otherwise its children are capped by the refined
+    bound.
 
     A child's bound is ``min(its parent's bound, (sum of its nodes' heaviest column weights + the
     fixed cameras' weights) / views, total - shortfall)`` (a parent's bound holds for every set of
-    its children, so a refined parent keeps its children below it). The shortfall is first the count's
-    (:func:`count_shortfall`, angles ignored; it prunes most children); a child that survives it
-    gets the cone refinement of :func:`angle_shortfall` unless :func:`angle_free` says the angle
-    cannot remove credit from it, and (for a tuple of several columns in some node) only where
-    ``refine[level]`` is set for the level ``floor(log2(largest node's columns))``, or on one child
-    in ``sample``. Every choice gives a valid bound; a tuple of single columns is always decided
-    exactly, so its value is the set's exact value.
+    its children). The shortfall is the count's (:func:`count_shortfall`, angles ignored; it
+    prunes most children), exact for a child :func:`angle_free` says the angle cannot remove
+    credit from (flag 1); a tuple of single columns is decided exactly at once (its value is the
+    set's exact value); other children keep the count bound (flag 0). Every choice gives a valid
+    bound.
 
     Parameters
     ----------
     dirs, par
         See :func:`angle_free`.
     refine : (64,) bool
-        Levels where non-leaf tuples get the cone refinement.
+        Levels where tuples of clusters get the cone refinement.
     sample : int
-        One child in ``sample`` gets it anyway (so the caller can judge the levels).
+        One tuple in ``sample`` gets it anyway (so the caller can judge the levels).
+    rest : float
+        The largest bound left in the open set (-inf if none).
 
     Returns
     -------
-    children : (F, k + 1, k) int64
+    children : (F, k + 1, k + 1) int64
+        Nodes and the flag.
     value : (F, k + 1) float64
         -inf: not made, or cannot beat ``best + margin``.
     leaf : (F, k + 1) bool
-    made, exact, pruned_by_count, angle_free, pruned_after_refinement : int
+    made, exact, pruned_by_count, angle_free, pruned_after_refinement, requeued : int
         Children bounded, tuples of single columns among them, children the count bound pruned,
-        children found angle-free, and children pruned after the refinement.
-    refined : (F, k + 1) int8
-        ``level + 1`` for a child the refinement did not prune, ``-(level + 1)`` for one it did,
+        children found angle-free, tuples pruned by the refinement (before their split, or a
+        tuple of single columns), and tuples that came back unsplit.
+    refined : (F,) int8
+        ``level + 1`` for a tuple the refinement did not prune, ``-(level + 1)`` for one it did,
         0 where it did not run.
+    cut : (F,) float64
+        For a refined tuple, the share of its bound's margin over ``best + margin`` the
+        refinement removed: 1 when it pruned the tuple.
     """
-    f_count, k = front.shape
-    children = np.zeros((f_count, k + 1, k), dtype=np.int64)
+    f_count, k1 = front.shape
+    k = k1 - 1
+    children = np.zeros((f_count, k + 1, k + 1), dtype=np.int64)
     value = np.full((f_count, k + 1), -np.inf)
     leaf = np.zeros((f_count, k + 1), dtype=np.bool_)
     made = np.zeros(f_count, dtype=np.int64)
@@ -498,21 +525,45 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
     filtered = np.zeros(f_count, dtype=np.int64)
     free = np.zeros(f_count, dtype=np.int64)
     by_angle = np.zeros(f_count, dtype=np.int64)
-    refined = np.zeros((f_count, k + 1), dtype=np.int8)
+    refined = np.zeros(f_count, dtype=np.int8)
+    cut = np.zeros(f_count)
+    requeued = np.zeros(f_count, dtype=np.int64)
     theta = math.radians(theta_deg)
     beat = best + margin
     for f in prange(f_count):
         acc = np.zeros(views + 1, dtype=np.uint64)
         gnode = np.zeros(k, dtype=np.int64)
         gcnt = np.zeros(k, dtype=np.int64)
-        n_kids = split_tuple(front[f], lo, hi, left, right, children[f])
+        tup = front[f, :k]
+        bound = front_bound[f]
+        if front[f, k] == 0:
+            lvl = _level(tup, k, lo, hi)
+            if refine[lvl] or f % sample == 0:
+                sf = angle_shortfall(levels, cones, tup, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
+                                     mask, total - beat, acc, gnode, gcnt, pw, False, pts, possible, always, self_ok,
+                                     theta_deg, cos_t)
+                cut[f] = min(1.0, max(0.0, bound - (total - sf)) / max(bound - beat, 1e-300))
+                bound = min(bound, total - sf)
+                if bound <= beat:
+                    refined[f] = -(lvl + 1)
+                    by_angle[f] += 1
+                    continue
+                refined[f] = lvl + 1
+                if bound < rest:  # no longer among the best: back to the open set, refined
+                    children[f, 0, :k] = tup
+                    children[f, 0, k] = 1
+                    value[f, 0] = bound
+                    requeued[f] = 1
+                    continue
+        kids = children[f, :, :k]
+        n_kids = split_tuple(tup, lo, hi, left, right, kids)
         made[f] = n_kids
         for q in range(n_kids):
-            child = children[f, q]
+            child = kids[q]
             wcap = fixed_colsum
             for j in range(k):
                 wcap += colmax[child[j]]
-            wcap = min(wcap / views, front_bound[f])
+            wcap = min(wcap / views, bound)
             if wcap <= beat:
                 continue
             sf = count_shortfall(levels, child, k, views, fbits, w, planes, mask, total - beat, acc, gnode, gcnt, pw)
@@ -521,26 +572,21 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
                 continue  # cannot win even without the angle
             is_leaf = all_leaves(child, lo, hi)
             exact[f] += is_leaf
-            big = 1
-            for j in range(k):
-                big = max(big, hi[child[j]] - lo[child[j]])
-            lvl = 0
-            while (1 << (lvl + 1)) <= big:
-                lvl += 1
             if angle_free(child, k, lo, hi, dirs, par, fbits.shape[0], theta):
                 free[f] += 1  # sf (complete: the sum did not stop early) is the angle shortfall too
-            elif is_leaf or refine[lvl] or (f * (k + 1) + q) % sample == 0:
+                children[f, q, k] = 1
+            elif is_leaf:
                 sf = angle_shortfall(levels, cones, child, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
-                                     mask, total - beat, acc, gnode, gcnt, pw, is_leaf, pts, possible, always, self_ok,
+                                     mask, total - beat, acc, gnode, gcnt, pw, True, pts, possible, always, self_ok,
                                      theta_deg, cos_t)
-                refined[f, q] = lvl + 1 if total - sf > beat else -(lvl + 1)
+                children[f, q, k] = 1
             b = min(wcap, total - sf)
             if b <= beat:
                 by_angle[f] += 1
                 continue
             value[f, q] = b
             leaf[f, q] = is_leaf
-    return children, value, leaf, made.sum(), exact.sum(), filtered.sum(), free.sum(), by_angle.sum(), refined
+    return children, value, leaf, made.sum(), exact.sum(), filtered.sum(), free.sum(), by_angle.sum(), requeued.sum(), refined, cut
 
 
 @numba.njit(**_JIT)

@@ -23,8 +23,14 @@ over the columns, in parallel batches, here best-first), with the angle added to
   most losers without reading a cone; a survivor whose nodes all hold camera pairs making the
   angle at every point (directions from the centre of a sphere around the points, apart by the
   angle plus both parallaxes: :func:`~camplace.solver._anglekernels.angle_free`) keeps that bound,
-  exact for single cameras; the others get the cone refinement, for tuples of clusters only on the
-  levels (log2 of the largest node) where it has been pruning (:meth:`_Tree._learn`).
+  exact for single cameras (a tuple of single cameras is always decided exactly at once). The cone
+  refinement is lazy: a tuple of clusters gets it when it is taken from the open set to be split
+  (most tuples never reach the top of the best-first order and never pay for it); one it prunes is
+  not split, one it pushes below the best open bound goes back to the open set refined, and the
+  others' children are capped by the refined bound. It runs only on the levels (log2 of the
+  largest node) where it has been removing a good share of the tuples' margins over the
+  incumbent (:meth:`_Tree._learn`): about a third where the angle binds, a few per cent where
+  it hardly does, which is when its cost (about five count bounds) is not worth it.
 * **Caps.** A counted row is observed by ``views`` chosen cameras, so the value is at most the
   chosen columns' weights over ``views``. With fewer cameras than ``2 * views`` the
   opposite-pairs layout of :mod:`camplace.solver.pair_cap` applies unchanged (the angle only
@@ -73,9 +79,9 @@ _BATCH_S = 0.5  # seconds a batch should take (the deadline is checked between b
 _PAR_CHUNK = 16  # tuples a thread takes at a time
 _FRONTIER_MAX = 12_000_000  # open tuples at most (fewer when the memory budget is tight) ...
 _FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not run
-_REFINE_MIN_SHARE = 0.15  # cone refinement of a tuple level stays on while it prunes this share of its tries ...
+_REFINE_MIN_CUT = 0.3  # cone refinement of a tuple level stays on while it removes this share of the margins ...
 _REFINE_TRIALS = 2000  # ... judged after this many tries ...
-_REFINE_SAMPLE = 8  # ... and tried on 1 in this many tuples of a level where it is off
+_REFINE_SAMPLE = 32  # ... and tried on 1 in this many tuples of a level where it is off
 _DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
 
 
@@ -121,8 +127,9 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
 
 
 def _tuple_bytes(k: int) -> int:
-    """Bytes per open tuple of ``k`` nodes (nodes and bound, and a copy while chunks are formed)."""
-    return 2 * (8 * k + 8)
+    """Bytes per open tuple of ``k`` nodes (nodes, the refined flag and bound, and a copy while
+    chunks are formed)."""
+    return 2 * (8 * (k + 1) + 8)
 
 
 def _spatial_order(xyz: np.ndarray) -> np.ndarray:
@@ -383,33 +390,42 @@ class _Tree:
         self.refine = np.ones(64, dtype=np.bool_)
         self.tries = np.zeros(64, dtype=np.int64)
         self.wins = np.zeros(64, dtype=np.int64)
+        self.cuts = np.zeros(64)
         self.cos_t = math.cos(math.radians(theta_deg))
 
-    def expand(self, tup: np.ndarray, tup_bound: np.ndarray, best: float, margin: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, int, int]:
-        """Children of the tuples ``tup`` (F, k) whose bounds are ``tup_bound`` (F,) and the
-        children's bounds (at most their parent's; :func:`_anglekernels.expand`):
+    def expand(self, tup: np.ndarray, tup_bound: np.ndarray, best: float, margin: float, rest: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, int, int, int]:
+        """Children of the tuples ``tup`` (F, k + 1: nodes, then 1 if the bound holds the angle)
+        whose bounds are ``tup_bound`` (F,) and the children's bounds (at most their parent's,
+        refined first where due; :func:`_anglekernels.expand`):
         children, values, leaf flags, and the numbers of bounds, exact evaluations, prunes by the
-        count bound, angle-free tuples and prunes after the cone refinement."""
+        count bound, angle-free tuples, prunes after the cone refinement and tuples sent back
+        unsplit (refined below the best open bound)."""
         possible, always, self_ok = self.tables
         with ctrl_c_deferred(), numba.parallel_chunksize(_PAR_CHUNK):  # dynamic: evaluations vary in cost
-            children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, refined = AK.expand(
+            children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, n_back, refined, cut = AK.expand(
                 tup, tup_bound, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
-                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE)
-        self._learn(refined)
-        return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle)
+                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE, rest)
+        self._learn(refined, cut)
+        return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle), int(n_back)
 
-    def _learn(self, refined: np.ndarray) -> None:
+    def _learn(self, refined: np.ndarray, cut: np.ndarray) -> None:
         """Cone refinement per level of the tuples' largest node (log2 of its columns): kept on
-        while at least _REFINE_MIN_SHARE of the refined tuples it tried were pruned by it (after
-        _REFINE_TRIALS tries; a sample of 1 in _REFINE_SAMPLE goes on being tried), since it costs
-        about five count bounds."""
+        while, over the tuples it tried there, it removed on average at least _REFINE_MIN_CUT of
+        their margin over the incumbent (a prune removes all of it), judged after _REFINE_TRIALS
+        tries; 1 in _REFINE_SAMPLE tuples of a level where it is off goes on being tried. It
+        costs about five count bounds: where the angle hardly binds (cameras seeing one side,
+        far apart) it trims a few per cent of the margin and is switched off; where it binds it
+        removes a third or more."""
         r = refined.ravel().astype(np.int64)
-        self.tries += np.bincount(np.abs(r), minlength=65)[1:65]
-        self.wins += np.bincount(-r[r < 0], minlength=65)[1:65]
-        self.refine = (self.tries < _REFINE_TRIALS) | (self.wins >= _REFINE_MIN_SHARE * self.tries)
+        on = r != 0
+        lvl = np.abs(r[on]) - 1
+        self.tries += np.bincount(lvl, minlength=64)[:64]
+        self.cuts += np.bincount(lvl, weights=cut.ravel()[on], minlength=64)[:64]
+        self.wins += np.bincount(-r[r < 0] - 1, minlength=64)[:64]
+        self.refine = (self.tries < _REFINE_TRIALS) | (self.cuts >= _REFINE_MIN_CUT * self.tries)
 
     def columns(self, nodes: np.ndarray) -> tuple[int, ...]:
         """Original columns of a tuple of leaves, sorted."""
@@ -562,10 +578,10 @@ def solve_angle(
     # the incumbent (in layout units: its value on the search rows), then best-first search
     best = inc.best
     best_set = inc.best_set
-    front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap), _CHUNK)
+    front = Frontier(np.zeros((1, k + 1), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap), _CHUNK)
     cpu_search = time.process_time()
     t_expand = 0.0
-    evaluated = batches = exact_evals = cheap_prunes = angle_free = angle_prunes = 0
+    evaluated = batches = exact_evals = cheap_prunes = angle_free = angle_prunes = requeued = 0
     batch = min(_BATCH, _BATCH_MIN)
     status, open_bound = "optimal", -math.inf
     while front.n_open:
@@ -579,7 +595,7 @@ def solve_angle(
             continue
         batches += 1
         t_batch = time.perf_counter()
-        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle = tree.expand(tup, tup_bound, best, margin)
+        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, n_back = tree.expand(tup, tup_bound, best, margin, front.top())
         # next batch: about _BATCH_S seconds, and at most a quarter of the time left
         t_expand += time.perf_counter() - t_batch
         per = (time.perf_counter() - t_batch) / tup.shape[0]
@@ -590,9 +606,10 @@ def solve_angle(
         cheap_prunes += n_cheap
         angle_free += n_free
         angle_prunes += n_angle
+        requeued += n_back
         top = best_leaf(children, value, leaf)
         if top is not None and top[0] > best:
-            best, best_set = top[0], tree.columns(top[1])
+            best, best_set = top[0], tree.columns(top[1][:k])
             log.debug("angle: incumbent %.9g %s", const + best * scale, best_set)
         front.push(children, value, leaf, best + margin)
         log.debug("angle: %d bounds (%d pruned without the angle, %d angle-free), open %d, top %.6g, %.1f s",
@@ -603,7 +620,9 @@ def solve_angle(
     stats.update({"search": "opposite pairs" if layout.pw > 0 else "blocks", "bound_evaluations": int(evaluated),
                   "exact_evaluations": int(exact_evals), "pruned_without_angle": int(cheap_prunes),
                   "angle_free": int(angle_free), "refined": int(tree.tries.sum()),
-                  "pruned_by_angle": int(angle_prunes), "batches": batches,
+                  "pruned_by_angle": int(angle_prunes), "requeued": int(requeued), "batches": batches,
+                  "refine_levels": {int(v): [int(tree.tries[v]), int(tree.wins[v]), round(float(tree.cuts[v]), 1), bool(tree.refine[v])]
+                                    for v in np.flatnonzero(tree.tries)},
                   "peak_open": int(front.peak),
                   "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
                   "time_search_s": deadline.elapsed() - stats["time_setup_s"],
