@@ -489,3 +489,33 @@ def test_lazy_refinement_requeues_and_still_equals_enumeration(monkeypatch) -> N
         assert _value(dense, w, pos, pts, res.selected, 2, angle) == pytest.approx(best, rel=1e-9)
         requeued += res.stats["engine_stats"]["requeued"]
     assert requeued > 0
+
+
+@pytest.mark.parametrize("pw", [0, 3, 7])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_three_node_counter_equals_numpy(pw, seed) -> None:
+    """The block-summed counter for three distinct nodes (two views, integer weights) against a
+    numpy count: a row, or a pair of rows (first rows in words [0, pw), their partners pw words
+    later, the pair's weight on the first), is missed when fewer than two nodes observe it; with
+    an early stop the result reaches ``need`` exactly when the full count does."""
+    rng = np.random.default_rng(seed)
+    n_words, n_nodes = 2 * pw + 9, 5
+    bits = rng.random((n_nodes, n_words * 64)) < 0.45
+    weights = rng.integers(0, 6, n_words * 64).astype(np.float64)
+    weights[pw * 64 : 2 * pw * 64] = 0.0  # partners carry no weight of their own
+    weights[-23:] = 0.0  # padding rows
+    levels = np.packbits(bits.reshape(n_nodes, n_words, 64), axis=2, bitorder="little").view(np.uint64)
+    levels = np.ascontiguousarray(levels.reshape(1, n_nodes, n_words))
+    from camplace.solver import _anglekernels as AK
+    from camplace.solver import _bitkernels as BK
+
+    planes = BK.weight_planes(weights)
+    for a, b, c in [(0, 1, 2), (1, 3, 4), (0, 2, 4)]:
+        two = bits[a].astype(int) + bits[b] + bits[c] >= 2
+        hit = two.copy()
+        hit[: pw * 64] |= two[pw * 64 : 2 * pw * 64]
+        full = float(weights[~hit].sum())
+        assert AK._count_shortfall3(levels, a, b, c, planes, np.inf, pw) == full
+        for need in (0.25 * full, 0.9 * full, full, full + 1):
+            got = AK._count_shortfall3(levels, a, b, c, planes, need, pw)
+            assert (got >= need) == (full >= need) and got <= full
