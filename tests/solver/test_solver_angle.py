@@ -515,7 +515,7 @@ def test_three_node_counter_equals_numpy(pw, seed) -> None:
         hit = two.copy()
         hit[: pw * 64] |= two[pw * 64 : 2 * pw * 64]
         full = float(weights[~hit].sum())
-        assert AK._count_shortfall3(levels, a, b, c, planes, np.inf, pw) == full
+        assert BK.shortfall2_three(levels, a, b, c, planes, np.inf, pw) == full
         for need in (0.25 * full, 0.9 * full, full, full + 1):
-            got = AK._count_shortfall3(levels, a, b, c, planes, need, pw)
+            got = BK.shortfall2_three(levels, a, b, c, planes, need, pw)
             assert (got >= need) == (full >= need) and got <= full

@@ -24,7 +24,8 @@ import numba
 import numpy as np
 from numba import prange
 
-from camplace.solver._bitkernels import _ctz, _missed_weight, _popcount, all_leaves, shortfall, shortfall_fixed, split_tuple
+from camplace.solver._bitkernels import (_ctz, _missed_weight, all_leaves, shortfall, shortfall2_three, shortfall_fixed,
+                                          split_tuple)
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _PJIT = dict(_JIT, parallel=True)
@@ -411,60 +412,14 @@ def _two_views(levels, gnode, gcnt, ng, two_levels, ww):  # pragma: no cover - c
     return two
 
 
-@numba.njit(inline="always", **_JIT)
-def _two_of_three(l0, a, b, c, wd):  # pragma: no cover - compiled
-    """Rows of word ``wd`` that at least two of the nodes ``a``, ``b``, ``c`` observe."""
-    x = l0[a, wd]
-    y = l0[b, wd]
-    z = l0[c, wd]
-    return (x & y) | (z & (x | y))
-
-
-_COUNT_BLOCK = 16  # words summed between two checks of the early stop
-
-
-@numba.njit(**_JIT)
-def _count_shortfall3(levels, a, b, c, planes, need, pw):  # pragma: no cover - compiled
-    """:func:`count_shortfall` for two views, three distinct nodes, no fixed cameras and integer
-    weights (``planes`` (B, W) their binary digits, zero on padding rows, so no mask is needed):
-    integer sums over blocks of ``_COUNT_BLOCK`` words without a branch per word, the early stop
-    checked between blocks (about 2.7 times faster than the grouped counter on 783 words)."""
-    l0 = levels[0]
-    n_words = l0.shape[1]
-    n_planes = planes.shape[0]
-    total = np.uint64(0)
-    wd = 0
-    while wd < n_words:
-        if pw <= wd < 2 * pw:
-            wd = 2 * pw  # second rows of pairs: counted with their first rows
-            continue
-        hi = min(wd + _COUNT_BLOCK, pw if wd < pw else n_words)
-        acc = np.uint64(0)
-        if wd < pw:
-            for v in range(wd, hi):
-                x = ~(_two_of_three(l0, a, b, c, v) | _two_of_three(l0, a, b, c, v + pw))
-                for p in range(n_planes):
-                    acc += _popcount(x & planes[p, v]) << np.uint64(p)
-        else:
-            for v in range(wd, hi):
-                x = ~_two_of_three(l0, a, b, c, v)
-                for p in range(n_planes):
-                    acc += _popcount(x & planes[p, v]) << np.uint64(p)
-        total += acc
-        if total >= need:
-            return float(total)
-        wd = hi
-    return float(total)
-
-
 @numba.njit(**_JIT)
 def _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt):  # pragma: no cover - compiled
     """:func:`count_shortfall` for two views without fixed cameras: the tuple grouped once, the
     counter unrolled (a quarter faster than the general counter; three distinct nodes with integer
-    weights: :func:`_count_shortfall3`)."""
+    weights: :func:`camplace.solver._bitkernels.shortfall2_three`)."""
     ng = _group(nodes, k, gnode, gcnt)
     if ng == 3 and planes.shape[0] > 0:
-        return _count_shortfall3(levels, gnode[0], gnode[1], gnode[2], planes, need, pw)
+        return shortfall2_three(levels, gnode[0], gnode[1], gnode[2], planes, need, pw)
     two_levels = levels.shape[0] >= 2
     n_words = levels.shape[2]
     n_planes = planes.shape[0]

@@ -64,8 +64,7 @@ from numba import prange
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver import _bitkernels as K
-from camplace.solver._common import (Deadline, EngineOutcome, Frontier, best_leaf, greedy_swap, memory_budget_bytes,
-                                     push_chunks)
+from camplace.solver._common import Deadline, EngineOutcome, Frontier, best_leaf, greedy_swap, memory_budget_bytes
 from camplace.solver.pair_cap import match_opposite
 from camplace.solver.checks import kernel_data
 from camplace.solver.presolve import Presolved
@@ -83,7 +82,8 @@ _SWAP_ROUNDS = 50
 _PAIRS_MIN_SHARE = 0.05  # the opposite-pairs layout when it matches at least this share of the weight
 _PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
 _CHUNK = 8192  # tuples per stack entry of the opposite-pairs search
-_BATCH = 1 << 16  # tuples expanded per parallel call there (the top stack entries together)
+_BATCH = 1 << 16  # tuples expanded per parallel call there at most ...
+_BATCH_MIN = 256  # ... and at least
 _ROOT_CHUNK = 16  # tuples per frontier entry of the search for views > 1 on the plain layout ...
 _ROOT_BUDGET = 20_000  # ... bound evaluations of the depth-first search from each root there ...
 _ROOTS_MIN, _ROOTS_MAX = 4, 512  # ... roots per parallel call ...
@@ -266,7 +266,11 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
 
 def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.ndarray, deadline: Deadline,
                   stats: dict[str, Any]) -> tuple[str, float]:
-    """Depth-first over parallel chunks of tuples on the opposite-pairs layout (views > 1, k < 2 views).
+    """Best-first over parallel batches of tuples on the opposite-pairs layout (views > 1, k < 2 views):
+    the open tuples in chunks of similar bounds (:class:`camplace.solver._common.Frontier`), so
+    the reported bound (the largest open) falls as the search goes; depth-first (newest chunks)
+    while more than ``_DEPTH_FIRST_OPEN`` are open. A batch takes about ``_BATCH_S`` seconds at
+    the rate of the previous one (at most a quarter of the time left).
 
     Returns the status and the bound (in ``st`` units); improvements go to ``st.offer``.
     """
@@ -278,38 +282,36 @@ def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.
     planes = K.weight_planes(lw) if st.integer else np.zeros((0, levels.shape[2]), np.uint64)
     total = float(lw.sum())
     stats["time_setup_s"] = deadline.elapsed()
-    stack_t: list[np.ndarray] = [np.zeros((1, k), dtype=np.int64)]
-    stack_b: list[np.ndarray] = [np.array([min(root, total)])]
+    front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([min(root, total)]), _DEPTH_FIRST_OPEN, _CHUNK)
     evaluated = chunks = 0
-    n_open = peak = 1
+    batch = _BATCH_MIN
     status, open_bound = "optimal", -math.inf
-    while stack_t:
-        if deadline.expired() or n_open > _FRONTIER_MAX:
+    while front.n_open:
+        if deadline.expired() or front.n_open > _FRONTIER_MAX:
             status = "feasible"
-            open_bound = max(float(b.max()) for b in stack_b if b.size)
+            open_bound = front.top()
+            stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
             break
-        parts: list[np.ndarray] = []
-        size = 0
-        while stack_t and size < _BATCH:  # the top chunks, up to a batch: parallel work in bulk
-            tup, tb = stack_t.pop(), stack_b.pop()
-            n_open -= tb.shape[0]
-            tup = tup[tb > st.best + st.margin]
-            parts.append(tup)
-            size += tup.shape[0]
-        tup = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        tup, _ = front.pop_batch(batch, st.best + st.margin)
         if tup.shape[0] == 0:
             continue
         chunks += 1
+        t_batch = time.perf_counter()
         with ctrl_c_deferred():
             children, value, leaf, n_made = _expand_pairs(tup, lo, hi, left, right, levels, views, lw, planes, mask,
                                                           total, st.best, st.margin, colmax, pw)
+        # next batch: about _BATCH_S seconds, and at most a quarter of the time left
+        per = (time.perf_counter() - t_batch) / tup.shape[0]
+        left_s = deadline.remaining()
+        want = _BATCH_S if left_s is None else min(_BATCH_S, 0.25 * left_s)
+        batch = int(min(_BATCH, max(_BATCH_MIN, want / max(per, 1e-9))))
         evaluated += int(n_made)
         top = best_leaf(children, value, leaf)
         if top is not None:
             st.offer(top[0], [int(perm[lo[x]]) for x in top[1]])
-        n_open += push_chunks(stack_t, stack_b, children, value, leaf, st.best + st.margin, _CHUNK)
-        peak = max(peak, n_open)
-    stats.update({"search": "opposite pairs", "bound_evaluations": evaluated, "chunks": chunks, "peak_open": int(peak),
+        front.push(children, value, leaf, st.best + st.margin)
+    stats.update({"search": "opposite pairs", "bound_evaluations": evaluated, "chunks": chunks, "peak_open": int(front.peak),
+                  "depth_first_batches": front.lifo_batches,
                   "words": int(levels.shape[2])})
     return status, max(st.best, open_bound)
 
