@@ -155,7 +155,7 @@ def engine_instances(draw):
 @given(inst=engine_instances(), chunk=st.integers(1, 3), checks=st.sampled_from([None, 0, 1, 2, 5]),
        incumbent=st.booleans())
 def test_bitset_opposite_pairs_search_equals_enumeration(inst, chunk, checks, incumbent) -> None:
-    """The bitset engine on the opposite-pairs layout (forced on, tiny chunks), completed or
+    """The bitset engine on the opposite-pairs layout (forced on, tiny chunks and batches), completed or
     interrupted after a few chunks, with or without a greedy incumbent (then the search alone
     must find the optimum), against enumeration of every k-subset."""
     dense, w, k, views = inst
@@ -164,6 +164,8 @@ def test_bitset_opposite_pairs_search_equals_enumeration(inst, chunk, checks, in
     mp = pytest.MonkeyPatch()
     mp.setattr(bitset_mod, "_PAIRS_MIN_SHARE", 0.0)
     mp.setattr(bitset_mod, "_CHUNK", chunk)
+    mp.setattr(bitset_mod, "_BATCH", chunk)  # best-first batches of a few tuples
+    mp.setattr(bitset_mod, "_BATCH_MIN", 1)
     if not incumbent:
         mp.setattr(bitset_mod, "_STARTS", 0)
         checks = None
