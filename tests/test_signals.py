@@ -1,4 +1,5 @@
-"""Ctrl-C is held back, not lost, while compiled kernels run in the main thread."""
+"""Ctrl-C is held back, not lost, while compiled kernels run in the main thread; and a Ctrl-C
+that something swallowed during a command is raised again at the next progress stage or step."""
 
 import os
 import signal
@@ -7,7 +8,8 @@ import time
 
 import pytest
 
-from camplace._signals import ctrl_c_deferred
+from camplace._progress import ConsoleReporter, Reporter
+from camplace._signals import check_ctrl_c, ctrl_c_deferred, ctrl_c_noted
 
 
 def test_ctrl_c_is_raised_after_the_block_and_the_handler_restored() -> None:
@@ -35,3 +37,41 @@ def test_no_ctrl_c_no_exception_and_worker_threads_untouched() -> None:
     t.start()
     t.join()
     assert seen == [signal.getsignal(signal.SIGINT)]
+
+
+def _swallowed_ctrl_c() -> None:
+    """A Ctrl-C whose KeyboardInterrupt is dropped (as ctypes does inside numba's callbacks)."""
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+    except KeyboardInterrupt:
+        pass
+
+
+@pytest.mark.parametrize("reporter", [Reporter(), ConsoleReporter()])
+def test_a_swallowed_ctrl_c_is_raised_at_the_next_stage_and_step(reporter, capsys) -> None:
+    before = signal.getsignal(signal.SIGINT)
+    with ctrl_c_noted():
+        with reporter.stage("first", total=3) as advance:
+            advance(1)
+            _swallowed_ctrl_c()
+            with pytest.raises(KeyboardInterrupt):
+                advance(1)
+        with pytest.raises(KeyboardInterrupt):
+            with reporter.stage("second"):
+                pass
+    assert signal.getsignal(signal.SIGINT) is before
+    check_ctrl_c()  # the note ends with the command
+    with reporter.stage("after the command") as advance:
+        advance(1)
+
+
+def test_a_ctrl_c_outside_a_command_leaves_no_note() -> None:
+    """The API (no command around it): a deferred Ctrl-C is raised once, and later stages run."""
+    with pytest.raises(KeyboardInterrupt):
+        with ctrl_c_deferred():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+    check_ctrl_c()
+    with Reporter().stage("next") as advance:
+        advance(1)

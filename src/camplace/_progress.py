@@ -7,14 +7,18 @@ import sys
 import time
 from typing import Callable, Iterator
 
+from camplace._signals import check_ctrl_c
+
 
 class Reporter:
     """Silent progress reporter (the default for the Python API)."""
 
     @contextlib.contextmanager
     def stage(self, name: str, total: int | None = None) -> Iterator[Callable[[int], None]]:
-        """Context for one stage; yields ``advance(n)``."""
-        yield lambda n=1: None
+        """Context for one stage; yields ``advance(n)``. A noted Ctrl-C
+        (:func:`camplace._signals.check_ctrl_c`) is raised at the start and at every step."""
+        check_ctrl_c()
+        yield lambda n=1: check_ctrl_c()
 
 
 class ConsoleReporter(Reporter):
@@ -26,6 +30,7 @@ class ConsoleReporter(Reporter):
 
     @contextlib.contextmanager
     def stage(self, name: str, total: int | None = None) -> Iterator[Callable[[int], None]]:
+        check_ctrl_c()
         t0 = time.perf_counter()
         if self.live:
             from rich.console import Console
@@ -40,9 +45,13 @@ class ConsoleReporter(Reporter):
                 transient=False,
             ) as prog:
                 task = prog.add_task(name, total=total)
-                yield lambda n=1: prog.advance(task, n)
+                def advance(n: int = 1) -> None:
+                    check_ctrl_c()
+                    prog.advance(task, n)
+
+                yield advance
                 if total is None:
                     prog.update(task, total=1, completed=1)
         else:
-            yield lambda n=1: None
+            yield lambda n=1: check_ctrl_c()
             print(f"{name:<12} done in {time.perf_counter() - t0:.2f} s", file=self.stream, flush=True)

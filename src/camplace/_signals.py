@@ -1,4 +1,4 @@
-"""Ctrl-C around compiled (numba) code."""
+"""Ctrl-C around compiled (numba) code, and for a whole command."""
 
 from __future__ import annotations
 
@@ -6,6 +6,41 @@ import contextlib
 import signal
 import threading
 from typing import Iterator
+
+
+_NOTED = threading.Event()  # a Ctrl-C arrived during the current command (ctrl_c_noted)
+
+
+def _note_and_raise(signum, frame) -> None:
+    _NOTED.set()
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def ctrl_c_noted() -> Iterator[None]:
+    """For a whole command: every Ctrl-C (SIGINT) is noted before KeyboardInterrupt is raised.
+
+    A KeyboardInterrupt raised while numba loads cached machine code outside
+    :func:`ctrl_c_deferred` (a ctypes callback) is printed and dropped by ctypes; the note
+    stays, and :func:`check_ctrl_c` (at every progress stage's start and step) raises it again,
+    so Ctrl-C is never lost, at worst a little late. Outside the main thread it does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _NOTED.clear()
+    previous = signal.signal(signal.SIGINT, _note_and_raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _NOTED.clear()
+
+
+def check_ctrl_c() -> None:
+    """Raise KeyboardInterrupt if a Ctrl-C of this command was noted (it may have been dropped)."""
+    if _NOTED.is_set():
+        raise KeyboardInterrupt
 
 
 @contextlib.contextmanager

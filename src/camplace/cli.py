@@ -12,6 +12,7 @@ import logging
 import sys
 from pathlib import Path
 
+from camplace._signals import ctrl_c_noted
 from camplace.errors import CamplaceError
 from camplace.names import EVENT_MODES, SAMPLERS
 from camplace.robust_cli import add_robust_options, print_oos, spec_from_args, wrap_solve
@@ -251,7 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_BAD_INPUT
     try:
-        return COMMANDS[args.verb](args)
+        with ctrl_c_noted():
+            return COMMANDS[args.verb](args)
     except CamplaceError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
