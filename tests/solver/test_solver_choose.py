@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 from camplace.solver import solve
-from camplace.solver.choose import ProblemSizes, choose_engine, problem_sizes, use_stereo
+from camplace.solver.choose import ProblemSizes, choose_engine, problem_sizes
 from camplace.solver.options import SolveOptions
 
 BIG = 1 << 40  # bytes: everything fits
@@ -108,19 +108,6 @@ def test_quality_fallback_is_recorded_and_exact_is_an_error() -> None:
 def test_exact_where_it_does_not_apply(problem, options) -> None:
     with pytest.raises(CamplaceError, match="use engine mip or cpsat"):
         choose_engine(problem, options, BIG)
-
-
-@pytest.mark.parametrize(("views", "k", "engine", "free", "need", "expected"), [
-    (2, 2, "auto", 4000, MB, True),
-    (2, 3, "auto", 4000, MB, True),
-    (2, 3, "auto", 4001, MB, False),  # auto: stereo up to 4,000 candidates
-    (2, 3, "exact", 9000, MB, True),
-    (2, 4, "exact", 100, MB, False),  # k = 2, 3 only
-    (3, 3, "exact", 100, MB, False),  # views = 2 only
-    (2, 3, "exact", 100, 2 * BIG, False),  # does not fit
-])
-def test_use_stereo(views, k, engine, free, need, expected) -> None:
-    assert use_stereo(views, k, engine, free, need, BIG) is expected
 
 
 def test_problem_sizes_counts_the_quality_rows() -> None:

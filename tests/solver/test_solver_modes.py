@@ -222,7 +222,7 @@ def test_time_limit_during_model_build_keeps_a_valid_bound(mode, data) -> None:
 @settings(max_examples=60, **_SETTINGS)
 @given(data=st.data())
 def test_stereo_exact_engine_equals_enumeration(engine, data) -> None:
-    """multiview with 2 views and k = 2 or 3: the stereo engine against enumeration."""
+    """multiview with 2 views and k = 2 or 3 (stereo): the exact (bitset) engine against enumeration."""
     dense, w, pos, pts, rng = data.draw(instances(max_n=10, max_m=18))
     n = dense.shape[1]
     _, forbidden = _side(data.draw, n, 0)

@@ -129,7 +129,7 @@ def test_memory_guard(monkeypatch, mode) -> None:
     def huge(*args, **kwargs):  # the exact engines' estimates (models are checked separately)
         return 1 << 60
 
-    for mod, name in [(modes, "bitset_bytes"), (modes, "stereo_bytes"), (choose, "quality_tree_bytes"),
+    for mod, name in [(modes, "bitset_bytes"), (choose, "quality_tree_bytes"),
                       (choose, "quality_exact_bytes"), (dispatch, "bitset_bytes")]:
         monkeypatch.setattr(mod, name, huge)
     monkeypatch.setattr(choose, "_QUALITY_EXPAND_MAX", -1)  # quality: the tree engine would be next

@@ -18,8 +18,8 @@ maxcover, no minimum distance, k <= 4       ``exact`` (bitset engine on the pres
 quality, no minimum distance                ``exact``: the tree / min-Gram portfolio where one
                                             fits (tree: k <= 4; min-Gram: k = 2, 3, n <= 3,000),
                                             else the level rows when k <= 4 and they fit
-multiview, no fixed cameras, no minimum     ``exact`` (bitset, or stereo for views = 2,
-distance, no angle, k <= 4                  k = 2, 3, n <= 4,000)
+multiview, no fixed cameras, no minimum     ``exact`` (bitset engine)
+distance, no angle, k <= 4
 multiview with angle, no minimum distance,  ``exact`` (angle engine)
 k <= 4
 maxcover / quality, no minimum distance;    ``exact`` (:mod:`camplace.solver.large_k`: local
@@ -45,9 +45,8 @@ from camplace.solver.options import SolveOptions
 from camplace.solver.quality_exact import QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, quality_exact_bytes
 from camplace.solver.quality_tree import quality_tree_bytes
 
-__all__ = ["ProblemSizes", "EngineChoice", "choose_engine", "problem_sizes", "use_stereo", "EXACT_MAX_K", "ROUTES"]
+__all__ = ["ProblemSizes", "EngineChoice", "choose_engine", "problem_sizes", "EXACT_MAX_K", "ROUTES"]
 
-_STEREO_AUTO_MAX_N = 4000  # the pair-Gram stereo engine (views=2, k<=3) up to this many candidates, bitsets above
 _QUALITY_EXPAND_MAX = 20_000_000  # auto uses the exact engine for quality up to this expanded nnz
 
 #: How :func:`camplace.solver.solve` runs the chosen engine.
@@ -103,8 +102,8 @@ class EngineChoice:
     reason : str
         Why, in one line (recorded in ``stats["engine_choice"]``).
     route : str
-        One of :data:`ROUTES`: the large-k engines, the quality portfolio, the angle engine, the multiview bitset /
-        stereo engines, presolved max coverage (of the points, or of quality's level rows), or
+        One of :data:`ROUTES`: the large-k engines, the quality portfolio, the angle engine, the multiview bitset
+        engine, presolved max coverage (of the points, or of quality's level rows), or
         the SCIP / CP-SAT model of the mode.
     tree, gram : bool
         quality portfolio: the tree engine / the min-Gram engine apply.
@@ -250,11 +249,3 @@ def _reason(engine: str, name: str, mode: str, k: int, p: ProblemSizes, exact_ok
     if p.conflicts:
         return f"auto: min_distance_m ({p.conflicts} conflicting pairs) needs the model"
     return f"auto: {mode} with fixed cameras ({p.fixed}) needs the model"
-
-
-def use_stereo(views: int, k: int, engine: str, free: int, stereo_need: int, budget_bytes: int) -> bool:
-    """Multiview on the exact route: the pair-Gram stereo engine (views = 2, k = 2, 3; under
-    ``auto`` on up to 4,000 candidates) instead of the bitset engine, when its memory
-    (``stereo_need`` bytes, known after presolve) fits."""
-    stereo = views == 2 and k in (2, 3) and (engine == "exact" or free <= _STEREO_AUTO_MAX_N)
-    return stereo and stereo_need <= budget_bytes

@@ -34,9 +34,7 @@ least that far apart; needs ``positions``).
 
 Engines: ``exact`` (the bound-pruned bitset engine of :mod:`camplace.solver.bitset_exact` for
 maxcover without minimum distance and multiview (any ``views``) without fixed cameras, minimum
-angle or minimum distance -- with ``views = 2`` and ``k = 2, 3`` on up to 4,000 candidates (any
-number when ``exact`` is requested) the pair-Gram stereo engine of
-:mod:`camplace.solver.multiview_exact`, which is faster there; quality runs the quantised-tree
+angle or minimum distance; quality runs the quantised-tree
 engine of :mod:`camplace.solver.quality_tree` and, for k = 2 or 3 new cameras on up to 3,000
 candidates, hands over to the min-Gram triple engine of :mod:`camplace.solver.quality_exact` if the
 tree has not finished within its share of the time (see :func:`camplace.solver.portfolio.quality_engines`); when neither
@@ -75,11 +73,10 @@ from camplace.solver._dispatch import memory_fallback, run_maxcover_engine
 from camplace.solver._model import model_bytes, solve_model
 from camplace.solver.angle_exact import greedy_angle, solve_angle
 from camplace.solver.bitset_exact import bitset_bytes, solve_bitset
-from camplace.solver.choose import choose_engine, problem_sizes, too_big_message, use_stereo
+from camplace.solver.choose import choose_engine, problem_sizes, too_big_message
 from camplace.solver.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
 from camplace.solver.greedy import NearCandidates, greedy
 from camplace.solver.models import BuildTimeout, build_model, check_setcover_memory, model_size
-from camplace.solver.multiview_exact import solve_multiview_exact, stereo_bytes
 from camplace.solver.large_k import run_large_k
 from camplace.solver.objectives import cheap_bound, expand_levels, mode_value
 from camplace.solver.options import SolveOptions
@@ -437,10 +434,7 @@ def _cover_modes(
             _too_big(engine, stats, need, budget)
             name = "mip"
         else:
-            if use_stereo(views, k, engine, free_cols.size, stereo_bytes(mp, np_), budget):
-                out = solve_multiview_exact(pre, time_limit_s=remaining(t0, time_limit_s))
-            else:
-                out = solve_bitset(pre, views=views, time_limit_s=remaining(t0, time_limit_s))
+            out = solve_bitset(pre, views=views, time_limit_s=remaining(t0, time_limit_s))
             sel = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
             stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
             return ModeOutcome(sel, out.status if sel else "unknown", value(sel) if sel else 0.0, float(out.bound), name,
