@@ -519,3 +519,28 @@ def test_three_node_counter_equals_numpy(pw, seed) -> None:
         for need in (0.25 * full, 0.9 * full, full, full + 1):
             got = BK.shortfall2_three(levels, a, b, c, planes, need, pw)
             assert (got >= need) == (full >= need) and got <= full
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grouped_two_view_counter_with_a_repeated_node_equals_numpy(seed) -> None:
+    """k = 4 with one node twice (three groups): the node's rows seen by two of its columns
+    (``levels[1]``) count, so the three-distinct-nodes counter must not be taken."""
+    from camplace.solver import _bitkernels as BK
+
+    rng = np.random.default_rng(seed)
+    n_words, n_nodes = 6, 4
+    l0 = rng.random((n_nodes, n_words * 64)) < 0.4
+    l1 = l0 & (rng.random((n_nodes, n_words * 64)) < 0.5)  # seen by two columns of the node
+    weights = rng.integers(0, 4, n_words * 64).astype(np.float64)
+    bits = np.stack([l0, l1])
+    levels = np.ascontiguousarray(np.packbits(bits.reshape(2, n_nodes, n_words, 64), axis=3, bitorder="little")
+                                  .view(np.uint64).reshape(2, n_nodes, n_words))
+    planes = BK.weight_planes(weights)
+    nodes = np.array([0, 0, 1, 3], dtype=np.int64)
+    views = l0[0].astype(int) + l1[0] + l0[1] + l0[3]
+    full = float(weights[views < 2].sum())
+    scratch = np.zeros(4, dtype=np.int64)
+    got = BK.shortfall2_grouped(levels, nodes, 4, weights, planes, np.uint64(0xFFFFFFFFFFFFFFFF), np.inf, 0,
+                                scratch, scratch.copy())
+    assert got == full
+

@@ -24,8 +24,8 @@ import numba
 import numpy as np
 from numba import prange
 
-from camplace.solver._bitkernels import (_ctz, _missed_weight, all_leaves, shortfall, shortfall2_three, shortfall_fixed,
-                                          split_tuple)
+from camplace.solver._bitkernels import (_ctz, _missed_weight, all_leaves, group_tuple, shortfall, shortfall2_grouped,
+                                          shortfall_fixed, split_tuple)
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _PJIT = dict(_JIT, parallel=True)
@@ -231,24 +231,6 @@ def _pair_bits(x, exact, c1, i1, c2, i2, wd, possible, always, pa, pb, pts, thet
 
 
 @numba.njit(**_JIT)
-def _group(nodes, k, gnode, gcnt):  # pragma: no cover - compiled
-    """Groups a non-decreasing tuple of ``k`` nodes: writes each distinct node to ``gnode`` and how
-    often it occurs to ``gcnt`` ((k,) int64 each) and returns the number of groups."""
-    ng = 0
-    g = 0
-    while g < k:
-        v = nodes[g]
-        c = 1
-        while g + c < k and nodes[g + c] == v:
-            c += 1
-        gnode[ng] = v
-        gcnt[ng] = c
-        ng += 1
-        g += c
-    return ng
-
-
-@numba.njit(**_JIT)
 def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes, last_mask,
                     need, acc, gnode, gcnt, pw, exact, pts, possible, always, self_ok, theta_deg, cos_t):  # pragma: no cover - compiled
     """Weight of the rows a node tuple cannot make count (stops once it reaches ``need``).
@@ -291,7 +273,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
     n_levels = levels.shape[0]
     n_planes = planes.shape[0]
     r = fbits.shape[0]
-    ng = _group(nodes, k, gnode, gcnt)
+    ng = group_tuple(nodes, k, gnode, gcnt)
     total = 0.0
     for wd in range(n_words):
         if pw <= wd < 2 * pw:
@@ -398,44 +380,6 @@ def angle_free(nodes, k, lo, hi, dirs, par, n_fixed, theta):  # pragma: no cover
     return True
 
 
-@numba.njit(inline="always", **_JIT)
-def _two_views(levels, gnode, gcnt, ng, two_levels, ww):  # pragma: no cover - compiled
-    """Rows of word ``ww`` that two cameras of the grouped tuple can observe (no angle)."""
-    one = np.uint64(0)
-    two = np.uint64(0)
-    for a in range(ng):
-        x = levels[0, gnode[a], ww]
-        two |= one & x
-        if two_levels and gcnt[a] >= 2:
-            two |= levels[1, gnode[a], ww]
-        one |= x
-    return two
-
-
-@numba.njit(**_JIT)
-def _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt):  # pragma: no cover - compiled
-    """:func:`count_shortfall` for two views without fixed cameras: the tuple grouped once, the
-    counter unrolled (a quarter faster than the general counter; three distinct nodes with integer
-    weights: :func:`camplace.solver._bitkernels.shortfall2_three`)."""
-    ng = _group(nodes, k, gnode, gcnt)
-    if ng == 3 and planes.shape[0] > 0:
-        return shortfall2_three(levels, gnode[0], gnode[1], gnode[2], planes, need, pw)
-    two_levels = levels.shape[0] >= 2
-    n_words = levels.shape[2]
-    n_planes = planes.shape[0]
-    total = 0.0
-    for wd in range(n_words):
-        if pw <= wd < 2 * pw:
-            continue  # second rows of pairs: counted with their first rows
-        hit = _two_views(levels, gnode, gcnt, ng, two_levels, wd)
-        if wd < pw:
-            hit |= _two_views(levels, gnode, gcnt, ng, two_levels, wd + pw)
-        total += _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w)
-        if total >= need:
-            return total
-    return total
-
-
 @numba.njit(**_JIT)
 def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, gnode, gcnt,
                     pw):  # pragma: no cover - compiled
@@ -449,7 +393,7 @@ def count_shortfall(levels, nodes, k, views, fbits, w, planes, last_mask, need, 
     """
     r = fbits.shape[0]
     if r == 0 and views == 2:
-        return _count_shortfall2(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt)
+        return shortfall2_grouped(levels, nodes, k, w, planes, last_mask, need, pw, gnode, gcnt)
     if r == 0:
         return shortfall(levels, nodes, k, views, w, planes, last_mask, need, acc, pw)
     return shortfall_fixed(levels, nodes, k, views, fbits, w, planes, last_mask, need, acc, pw)
