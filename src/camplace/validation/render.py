@@ -31,6 +31,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from camplace._cores import thread_count
 from camplace._io import write_bytes_atomic
 from camplace.errors import CamplaceError
 from camplace.validation.cameras import CameraView
@@ -412,7 +413,7 @@ def render_view(
     label = np.empty((h, w), dtype=np.int8)
     depth = np.empty((h, w), dtype=np.float32)
     blocks = [slice(s, min(s + block_rows, h)) for s in range(0, h, block_rows)]
-    workers = workers or min(8, os.cpu_count() or 1)
+    workers = thread_count(workers)
 
     def store(res) -> None:
         rows, im, lab, dep = res

@@ -42,6 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import ConvexHull, QhullError
 
+from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.visibility.points import TargetPoints
@@ -213,9 +214,9 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
 
     Each chunk's row runs are copied straight into the CSR arrays by a compiled kernel, which
     computes each pair's observation quality on the way (see the module docstring), on
-    ``workers`` threads (default: number of CPUs, at most 8), each thread filling a contiguous
-    range of rows with about the same number of entries; chunks are taken in column order, so
-    the column indices of each row come out ascending.
+    ``workers`` threads (default: the cores this process may use, :func:`camplace._cores.thread_count`),
+    each thread filling a contiguous range of rows with about the same number of entries; chunks
+    are taken in column order, so the column indices of each row come out ascending.
     """
     from camplace.visibility import _kernels
 
@@ -233,7 +234,7 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
     np.cumsum(row_counts, out=indptr[1:])
     with ThreadPoolExecutor(max_workers=2) as pool:  # the two big arrays are faulted in side by side
         indices, data = pool.map(lambda dt: populated_empty(nnz, dt), (index_dtype, np.float32))
-    workers = max(1, min(workers or min(8, os.cpu_count() or 1), m))
+    workers = max(1, min(thread_count(workers), m))
     emitter = ~np.any(task.normals != 0.0, axis=1)
     fx = float(task.K[0, 0])
     bounds = [0, *np.searchsorted(indptr, [nnz * (t + 1) / workers for t in range(workers - 1)]), m]
@@ -293,7 +294,7 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float) -> int:
     work arrays and result slab (about 100 MB a thread).
     """
     nnz = density * n_rows * n_cols
-    return int(10 * nnz + 16 * (n_rows + 1) + 100 * 2**20 * min(8, os.cpu_count() or 1))
+    return int(10 * nnz + 16 * (n_rows + 1) + 100 * 2**20 * thread_count())
 
 
 def compute_visibility(
@@ -318,7 +319,7 @@ def compute_visibility(
     chunk_size : int or None
         Candidates per work item (default: about 2 million pairs per chunk, 8 to 256 candidates).
     workers : int or None
-        Threads (default: number of CPUs, at most 8).
+        Threads (default: the cores this process may use, :func:`camplace._cores.thread_count`).
     progress : callable or None
         Called with the number of candidates finished after each chunk.
     memory_budget_bytes : int or None
@@ -376,7 +377,7 @@ def compute_visibility(
                 progress(min(chunk_size, n_cand))
         parts += compute_chunks_dask(task, starts[1:], chunk_size, dask_address, progress=progress)
     else:
-        workers = workers or min(8, os.cpu_count() or 1)
+        workers = thread_count(workers)
 
         plan = chunk_plan(n_cand, chunk_size, workers)
         pool = ThreadPoolExecutor(max_workers=workers)

@@ -55,6 +55,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 import scipy.sparse as sp
 
+from camplace._cores import thread_count
 from camplace.errors import CamplaceError
 
 HEAD_MAGIC = b"CAMPLMX1"
@@ -114,7 +115,7 @@ def populated_empty(n: int, dtype) -> np.ndarray:
 
 
 def _workers(workers: int | None) -> int:
-    return max(1, workers or min(8, os.cpu_count() or 1))
+    return thread_count(workers)
 
 
 def _narrow_uint(max_value: int) -> np.dtype:
