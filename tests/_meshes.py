@@ -55,12 +55,12 @@ def write_textured_obj(path: Path, mesh: trimesh.Trimesh) -> int:
     positions = mesh.vertices[unique[:, 0].astype(np.int64)]
     texture = uv[first]
     faces = inverse.reshape(-1, 3) + 1
-    lines = ["# textured asteroid shape model, km", "mtllib asteroid.mtl", "o asteroid"]
+    # no material library: trimesh then gives the texture coordinates a default material, which needs Pillow
+    lines = ["# textured asteroid shape model, km", "o asteroid"]
     lines += [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in positions]
     lines += [f"vt {s:.6f} {t:.6f}" for s, t in texture]
-    lines += ["usemtl rock"] + [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in faces]
+    lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in faces]
     path.write_text("\n".join(lines) + "\n")
-    (path.parent / "asteroid.mtl").write_text("newmtl rock\nKd 0.5 0.5 0.5\n")
     return len(positions) - len(mesh.vertices)
 
 

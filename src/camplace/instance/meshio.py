@@ -10,6 +10,7 @@ welded by position (:func:`welded_faces`); the vertices themselves are kept as t
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 
@@ -26,17 +27,35 @@ class MissingPackageError(CamplaceError):
 
     Attributes
     ----------
-    package : str
-        The pip name of the missing package (``pillow`` for ``PIL``).
+    package : str or None
+        The pip name of the missing package (``pillow`` for ``PIL``); None when the error does not
+        name a module.
+    reason : str
+        What is missing, without the fix.
+    fix : str
+        How to install it.
     """
 
     def __init__(self, path: str | os.PathLike[str], exc: ImportError) -> None:
-        module = (exc.name or str(exc).rpartition(" ")[2].strip("'\"")).partition(".")[0] or "?"
-        self.package = PIP_NAMES.get(module, module)
-        super().__init__(
-            f"reading {os.path.basename(path)} needs the Python package '{self.package}', which is not installed "
-            f"({type(exc).__name__}: {exc}): pip install {self.package}"
-        )
+        module = missing_module(exc)
+        self.package = None if module is None else PIP_NAMES.get(module, module)
+        what = f"the Python package '{self.package}'" if self.package else "a Python package"
+        self.reason = f"reading {os.path.basename(path)} needs {what}, which is not installed ({type(exc).__name__}: {exc})"
+        self.fix = f"install it: pip install {self.package}" if self.package else "install the package the message names"
+        super().__init__(f"{self.reason} ({self.fix})")
+
+
+def missing_module(exc: ImportError) -> str | None:
+    """The top-level module an ImportError is about, or None.
+
+    ``exc.name`` when set; else read from the message (trimesh re-raises a deferred import error
+    without its ``name``: ``import of PIL halted; None in sys.modules``).
+    """
+    name = exc.name
+    if not name:
+        m = re.search(r"No module named '([\w.]+)'|import of ([\w.]+) halted|cannot import name '\w+' from '([\w.]+)'", str(exc))
+        name = next((g for g in m.groups() if g), None) if m else None
+    return name.partition(".")[0] if name else None
 
 
 def _is_closed(faces: np.ndarray) -> bool:

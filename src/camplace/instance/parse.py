@@ -397,7 +397,7 @@ class _Parser:
         except InstanceError:
             raise
         except MissingPackageError as exc:
-            raise self.error(field, f"cannot read mesh {path.name}: {exc}", f"install the missing package: pip install {exc.package}") from None
+            raise self.error(field, f"cannot read mesh {path.name}: {exc.reason}", exc.fix) from None
         except Exception as exc:  # trimesh raises many kinds of errors on bad content
             raise self.error(
                 field, f"cannot read mesh {path.name}: {type(exc).__name__}: {_show(str(exc), 120)}", "use a valid triangle mesh file that trimesh can read (.ply, .obj, .stl, .off, .glb)"
