@@ -147,7 +147,7 @@ SCENE_PROBE = """
   const r = gd.getBoundingClientRect();
   const lg = gd.querySelector('.legend');
   const l = lg ? lg.getBoundingClientRect() : null;
-  return {found: true,
+  return {found: true, tag: gd.tagName,
           legend: l ? {x: l.left - r.left, y: l.top - r.top, width: l.width, height: l.height} : null, ready: gd.dataset.ready === '1', canvases: canvases,
           data: tag ? JSON.parse(tag.textContent) : null,
           traces: (gd._fullData || []).map(t => ({type: t.type, name: t.name, mode: t.mode || null, group: t.legendgroup || null,

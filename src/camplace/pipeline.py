@@ -60,6 +60,31 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
     return out
 
 
+def mode_warnings(instance, mode: str) -> list[str]:
+    """Plain-language warnings where the solver's mode and the instance's ``[quality]`` meet.
+
+    ``--mode quality`` maximises the weight times the best observation quality; with
+    ``[quality] mode = "binary"`` every observed pair has quality 1, so it is maxcover under
+    another name (the solver's numbers are left as they are).
+
+    Parameters
+    ----------
+    instance : Instance
+    mode : {"maxcover", "quality", "multiview", "setcover"}
+
+    Returns
+    -------
+    list of str
+    """
+    if mode == "quality" and instance.quality.mode == "binary":
+        return [
+            '--mode quality on an instance with [quality] mode = "binary": every observed pair has quality 1, so the '
+            'objective is the observed weight, exactly as --mode maxcover (set [quality] mode = "graded" to weigh '
+            "resolution and incidence)"
+        ]
+    return []
+
+
 @dataclass(frozen=True)
 class RunSettings:
     """Every setting of a run, resolved from the instance's ``[run]`` defaults and checked
@@ -303,6 +328,8 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
     Solution
     """
     reporter = reporter or Reporter()
+    for note in mode_warnings(instance, settings.mode):
+        log.warning("%s", note)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with reporter.stage("sampling"):
@@ -384,15 +411,20 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
 def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res, robust_record: dict | None,
                   timings: dict[str, float]) -> Solution:
     """The :class:`Solution` of a run: the solver's answer with the coverage figures, the camera
-    records, warnings and the solver's timings (moved from its stats into ``timings``)."""
+    records, warnings and the solver's timings (moved from its stats into ``timings``).
+
+    The warnings are the instance's (``Instance.warnings``, logged when it was read), the mode's
+    (:func:`mode_warnings`, logged when the run started) and the degenerate problems'
+    (:func:`degenerate_warnings`)."""
     s = settings
     pts = vis.points
     weights = event_weights(pts, instance, s.event_mode)
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
     k = len(res.selected) if (s.mode == "setcover" or s.fixed) else s.k
-    notes = degenerate_warnings(vis.matrix, weights, k)
-    for note in notes:
+    degenerate = degenerate_warnings(vis.matrix, weights, k)
+    for note in degenerate:
         log.info("%s", note)
+    notes = [*instance.warnings, *mode_warnings(instance, s.mode), *degenerate]
     solver_stats, solver_times = split_timings(dict(res.stats))
     timings.update(solver_times)
     total_weight = float(weights.sum())

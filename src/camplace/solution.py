@@ -76,8 +76,10 @@ class Solution:
     peak_coverage : float
         Share of the peak frame's weight the chosen cameras observe.
     warnings : list of str
-        Degenerate situations worth a look: nothing observable, fewer useful candidates than k,
-        all weights zero.
+        Things worth a look, one line each: what reading the instance warned about (an open target
+        mesh, a target larger than the camera volume, dropped degenerate triangles), ``--mode quality``
+        on a binary-quality instance (the same objective as maxcover), and degenerate situations
+        (nothing observable, fewer useful candidates than k, all weights zero).
     points_requested : int
         The ``--points`` value of the run (surface points split over the frames, before rounding
         up to a whole number per frame and adding emitters); with ``seed`` it recreates the rows.

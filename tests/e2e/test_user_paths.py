@@ -2,7 +2,9 @@
 
 For each built-in instance (and the lab instance file) at reduced sizes: ``run`` in every mode,
 ``run --report``, ``render``, ``validate --random-systems``, ``export --format``, ``solve`` on the run
-folder, ``campaign OUTDIR`` and ``report``. Each command runs as ``python -m camplace`` under an
+folder, ``campaign OUTDIR`` and ``report``; and a user's own instance, written here from
+docs/instance-format.md around a km shape model with texture coordinates (``run --report``,
+``render``, ``export``). Each command runs as ``python -m camplace`` under an
 address-space limit (:data:`ADDRESS_SPACE_GB`), must exit 0 without a traceback, and its outputs
 must agree with each other: every objective is recomputed here, in plain numpy, from the folder's
 matrix (``visibility.cpm``, read by ``camplace.load_visibility``), ``points.csv`` and
@@ -23,6 +25,7 @@ import numpy as np
 import pytest
 
 from camplace.visibility.store import load_visibility
+from tests._meshes import ASTEROID_AXES_KM, asteroid_instance_toml, asteroid_km, write_textured_obj
 
 ROOT = Path(__file__).resolve().parents[2]
 ADDRESS_SPACE_GB = 6
@@ -254,6 +257,59 @@ def test_render_validate_export(reported_run, tmp_path) -> None:
     old = camplace("export-cameras", str(out), "--format", "colmap", "-o", str(tmp_path / "old"), cwd=tmp_path)
     assert old.stderr.startswith("warning:") and "deprecated" in old.stderr and len(old.stderr.strip().splitlines()) == 1
     assert (tmp_path / "old" / "colmap" / "images.txt").read_text() == (exp / "colmap" / "images.txt").read_text()
+
+
+def colmap_centres(images_txt: Path) -> np.ndarray:
+    """(n, 3) camera centres of a COLMAP ``images.txt`` (world-to-camera q, t: the centre is -R(q)^T t)."""
+    from scipy.spatial.transform import Rotation
+
+    lines = [ln for ln in images_txt.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    centres = []
+    for p in (ln.split() for ln in lines):  # one pose line per image (its 2D-points line is empty)
+        qw, qx, qy, qz, tx, ty, tz = map(float, p[1:8])
+        centres.append(-Rotation.from_quat([qx, qy, qz, qw]).as_matrix().T @ np.array([tx, ty, tz]))
+    return np.array(centres).reshape(-1, 3)
+
+
+@pytest.mark.slow
+def test_a_users_textured_asteroid_in_km(tmp_path) -> None:
+    """Issue 33: a newcomer's own data, an asteroid shape model in km written as an OBJ with texture
+    coordinates (its seams duplicate vertices), scaled to metres by the instance file. Every verb must
+    read it without a false "not watertight" warning (the run folder's copy included), and the
+    outputs must agree with each other and with the model's size in metres."""
+    from tests.report.test_report_html import ElementIds
+
+    assert write_textured_obj(tmp_path / "asteroid.obj", asteroid_km()) > 0
+    (tmp_path / "asteroid.toml").write_text(asteroid_instance_toml("asteroid.obj", k=2, require_light=True))
+    out = tmp_path / "run"
+    proc = camplace("run", "asteroid.toml", "-o", str(out), *SIZE, "--report", "--report-systems", "3", cwd=tmp_path)
+    assert "watertight" not in proc.stderr
+    sol = check_solution(out, "maxcover")
+    assert len(sol["cameras"]) == 2 and not any("watertight" in w for w in sol["warnings"])
+    # units: the sample points lie on the ellipsoid of the km model x 1000 (on its flat faces: just inside)
+    pts = read_csv(out / "points.csv")
+    radius = sum((pts[x] / (1000.0 * a)) ** 2 for x, a in zip("xyz", ASTEROID_AXES_KM))
+    assert 0.8 < radius.min() and radius.max() < 1 + 1e-6
+    # require_light: every observed point faces the Sun (far along +x), and the report says why
+    observed = np.asarray((load_visibility(out)[:, [c["candidate"] for c in sol["cameras"]]] > 0).sum(axis=1)).ravel() > 0
+    sun = np.array([1.0e6, 0.0, 0.0]) - np.column_stack([pts["x"], pts["y"], pts["z"]])
+    lit = np.einsum("ij,ij->i", np.column_stack([pts["nx"], pts["ny"], pts["nz"]]), sun) > 0
+    assert observed.any() and lit[observed].all() and not lit.all()
+    html = (out / "report.html").read_text()
+    assert "on the same matrix: <b>holds</b>" in html and "true: a point counts as observed only where the light reaches it" in html
+    page = ElementIds()
+    page.feed(html)
+    ids = [i for i, _, _ in page.ids]
+    assert len(ids) == len(set(ids))
+
+    proc = camplace("render", str(out), "--frames", "0", cwd=tmp_path)
+    assert "watertight" not in proc.stderr
+    assert len(sorted((out / "render").glob("*mask*.png"))) == len(sol["cameras"])
+    exp = tmp_path / "exp"
+    proc = camplace("export", str(out), "--format", "glb,colmap", "-o", str(exp), cwd=tmp_path)
+    assert "watertight" not in proc.stderr
+    np.testing.assert_allclose(colmap_centres(exp / "colmap" / "images.txt"), [c["position"] for c in sol["cameras"]], atol=1e-6)
+    assert (exp / "cameras.glb").stat().st_size > 0
 
 
 @pytest.mark.parametrize("args,option", [

@@ -12,6 +12,7 @@ import os
 import re
 import shutil
 import sys
+from html.parser import HTMLParser
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from camplace.instance import builtin_toml, parse_instance
 from camplace.pipeline import run
 from camplace.report.build import BUNDLE_SAMPLERS, BUNDLE_SYSTEMS, run_report_bundle, write_report
 from camplace.report.campaign import Campaign
+from camplace.report.scene3d import PLOT_ID, SECTION_ID
 from camplace.validation import render_run, validate_runs
 from tests._chromium import distinct_colours, external_requests, open_in_chromium, pixels_near, png_colours, without_legend
 
@@ -105,6 +107,56 @@ def test_report_content(outdir) -> None:
     assert "light_curves.csv" in text
 
 
+class ElementIds(HTMLParser):
+    """Every ``id`` of a page as (id, tag, the tags open around it, outermost first)."""
+
+    VOID = {"area", "base", "br", "col", "embed", "hr", "img", "input", "link", "meta", "source", "wbr"}
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.open: list[str] = []
+        self.ids: list[tuple[str, str, tuple[str, ...]]] = []
+        self.hrefs: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list) -> None:
+        a = dict(attrs)
+        if "id" in a:
+            self.ids.append((a["id"], tag, tuple(self.open)))
+        if tag == "a" and (a.get("href") or "").startswith("#"):
+            self.hrefs.append(a["href"][1:])
+        if tag not in self.VOID:
+            self.open.append(tag)
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag in self.open:
+            while self.open.pop() != tag:
+                pass
+
+
+def test_report_ids_are_unique_and_the_plot_lands_in_its_div(outdir) -> None:
+    """Issue 33: the heading and the plot shared ``scene3d``, so plotly drew into the heading."""
+    text = (outdir / "report.html").read_text()
+    page = ElementIds()
+    page.feed(text)
+    ids = [i for i, _, _ in page.ids]
+    assert len(ids) >= 10 and sorted({i for i in ids if ids.count(i) > 1}) == []
+    where = {i: (tag, around) for i, tag, around in page.ids}
+    assert where[SECTION_ID][0] == "h2"
+    tag, around = where[PLOT_ID]
+    assert tag == "div" and "h2" not in around and around[-1] == "div"  # inside the view's bordered box
+    assert where[f"{PLOT_ID}-data"][0] == "script"
+    # plotly draws into the plot's div, and every navigation link has its target
+    assert re.findall(r"Plotly\.newPlot\(\s*[\"']([^\"']+)[\"']", text) == [PLOT_ID]
+    assert SECTION_ID in page.hrefs and set(page.hrefs) <= set(ids)
+
+
+def test_report_says_what_require_light_is(outdir) -> None:
+    """The instance table shows require_light and what it means (an unlit half is not bad placement)."""
+    text = (outdir / "report.html").read_text()
+    assert "lit points only (require_light)" in text
+    assert "false: lit and unlit points count alike" in text
+
+
 def scene_data(page: Path) -> dict:
     m = re.search(r"<script type='application/json' id='scene3d-data'>(.*?)</script>", page.read_text(), re.S)
     assert m is not None
@@ -143,6 +195,7 @@ def check_scene_in_chromium(res: dict, page: Path, shot: Path, n_cameras: int) -
     """The 3D view drew with WebGL, with ``n_cameras`` frusta and every drawn point, and its screenshot is not blank."""
     sc = res["scene"]
     assert sc["found"] and sc["ready"], sc
+    assert sc["tag"] == "DIV"  # the plot's own element (a heading sharing its id received the plot: issue 33)
     assert any(c["webgl"] and c["w"] > 100 and c["h"] > 100 for c in sc["canvases"])
     d = sc["data"]  # read back from the page by the browser
     assert d == scene_data(page) and d["n_cameras"] == n_cameras

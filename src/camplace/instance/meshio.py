@@ -1,15 +1,61 @@
 """Mesh files of an instance: read any triangle mesh trimesh understands, with consistent winding.
 
+Files often split vertices that share a position (texture seams: one position, two texture
+coordinates). The topology checks (:func:`is_watertight`, the winding) therefore work on the faces
+welded by position (:func:`welded_faces`); the vertices themselves are kept as the file has them.
+
 (Writing goes through :func:`camplace.geometry.ply_bytes`.)
 """
 
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 
-__all__ = ["read_mesh_file", "make_winding_consistent"]
+from camplace.errors import CamplaceError
+
+__all__ = ["read_mesh_file", "make_winding_consistent", "welded_faces", "is_watertight", "MissingPackageError"]
+
+#: pip names of the modules trimesh imports lazily while reading a file, where they differ
+PIP_NAMES = {"PIL": "pillow", "yaml": "pyyaml", "skimage": "scikit-image"}
+
+
+class MissingPackageError(CamplaceError):
+    """trimesh needs a Python package that is not installed to read a mesh file.
+
+    Attributes
+    ----------
+    package : str or None
+        The pip name of the missing package (``pillow`` for ``PIL``); None when the error does not
+        name a module.
+    reason : str
+        What is missing, without the fix.
+    fix : str
+        How to install it.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], exc: ImportError) -> None:
+        module = missing_module(exc)
+        self.package = None if module is None else PIP_NAMES.get(module, module)
+        what = f"the Python package '{self.package}'" if self.package else "a Python package"
+        self.reason = f"reading {os.path.basename(path)} needs {what}, which is not installed ({type(exc).__name__}: {exc})"
+        self.fix = f"install it: pip install {self.package}" if self.package else "install the package the message names"
+        super().__init__(f"{self.reason} ({self.fix})")
+
+
+def missing_module(exc: ImportError) -> str | None:
+    """The top-level module an ImportError is about, or None.
+
+    ``exc.name`` when set; else read from the message (trimesh re-raises a deferred import error
+    without its ``name``: ``import of PIL halted; None in sys.modules``).
+    """
+    name = exc.name
+    if not name:
+        m = re.search(r"No module named '([\w.]+)'|import of ([\w.]+) halted|cannot import name '\w+' from '([\w.]+)'", str(exc))
+        name = next((g for g in m.groups() if g), None) if m else None
+    return name.partition(".")[0] if name else None
 
 
 def _is_closed(faces: np.ndarray) -> bool:
@@ -19,17 +65,66 @@ def _is_closed(faces: np.ndarray) -> bool:
     return bool(np.all(counts == 2))
 
 
+def welded_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The faces re-indexed onto the vertices merged by position (trimesh ``merge_vertices``).
+
+    Vertices split only by their texture coordinates or normals (seams) become one; the faces keep
+    their order and count.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+
+    Returns
+    -------
+    (m, 3) int64
+        Indices into the merged vertices (not into ``vertices``).
+    """
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices=np.asarray(vertices, dtype=np.float64), faces=np.asarray(faces, dtype=np.int64),
+                           process=False, validate=False)
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    return np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+
+
+def is_watertight(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """True when, with the vertices welded by position, every edge is shared by exactly two triangles.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    """
+    return _is_closed(welded_faces(vertices, faces))
+
+
 def read_mesh_file(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     """Read any triangle mesh trimesh understands, unprocessed (vertex order and count kept).
 
-    Faces whose winding is inconsistent are re-oriented consistently (:func:`make_winding_consistent`);
-    the overall orientation is kept as the file has it (a room scanned from inside stays inward).
+    Faces whose winding is inconsistent are re-oriented consistently (:func:`make_winding_consistent`
+    on the :func:`welded_faces`, so across texture seams too); the overall orientation is kept as the
+    file has it (a room scanned from inside stays inward).
 
     Returns
     -------
     vertices : (n, 3) float64
     faces : (m, 3) int64
+
+    Raises
+    ------
+    MissingPackageError
+        trimesh needs a package that is not installed for this file (Pillow for an OBJ with texture
+        coordinates, on installs without it).
     """
+    try:
+        return _read_mesh_file(path)
+    except ImportError as exc:
+        raise MissingPackageError(path, exc) from None
+
+
+def _read_mesh_file(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
 
     mesh = trimesh.load(str(path), force="mesh", process=False)
@@ -41,7 +136,8 @@ def read_mesh_file(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
     faces = np.ascontiguousarray(faces.reshape(-1, 3) if faces.size else np.zeros((0, 3), dtype=np.int64))
     if len(vertices) and len(faces) and np.all(np.isfinite(vertices)) and faces.min() >= 0 and faces.max() < len(vertices):
-        faces = make_winding_consistent(faces)
+        flip = winding_flips(welded_faces(vertices, faces))
+        faces[flip] = faces[flip][:, ::-1]
     return vertices, faces
 
 
@@ -59,6 +155,26 @@ def make_winding_consistent(faces: np.ndarray) -> np.ndarray:
     -------
     (m, 3) int64
     """
+    faces = np.asarray(faces, dtype=np.int64)
+    flip = winding_flips(faces)
+    if not flip.any():
+        return faces
+    out = faces.copy()
+    out[flip] = out[flip][:, ::-1]
+    return out
+
+
+def winding_flips(faces: np.ndarray) -> np.ndarray:
+    """Which faces :func:`make_winding_consistent` flips.
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+
+    Returns
+    -------
+    (m,) bool
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import breadth_first_order, connected_components
 
@@ -74,7 +190,7 @@ def make_winding_consistent(faces: np.ndarray) -> np.ndarray:
     fa, fb = first // 3, second // 3
     same_direction = directed[first, 0] == directed[second, 0]  # both faces walk the edge the same way
     if not same_direction.any():
-        return faces
+        return np.zeros(m, dtype=bool)
     keep = fa != fb
     fa, fb, same_direction = fa[keep], fb[keep], same_direction[keep]
     # edge weight 1: neighbours agree, 2: one of them must be flipped relative to the other
@@ -94,6 +210,4 @@ def make_winding_consistent(faces: np.ndarray) -> np.ndarray:
         # parity propagates root -> leaves in BFS order (parents come first)
         for node, parent, opp in zip(nodes.tolist(), parents.tolist(), opposite):
             flip[node] = flip[parent] ^ opp
-    out = faces.copy()
-    out[flip] = out[flip][:, ::-1]
-    return out
+    return flip

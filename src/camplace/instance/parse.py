@@ -25,7 +25,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 from camplace.errors import CamplaceError, InstanceError
 from camplace.instance import procedural
 from camplace.instance.lab import PhysicalCamera, TransformConfig, parse_physical, parse_transform
-from camplace.instance.meshio import _is_closed, read_mesh_file
+from camplace.instance.meshio import MissingPackageError, is_watertight, read_mesh_file
 from camplace.names import ROBUST_OBJECTIVES
 from camplace.instance.schema import (
     SAMPLERS,
@@ -138,11 +138,18 @@ class _Parser:
     def __init__(self, source: str, base_dir: Path) -> None:
         self.source = _one_line(source)
         self.base_dir = Path(base_dir)
+        self.warnings: list[str] = []  # ``Instance.warnings``: "field: what" lines
 
-    # -- errors ------------------------------------------------------------------------------------
+    # -- errors and warnings -----------------------------------------------------------------------
 
     def error(self, field: str, problem: str, fix: str | None = None) -> InstanceError:
         return InstanceError(self.source, _one_line(field), _one_line(problem), _one_line(fix) if fix else None)
+
+    def warn(self, field: str, message: str) -> None:
+        """Log a warning about ``field`` and keep it for ``Instance.warnings`` (and so ``solution.json``)."""
+        line = f"{_one_line(field)}: {_one_line(message)}"
+        log.warning("%s: %s", self.source, line)
+        self.warnings.append(line)
 
     # -- structure ---------------------------------------------------------------------------------
 
@@ -389,6 +396,8 @@ class _Parser:
             vertices, faces = read_mesh_file(path)
         except InstanceError:
             raise
+        except MissingPackageError as exc:
+            raise self.error(field, f"cannot read mesh {path.name}: {exc.reason}", exc.fix) from None
         except Exception as exc:  # trimesh raises many kinds of errors on bad content
             raise self.error(
                 field, f"cannot read mesh {path.name}: {type(exc).__name__}: {_show(str(exc), 120)}", "use a valid triangle mesh file that trimesh can read (.ply, .obj, .stl, .off, .glb)"
@@ -421,7 +430,7 @@ class _Parser:
         if bad.all():
             raise self.error(field, "every triangle of the mesh is degenerate (zero area)", "check the mesh file and its scale")
         if bad.any():
-            log.warning("%s: %s: dropped %d degenerate (zero-area) triangles of %d", self.source, field, int(bad.sum()), len(faces))
+            self.warn(field, f"dropped {int(bad.sum())} degenerate (zero-area) triangles of {len(faces)}")
         return faces[~bad]
 
     # -- the whole instance ------------------------------------------------------------------------
@@ -496,17 +505,13 @@ class _Parser:
 
         target_t = self.table(data, "target", "")
         target = self.mesh(target_t, "target", "target")
-        if not _is_closed(target.faces):
-            log.warning(
-                "%s: target: the mesh is not watertight (open edges): surface points are still sampled, but "
-                "its inside is visible through the holes", self.source,
-            )
+        if not is_watertight(target.vertices, target.faces):
+            self.warn("target", "the mesh is not watertight (open edges, even with the vertices at one position merged): "
+                      "surface points are still sampled, but its inside is visible through the holes")
         extent = float(np.linalg.norm(np.ptp(target.vertices, axis=0)))
         if extent > float(np.linalg.norm(volume.size_m)):
-            log.warning(
-                "%s: target: the target (%.3g m across) is larger than the camera volume (%.3g m across): "
-                "check the units (metres) and target.scale", self.source, extent, float(np.linalg.norm(volume.size_m)),
-            )
+            self.warn("target", f"the target ({extent:.3g} m across) is larger than the camera volume "
+                      f"({float(np.linalg.norm(volume.size_m)):.3g} m across): check the units (metres) and target.scale")
 
         occluders = self.occluders(data, "")
 
@@ -559,6 +564,7 @@ class _Parser:
             transform=self.lab_table(data, "transform"),
             agents=self.agents(self.table(data, "agents", "", required=False), k, len(frames)),
             robust=self.robust(data),
+            warnings=tuple(self.warnings),
         )
 
     def lab_table(self, data: dict, key: str) -> PhysicalCamera | TransformConfig | None:

@@ -373,6 +373,9 @@ class Instance:
         The ``[agents]`` table: agents that move between phases of the event (``camplace plan``).
     source : str
         The file (or ``builtin:<name>``) this instance was read from; used in error messages.
+    warnings : tuple of str
+        What reading it warned about (``"target: the mesh is not watertight ..."``), one line each;
+        a run records them in ``solution.json``'s ``warnings``.
     """
 
     name: str
@@ -390,6 +393,7 @@ class Instance:
     transform: TransformConfig | None = None
     agents: AgentsSpec | None = None
     robust: RobustSpec | None = None
+    warnings: tuple[str, ...] = ()
 
     def frame_weights(self) -> np.ndarray:
         """(n_frames,) float64 frame likelihoods normalised to sum 1 (uniform if all are 0)."""

@@ -101,12 +101,21 @@ def _instance_section(run) -> str:
         ("frames", f"{len(inst.frames)} (event centre aims: {len(run.aims)})"),
         ("target (top view)", f"x {lt.x_t_m:.3f}..{lt.x_t_m + lt.width_m:.3f} m, y {lt.y_t_m:.3f}..{lt.y_t_m + lt.height_m:.3f} m"),
         ("quality", f"{inst.quality.mode}, max incidence {inst.quality.max_incidence_deg} deg"),
+        ("lit points only (require_light)", _require_light_words(inst.quality.require_light)),
         ("run", f"sampler {sol.sampler}, seed {sol.seed}, {sol.n_candidates:,} candidates x {sol.n_points:,} points, engine {sol.engine}"),
         ("event mode", f"{getattr(sol, 'event_mode', 'all')} (rows weighted by {'every frame' if getattr(sol, 'event_mode', 'all') == 'all' else 'the peak frame alone'})"),
         ("timings", ", ".join(f"{k} {v:.2f} s" for k, v in sol.timings_s.items() if "." not in str(k))),
     ]
     warn = "".join(f"<p class='bad'>run warning: {esc(w)}</p>" for w in (getattr(sol, "warnings", None) or []))
     return "<h2 id='instance'>Instance and run</h2>" + _table(None, rows, left=2) + warn
+
+
+def _require_light_words(require_light: bool) -> str:
+    """What ``[quality] require_light`` means for the report's reader."""
+    if require_light:
+        return ("true: a point counts as observed only where the light reaches it (its surface faces the light and "
+                "nothing shadows it), so the unlit side of the target stays unobserved by any placement")
+    return "false: lit and unlit points count alike"
 
 
 def _objective_words(sol) -> str:
@@ -616,7 +625,7 @@ def write_report(
     from camplace.report.campaign import Campaign, find_campaigns
     from camplace.report.compare import compare_with_campaigns, load_run_data
     from camplace.report.figures import require_matplotlib
-    from camplace.report.scene3d import scene3d_section
+    from camplace.report.scene3d import SECTION_ID, scene3d_section
 
     require_matplotlib()
     reporter = reporter or Reporter()
@@ -648,7 +657,7 @@ def write_report(
     sol = run.solution
     title = f"camplace report: {sol.instance or run.instance.name}"
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    nav = "".join(f"<a href='#{a}'>{t}</a>" for a, t in [("instance", "instance"), ("system", "optimised system"), ("scene3d", "3D view"), ("campaigns", "campaigns"),
+    nav = "".join(f"<a href='#{a}'>{t}</a>" for a, t in [("instance", "instance"), ("system", "optimised system"), (SECTION_ID, "3D view"), ("campaigns", "campaigns"),
                                                             ("samplers", "samplers"), ("cones", "vision cones"), ("legacy", "legacy score"),
                                                             ("validation", "validation")]
                   + ([("plan", "moving agents")] if (outdir / "plan.json").is_file() else []))

@@ -22,7 +22,13 @@ from camplace.scene3d import Scene3D, SceneCamera, SceneMesh, reach_depth
 
 log = logging.getLogger(__name__)
 
-__all__ = ["system_columns", "multiview_counted", "run_scene", "scene3d_section"]
+__all__ = ["system_columns", "multiview_counted", "run_scene", "scene3d_section", "SECTION_ID", "PLOT_ID"]
+
+#: The report's ids: the section heading (the navigation's target) and the plot element (its data
+#: tag is ``PLOT_ID + "-data"``). Every id in a page must be unique: plotly draws into the first
+#: element with its id, so a heading sharing it received the plot.
+SECTION_ID = "view3d"
+PLOT_ID = "scene3d"
 
 #: Positions and rotations equal within this are the same camera.
 SAME_POSE = 1e-9
@@ -221,7 +227,7 @@ def scene3d_section(run, comp=None, campaigns: Sequence = ()) -> str:
     """The report's ``3D view`` section (plotly.js inlined), or a note when plotly is missing."""
     from camplace.scene3d import require_plotly, scene_fragment
 
-    head = "<h2 id='scene3d'>3D view: where the cameras stand and what they see</h2>"
+    head = f"<h2 id='{SECTION_ID}'>3D view: where the cameras stand and what they see</h2>"
     try:
         require_plotly()
     except CamplaceError as exc:
@@ -235,4 +241,4 @@ def scene3d_section(run, comp=None, campaigns: Sequence = ()) -> str:
              "<b style='color:#7cb342'>2</b>, <b style='color:#1b7f3b'>3+</b>), and each chosen camera's frustum. Drag to orbit, "
              "scroll to zoom, hover for labels; click a legend entry to show or hide it (the campaigns' best and median "
              "systems are hidden until clicked).</p>")
-    return head + intro + scene_fragment(scene, div_id="scene3d")
+    return head + intro + scene_fragment(scene, div_id=PLOT_ID)
