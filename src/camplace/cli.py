@@ -135,13 +135,14 @@ def _check_run_out(args: argparse.Namespace) -> None:
              "light_curves.csv", "scene.ply"]
     folders = [mesh_folder(INSTANCE_NAME).name]
     if args.report:
+        from camplace.report.build import BUNDLE_SAMPLERS, REPORT_NAME
         from camplace.report.figures import require_matplotlib
 
         if args.report_systems < 1:
             raise CamplaceError(f"--report-systems: must be >= 1, got {args.report_systems}")
         require_matplotlib()
-        files.append("report.html")
-        folders += ["campaign-uniform", "campaign-chaotic"]
+        files.append(REPORT_NAME)
+        folders += [f"campaign-{s}" for s in BUNDLE_SAMPLERS]
     check_out_folder(args.out, files=files, folders=folders)
 
 

@@ -111,9 +111,10 @@ def _validate_out(args: argparse.Namespace) -> Path:
         if args.cameras is not None:
             raise CamplaceError("-o/--out: required with --cameras (the folder for validation.json and figures)")
         args.out = args.outdirs[0] / VALIDATION_FOLDER
+    from camplace.validation.scene3d import SCENE3D_FILE
     from camplace.validation.workflow import PHOTOS_FOLDER
 
-    return check_out_folder(args.out, files=["validation.json", "scene3d.html"], folders=[PHOTOS_FOLDER])
+    return check_out_folder(args.out, files=["validation.json", SCENE3D_FILE], folders=[PHOTOS_FOLDER])
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
@@ -166,8 +167,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
+    from camplace.outpaths import check_out_file
     from camplace.validation.camera_io import import_cameras
 
+    check_out_file(args.out, example="cameras.json")
     cams = import_cameras(args.file, args.format, images_dir=args.images, size=args.size)
     cams.save(args.out)
     print(f"wrote {args.out}: {len(cams)} cameras ({cams.format})")

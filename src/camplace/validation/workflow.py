@@ -773,7 +773,8 @@ def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[s
         if transform is None:
             transform = run.instance.transform
             if transform is None:
-                raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table (add one or pass --transform FILE; see docs/validation.md)")
+                raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table for lab coordinates (add one, pass --transform FILE, "
+                                    f"or use --frame simulation for the run's own coordinates; see docs/validation.md)")
         if not isinstance(transform, TransformConfig):
             transform = parse_transform(transform, transform_source or "[transform]")
         tr = build_transform(transform)
