@@ -33,7 +33,7 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("-o", "--out", type=Path, default=None,
                    help="campaign folder (default with a run folder: OUTDIR/campaign-SAMPLER, which OUTDIR's report includes)")
     p.add_argument("--force", action="store_true",
-                   help="replace the campaign already in the folder (without it an existing campaign is an error)")
+                   help="replace a campaign in the folder that has more systems than --systems (without it that is an error)")
 
     p = subparsers.add_parser("report", help="write OUTDIR/report.html: optimised system, campaigns, samplers, vision cones, validation")
     p.add_argument("outdir", type=Path, help="output folder of 'camplace run' (campaign folders inside it are included)")
@@ -78,27 +78,34 @@ def _csv_list(text: str, what: str) -> list[str]:
     return items
 
 
-CAMPAIGN_FILES = ("campaign.json", "campaign.csv", "cameras.csv", "visibility.cpm")  # Campaign.save
+CAMPAIGN_FILES = ("campaign.csv", "campaign.json", "cameras.csv", "visibility.cpm")  # what Campaign.save writes
 
 
-def _check_campaign_out(out: Path, force: bool) -> None:
-    """``campaign``'s folder, before any work: a folder, and without ``force`` not one holding a campaign
-    (a quick campaign of 50 systems must not silently replace the 200 of ``run --report``)."""
+def _check_campaign_out(out: Path, systems: int, force: bool) -> str:
+    """``campaign``'s folder, before any work; returns a note on the campaign it replaces ("" if none).
+
+    The folder must be a folder. A campaign already in it with more systems than ``systems`` is
+    kept unless ``force`` (a quick campaign of 50 systems must not silently replace the 200 of
+    ``run --report``): an error names both ways out. A campaign of as many systems or fewer is
+    replaced, and the note says so.
+    """
     import json
 
     from camplace.outpaths import check_out_folder
 
     check_out_folder(out, files=CAMPAIGN_FILES)
     existing = out / "campaign.json"
-    if force or not existing.is_file():
-        return
+    if not existing.is_file():
+        return ""
     try:
         old = json.loads(existing.read_text())
-        what = f"a campaign of {old['n_systems']} {old['sampler']} systems"
+        n_old, what = int(old["n_systems"]), f"a campaign of {old['n_systems']} {old['sampler']} systems"
     except (OSError, ValueError, KeyError, TypeError):
-        what = "a campaign"
-    raise CamplaceError(f"-o/--out: {out} already holds {what} (add --force to replace it, "
-                        f"or write this one elsewhere with -o DIR)")
+        n_old, what = 0, "an unreadable campaign"
+    if n_old > systems and not force:
+        raise CamplaceError(f"--systems: {out} already holds {what}, more than {systems} (add --force to replace it, "
+                            f"or write this one elsewhere with -o DIR)")
+    return f"replaced {what} in {out}"
 
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
@@ -116,14 +123,14 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
                                 f"with the run's k); drop them, or give an instance instead of {source}")
         if args.out is None:
             args.out = source / f"campaign-{args.sampler}"
-        _check_campaign_out(args.out, args.force)
+        replaced = _check_campaign_out(args.out, args.systems, args.force)
         run = load_run_data(source)
         camp = campaign_for_run(run, systems=args.systems, sampler=args.sampler, legacy_omega=args.legacy_omega,
                                 outdir=args.out, cache=not args.no_cache, reporter=ConsoleReporter())
     else:
         if args.out is None:
             raise CamplaceError("--out: required with an instance (or give a run folder: 'camplace campaign OUTDIR --systems N')")
-        _check_campaign_out(args.out, args.force)
+        replaced = _check_campaign_out(args.out, args.systems, args.force)
         camp = run_campaign(
             args.instance, systems=args.systems, sampler=args.sampler, seed=args.seed, points=args.points, k=args.k,
             orientations=args.orientations, legacy_omega=args.legacy_omega, event_mode=args.event_mode or "all",
@@ -136,7 +143,7 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     rho = s["spearman_legacy_vs_objective"]
     print(f"legacy score: best system {s['best_legacy_system']} (objective {camp.objective[s['best_legacy_system'] - 1]:.4f}); "
           f"Spearman rho vs objective {'-' if rho is None else f'{rho:.3f}'}")
-    print(f"wrote {args.out}/campaign.csv, campaign.json, cameras.csv, visibility.cpm")
+    print(f"wrote {args.out}/{', '.join(CAMPAIGN_FILES)}" + (f" ({replaced})" if replaced else ""))
     return EXIT_OK
 
 
