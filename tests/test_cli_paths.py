@@ -101,6 +101,19 @@ def test_output_of_the_wrong_kind_is_one_line_before_any_work(argv, named, run_d
     assert time.perf_counter() - t0 < 60  # before the work (a tiny run takes longer on a loaded machine)
 
 
+def test_convert_matrix_onto_a_folder_is_one_line_before_reading(run_dir, tmp_path) -> None:
+    """Found: the matrix was read and converted, then the rename failed with exit 3 ("Is a directory")."""
+    run = tmp_path / "run"
+    subprocess.run(["cp", "-r", str(run_dir), str(run)], check=True)
+    (run / "visibility.npz").mkdir()
+    before = tree(run)
+    proc = camplace("convert-matrix", str(run), "--format", "npz", cwd=tmp_path)
+    assert proc.returncode == 2, (proc.stdout, proc.stderr)
+    line = one_error_line(proc)
+    assert str(run / "visibility.npz") in line and "is a folder" in line
+    assert tree(run) == before
+
+
 # ------------------------------------------------------------------------------------------------
 # item 7: run --report without the report extra
 

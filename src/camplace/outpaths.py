@@ -66,7 +66,7 @@ def check_out_folder(path: str | Path, option: str = "-o/--out", *, files: Itera
     return path
 
 
-def check_out_file(path: str | Path, option: str = "-o/--out", *, example: str = "out.json") -> Path:
+def check_out_file(path: str | Path, option: str = "-o/--out", *, example: str = "out.json", fix: str | None = None) -> Path:
     """Check that ``path`` can be written as a file (it is not a folder, nor inside a file).
 
     Parameters
@@ -76,6 +76,8 @@ def check_out_file(path: str | Path, option: str = "-o/--out", *, example: str =
         The option that gave it, for the message.
     example : str
         A file name to suggest inside the folder when ``path`` is a folder (e.g. ``"solve.json"``).
+    fix : str or None
+        The fix to name instead when ``path`` is a folder (for a verb whose file name is fixed).
 
     Returns
     -------
@@ -88,7 +90,7 @@ def check_out_file(path: str | Path, option: str = "-o/--out", *, example: str =
     """
     path = Path(path)
     if path.is_dir():
-        raise CamplaceError(f"{option}: {path} is a folder, not a file (give a file name such as {path / example})")
+        raise CamplaceError(f"{option}: {path} is a folder, not a file ({fix or f'give a file name such as {path / example}'})")
     _check_parents(path, option)
     return path
 
