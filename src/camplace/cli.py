@@ -205,12 +205,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_visibility(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
+    from camplace.outpaths import check_out_folder
     from camplace.pipeline import compute_points, visibility_stage
     from camplace.runfolder import RunFolder
     from camplace.sampling import CandidateSet
     from camplace.visibility import frame_scene, write_ply
-
-    from camplace.outpaths import check_out_folder
 
     check_out_folder(args.out, files=["scene.ply", "points.csv", f"visibility.{args.matrix_format}"])
     instance = resolve_instance(args.instance, seed=args.seed)

@@ -78,9 +78,6 @@ def _csv_list(text: str, what: str) -> list[str]:
     return items
 
 
-CAMPAIGN_FILES = ("campaign.csv", "campaign.json", "cameras.csv", "visibility.cpm")  # what Campaign.save writes
-
-
 def _check_campaign_out(out: Path, systems: int, force: bool) -> str:
     """``campaign``'s folder, before any work; returns a note on the campaign it replaces ("" if none).
 
@@ -92,6 +89,7 @@ def _check_campaign_out(out: Path, systems: int, force: bool) -> str:
     import json
 
     from camplace.outpaths import check_out_folder
+    from camplace.report.campaign import CAMPAIGN_FILES
 
     check_out_folder(out, files=CAMPAIGN_FILES)
     existing = out / "campaign.json"
@@ -110,7 +108,7 @@ def _check_campaign_out(out: Path, systems: int, force: bool) -> str:
 
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
-    from camplace.report.campaign import campaign_for_run, run_campaign
+    from camplace.report.campaign import CAMPAIGN_FILES, campaign_for_run, run_campaign
 
     source = Path(args.instance)
     if source.is_dir():

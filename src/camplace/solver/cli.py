@@ -20,6 +20,7 @@ EXIT_OK = 0
 EXIT_NO_SOLUTION = 3
 SOLVE_NAME = "solve.json"  # the default -o of 'camplace solve', in the run folder
 
+
 def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
     """Add the solver verbs to ``subparsers``; returns {verb: handler}."""
     p = subparsers.add_parser("solve", help="choose cameras on a stored visibility matrix (any mode, side constraints)")

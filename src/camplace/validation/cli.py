@@ -63,17 +63,16 @@ def _check_workers(args: argparse.Namespace) -> None:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from camplace.outpaths import check_out_folder
-
     _check_workers(args)
+    from camplace.outpaths import check_out_folder
     from camplace.validation.render import GlowEmitters
-    from camplace.validation.workflow import render_run
+    from camplace.validation.workflow import render_folder, render_run
 
     if args.system < 1:
         raise CamplaceError(f"--system: must be >= 1, got {args.system}")
     emitters = GlowEmitters.load_csv(args.emitters) if args.emitters is not None else None
     if args.out is None:
-        args.out = args.outdir / ("render" if args.phase is None else f"render-phase{args.phase}")
+        args.out = render_folder(args.outdir, args.phase)
     check_out_folder(args.out, files=["render.json", "light_curves.csv"])
     manifest = render_run(
         args.outdir,
@@ -106,14 +105,13 @@ VALIDATION_FOLDER = "validation"  # the default -o of 'camplace validate', in th
 def _validate_out(args: argparse.Namespace) -> Path:
     """``validate``'s ``-o``: as given, else the first run folder's ``validation/``; checked before any work."""
     from camplace.outpaths import check_out_folder
+    from camplace.validation.scene3d import SCENE3D_FILE
+    from camplace.validation.workflow import PHOTOS_FOLDER
 
     if args.out is None:
         if args.cameras is not None:
             raise CamplaceError("-o/--out: required with --cameras (the folder for validation.json and figures)")
         args.out = args.outdirs[0] / VALIDATION_FOLDER
-    from camplace.validation.scene3d import SCENE3D_FILE
-    from camplace.validation.workflow import PHOTOS_FOLDER
-
     return check_out_folder(args.out, files=["validation.json", SCENE3D_FILE], folders=[PHOTOS_FOLDER])
 
 

@@ -34,6 +34,7 @@ __all__ = [
     "load_run",
     "parse_frames",
     "frame_stem",
+    "render_folder",
     "render_run",
     "read_table_file",
     "Photo",
@@ -135,6 +136,11 @@ def _frame_emitters(instance, frame: int):
     return getattr(instance.frames[frame], "emitters", None)
 
 
+def render_folder(outdir: str | Path, phase: int | None = None) -> Path:
+    """``render``'s default output folder: ``OUTDIR/render``, or ``OUTDIR/render-phaseP`` for a phase."""
+    return Path(outdir) / ("render" if phase is None else f"render-phase{phase}")
+
+
 def render_run(
     outdir: str | Path,
     *,
@@ -166,6 +172,7 @@ def render_run(
     system : int
         System number in the file names.
     out : path or None
+        Default :func:`render_folder` (``OUTDIR/render``, ``OUTDIR/render-phaseP`` with ``phase``).
     settings : RenderSettings or None
     emitters : optional
         Extra emitters for every frame (GlowEmitters); the frames' own emitters are always drawn.
@@ -190,7 +197,7 @@ def render_run(
     frames = "all" if frames is None else frames
     settings = settings or RenderSettings()
     exp = experiment or instance.name
-    out = Path(out) if out is not None else Path(outdir) / "render"
+    out = Path(out) if out is not None else render_folder(outdir, phase)
     with staged_folder(out) as work:  # moved into out at the end: an interrupted render leaves out as it was
         n_frames = len(instance.frames)
         chosen = parse_frames(frames, n_frames)
