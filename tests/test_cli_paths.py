@@ -268,3 +268,27 @@ def test_run_help_groups_the_options_by_stage(tmp_path) -> None:
         assert group in groups, list(groups)
         assert set(options) <= set(groups[group]), (group, groups[group])
     assert groups["options"] == ["-h"]  # nothing left in the flat list
+
+
+def test_staged_folder_moves_everything_or_nothing(tmp_path) -> None:
+    """The mechanism behind render's and validate's "no partial output" (camplace._io.staged_folder)."""
+    from camplace._io import staged_folder
+
+    out = tmp_path / "new" / "val"
+    with pytest.raises(KeyboardInterrupt):
+        with staged_folder(out) as work:
+            (work / "photos").mkdir()
+            (work / "photos" / "a.png").write_bytes(b"half")
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []  # no output, no temporary folder, no folder created above it
+    out.mkdir(parents=True)
+    (out / "keep.txt").write_text("a user's file")
+    (out / "photos").mkdir()
+    (out / "photos" / "stale.png").write_bytes(b"old")
+    (out / "validation.json").write_text("old")
+    with staged_folder(out) as work:
+        (work / "photos").mkdir()
+        (work / "photos" / "a.png").write_bytes(b"new")
+        (work / "validation.json").write_text("new")
+    assert tree(out) == {"keep.txt": b"a user's file", "photos": None, "photos/a.png": b"new", "validation.json": b"new"}
+    assert sorted(p.name for p in out.parent.iterdir()) == ["val"]
