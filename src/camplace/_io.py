@@ -9,6 +9,7 @@ import contextlib
 import json
 import os
 import re
+import shutil
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator
@@ -42,6 +43,55 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         raise
+
+
+@contextlib.contextmanager
+def staged_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``path``; move its entries into ``path`` when the block succeeds.
+
+    For verbs that write many files into a folder (``render``, ``validate``): an interrupted or
+    failed block leaves ``path`` as it was (no photograph or figure of a half-done run). On success
+    each entry of the temporary folder replaces the entry of the same name in ``path`` (a
+    sub-folder as a whole, so no stale file of an earlier run stays in it); other entries of
+    ``path`` are kept. Folders created above ``path`` for the temporary folder are removed again
+    on failure.
+
+    Parameters
+    ----------
+    path : path
+        The output folder (created when missing).
+
+    Yields
+    ------
+    Path
+        The temporary folder (``.<name>.<random>.tmp`` beside ``path``).
+    """
+    final = Path(path)
+    created = [p for p in (final.parent, *final.parent.parents) if not p.exists()]
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    done = False
+    try:
+        yield tmp
+        _move_entries(tmp, final)
+        done = True
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+        for p in [] if done else created:  # innermost first
+            with contextlib.suppress(OSError):
+                p.rmdir()
+
+
+def _move_entries(src: Path, dst: Path) -> None:
+    """Move every entry of folder ``src`` into folder ``dst``, replacing entries of the same name."""
+    dst.mkdir(exist_ok=True)
+    for entry in src.iterdir():
+        target = dst / entry.name
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        elif entry.is_dir() and (target.exists() or target.is_symlink()):
+            target.unlink()
+        os.replace(entry, target)
 
 
 def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:

@@ -36,21 +36,36 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("instance", help="a built-in instance name (see 'camplace instances') or an instance .toml file")
-    p.add_argument("-o", "--out", required=True, type=Path, help="output folder (created if missing)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: the instance's, usually 0)")
-    p.add_argument("--candidates", type=int, default=None, help="number of candidate camera positions")
-    p.add_argument("--points", type=int, default=None, help="number of target surface points")
-    p.add_argument("--sampler", choices=SAMPLERS, default=None, help="candidate sampler")
-    add_solver_options(p, k_default="the instance's k", memory_budget=False)
-    p.add_argument("--event-mode", choices=EVENT_MODES, default="all", dest="event_mode",
+    """The options of ``camplace run``, in one argument group per stage (``run --help``)."""
+    g = p.add_argument_group("instance")
+    g.add_argument("instance", help="a built-in instance name (see 'camplace instances') or an instance .toml file")
+    g.add_argument("--seed", type=int, default=None, help="random seed (default: the instance's, usually 0)")
+    g.add_argument("--event-mode", choices=EVENT_MODES, default="all", dest="event_mode",
                    help="all: expected coverage over all frames (default); peak: the maximum-likelihood frame")
-    _add_visibility_options(p)
+    g = p.add_argument_group("sampling")
+    g.add_argument("--candidates", type=int, default=None, help="number of candidate camera positions")
+    g.add_argument("--points", type=int, default=None, help="number of target surface points")
+    g.add_argument("--sampler", choices=SAMPLERS, default=None, help="candidate sampler")
+    g.add_argument("--orientations", type=int, default=None, help="poses per candidate position (default: instance)")
+    _add_compute_options(p.add_argument_group("visibility"))
+    add_solver_options(p.add_argument_group("solver"), k_default="the instance's k", memory_budget=False)
+    add_robust_options(p.add_argument_group("robust placement"))
+    g = p.add_argument_group("outputs")
+    g.add_argument("-o", "--out", required=True, type=Path, help="output folder (created if missing)")
+    _add_matrix_format(g)
+    g.add_argument("--report", action="store_true",
+                   help="then run a uniform and a chaotic campaign of random systems and write OUTDIR/report.html "
+                        "(needs the report extra: pip install 'camplace[report]')")
+    g.add_argument("--report-systems", type=int, default=200, dest="report_systems", help="systems per campaign (default 200)")
+    from camplace.plan.cli import add_agent_options
+
+    add_agent_options(p, for_run=True)
 
 
-def _add_visibility_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--orientations", type=int, default=None, help="poses per candidate position (default: instance)")
-    _add_compute_options(p)
+def _add_matrix_format(p) -> None:
+    """``--matrix-format`` (``run`` and ``visibility``)."""
+    p.add_argument("--matrix-format", choices=MATRIX_FORMATS, default="cpm", dest="matrix_format",
+                   help="matrix file: visibility.cpm (compact, fast; default) or visibility.npz (scipy.sparse.load_npz, zlib: slower, larger)")
 
 
 def _add_compute_options(p: argparse.ArgumentParser) -> None:
@@ -58,8 +73,6 @@ def _add_compute_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
     p.add_argument("--dask", default=None, metavar="ADDRESS", help="compute visibility on a Dask cluster: a scheduler address or local:N")
     p.add_argument("--memory-budget-gb", type=float, default=None, help="stop if the matrix would need more (default: half the RAM)")
-    p.add_argument("--matrix-format", choices=MATRIX_FORMATS, default="cpm", dest="matrix_format",
-                   help="matrix file: visibility.cpm (compact, fast; default) or visibility.npz (scipy.sparse.load_npz, zlib: slower, larger)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,13 +84,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="sample candidates, compute visibility, choose the proven-best k cameras")
     _add_run_options(p)
-    p.add_argument("--report", action="store_true",
-                   help="then run a uniform and a chaotic campaign of random systems and write OUTDIR/report.html")
-    p.add_argument("--report-systems", type=int, default=200, dest="report_systems", help="systems per campaign (default 200)")
-    from camplace.plan.cli import add_agent_options
-
-    add_agent_options(p, for_run=True)
-    add_robust_options(p)
 
     p = sub.add_parser("visibility", help="compute the visibility matrix of given candidates")
     p.add_argument("instance", help="a built-in instance name or an instance .toml file")
@@ -86,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--points", type=int, default=None, help="number of target surface points")
     p.add_argument("--seed", type=int, default=None, help="random seed for the points")
     _add_compute_options(p)
+    _add_matrix_format(p)
 
     p = sub.add_parser("convert-matrix", help="rewrite a folder's visibility matrix as visibility.npz (scipy) or visibility.cpm")
     p.add_argument("source", type=Path, help="output folder of 'camplace run', 'visibility' or 'campaign', or a matrix file")
@@ -97,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", help="built-in instance name")
     p.add_argument("-o", "--out", required=True, type=Path, help="instance file to write (.toml)")
     p.add_argument("--seed", type=int, default=None, help="seed that draws a generated event (comet-flyby, volcanic-eruption)")
+    p.add_argument("--force", action="store_true", help="replace FILE (and its mesh folder) when it exists")
 
     for module in _verb_modules():
         COMMANDS.update(module.register(sub, _add_run_options))
@@ -117,7 +125,29 @@ def _verb_modules():
     return [importlib.import_module(name) for name in VERB_MODULES]
 
 
+def _check_run_out(args: argparse.Namespace) -> None:
+    """``camplace run``: the output folder, and the report extra with ``--report``, before any work."""
+    from camplace.instance import mesh_folder
+    from camplace.outpaths import check_out_folder
+    from camplace.runfolder import CANDIDATES_NAME, INSTANCE_NAME, POINTS_NAME, SOLUTION_NAME
+
+    files = [SOLUTION_NAME, CANDIDATES_NAME, POINTS_NAME, INSTANCE_NAME, f"visibility.{args.matrix_format}",
+             "light_curves.csv", "scene.ply"]
+    folders = [mesh_folder(INSTANCE_NAME).name]
+    if args.report:
+        from camplace.report.build import BUNDLE_SAMPLERS, REPORT_NAME
+        from camplace.report.figures import require_matplotlib
+
+        if args.report_systems < 1:
+            raise CamplaceError(f"--report-systems: must be >= 1, got {args.report_systems}")
+        require_matplotlib()
+        files.append(REPORT_NAME)
+        folders += [f"campaign-{s}" for s in BUNDLE_SAMPLERS]
+    check_out_folder(args.out, files=files, folders=folders)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    _check_run_out(args)
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
     from camplace.pipeline import run
@@ -175,11 +205,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_visibility(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
+    from camplace.outpaths import check_out_folder
     from camplace.pipeline import compute_points, visibility_stage
     from camplace.runfolder import RunFolder
     from camplace.sampling import CandidateSet
     from camplace.visibility import frame_scene, write_ply
 
+    check_out_folder(args.out, files=["scene.ply", "points.csv", f"visibility.{args.matrix_format}"])
     instance = resolve_instance(args.instance, seed=args.seed)
     cands = CandidateSet.load(args.candidates)
     pts = compute_points(instance, args.points, args.seed)
@@ -214,13 +246,17 @@ def _cmd_instances(args: argparse.Namespace) -> int:
 
 
 def _cmd_init(args: argparse.Namespace) -> int:
-    from camplace.instance import write_builtin
+    from camplace.instance import mesh_folder, write_builtin
 
     out: Path = args.out
     if out.suffix != ".toml":
         raise CamplaceError(f"--out: {out} should end in .toml (for example {out.with_suffix('.toml')})")
     if args.seed is not None and args.seed < 0:
         raise CamplaceError(f"--seed: must be >= 0, got {args.seed}")
+    from camplace.outpaths import check_new_file, check_out_folder
+
+    check_new_file(out, force=args.force)
+    check_out_folder(mesh_folder(out), "-o/--out (mesh folder)")
     write_builtin(args.name, out, seed=args.seed)
     print(f"wrote {out} (run it with: camplace run {out} -o OUTDIR)")
     return EXIT_OK

@@ -35,3 +35,9 @@ class InstanceError(CamplaceError):
         if fix:
             msg += f" ({fix})"
         super().__init__(msg)
+
+
+def plural(n: int, noun: str, nouns: str | None = None) -> str:
+    """``n`` and the noun in the right number, for messages: ``plural(1, "frame")`` is ``"1 frame"``,
+    ``plural(3, "frame")`` is ``"3 frames"`` (``nouns``: an irregular plural)."""
+    return f"{n} {noun if n == 1 else (nouns or noun + 's')}"

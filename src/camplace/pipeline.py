@@ -327,6 +327,10 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
     -------
     Solution
     """
+    if outdir is not None:
+        from camplace.outpaths import check_out_folder
+
+        check_out_folder(outdir, "outdir")  # a file there is an error before the work, not after
     reporter = reporter or Reporter()
     for note in mode_warnings(instance, settings.mode):
         log.warning("%s", note)
@@ -470,6 +474,7 @@ def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_form
     """Write a run folder (:class:`camplace.RunFolder`): scene.ply, instance.toml, candidates.csv, the
     matrix, points.csv, light_curves.csv, and solution.json last (its presence means the outputs are
     complete). Adds ``write`` and ``write.matrix`` to ``solution.timings_s``."""
+    from camplace.outpaths import check_out_folder
     from camplace.runfolder import RunFolder
     from camplace.visibility import frame_scene, write_ply
 
@@ -478,7 +483,7 @@ def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_form
     vis = solution.visibility
     t0 = time.perf_counter()
     with reporter.stage("write"):
-        folder = RunFolder(outdir)
+        folder = RunFolder(check_out_folder(outdir, "outdir"))  # a file is no folder (RunFolder would take its parent)
         folder.path.mkdir(parents=True, exist_ok=True)
         remove_stale_temps(folder.path)
         write_ply(folder.file("scene.ply"), frame_scene(instance, 0).triangles)

@@ -55,10 +55,11 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     from camplace._io import write_json_atomic
     from camplace.robust import robust_stage
     from camplace.runfolder import RunFolder
-    from camplace.solver.cli import _run_defaults
+    from camplace.solver.cli import _run_defaults, solve_out
     from camplace.solver.options import parse_index_list
     from camplace.solver.modes import solve
 
+    solve_out(args)
     folder: Path = args.source if args.source.is_dir() else args.source.parent
     for name in ("instance.toml", "candidates.csv", "points.csv"):
         if not (folder / name).is_file():

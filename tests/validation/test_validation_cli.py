@@ -247,8 +247,12 @@ def test_export_physical_and_simulation(cli, run_dir, tmp_path) -> None:
     assert cli(["export", str(run_dir), "--frame", "simulation", "-o", str(out)]) == 0
     sim = list(csv.DictReader((out / "placement.simulation.csv").read_text().splitlines()))
     assert [float(r["x_m"]) for r in sim] == pytest.approx([c["position"][0] for c in sol.cameras])
-    # no [transform] anywhere: a one-line error naming the fix
-    assert cli(["export", str(run_dir), "-o", str(out)]) == 2
+    # no [transform] anywhere: lab coordinates asked for are a one-line error naming the fix ...
+    assert cli(["export", str(run_dir), "--frame", "physical", "-o", str(tmp_path / "phys")]) == 2
+    assert not (tmp_path / "phys").exists()
+    # ... and plain export writes the placement in the simulation frame (tests/test_cli_paths.py)
+    assert cli(["export", str(run_dir), "-o", str(tmp_path / "plain")]) == 0
+    assert (tmp_path / "plain" / "placement.simulation.csv").read_text() == (out / "placement.simulation.csv").read_text()
 
 
 def test_verbs_register_without_heavy_imports() -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 from camplace.errors import CamplaceError, InstanceError
 from camplace.instance.builtins import BUILTINS, builtin, builtin_toml, write_builtin
 from camplace.instance.parse import load_instance, parse_instance
-from camplace.instance.write import save_instance
+from camplace.instance.write import mesh_folder, save_instance
 from camplace.instance.schema import (
     SAMPLERS,
     SCHEMA_VERSION,
@@ -43,6 +43,7 @@ __all__ = [
     "builtin",
     "builtin_toml",
     "load_instance",
+    "mesh_folder",
     "parse_instance",
     "resolve_instance",
     "rotation_from_euler_deg",

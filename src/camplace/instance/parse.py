@@ -22,7 +22,7 @@ try:  # Python >= 3.11
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
-from camplace.errors import CamplaceError, InstanceError
+from camplace.errors import CamplaceError, InstanceError, plural
 from camplace.instance import procedural
 from camplace.instance.lab import PhysicalCamera, TransformConfig, parse_physical, parse_transform
 from camplace.instance.meshio import MissingPackageError, is_watertight, read_mesh_file
@@ -598,7 +598,7 @@ class _Parser:
             if any(b <= a for a, b in zip(starts, starts[1:])):
                 raise self.error("agents.phase_starts_s", f"must be strictly increasing, got {_show(value)}", "sort the start times and drop repeats")
             if len(starts) > n_frames:
-                raise self.error("agents.phase_starts_s", f"{len(starts)} phases but only {n_frames} frames", "give at most one phase per frame")
+                raise self.error("agents.phase_starts_s", f"{len(starts)} phases but only {plural(n_frames, 'frame')}", "give at most one phase per frame")
         speed = self.number(table, "speed_m_s", "agents", required=True, ge=0.0, unit="m/s")
         start_pos = None
         if "start_positions_m" in table:

@@ -26,7 +26,7 @@ from camplace.instance.lab import PhysicalCamera
 from camplace.instance.parse import _one_line
 from camplace.instance.schema import SCHEMA_VERSION, Instance, Mesh, QualitySpec
 
-__all__ = ["save_instance"]
+__all__ = ["mesh_folder", "save_instance"]
 
 
 def _slug(name: str) -> str:
@@ -43,6 +43,12 @@ def _rel(target: Path, start: Path) -> str:
 
 def _vec(v) -> list[float]:
     return [float(x) for x in v]
+
+
+def mesh_folder(path: str | os.PathLike[str]) -> Path:
+    """The folder of the mesh files that :func:`save_instance` writes beside ``path``: ``<stem>_meshes/``."""
+    out = Path(path)
+    return out.parent / f"{out.stem}_meshes"
 
 
 def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_files: bool = True) -> None:
@@ -62,7 +68,7 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
     """
     out = Path(path)
     out_dir = Path(os.path.abspath(out.parent))
-    mesh_dir_name = f"{out.stem}_meshes"
+    mesh_dir_name = mesh_folder(out).name
     comments: dict[str, str] = {}
 
     def mesh_table(mesh: Mesh, key: str, file_stem: str) -> dict:

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 from typing import Callable
 
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, plural
 
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 1
@@ -118,14 +118,16 @@ def _print(result, doc: dict, out: Path) -> None:
         return
     gain = result.objective - result.static_objective
     rel = f" ({100 * gain / result.static_objective:+.2f}%)" if result.static_objective > 0 else ""
-    print(f"{result.status}: {doc['k']} agents over {len(doc['phases'])} phases at {doc['speed_m_s']:g} m/s: "
+    print(f"{result.status}: {plural(doc['k'], 'agent')} over {plural(len(doc['phases']), 'phase')} at {doc['speed_m_s']:g} m/s: "
           f"{doc['mode']} objective {result.objective:.6f}, bound {result.bound:.6f}, gap {100 * result.gap:.3f}% "
           f"({result.engine}, {result.time_s:.1f} s)")
     print(f"  static system {result.static_objective:.6f} ({result.static_status}); plan {gain:+.6f}{rel}; "
           f"sum of per-phase optima {result.unconstrained_bound:.6f}")
     for ag in doc["agents"]:
         print(f"  agent {ag['agent']}: candidates {' -> '.join(str(j) for j in ag['candidates'])}")
-    print(f"wrote {out}/plan.json, plan.csv, plan_light_curves.csv, plan_timeline.csv")
+    from camplace.plan.io import PLAN_FILES
+
+    print(f"wrote {out}/{', '.join(PLAN_FILES)}")
 
 
 def run_plan(args: argparse.Namespace, outdir: Path, *, time_limit: float | None, k: int | None = None,
@@ -156,5 +158,10 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         raise CamplaceError(f"--k: must be >= 1, got {args.k}")
     if args.views is not None and args.views < 1:
         raise CamplaceError(f"--views: must be >= 1, got {args.views}")
+    from camplace.outpaths import check_out_folder
+    from camplace.plan.io import PLAN_FILES
+
+    check_out_folder(args.out if args.out is not None else args.outdir, "-o/--out" if args.out is not None else "OUTDIR",
+                     files=PLAN_FILES)
     return run_plan(args, args.outdir, time_limit=args.time_limit, k=args.k, mode=args.mode, views=args.views,
                     engine=args.engine, exact=args.exact, out=args.out)

@@ -34,7 +34,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from camplace._io import read_json, write_json_atomic, write_text_atomic
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, plural
 from camplace.plan.phases import Phase
 from camplace.runfolder import RunFolder
 
@@ -73,7 +73,7 @@ def load_run_folder(outdir: str | Path) -> RunFolder:
     points = run.points
     if points.frame.size and int(points.frame.max()) >= len(instance.frames):
         raise CamplaceError(f"{run.file('points.csv')}: frame {int(points.frame.max())} but the instance has "
-                            f"{len(instance.frames)} frames (re-run)")
+                            f"{plural(len(instance.frames), 'frame')} (re-run)")
     return run
 
 

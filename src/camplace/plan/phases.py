@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, plural
 
 __all__ = ["Phase", "event_end_s", "split_phases", "reach_m", "start_reach_m", "phase_of_frame"]
 
@@ -97,7 +97,7 @@ def split_phases(
             raise CamplaceError(f"{field}: the number of phases must be an integer >= 1, got {n_phases!r}")
         n = int(n_phases)
         if n > t.size:
-            raise CamplaceError(f"{field}: {n} phases but the event has only {t.size} frames (use at most {t.size})")
+            raise CamplaceError(f"{field}: {n} phases but the event has only {plural(t.size, 'frame')} (use at most {t.size})")
         starts = t[0] + (end - t[0]) * np.arange(n) / n
     else:
         starts = np.asarray([float(s) for s in phase_starts_s], dtype=np.float64)  # type: ignore[union-attr]

@@ -29,6 +29,7 @@ __all__ = ["write_report", "run_report_bundle", "percentile_of", "BUNDLE_SAMPLER
 
 BUNDLE_SAMPLERS = ("uniform", "chaotic")
 BUNDLE_SYSTEMS = 200
+REPORT_NAME = "report.html"  # the report's default file in the run folder
 THUMB_WIDTH_PX = 420
 MAX_RENDERS = 12
 
@@ -672,7 +673,7 @@ def write_report(
         + "".join(body)
         + "</main></body></html>\n"
     )
-    path = Path(out) if out is not None else outdir / "report.html"
+    path = Path(out) if out is not None else outdir / REPORT_NAME
     write_text_atomic(path, page)
     log.info("report: wrote %s (%.1f kB) in %.2f s", path, len(page) / 1024, time.perf_counter() - t0)
     return path

@@ -71,6 +71,7 @@ CAMPAIGN_COLUMNS = (
     "legacy_camera_score", "column",
 )
 FORMAT = "camplace-campaign/1"
+CAMPAIGN_FILES = ("campaign.csv", "campaign.json", "cameras.csv", "visibility.cpm")  # what Campaign.save writes
 
 
 def campaign_seed(seed: int) -> np.random.SeedSequence:
@@ -322,7 +323,7 @@ class Campaign:
             "summary": self.summary(),
             "timings_s": self.timings_s,
             "versions": versions(),
-            "files": ["campaign.csv", "campaign.json", "cameras.csv", "visibility.cpm"],
+            "files": list(CAMPAIGN_FILES),
         }
 
     def save(self, outdir: str | Path) -> Path:

@@ -32,6 +32,8 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
     p.add_argument("-o", "--out", type=Path, default=None,
                    help="campaign folder (default with a run folder: OUTDIR/campaign-SAMPLER, which OUTDIR's report includes)")
+    p.add_argument("--force", action="store_true",
+                   help="replace a campaign in the folder that has more systems than --systems (without it that is an error)")
 
     p = subparsers.add_parser("report", help="write OUTDIR/report.html: optimised system, campaigns, samplers, vision cones, validation")
     p.add_argument("outdir", type=Path, help="output folder of 'camplace run' (campaign folders inside it are included)")
@@ -76,9 +78,37 @@ def _csv_list(text: str, what: str) -> list[str]:
     return items
 
 
+def _check_campaign_out(out: Path, systems: int, force: bool) -> str:
+    """``campaign``'s folder, before any work; returns a note on the campaign it replaces ("" if none).
+
+    The folder must be a folder. A campaign already in it with more systems than ``systems`` is
+    kept unless ``force`` (a quick campaign of 50 systems must not silently replace the 200 of
+    ``run --report``): an error names both ways out. A campaign of as many systems or fewer is
+    replaced, and the note says so.
+    """
+    import json
+
+    from camplace.outpaths import check_out_folder
+    from camplace.report.campaign import CAMPAIGN_FILES
+
+    check_out_folder(out, files=CAMPAIGN_FILES)
+    existing = out / "campaign.json"
+    if not existing.is_file():
+        return ""
+    try:
+        old = json.loads(existing.read_text())
+        n_old, what = int(old["n_systems"]), f"a campaign of {old['n_systems']} {old['sampler']} systems"
+    except (OSError, ValueError, KeyError, TypeError):
+        n_old, what = 0, "an unreadable campaign"
+    if n_old > systems and not force:
+        raise CamplaceError(f"--systems: {out} already holds {what}, more than {systems} (add --force to replace it, "
+                            f"or write this one elsewhere with -o DIR)")
+    return f"replaced {what} in {out}"
+
+
 def _cmd_campaign(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
-    from camplace.report.campaign import campaign_for_run, run_campaign
+    from camplace.report.campaign import CAMPAIGN_FILES, campaign_for_run, run_campaign
 
     source = Path(args.instance)
     if source.is_dir():
@@ -89,13 +119,16 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
         if given:
             raise CamplaceError(f"{', '.join(given)}: a run folder fixes them (its campaign must score the run's rows "
                                 f"with the run's k); drop them, or give an instance instead of {source}")
+        if args.out is None:
+            args.out = source / f"campaign-{args.sampler}"
+        replaced = _check_campaign_out(args.out, args.systems, args.force)
         run = load_run_data(source)
         camp = campaign_for_run(run, systems=args.systems, sampler=args.sampler, legacy_omega=args.legacy_omega,
                                 outdir=args.out, cache=not args.no_cache, reporter=ConsoleReporter())
-        args.out = args.out if args.out is not None else source / f"campaign-{args.sampler}"
     else:
         if args.out is None:
             raise CamplaceError("--out: required with an instance (or give a run folder: 'camplace campaign OUTDIR --systems N')")
+        replaced = _check_campaign_out(args.out, args.systems, args.force)
         camp = run_campaign(
             args.instance, systems=args.systems, sampler=args.sampler, seed=args.seed, points=args.points, k=args.k,
             orientations=args.orientations, legacy_omega=args.legacy_omega, event_mode=args.event_mode or "all",
@@ -108,7 +141,7 @@ def _cmd_campaign(args: argparse.Namespace) -> int:
     rho = s["spearman_legacy_vs_objective"]
     print(f"legacy score: best system {s['best_legacy_system']} (objective {camp.objective[s['best_legacy_system'] - 1]:.4f}); "
           f"Spearman rho vs objective {'-' if rho is None else f'{rho:.3f}'}")
-    print(f"wrote {args.out}/campaign.csv, campaign.json, cameras.csv, visibility.cpm")
+    print(f"wrote {args.out}/{', '.join(CAMPAIGN_FILES)}" + (f" ({replaced})" if replaced else ""))
     return EXIT_OK
 
 
@@ -124,6 +157,12 @@ def _cmd_report(args: argparse.Namespace) -> int:
             raise CamplaceError(f"--ladder: use whole numbers such as 50,200,1000, got {args.ladder!r}") from None
     if args.time_limit is not None and not args.time_limit > 0:
         raise CamplaceError(f"--time-limit: must be > 0 seconds, got {args.time_limit}")
+    from camplace.outpaths import check_out_file
+    from camplace.report.build import REPORT_NAME
+    from camplace.report.figures import require_matplotlib
+
+    require_matplotlib()
+    check_out_file(args.out if args.out is not None else args.outdir / REPORT_NAME, example=REPORT_NAME)
     path = write_report(
         args.outdir, out=args.out, union=args.union, sampler_study=args.sampler_study,
         samplers=_csv_list(args.samplers, "--samplers"), ladder=ladder, time_limit_s=args.time_limit,
@@ -161,26 +200,69 @@ def _cmd_export(args: argparse.Namespace) -> int:
             raise CamplaceError(f"{option}: applies to the camera files (--format {','.join(CAMERA_FORMATS)}), not to placement")
     if args.frustum_depth is not None and not args.frustum_depth > 0:
         raise CamplaceError(f"--frustum-depth: must be > 0 metres, got {args.frustum_depth}")
+    _check_export_out(args, placement, files)
     if placement:
-        from camplace.validation.workflow import export_run, read_table_file
+        from camplace.validation.workflow import export_run
 
-        transform = None
-        source = ""
-        if args.transform is not None:
-            transform = read_table_file(args.transform, "transform")
-            source = f"{args.transform}: [transform]"
-        csv_path, json_path = export_run(args.outdir, frame=args.frame or "physical", transform=transform, transform_source=source, out=args.out)
+        frame, transform, source = _placement_frame(args)
+        csv_path, json_path = export_run(args.outdir, frame=frame, transform=transform, transform_source=source, out=args.out)
         print(f"wrote {csv_path} and {json_path}")
     if files:
         _write_camera_files(args, files)
     return EXIT_OK
 
 
+def _check_export_out(args: argparse.Namespace, placement: bool, files: tuple[str, ...]) -> None:
+    """``export``'s output folders (``-o``, else each format's default), before any work."""
+    from camplace.outpaths import check_out_folder
+
+    if args.out is not None:
+        check_out_folder(args.out)
+        return
+    if placement:
+        check_out_folder(args.outdir, "OUTDIR")
+    if files:
+        check_out_folder(_camera_files_folder(args), "OUTDIR")
+
+
+def _camera_files_folder(args: argparse.Namespace) -> Path:
+    """Where the camera files go: ``-o``, else ``OUTDIR/export`` (``OUTDIR/export-phaseP`` with ``--phase``)."""
+    from camplace.report.export import default_export_folder
+
+    return args.out if args.out is not None else default_export_folder(args.outdir, args.phase)
+
+
+def _placement_frame(args: argparse.Namespace) -> tuple[str, object, str]:
+    """The placement's frame, ``[transform]`` table and its source, from ``--frame`` and ``--transform``.
+
+    Without ``--frame``: the physical frame when a ``[transform]`` table is at hand (``--transform``
+    or the run's instance.toml), else the simulation frame, with one ``warning:`` line (plain
+    ``camplace export OUTDIR`` then writes something useful instead of failing).
+    """
+    import sys
+
+    from camplace.validation.workflow import read_table_file
+
+    if args.transform is not None:
+        return args.frame or "physical", read_table_file(args.transform, "transform"), f"{args.transform}: [transform]"
+    if args.frame is not None:
+        return args.frame, None, ""
+    from camplace.runfolder import INSTANCE_NAME, RunFolder
+
+    transform = RunFolder(args.outdir).instance.transform
+    if transform is not None:
+        return "physical", transform, f"{args.outdir / INSTANCE_NAME}: [transform]"
+    print(f"warning: {args.outdir / INSTANCE_NAME} has no [transform] table: the placement is in the run's own "
+          f"coordinates (placement.simulation.*); for lab coordinates pass --transform FILE (see docs/validation.md)",
+          file=sys.stderr)
+    return "simulation", None, ""
+
+
 def _write_camera_files(args: argparse.Namespace, formats) -> None:
     from camplace.report.export import export_cameras
 
-    paths = export_cameras(args.outdir, formats=formats, out=args.out, experiment=args.experiment, frustum_depth_m=args.frustum_depth,
-                           phase=args.phase)
+    paths = export_cameras(args.outdir, formats=formats, out=_camera_files_folder(args), experiment=args.experiment,
+                           frustum_depth_m=args.frustum_depth, phase=args.phase)
     for p in paths:
         print(f"wrote {p}")
 
@@ -190,5 +272,8 @@ def _cmd_export_cameras(args: argparse.Namespace) -> int:
 
     print("warning: 'camplace export-cameras' is deprecated and will be removed in the next release: "
           "use 'camplace export OUTDIR --format all' (or json, csv, colmap, glb)", file=sys.stderr)
+    from camplace.outpaths import check_out_folder
+
+    check_out_folder(_camera_files_folder(args), "-o/--out" if args.out is not None else "OUTDIR")
     _write_camera_files(args, args.formats)
     return EXIT_OK

@@ -49,6 +49,7 @@ __all__ = [
     "write_colmap",
     "frustum_mesh",
     "glb_bytes",
+    "default_export_folder",
     "export_cameras",
 ]
 
@@ -215,6 +216,11 @@ def _solution_cameras(outdir: Path, experiment: str | None, phase: int | None = 
     return instance, solution, cams
 
 
+def default_export_folder(outdir: str | Path, phase: int | None = None) -> Path:
+    """The camera files' default folder: ``OUTDIR/export``, or ``OUTDIR/export-phaseP`` for a phase."""
+    return Path(outdir) / ("export" if phase is None else f"export-phase{phase}")
+
+
 def export_cameras(
     outdir: str | Path,
     *,
@@ -249,7 +255,7 @@ def export_cameras(
     """
     fmts = parse_formats(formats)
     outdir = Path(outdir)
-    dest = Path(out) if out is not None else outdir / ("export" if phase is None else f"export-phase{phase}")
+    dest = Path(out) if out is not None else default_export_folder(outdir, phase)
     if frustum_depth_m is not None and not frustum_depth_m > 0:
         raise CamplaceError(f"--frustum-depth: must be > 0 metres, got {frustum_depth_m}")
     instance, solution, cams = _solution_cameras(outdir, experiment, phase)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, plural
 
 __all__ = ["plan_section", "timeline_png", "paths_png"]
 
@@ -143,7 +143,7 @@ def plan_section(run) -> str:
     rel = f" ({100 * gain / st:+.2f} %)" if gain is not None and st else ""
     summary = _table(None, [
         ("status", doc["status"]),
-        ("agents, phases, speed", f"{doc.get('k')} agents, {len(phases)} phases, {doc['speed_m_s']:g} m/s"),
+        ("agents, phases, speed", f"{plural(doc.get('k'), 'agent')}, {plural(len(phases), 'phase')}, {doc['speed_m_s']:g} m/s"),
         (f"objective ({doc.get('mode', 'maxcover')}, all phases)", _num(obj, 6)),
         ("proven bound", _num(doc.get("bound"), 6)),
         ("gap", f"{_num(100 * doc['gap'] if doc.get('gap') is not None else None, 4)} %"),

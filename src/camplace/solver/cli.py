@@ -18,7 +18,7 @@ from camplace.solver.options import SolveOptions, add_solver_options, options_fr
 
 EXIT_OK = 0
 EXIT_NO_SOLUTION = 3
-
+SOLVE_NAME = "solve.json"  # the default -o of 'camplace solve', in the run folder
 
 
 def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
@@ -28,7 +28,8 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     add_solver_options(p, k_default="the run's k")
     p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
                    help="row weights: all frames, or the maximum-likelihood frame alone (default: the run's, else all)")
-    p.add_argument("-o", "--out", type=Path, required=True, help="solution JSON to write")
+    p.add_argument("-o", "--out", type=Path, default=None,
+                   help=f"solution JSON to write (default: {SOLVE_NAME} in the run folder)")
 
     p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
     p.add_argument("file", type=Path, help="instance file")
@@ -75,6 +76,19 @@ def load_problem(source: Path, pattern: bool = True) -> tuple[Any, Any, Any, Any
     return matrix, weights, positions, points
 
 
+def solve_out(args: argparse.Namespace) -> Path:
+    """``solve``'s ``-o``: as given, else :data:`SOLVE_NAME` in the run folder; checked before any work.
+
+    Sets ``args.out`` and returns it.
+    """
+    from camplace.outpaths import check_out_file
+    from camplace.runfolder import RunFolder
+
+    if args.out is None:
+        args.out = RunFolder(args.source).path / SOLVE_NAME
+    return check_out_file(args.out, example=SOLVE_NAME)
+
+
 def _run_defaults(source: Path) -> dict[str, Any]:
     """``k`` (new cameras) and ``event_mode`` of the run whose folder holds the matrix, if any."""
     from camplace.runfolder import SOLUTION_NAME, RunFolder
@@ -110,6 +124,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     import time
     from concurrent.futures import ThreadPoolExecutor
 
+    solve_out(args)
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=1) as pool:
         # the matrix decodes (GIL-free) while the solver's modules import

@@ -44,7 +44,8 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--morph-px", type=int, default=5, dest="morph_px", help="morphology kernel diameter, pixels (default 5; 0 = none)")
     p.add_argument("--largest-component", action="store_true", dest="largest", help="keep only the largest detected blob")
     p.add_argument("--workers", type=int, default=None, help="render threads (default: all cores)")
-    p.add_argument("-o", "--out", type=Path, required=True, help="folder for validation.json and figures")
+    p.add_argument("-o", "--out", type=Path, default=None,
+                   help="folder for validation.json and figures (default: the first run folder's validation/; required with --cameras)")
 
     p = subparsers.add_parser("import-cameras", help="convert a Middlebury, COLMAP or OpenCV calibration to cameras.json")
     p.add_argument("file", type=Path, help="calibration file (COLMAP: the model folder or images.txt)")
@@ -63,14 +64,16 @@ def _check_workers(args: argparse.Namespace) -> None:
 
 def _cmd_render(args: argparse.Namespace) -> int:
     _check_workers(args)
+    from camplace.outpaths import check_out_folder
     from camplace.validation.render import GlowEmitters
-    from camplace.validation.workflow import render_run
+    from camplace.validation.workflow import render_folder, render_run
 
     if args.system < 1:
         raise CamplaceError(f"--system: must be >= 1, got {args.system}")
     emitters = GlowEmitters.load_csv(args.emitters) if args.emitters is not None else None
-    if args.phase is not None and args.out is None:
-        args.out = args.outdir / f"render-phase{args.phase}"
+    if args.out is None:
+        args.out = render_folder(args.outdir, args.phase)
+    check_out_folder(args.out, files=["render.json", "light_curves.csv"])
     manifest = render_run(
         args.outdir,
         frames=args.frames,
@@ -82,10 +85,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
         workers=args.workers,
         phase=args.phase,
     )
-    out = args.out if args.out is not None else args.outdir / "render"
     for rec in manifest["images"]:
         print(f"  {rec['image']}: {rec['target_px']} target px ({rec['render_s']:.2f} s)")
-    print(f"wrote {len(manifest['images'])} views (image, background, mask) and render.json to {out}")
+    print(f"wrote {len(manifest['images'])} views (image, background, mask) and render.json to {args.out}")
     return EXIT_OK
 
 
@@ -97,10 +99,28 @@ def _detection_settings(args: argparse.Namespace):
     return DetectionSettings(threshold=parse_threshold(args.threshold), morph_kernel_px=args.morph_px, largest_component=args.largest)
 
 
+VALIDATION_FOLDER = "validation"  # the default -o of 'camplace validate', in the first run folder
+
+
+def _validate_out(args: argparse.Namespace) -> Path:
+    """``validate``'s ``-o``: as given, else the first run folder's ``validation/``; checked before any work."""
+    from camplace.outpaths import check_out_folder
+    from camplace.validation.scene3d import SCENE3D_FILE
+    from camplace.validation.workflow import PHOTOS_FOLDER
+
+    if args.out is None:
+        if args.cameras is not None:
+            raise CamplaceError("-o/--out: required with --cameras (the folder for validation.json and figures)")
+        args.out = args.outdirs[0] / VALIDATION_FOLDER
+    return check_out_folder(args.out, files=["validation.json", SCENE3D_FILE], folders=[PHOTOS_FOLDER])
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     from camplace.validation.workflow import read_table_file, validate_cameras, validate_runs
 
     _check_workers(args)
+    if args.cameras is not None or args.outdirs:
+        _validate_out(args)
     det = _detection_settings(args)
     if args.cameras is not None:
         from camplace.validation.cameras import CameraSet
@@ -145,8 +165,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
+    from camplace.outpaths import check_out_file
     from camplace.validation.camera_io import import_cameras
 
+    check_out_file(args.out, example="cameras.json")
     cams = import_cameras(args.file, args.format, images_dir=args.images, size=args.size)
     cams.save(args.out)
     print(f"wrote {args.out}: {len(cams)} cameras ({cams.format})")

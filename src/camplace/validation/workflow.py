@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from camplace._io import write_json_atomic, write_text_atomic
+from camplace._io import staged_folder, write_json_atomic, write_text_atomic
 from camplace.errors import CamplaceError
 from camplace.geometry import box_mesh  # noqa: F401  (also re-exported)
 from camplace.validation.cameras import CameraSet, CameraView, camera_stem
@@ -34,6 +34,7 @@ __all__ = [
     "load_run",
     "parse_frames",
     "frame_stem",
+    "render_folder",
     "render_run",
     "read_table_file",
     "Photo",
@@ -46,6 +47,8 @@ __all__ = [
 ]
 
 PHOTO_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+#: the sub-folder of a validation folder that holds the emulated photographs and their manifest.csv
+PHOTOS_FOLDER = "photos"
 
 #: what the photographs' detections are compared with (``settings.prediction`` of validation.json)
 PREDICTION = ("Algorithm 3 on the nominal camera's render as an 8-bit photo, against its background render when the photo "
@@ -133,6 +136,11 @@ def _frame_emitters(instance, frame: int):
     return getattr(instance.frames[frame], "emitters", None)
 
 
+def render_folder(outdir: str | Path, phase: int | None = None) -> Path:
+    """``render``'s default output folder: ``OUTDIR/render``, or ``OUTDIR/render-phaseP`` for a phase."""
+    return Path(outdir) / ("render" if phase is None else f"render-phase{phase}")
+
+
 def render_run(
     outdir: str | Path,
     *,
@@ -164,6 +172,7 @@ def render_run(
     system : int
         System number in the file names.
     out : path or None
+        Default :func:`render_folder` (``OUTDIR/render``, ``OUTDIR/render-phaseP`` with ``phase``).
     settings : RenderSettings or None
     emitters : optional
         Extra emitters for every frame (GlowEmitters); the frames' own emitters are always drawn.
@@ -188,58 +197,59 @@ def render_run(
     frames = "all" if frames is None else frames
     settings = settings or RenderSettings()
     exp = experiment or instance.name
-    out = Path(out) if out is not None else Path(outdir) / "render"
-    n_frames = len(instance.frames)
-    chosen = parse_frames(frames, n_frames)
-    cams = CameraSet.from_solution(solution, experiment=exp, system=system).cameras
-    records = []
-    for f in chosen:
-        fg_scene = scene_for_frame(instance, f, with_target=True, settings=settings)
-        bg_scene = scene_for_frame(instance, f, with_target=False, settings=settings)
-        own = _frame_emitters(instance, f)
-        for n, cam in enumerate(cams, start=1):
-            stem = frame_stem(exp, system, n, f, n_frames)
-            t0 = time.perf_counter()
-            fg = render_view(cam, fg_scene, settings=settings, emitters=own, workers=workers)
-            if emitters is not None:
-                add_glow(fg, as_glow(emitters, settings), settings)
-            bg = render_view(cam, bg_scene, settings=settings, workers=workers)
-            dt = time.perf_counter() - t0
-            write_png(out / f"{stem}.png", fg.image, bit_depth)
-            write_png(out / f"{stem}.background.png", bg.image, bit_depth)
-            write_mask_png(out / f"{stem}.mask.png", fg.target_mask)
-            records.append(
-                {
-                    "camera": n,
-                    "candidate": solution.cameras[n - 1].get("candidate"),
-                    "frame": f,
-                    "image": f"{stem}.png",
-                    "background": f"{stem}.background.png",
-                    "mask": f"{stem}.mask.png",
-                    "target_px": fg.target_px,
-                    # light the event adds to the view: target + emitters, over the background
-                    "event_intensity": float(np.clip(fg.image - bg.image, 0.0, None).sum(dtype=np.float64)),
-                    "width": cam.width,
-                    "height": cam.height,
-                    "render_s": dt,
-                }
-            )
-            log.info("rendered %s (%d target px, %.3f s for both images)", stem, fg.target_px, dt)
-    manifest = {
-        "experiment": exp,
-        "system": system,
-        "instance": instance.name,
-        "bit_depth": bit_depth,
-        "frames": chosen,
-        "settings": settings.__dict__,
-        "images": records,
-    }
-    write_json_atomic(out / "render.json", manifest)
-    # rendered light curves: per camera (0-based, as in the run's light_curves.csv) and frame
-    lines = ["camera,frame,rendered_intensity,target_px,candidate"]
-    for r in sorted(records, key=lambda r: (r["camera"], r["frame"])):
-        lines.append(f"{r['camera'] - 1},{r['frame']},{r['event_intensity']!r},{int(r['target_px'])},{r['candidate']}")
-    write_text_atomic(out / "light_curves.csv", "\n".join(lines) + "\n")
+    out = Path(out) if out is not None else render_folder(outdir, phase)
+    with staged_folder(out) as work:  # moved into out at the end: an interrupted render leaves out as it was
+        n_frames = len(instance.frames)
+        chosen = parse_frames(frames, n_frames)
+        cams = CameraSet.from_solution(solution, experiment=exp, system=system).cameras
+        records = []
+        for f in chosen:
+            fg_scene = scene_for_frame(instance, f, with_target=True, settings=settings)
+            bg_scene = scene_for_frame(instance, f, with_target=False, settings=settings)
+            own = _frame_emitters(instance, f)
+            for n, cam in enumerate(cams, start=1):
+                stem = frame_stem(exp, system, n, f, n_frames)
+                t0 = time.perf_counter()
+                fg = render_view(cam, fg_scene, settings=settings, emitters=own, workers=workers)
+                if emitters is not None:
+                    add_glow(fg, as_glow(emitters, settings), settings)
+                bg = render_view(cam, bg_scene, settings=settings, workers=workers)
+                dt = time.perf_counter() - t0
+                write_png(work / f"{stem}.png", fg.image, bit_depth)
+                write_png(work / f"{stem}.background.png", bg.image, bit_depth)
+                write_mask_png(work / f"{stem}.mask.png", fg.target_mask)
+                records.append(
+                    {
+                        "camera": n,
+                        "candidate": solution.cameras[n - 1].get("candidate"),
+                        "frame": f,
+                        "image": f"{stem}.png",
+                        "background": f"{stem}.background.png",
+                        "mask": f"{stem}.mask.png",
+                        "target_px": fg.target_px,
+                        # light the event adds to the view: target + emitters, over the background
+                        "event_intensity": float(np.clip(fg.image - bg.image, 0.0, None).sum(dtype=np.float64)),
+                        "width": cam.width,
+                        "height": cam.height,
+                        "render_s": dt,
+                    }
+                )
+                log.info("rendered %s (%d target px, %.3f s for both images)", stem, fg.target_px, dt)
+        manifest = {
+            "experiment": exp,
+            "system": system,
+            "instance": instance.name,
+            "bit_depth": bit_depth,
+            "frames": chosen,
+            "settings": settings.__dict__,
+            "images": records,
+        }
+        write_json_atomic(work / "render.json", manifest)
+        # rendered light curves: per camera (0-based, as in the run's light_curves.csv) and frame
+        lines = ["camera,frame,rendered_intensity,target_px,candidate"]
+        for r in sorted(records, key=lambda r: (r["camera"], r["frame"])):
+            lines.append(f"{r['camera'] - 1},{r['frame']},{r['event_intensity']!r},{int(r['target_px'])},{r['candidate']}")
+        write_text_atomic(work / "light_curves.csv", "\n".join(lines) + "\n")
     return manifest
 
 
@@ -513,10 +523,11 @@ def validate_cameras(
         "manifest": None if manifest is None else str(manifest),
         "detection": detection.to_dict(),
     }
-    report = _finish_report(records, out, overlays, settings)
-    _write_cameras_scene(out, cameras.cameras, target, title=Path(cameras.source).name or "cameras", target_name=_target_label(target_spec),
-                         meta={"mode": "cameras", "cameras_file": cameras.source, "target": target_spec,
-                               "photographed": [r["name"] for r in records]})
+    with staged_folder(out) as work:  # moved into out at the end (see validate_runs)
+        report = _finish_report(records, work, overlays, settings)
+        _write_cameras_scene(work, out, cameras.cameras, target, title=Path(cameras.source).name or "cameras", target_name=_target_label(target_spec),
+                             meta={"mode": "cameras", "cameras_file": cameras.source, "target": target_spec,
+                                   "photographed": [r["name"] for r in records]})
     return report
 
 
@@ -525,11 +536,13 @@ def _target_label(spec: str) -> str:
     return "box" if spec.startswith("box:") else (Path(spec).name or "target")
 
 
-def _write_cameras_scene(out: Path, cameras, target, **scene_options) -> None:
-    """``out/scene3d.html`` (skipped with a warning when plotly is missing)."""
-    from camplace.validation.scene3d import cameras_scene, write_scene3d
+def _write_cameras_scene(work: Path, final: Path, cameras, target, **scene_options) -> None:
+    """``work/scene3d.html`` (skipped with a warning when plotly is missing, and then a stale one
+    of an earlier validation in ``final``, the folder ``work`` is moved into, is removed)."""
+    from camplace.validation.scene3d import SCENE3D_FILE, cameras_scene, write_scene3d
 
-    write_scene3d(out, cameras_scene(cameras, target, **scene_options))
+    if write_scene3d(work, cameras_scene(cameras, target, **scene_options)) is None:
+        (final / SCENE3D_FILE).unlink(missing_ok=True)
 
 
 def _run_physical(instance):
@@ -631,80 +644,83 @@ def validate_runs(
         if physical is None:
             physical = _run_physical(instance0)
     inst_plan = None if photos is not None else InstalledSystems.plan(outdirs, runs, systems, physical, seed, installations, frame)
-    scenes: dict[int, tuple[Any, Any]] = {}
-    records, overlays, manifest_rows = [], [], []
-    for s, (inst, cams) in enumerate(systems, start=1):
-        key = id(inst)
-        if key not in scenes:
-            scenes[key] = (
-                scene_for_frame(inst, frame, with_target=True, settings=settings),
-                scene_for_frame(inst, frame, with_target=False, settings=settings),
-            )
-        fg_scene, bg_scene = scenes[key]
-        emit = _frame_emitters(inst, frame)
-        for ci, cam in enumerate(cams):
-            pred = render_view(cam, fg_scene, settings=settings, emitters=emit, workers=workers)
-            extra: dict[str, Any] = {}
-            if photos is not None:
-                if cam.name not in photos:
-                    continue
-                ph = photos[cam.name]
-                photo = read_image(ph.photo)
-                bg = read_image(ph.background) if ph.background is not None else None
-                extra = {"photo": str(ph.photo), "background": None if ph.background is None else str(ph.background)}
-            else:
-                shot = emulate_shots([cam], fg_scene, bg_scene, physical, settings=settings, emitters=emit, seed=shot_rng, workers=workers,
-                                     installed=[inst_plan.installed[s - 1][0][ci]])[0]
-                photo, bg = quantise(shot.photo, 8), quantise(shot.background, 8)
-                pdir = out / "photos"
-                write_png(pdir / f"{cam.name}.png", photo)
-                write_png(pdir / f"{cam.name}.background.png", bg)
-                manifest_rows.append(f"{cam.name},{cam.name}.png,{cam.name}.background.png")
-                dR = cam.rotation.T @ shot.actual.rotation
-                extra = {
-                    "photo": str(pdir / f"{cam.name}.png"),
-                    "background": str(pdir / f"{cam.name}.background.png"),
-                    "pose_error_m": float(np.linalg.norm(shot.actual.position - cam.position)),
-                    "pose_error_deg": float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))),
-                }
-            bg_render = render_view(cam, bg_scene, settings=settings, workers=workers).image if bg is not None else None
-            rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, detection, extra)
-            if inst_plan is not None:
-                inst_plan.record_photo(s - 1, 0, ci, shot, det.mask)
-            records.append(rec)
-            overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, expected.mask, det.mask, det.bbox_xywh, cam.name, target=pred.target_mask)))
-    if inst_plan is not None:
-        _photograph_installations(inst_plan, systems, scenes, physical, frame, settings=settings, detection=detection,
-                                  rng=shot_rng, workers=workers)
-    if manifest_rows:
-        write_text_atomic(out / "photos" / "manifest.csv", "camera,photo,background\n" + "\n".join(manifest_rows) + "\n")
-    if not records:
-        raise CamplaceError("validate: no camera had a photo to compare")
-    report_settings = {
-        "mode": "runs",
-        "prediction": PREDICTION,
-        "runs": [str(d) for d in outdirs],
-        "experiment": exp,
-        "frame": frame,
-        "seed": seed,
-        "random_systems": random_systems,
-        "photos": None if photos_dir is None else str(photos_dir),
-        "manifest": None if manifest is None else str(manifest),
-        "physical": None if photos is not None else physical.to_dict(),
-        "detection": detection.to_dict(),
-        "render": settings.__dict__,
-        "installations": int(installations) if photos is None else None,
-    }
-    installed = inst_plan.finish(systems) if inst_plan is not None else {
-        "available": False, "note": "real photographs: the poses they were taken from are unknown (emulate them with --physical)"}
-    report = _finish_report(records, out, overlays, report_settings, installed=installed)
-    inst1, cams1 = systems[0]
-    em = _frame_emitters(inst1, frame)
-    _write_cameras_scene(out, cams1, inst1.target_world(frame), title=f"{exp}, frame {frame}", target_name=inst1.target.name,
-                         occluders=inst1.occluders_world(frame), emitters=None if em is None else em.positions_m,
-                         other_systems=[(f"system {s}", cams) for s, (_, cams) in enumerate(systems[1:], start=2)],
-                         seed=seed, meta={"mode": "runs", "runs": [str(d) for d in outdirs], "frame": frame})
-    return report
+    # photographs and figures go to a temporary folder, moved into out at the end: an interrupted
+    # validation leaves out as it was
+    with staged_folder(out) as work:
+        scenes: dict[int, tuple[Any, Any]] = {}
+        records, overlays, manifest_rows = [], [], []
+        for s, (inst, cams) in enumerate(systems, start=1):
+            key = id(inst)
+            if key not in scenes:
+                scenes[key] = (
+                    scene_for_frame(inst, frame, with_target=True, settings=settings),
+                    scene_for_frame(inst, frame, with_target=False, settings=settings),
+                )
+            fg_scene, bg_scene = scenes[key]
+            emit = _frame_emitters(inst, frame)
+            for ci, cam in enumerate(cams):
+                pred = render_view(cam, fg_scene, settings=settings, emitters=emit, workers=workers)
+                extra: dict[str, Any] = {}
+                if photos is not None:
+                    if cam.name not in photos:
+                        continue
+                    ph = photos[cam.name]
+                    photo = read_image(ph.photo)
+                    bg = read_image(ph.background) if ph.background is not None else None
+                    extra = {"photo": str(ph.photo), "background": None if ph.background is None else str(ph.background)}
+                else:
+                    shot = emulate_shots([cam], fg_scene, bg_scene, physical, settings=settings, emitters=emit, seed=shot_rng, workers=workers,
+                                         installed=[inst_plan.installed[s - 1][0][ci]])[0]
+                    photo, bg = quantise(shot.photo, 8), quantise(shot.background, 8)
+                    pdir = out / PHOTOS_FOLDER  # where they are once the block succeeds
+                    write_png(work / PHOTOS_FOLDER / f"{cam.name}.png", photo)
+                    write_png(work / PHOTOS_FOLDER / f"{cam.name}.background.png", bg)
+                    manifest_rows.append(f"{cam.name},{cam.name}.png,{cam.name}.background.png")
+                    dR = cam.rotation.T @ shot.actual.rotation
+                    extra = {
+                        "photo": str(pdir / f"{cam.name}.png"),
+                        "background": str(pdir / f"{cam.name}.background.png"),
+                        "pose_error_m": float(np.linalg.norm(shot.actual.position - cam.position)),
+                        "pose_error_deg": float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))),
+                    }
+                bg_render = render_view(cam, bg_scene, settings=settings, workers=workers).image if bg is not None else None
+                rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, detection, extra)
+                if inst_plan is not None:
+                    inst_plan.record_photo(s - 1, 0, ci, shot, det.mask)
+                records.append(rec)
+                overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, expected.mask, det.mask, det.bbox_xywh, cam.name, target=pred.target_mask)))
+        if inst_plan is not None:
+            _photograph_installations(inst_plan, systems, scenes, physical, frame, settings=settings, detection=detection,
+                                      rng=shot_rng, workers=workers)
+        if manifest_rows:
+            write_text_atomic(work / PHOTOS_FOLDER / "manifest.csv", "camera,photo,background\n" + "\n".join(manifest_rows) + "\n")
+        if not records:
+            raise CamplaceError("validate: no camera had a photo to compare")
+        report_settings = {
+            "mode": "runs",
+            "prediction": PREDICTION,
+            "runs": [str(d) for d in outdirs],
+            "experiment": exp,
+            "frame": frame,
+            "seed": seed,
+            "random_systems": random_systems,
+            "photos": None if photos_dir is None else str(photos_dir),
+            "manifest": None if manifest is None else str(manifest),
+            "physical": None if photos is not None else physical.to_dict(),
+            "detection": detection.to_dict(),
+            "render": settings.__dict__,
+            "installations": int(installations) if photos is None else None,
+        }
+        installed = inst_plan.finish(systems) if inst_plan is not None else {
+            "available": False, "note": "real photographs: the poses they were taken from are unknown (emulate them with --physical)"}
+        report = _finish_report(records, work, overlays, report_settings, installed=installed)
+        inst1, cams1 = systems[0]
+        em = _frame_emitters(inst1, frame)
+        _write_cameras_scene(work, out, cams1, inst1.target_world(frame), title=f"{exp}, frame {frame}", target_name=inst1.target.name,
+                             occluders=inst1.occluders_world(frame), emitters=None if em is None else em.positions_m,
+                             other_systems=[(f"system {s}", cams) for s, (_, cams) in enumerate(systems[1:], start=2)],
+                             seed=seed, meta={"mode": "runs", "runs": [str(d) for d in outdirs], "frame": frame})
+        return report
 
 
 def _photograph_installations(plan, systems, scenes, physical, frame: int, *, settings, detection, rng, workers) -> None:
@@ -764,7 +780,8 @@ def export_run(outdir: str | Path, *, frame: str = "physical", transform: dict[s
         if transform is None:
             transform = run.instance.transform
             if transform is None:
-                raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table (add one or pass --transform FILE; see docs/validation.md)")
+                raise CamplaceError(f"{outdir / 'instance.toml'}: no [transform] table for lab coordinates (add one, pass --transform FILE, "
+                                    f"or use --frame simulation for the run's own coordinates; see docs/validation.md)")
         if not isinstance(transform, TransformConfig):
             transform = parse_transform(transform, transform_source or "[transform]")
         tr = build_transform(transform)

@@ -715,11 +715,15 @@ def convert_matrix(path_or_outdir: str | Path, fmt: str) -> tuple[Path, Path]:
     is_store = _is_store(src)
     if (fmt == "cpm") == is_store:
         return src, src
+    in_folder = src.name in (MATRIX_NAME, NPZ_NAME)
+    from camplace.outpaths import check_out_file
+
+    dst = check_out_file(src.parent / (NPZ_NAME if fmt == "npz" else MATRIX_NAME) if in_folder else src.with_suffix(f".{fmt}"),
+                         "FOLDER_OR_FILE", fix="move that folder away")  # before the matrix is read
     matrix = load_visibility(src)
-    if src.name in (MATRIX_NAME, NPZ_NAME):
+    if in_folder:
         dst = save_matrix(src.parent, matrix, fmt=fmt)
     else:
-        dst = src.with_suffix(f".{fmt}")
         if fmt == "npz":
             from camplace._io import write_with_atomic
 
