@@ -108,10 +108,35 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in _verb_modules():
         COMMANDS.update(module.register(sub, _add_run_options))
+    for verb in COMPUTE_VERBS:
+        if verb in sub.choices:
+            _add_threads_option(sub.choices[verb])
     if "solve" in COMMANDS and "solve" in sub.choices:
         add_robust_options(sub.choices["solve"])
         COMMANDS["solve"] = wrap_solve(COMMANDS["solve"])
     return parser
+
+
+#: Verbs that compute (cast rays, solve, render, store matrices): each takes ``--threads``.
+COMPUTE_VERBS: tuple[str, ...] = ("run", "visibility", "convert-matrix", "solve", "render", "validate", "campaign",
+                                  "report", "plan")
+
+
+def _threads(text: str) -> int:
+    """argparse type of ``--threads``: a whole number from 1 to the cores this process may use."""
+    from camplace._cores import allowed_cores, check_threads
+
+    try:
+        return check_threads(int(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a whole number from 1 to {allowed_cores()} (the cores this process may use)") from None
+
+
+def _add_threads_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=_threads, default=None, metavar="N",
+                   help="use at most N threads in every stage (default: every core this process may use, "
+                        "its CPU affinity)")
 
 
 # Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
@@ -287,6 +312,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.verb is None:
         parser.print_help()
         return EXIT_BAD_INPUT
+    if getattr(args, "threads", None) is not None:
+        from camplace._cores import set_threads
+
+        set_threads(args.threads)
     try:
         with ctrl_c_noted():
             return COMMANDS[args.verb](args)
