@@ -60,6 +60,17 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
     return out
 
 
+def chosen_view_warnings(instance, cands: CandidateSet, selected: Sequence[int]) -> list[str]:
+    """Warnings when the chosen cameras see the target too small to resolve
+    (:func:`camplace.visibility.footprint.small_target_warnings`; cameras named by candidate index)."""
+    from camplace.visibility.footprint import small_target_warnings
+
+    sel = np.asarray(list(selected), dtype=np.int64)
+    if len(sel) == 0:
+        return []
+    return small_target_warnings(instance, cands.positions[sel], cands.rotations[sel], labels=[f"candidate {j}" for j in sel])
+
+
 @dataclass(frozen=True)
 class RunSettings:
     """Every setting of a run, resolved from the instance's ``[run]`` defaults and checked
@@ -390,7 +401,7 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     weights = event_weights(pts, instance, s.event_mode)
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
     k = len(res.selected) if (s.mode == "setcover" or s.fixed) else s.k
-    notes = degenerate_warnings(vis.matrix, weights, k)
+    notes = degenerate_warnings(vis.matrix, weights, k) + chosen_view_warnings(instance, cands, res.selected)
     for note in notes:
         log.info("%s", note)
     solver_stats, solver_times = split_timings(dict(res.stats))

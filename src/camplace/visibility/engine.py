@@ -11,7 +11,11 @@ A (row, candidate) pair is observed when, in the candidate's camera (OpenCV axes
    ``p + eps * n`` to the light ``L`` is unblocked (emitters glow and skip this test);
 5. the segment from the camera centre to ``p + eps * n`` crosses no triangle of the scene
    (every occluder of the point's frame, the target itself included). ``eps`` is 1e-4 of the
-   target's bounding-box diagonal and keeps the point's own face from occluding it.
+   target's bounding-box diagonal and keeps the point's own face from occluding it;
+6. with ``[quality] min_target_px``, for a surface point: the frame's target covers at least that
+   many pixels in the camera (its convex hull's projected area,
+   :mod:`camplace.visibility.footprint`), so a view that cannot resolve the target observes none
+   of it (applied to the assembled matrix, :func:`drop_small_views`).
 
 Its value, the observation quality, is 1 in ``binary`` mode; in ``graded`` mode it is
 ``min(1, f_px / (distance * required_px_per_m)) * cos(theta)`` for surface points (resolution
@@ -204,6 +208,7 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
         rest_triangles={f: s.triangles for f, s in rest.items()},
         support=support,
         support_tol=tol,
+        min_target_px=float(getattr(q, "min_target_px", 0.0)),
     )
     return task, scenes
 
@@ -254,6 +259,47 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
     matrix = sp.csr_matrix((data, indices, indptr.astype(index_dtype)), shape=(m, n), copy=False)
     matrix.has_sorted_indices = True
     return matrix, total
+
+
+def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_matrix, counts: dict) -> tuple[sp.csr_matrix, dict]:
+    """Rule 6 of the module docstring: drop the target's points of a frame from the cameras that see
+    that frame's target smaller than ``[quality] min_target_px`` (emitter rows are kept).
+
+    Parameters
+    ----------
+    instance : camplace.instance.Instance
+    candidates : CandidateSet
+        The matrix's columns (positions, world-from-camera rotations).
+    points : TargetPoints
+        Its rows.
+    matrix : (m, n) scipy.sparse.csr_matrix
+    counts : dict
+        The engine's pair counts; ``observed`` is lowered by the pairs dropped.
+
+    Returns
+    -------
+    (m, n) scipy.sparse.csr_matrix, dict
+    """
+    from camplace.visibility.footprint import small_views
+
+    frames = [int(f) for f in np.unique(points.frame)]
+    small = small_views(instance, candidates.positions, candidates.rotations, frames)  # (n, n_frames)
+    if small is None or not small.any():
+        return matrix, counts
+    row_of = np.repeat(np.arange(matrix.shape[0]), np.diff(matrix.indptr))
+    surface = ~points.is_emitter
+    drop = small[matrix.indices, points.frame[row_of]] & surface[row_of]
+    if not drop.any():
+        return matrix, counts
+    keep = ~drop
+    indptr = np.zeros(matrix.shape[0] + 1, dtype=matrix.indptr.dtype)
+    np.cumsum(np.bincount(row_of[keep], minlength=matrix.shape[0]), out=indptr[1:])
+    out = sp.csr_matrix((matrix.data[keep], matrix.indices[keep], indptr), shape=matrix.shape, copy=False)
+    out.has_sorted_indices = True
+    n_drop = int(drop.sum())
+    log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
+             n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
+    return out, {**counts, "observed": int(counts["observed"]) - n_drop}
 
 
 def default_chunk_size(task: VisibilityTask) -> int:
@@ -391,6 +437,8 @@ def compute_visibility(
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
     matrix, total = assemble(task, parts)
+    if task.min_target_px > 0:
+        matrix, total = drop_small_views(instance, candidates, points, matrix, total)
     store_path = None
     if key is not None:
         t0 = time.perf_counter()
