@@ -48,7 +48,7 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
     if matrix.nnz == 0:
         out.append(
             "no candidate observes any point of the event: check the volume, camera.near_m/far_m, "
-            "the occluders and [quality] (incidence limit, light)"
+            "the occluders and [quality] (incidence limit, light, min_target_px)"
         )
         return out
     useful = int(np.count_nonzero(np.diff(matrix[live_rows].tocsc().indptr)))

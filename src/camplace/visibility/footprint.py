@@ -69,9 +69,9 @@ def hull_footprint_px(vertices: np.ndarray, positions: np.ndarray, rotations: np
     Returns
     -------
     (c,) float64
-        Area of the hull's silhouette in the image plane, pixels (not clipped to the image); inf
-        when a hull vertex is not in front of the camera (the camera at or inside the hull's
-        depth: the projection is unbounded). A flat or degenerate point set is measured by its
+        Area of the hull's silhouette in the image plane, pixels (not clipped to the image); 0
+        when the hull lies wholly behind the camera, inf when it straddles the camera's plane
+        (the projection is unbounded). A flat or degenerate point set is measured by its
         bounding sphere instead (the disc ``pi (f r)^2 / (d^2 - r^2)`` seen on the optical axis).
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64)
@@ -92,7 +92,8 @@ def _convex_area_px(hv: np.ndarray, hf: np.ndarray, pos: np.ndarray, rot: np.nda
     """Silhouette area (c,) of a convex hull (vertices hv, outward faces hf): its front faces' projected areas."""
     cam = np.einsum("vk,ckl->cvl", hv, rot) - np.einsum("ck,ckl->cl", pos, rot)[:, None, :]  # (c, v, 3)
     z = cam[..., 2]
-    behind = ~(z > 0).all(axis=1)
+    straddles = ~(z > 0).all(axis=1) & (z > 0).any(axis=1)
+    behind = ~(z > 0).any(axis=1)
     zs = np.where(z > 0, z, 1.0)
     uv = np.stack([K[0, 0] * cam[..., 0] / zs, K[1, 1] * cam[..., 1] / zs], axis=-1)  # (c, v, 2), offsets cancel
     tri = hv[hf]  # (f, 3, 3)
@@ -101,7 +102,7 @@ def _convex_area_px(hv: np.ndarray, hf: np.ndarray, pos: np.ndarray, rot: np.nda
     a, b, c = uv[:, hf[:, 0]], uv[:, hf[:, 1]], uv[:, hf[:, 2]]
     cross = (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])
     area = 0.5 * np.sum(np.where(front, np.abs(cross), 0.0), axis=1)
-    return np.where(behind, np.inf, area)
+    return np.where(straddles, np.inf, np.where(behind, 0.0, area))
 
 
 def _sphere_footprint_px(v: np.ndarray, pos: np.ndarray, K: np.ndarray) -> np.ndarray:
