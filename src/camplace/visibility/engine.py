@@ -141,6 +141,22 @@ def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m:
     return lit
 
 
+def frame_eps(instance, frame: int) -> float:
+    """Offset along the normal of a frame's segment ends, metres: :data:`EPS_REL` of the target's bounding-box diagonal."""
+    tv = instance.target_world(frame)[0]
+    return EPS_REL * float(np.linalg.norm(np.ptp(tv, axis=0)))
+
+
+def lit_points(instance, points: TargetPoints) -> np.ndarray:
+    """(m,) bool: rows lit by the instance's light, exactly as the matrix's ``require_light`` test
+    (:func:`lit_mask` on every frame's scene; emitters count as lit)."""
+    frames = [int(f) for f in np.unique(points.frame)]
+    eps = np.zeros(len(instance.frames))
+    for f in frames:
+        eps[f] = frame_eps(instance, f)
+    return lit_mask(instance, points, {f: frame_scene(instance, f) for f in frames}, eps)
+
+
 def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarray, tol: float) -> np.ndarray:
     """(m,) bool: surface rows of ``frame`` whose tangent plane has every target vertex behind it.
 
@@ -182,9 +198,8 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
     support = np.zeros(len(points), dtype=bool)
     for f in frames:
         tv = instance.target_world(f)[0]
-        diag = float(np.linalg.norm(np.ptp(tv, axis=0)))
-        eps[f] = EPS_REL * diag
-        tol[f] = 1e-9 * diag
+        eps[f] = frame_eps(instance, f)
+        tol[f] = 1e-9 * float(np.linalg.norm(np.ptp(tv, axis=0)))
         support |= supporting_rows(points, f, tv, tol[f])
     active = lit_mask(instance, points, full, eps) if q.require_light else np.ones(len(points), dtype=bool)
     cos_max = math.cos(math.radians(q.max_incidence_deg)) if q.max_incidence_deg < 90.0 else 0.0
