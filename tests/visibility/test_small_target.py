@@ -153,3 +153,11 @@ def test_run_with_min_target_px_observes_nothing_of_a_target_too_small(tiny) -> 
     sol = json.loads((tiny / "out-min" / "solution.json").read_text())
     assert sol["objective"] == 0.0 and sol["coverage_fraction"] == 0.0
     assert "warning: no candidate observes any point of the event" in proc.stderr
+
+
+def test_render_warns_when_every_view_shows_the_target_smaller_than_detectable() -> None:
+    from camplace.validation.workflow import _render_warnings
+
+    assert _render_warnings([{"target_px": 0}, {"target_px": 4}, {"target_px": 24}]) != []
+    assert "at most 24 px" in _render_warnings([{"target_px": 0}, {"target_px": 24}])[0]
+    assert _render_warnings([{"target_px": 0}, {"target_px": int(SMALL_TARGET_PX)}]) == []

@@ -233,7 +233,10 @@ def render_run(
         "frames": chosen,
         "settings": settings.__dict__,
         "images": records,
+        "warnings": _render_warnings(records),
     }
+    for note in manifest["warnings"]:
+        log.warning("%s", note)
     write_json_atomic(out / "render.json", manifest)
     # rendered light curves: per camera (0-based, as in the run's light_curves.csv) and frame
     lines = ["camera,frame,rendered_intensity,target_px,candidate"]
@@ -241,6 +244,16 @@ def render_run(
         lines.append(f"{r['camera'] - 1},{r['frame']},{r['event_intensity']!r},{int(r['target_px'])},{r['candidate']}")
     write_text_atomic(out / "light_curves.csv", "\n".join(lines) + "\n")
     return manifest
+
+
+def _render_warnings(records: list[dict]) -> list[str]:
+    """A warning when the target covers fewer than ``SMALL_TARGET_PX`` pixels in every rendered view."""
+    from camplace.visibility.footprint import SMALL_TARGET_PX
+
+    if not records or max(int(r["target_px"]) for r in records) >= SMALL_TARGET_PX:
+        return []
+    return [f"the target covers at most {max(int(r['target_px']) for r in records)} px in every rendered view (fewer than "
+            f"{SMALL_TARGET_PX:g} px: Algorithm 3 cannot detect it); check the mesh scale and the camera (see the run's warnings)"]
 
 
 # --------------------------------------------------------------------------------------------------
