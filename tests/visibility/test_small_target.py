@@ -69,6 +69,23 @@ def test_sphere_seen_from_anywhere_covers_the_tangent_cone() -> None:
     assert np.all(area <= disc) and np.all(area >= 0.995 * disc), area / disc
 
 
+def test_each_frame_moves_the_hull_with_the_target() -> None:
+    """The hull is taken once in the target's frame and moved by each frame's pose: the same areas
+    as the hull of each frame's posed mesh."""
+    box = trimesh.creation.box(extents=(1.2, 0.3, 0.5))
+    inst = dataclasses.replace(
+        _sphere_instance(), target=Mesh("slab", np.asarray(box.vertices), np.asarray(box.faces, dtype=np.int64)),
+        frames=(Frame(Pose((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))), Frame(Pose((0.5, -1.0, 0.3), (30.0, -50.0, 75.0)))),
+    )
+    rng = np.random.default_rng(0)
+    pos = rng.uniform(-6.0, 6.0, (20, 3)) + [0.0, 0.0, 8.0]
+    rot = look_at(pos, rng.uniform(-0.5, 0.5, (20, 3)))
+    got = target_footprint_px(inst, pos, rot)
+    for f in range(2):
+        np.testing.assert_allclose(got[:, f], hull_footprint_px(inst.target_world(f)[0], pos, rot, inst.camera.K()), rtol=1e-9)
+    assert not np.allclose(got[:, 0], got[:, 1], rtol=0.05)  # the pose matters
+
+
 # ---------------------------------------------------------------------------------------------------
 # [quality] min_target_px in the visibility engine
 

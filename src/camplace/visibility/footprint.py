@@ -21,11 +21,11 @@ Two users:
 
 from __future__ import annotations
 
-import functools
+from typing import Sequence
 
 import numpy as np
 
-__all__ = ["SMALL_TARGET_PX", "hull_footprint_px", "target_footprint_px", "small_views", "small_target_warnings"]
+__all__ = ["SMALL_TARGET_PX", "convex_hull", "hull_footprint_px", "target_footprint_px", "small_views", "small_target_warnings"]
 
 #: Pixels below which the target is too small to see: 25 px, a 5 x 5 px patch. Algorithm 3
 #: (:mod:`camplace.validation.detect`) opens the detected mask with a 5 px elliptical kernel
@@ -37,14 +37,25 @@ SMALL_TARGET_PX = 25.0
 _CAMERAS_PER_BLOCK = 256  # cameras projected at once (bounds the (c, v, 3) work array)
 
 
-@functools.lru_cache(maxsize=32)
-def _hull(vertices_bytes: bytes, n: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Convex hull (vertices (h, 3) float64, outward faces (f, 3) int64) of n points, or None when flat."""
+def convex_hull(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The convex hull of some points (trimesh / qhull).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+
+    Returns
+    -------
+    (vertices (h, 3) float64, faces (f, 3) int64 wound outwards), or None when the points are flat
+    or too few to enclose a volume.
+    """
     import trimesh
 
-    pts = np.frombuffer(vertices_bytes, dtype=np.float64).reshape(n, 3)
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    if len(v) < 4:
+        return None
     try:
-        hull = trimesh.convex.convex_hull(pts)
+        hull = trimesh.convex.convex_hull(v)
     except Exception:  # qhull refuses flat or degenerate input
         return None
     if len(hull.faces) < 4 or not hull.is_volume:
@@ -52,7 +63,8 @@ def _hull(vertices_bytes: bytes, n: int) -> tuple[np.ndarray, np.ndarray] | None
     return np.asarray(hull.vertices, dtype=np.float64), np.asarray(hull.faces, dtype=np.int64)
 
 
-def hull_footprint_px(vertices: np.ndarray, positions: np.ndarray, rotations: np.ndarray, K: np.ndarray) -> np.ndarray:
+def hull_footprint_px(vertices: np.ndarray, positions: np.ndarray, rotations: np.ndarray, K: np.ndarray,
+                      hull: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Projected area, in pixels, of the convex hull of some points in each camera.
 
     Parameters
@@ -65,6 +77,8 @@ def hull_footprint_px(vertices: np.ndarray, positions: np.ndarray, rotations: np
         World-from-camera rotations (columns: camera x right, y down, z forward).
     K : (3, 3) float64
         Pinhole intrinsics (pixels).
+    hull : (vertices (h, 3), faces (f, 3)) or None
+        The points' convex hull in world coordinates when already known (:func:`convex_hull`).
 
     Returns
     -------
@@ -74,10 +88,10 @@ def hull_footprint_px(vertices: np.ndarray, positions: np.ndarray, rotations: np
         (the projection is unbounded). A flat or degenerate point set is measured by its
         bounding sphere instead (the disc ``pi (f r)^2 / (d^2 - r^2)`` seen on the optical axis).
     """
-    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     rot = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
-    hull = _hull(v.tobytes(), len(v)) if len(v) >= 4 else None
+    hull = convex_hull(v) if hull is None else hull
     if hull is None:
         return _sphere_footprint_px(v, pos, K)
     hv, hf = hull
@@ -117,7 +131,7 @@ def _sphere_footprint_px(v: np.ndarray, pos: np.ndarray, K: np.ndarray) -> np.nd
         return np.where(d2 > r * r, np.pi * f2 * r * r / np.maximum(d2 - r * r, 1e-300), np.inf)
 
 
-def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, frames=None) -> np.ndarray:
+def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, frames: Sequence[int] | None = None) -> np.ndarray:
     """The target's footprint (:func:`hull_footprint_px`) in each camera and frame.
 
     Parameters
@@ -138,12 +152,16 @@ def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, 
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     out = np.full((len(pos), len(instance.frames)), np.nan)
     K = instance.camera.K()
+    local = convex_hull(instance.target.vertices)  # once: each frame's pose is a rigid motion of it
     for f in range(len(instance.frames)) if frames is None else frames:
-        out[:, int(f)] = hull_footprint_px(instance.target_world(int(f))[0], pos, rotations, K)
+        pose = instance.frames[int(f)].target_pose
+        hull = None if local is None else (pose.apply(local[0]), local[1])
+        verts = instance.target_world(int(f))[0] if hull is None else hull[0]
+        out[:, int(f)] = hull_footprint_px(verts, pos, rotations, K, hull=hull)
     return out
 
 
-def small_views(instance, positions: np.ndarray, rotations: np.ndarray, frames=None) -> np.ndarray | None:
+def small_views(instance, positions: np.ndarray, rotations: np.ndarray, frames: Sequence[int] | None = None) -> np.ndarray | None:
     """Which (camera, frame) views see the target smaller than ``[quality] min_target_px``.
 
     Returns
@@ -158,7 +176,7 @@ def small_views(instance, positions: np.ndarray, rotations: np.ndarray, frames=N
     return np.nan_to_num(fp, nan=np.inf) < need
 
 
-def small_target_warnings(instance, positions: np.ndarray, rotations: np.ndarray, labels=None,
+def small_target_warnings(instance, positions: np.ndarray, rotations: np.ndarray, labels: Sequence[str] | None = None,
                           threshold: float = SMALL_TARGET_PX) -> list[str]:
     """Warnings when the chosen cameras see the target smaller than ``threshold`` pixels.
 
