@@ -19,7 +19,7 @@ import trimesh
 
 from camplace.errors import CamplaceError
 from camplace.geometry import look_at
-from camplace.instance import builtin_toml, load_instance, parse_instance
+from camplace.instance import builtin_toml, load_instance, parse_instance, save_instance
 from camplace.instance.schema import CameraModel, Frame, Instance, Light, Mesh, Pose, QualitySpec, Volume
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, make_target_points
@@ -115,10 +115,12 @@ def test_min_target_px_drops_exactly_the_views_too_small() -> None:
     np.testing.assert_array_equal(cut, expect)
 
 
-def test_min_target_px_is_read_and_checked() -> None:
+def test_min_target_px_is_read_written_and_checked(tmp_path) -> None:
     data = builtin_toml("comet-67p-bunker")
     inst = parse_instance({**data, "quality": {"min_target_px": 40}}, "t", Path.cwd())
     assert inst.quality.min_target_px == 40.0
+    save_instance(inst, tmp_path / "i.toml", mesh_files=True)
+    assert load_instance(tmp_path / "i.toml").quality == inst.quality
     assert parse_instance(data, "t", Path.cwd()).quality.min_target_px == 0.0
     with pytest.raises(CamplaceError, match="quality.min_target_px"):
         parse_instance({**data, "quality": {"min_target_px": -1}}, "t", Path.cwd())

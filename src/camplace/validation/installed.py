@@ -486,8 +486,12 @@ class InstalledSystems:
             z = installation_draws(seed, keys[s], installations)  # (k, N, 6)
             installed.append([[install_camera(cam, physical, z[c, t]) for c, cam in enumerate(cams)] for t in range(int(installations))])
         rows = [None if o is None else photo_rows(o, frame) for o in objectives]
-        rules = [None if o is None else ObservableRows.of(inst, o.points, r)
-                 for (inst, _), o, r in zip(systems, objectives, rows, strict=True)]
+        rules, known = [], {}
+        for (inst, _), o, r in zip(systems, objectives, rows, strict=True):
+            key = (id(inst), id(o))  # random systems share the first run's instance and objective
+            if o is not None and key not in known:
+                known[key] = ObservableRows.of(inst, o.points, r)
+            rules.append(None if o is None else known[key])
         same = _same_candidates(outdirs)
         if n_runs >= 2:
             if same:
