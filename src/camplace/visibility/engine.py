@@ -276,6 +276,9 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
     return matrix, total
 
 
+_DROP_BLOCK_PAIRS = 1 << 22  # pairs examined at once by drop_small_views
+
+
 def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_matrix, counts: dict) -> tuple[sp.csr_matrix, dict]:
     """Rule 6 of the module docstring: drop the target's points of a frame from the cameras that see
     that frame's target smaller than ``[quality] min_target_px`` (emitter rows are kept).
@@ -301,17 +304,23 @@ def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_
     small = small_views(instance, candidates.positions, candidates.rotations, frames)  # (n, n_frames)
     if small is None or not small.any():
         return matrix, counts
-    row_of = np.repeat(np.arange(matrix.shape[0]), np.diff(matrix.indptr))
+    m = matrix.shape[0]
     surface = ~points.is_emitter
-    drop = small[matrix.indices, points.frame[row_of]] & surface[row_of]
-    if not drop.any():
+    keep = np.ones(matrix.nnz, dtype=bool)  # 1 byte a pair; the rest is made a block of rows at a time
+    row_counts = np.zeros(m, dtype=np.int64)
+    bounds = np.unique(np.append(np.searchsorted(matrix.indptr, np.arange(0, matrix.nnz, _DROP_BLOCK_PAIRS), side="right") - 1, m))
+    for r0, r1 in zip(bounds[:-1], bounds[1:]):
+        a, b = int(matrix.indptr[r0]), int(matrix.indptr[r1])
+        rows = np.repeat(np.arange(r0, r1), np.diff(matrix.indptr[r0:r1 + 1]))
+        keep[a:b] = ~(small[matrix.indices[a:b], points.frame[rows]] & surface[rows])
+        row_counts[r0:r1] = np.bincount(rows[keep[a:b]] - r0, minlength=r1 - r0)
+    n_drop = int(matrix.nnz - np.count_nonzero(keep))
+    if n_drop == 0:
         return matrix, counts
-    keep = ~drop
-    indptr = np.zeros(matrix.shape[0] + 1, dtype=matrix.indptr.dtype)
-    np.cumsum(np.bincount(row_of[keep], minlength=matrix.shape[0]), out=indptr[1:])
+    indptr = np.zeros(m + 1, dtype=matrix.indptr.dtype)
+    np.cumsum(row_counts, out=indptr[1:])
     out = sp.csr_matrix((matrix.data[keep], matrix.indices[keep], indptr), shape=matrix.shape, copy=False)
     out.has_sorted_indices = True
-    n_drop = int(drop.sum())
     log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
              n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
     return out, {**counts, "observed": int(counts["observed"]) - n_drop}
