@@ -20,7 +20,7 @@ import trimesh
 from camplace.errors import CamplaceError
 from camplace.geometry import look_at
 from camplace.instance import builtin_toml, load_instance, parse_instance, save_instance
-from camplace.instance.schema import CameraModel, Frame, Instance, Light, Mesh, Pose, QualitySpec, Volume
+from camplace.instance.schema import CameraModel, Emitters, Frame, Instance, Light, Mesh, Pose, QualitySpec, Volume
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, make_target_points
 from camplace.visibility.footprint import SMALL_TARGET_PX, hull_footprint_px, small_target_warnings, target_footprint_px
@@ -90,28 +90,37 @@ def test_each_frame_moves_the_hull_with_the_target() -> None:
 # [quality] min_target_px in the visibility engine
 
 
-def _sphere_instance(min_target_px: float = 0.0) -> Instance:
+def _sphere_instance(min_target_px: float = 0.0, frames: tuple = (Frame(Pose((0.0, 0.0, 0.0))),)) -> Instance:
     ico = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
     target = Mesh("ball", np.asarray(ico.vertices), np.asarray(ico.faces, dtype=np.int64))
     cam = CameraModel(7.18, 5.32, 8.0, 160, 120, 0.1, 60.0)
     return Instance("ball", 2, cam, Volume((-20.0, -20.0, -20.0), (20.0, 20.0, 20.0)), Light((0.0, 0.0, 30.0)), target, (),
-                    (Frame(Pose((0.0, 0.0, 0.0))),), quality=QualitySpec(min_target_px=min_target_px))
+                    frames, quality=QualitySpec(min_target_px=min_target_px))
 
 
-def test_min_target_px_drops_exactly_the_views_too_small() -> None:
-    """With a minimum projected size, the matrix is the plain one with the columns of the cameras
-    that see the ball smaller zeroed (one frame, no emitters), and nothing else changed."""
-    plain = _sphere_instance()
+@pytest.mark.parametrize("block_pairs", [1 << 22, 97])
+def test_min_target_px_drops_exactly_the_views_too_small(block_pairs, monkeypatch) -> None:
+    """With a minimum projected size, the matrix is the plain one with each frame's target rows
+    zeroed in the cameras that see that frame's ball smaller, emitter rows untouched, and nothing
+    else changed (two frames, the ball moved; also made a few rows at a time)."""
+    import camplace.visibility.engine as engine
+
+    monkeypatch.setattr(engine, "_DROP_BLOCK_PAIRS", block_pairs)
+    glow = Emitters(np.array([[0.0, 0.0, 0.6], [0.2, 0.0, -0.6]]), np.array([0.5, 0.5]))
+    frames = (Frame(Pose((0.0, 0.0, 0.0))), Frame(Pose((4.0, 3.0, -2.0)), emitters=glow))
+    plain = _sphere_instance(frames=frames)
     pts = make_target_points(plain, 800, seed=1)
     cands = make_candidates("uniform", 40, plain.volume.min_m, plain.volume.max_m, np.zeros(3), seed=2)
-    fp = target_footprint_px(plain, cands.positions, cands.rotations)[:, 0]
+    fp = target_footprint_px(plain, cands.positions, cands.rotations)
     need = float(np.median(fp))
     base = compute_visibility(plain, cands, pts).matrix.toarray()
-    cut = compute_visibility(_sphere_instance(need), cands, pts).matrix.toarray()
-    small = fp < need
-    assert small.any() and (base[:, small] > 0).any()  # the cut has something to drop
+    cut = compute_visibility(_sphere_instance(need, frames), cands, pts).matrix.toarray()
     expect = base.copy()
-    expect[:, small] = 0.0
+    for f in range(2):
+        rows = (pts.frame == f) & ~pts.is_emitter
+        expect[np.ix_(rows, fp[:, f] < need)] = 0.0
+    assert (expect != base).any()  # the cut drops something
+    assert (base[np.ix_(pts.is_emitter, fp[:, 1] < need)] > 0).any()  # and must keep emitters that small views see
     np.testing.assert_array_equal(cut, expect)
 
 
