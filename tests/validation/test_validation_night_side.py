@@ -147,3 +147,21 @@ def test_validate_detects_the_lit_target_only(validated) -> None:
             assert c["detected_px"] >= 0.5 * c["target_px"] and c["iou"] == 1.0, c
         else:
             assert c["detected_px"] == 0 and c["predicted_px"] == 0, c
+
+
+def test_report_boxes_only_the_lit_target(validated) -> None:
+    """The report's rendered views box what validate detects: nothing on the night side (the plain
+    detection boxed the dark outline), the lit face on the day side."""
+    from camplace.instance import load_instance
+    from camplace.report.build import _renders_html
+    from camplace.validation.workflow import render_run
+
+    work, _ = validated
+    for name, boxed in (("night", False), ("day", True)):
+        render_run(work / name)
+        rjson, inst = work / name / "render" / "render.json", load_instance(work / name / "instance.toml")
+        html = _renders_html(rjson, inst)
+        assert html.count("no target detected") == (0 if boxed else 2), name
+        assert ("lit pixels only" in html) and html.count("box x=") == (2 if boxed else 0)
+        if not boxed:
+            assert _renders_html(rjson).count("box x=") == 2  # without the floor: the dark outline
