@@ -48,7 +48,7 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
     if matrix.nnz == 0:
         out.append(
             "no candidate observes any point of the event: check the volume, camera.near_m/far_m, "
-            "the occluders and [quality] (incidence limit, light)"
+            "the occluders and [quality] (incidence limit, light, min_target_px)"
         )
         return out
     useful = int(np.count_nonzero(np.diff(matrix[live_rows].tocsc().indptr)))
@@ -83,6 +83,17 @@ def mode_warnings(instance, mode: str) -> list[str]:
             "resolution and incidence)"
         ]
     return []
+
+
+def chosen_view_warnings(instance, cands: CandidateSet, selected: Sequence[int]) -> list[str]:
+    """Warnings when the chosen cameras see the target too small to resolve
+    (:func:`camplace.visibility.footprint.small_target_warnings`; cameras named by candidate index)."""
+    from camplace.visibility.footprint import small_target_warnings
+
+    sel = np.asarray(list(selected), dtype=np.int64)
+    if len(sel) == 0:
+        return []
+    return small_target_warnings(instance, cands.positions[sel], cands.rotations[sel], labels=[f"candidate {j}" for j in sel])
 
 
 @dataclass(frozen=True)
@@ -425,7 +436,7 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     weights = event_weights(pts, instance, s.event_mode)
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
     k = len(res.selected) if (s.mode == "setcover" or s.fixed) else s.k
-    degenerate = degenerate_warnings(vis.matrix, weights, k)
+    degenerate = degenerate_warnings(vis.matrix, weights, k) + chosen_view_warnings(instance, cands, res.selected)
     for note in degenerate:
         log.info("%s", note)
     notes = [*instance.warnings, *mode_warnings(instance, s.mode), *degenerate]

@@ -64,7 +64,7 @@ _RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s", "orienta
 _AGENTS_KEYS = ("phases", "phase_starts_s", "speed_m_s", "start_positions_m", "start_time_s")
 _ROBUST_KEYS = ("position_sigma_m", "rotation_sigma_deg", "scenarios", "objective", "eval_scenarios")
 MAX_SCENARIOS = 4096
-_QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light")
+_QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light", "min_target_px")
 _EMITTER_KEYS = ("positions_m", "weights", "file")
 MAX_EMITTERS = 10_000_000
 _CAMERA_KEYS = ("sensor_width_mm", "sensor_height_mm", "focal_length_mm", "width_px", "height_px", "near_m", "far_m")
@@ -657,6 +657,7 @@ class _Parser:
             required_px_per_m=self.number(table, "required_px_per_m", "quality", default=d.required_px_per_m, gt=0.0),
             max_incidence_deg=self.number(table, "max_incidence_deg", "quality", default=d.max_incidence_deg, gt=0.0, le=90.0),
             require_light=light,
+            min_target_px=self.number(table, "min_target_px", "quality", default=d.min_target_px, ge=0.0),
         )
 
     def occluders(self, parent: dict, prefix: str) -> list[Occluder]:

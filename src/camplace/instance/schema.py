@@ -254,12 +254,18 @@ class QualitySpec:
         graded mode the incidence factor is cos(angle).
     require_light : bool
         Only lit surface points count: the segment to the light is unblocked and n . l > 0.
+    min_target_px : float
+        Minimum projected size, pixels (0: none). A camera whose view of a frame's target covers
+        fewer pixels (the area of the target's convex hull projected by the camera,
+        :func:`camplace.visibility.footprint.target_footprint_px`) observes none of that frame's
+        target surface points (emitters are not affected).
     """
 
     mode: str = "binary"
     required_px_per_m: float = 1000.0
     max_incidence_deg: float = 90.0
     require_light: bool = False
+    min_target_px: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -135,6 +135,8 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             "max_incidence_deg": float(q.max_incidence_deg),
             "require_light": bool(q.require_light),
         }
+        if q.min_target_px:
+            data["quality"]["min_target_px"] = float(q.min_target_px)
     if instance.robust is not None:
         r = instance.robust
         data["robust"] = {

@@ -455,7 +455,7 @@ def _validation_section(run, comp) -> str:
     rjson = outdir / "render" / "render.json"
     if rjson.is_file():
         have = True
-        parts.append(_renders_html(rjson))
+        parts.append(_renders_html(rjson, run.instance))
     for vpath in _find_validation(outdir):
         have = True
         parts.append(_validation_html(vpath))
@@ -475,11 +475,17 @@ def _validation_section(run, comp) -> str:
     return "".join(parts)
 
 
-def _renders_html(rjson: Path) -> str:
+def _renders_html(rjson: Path, instance=None) -> str:
+    """The rendered views with Algorithm 3's box; with ``require_light`` the detection floors at an
+    unlit surface's level, as validate's (:func:`camplace.validation.workflow.observable_detection`)."""
     import cv2
 
-    from camplace.validation.detect import detect_target
+    from camplace.validation.detect import DetectionSettings, detect_target
+    from camplace.validation.physical import unlit_level
     from camplace.validation.render import read_image
+
+    lit_only = instance is not None and instance.quality.require_light
+    detection = DetectionSettings(min_level=unlit_level(None) if lit_only else 0.0)
 
     try:
         manifest = json.loads(rjson.read_text())
@@ -495,7 +501,7 @@ def _renders_html(rjson: Path) -> str:
             continue
         img = read_image(img_path)
         bg = read_image(bg_path) if rec.get("background") and bg_path.is_file() else None
-        det = detect_target(img, bg)
+        det = detect_target(img, bg, detection)
         vis = np.clip(np.asarray(img, dtype=np.float64) * 255.0, 0, 255).astype(np.uint8)
         if vis.ndim == 2:
             vis = cv2.cvtColor(vis, cv2.COLOR_GRAY2BGR)
@@ -509,7 +515,8 @@ def _renders_html(rjson: Path) -> str:
     more = f"<p class='muted'>{len(images) - MAX_RENDERS} more views in render/ are not shown.</p>" if len(images) > MAX_RENDERS else ""
     return ("<h3>Rendered views with detected bounding boxes</h3>"
             "<p class='muted'>Each chosen camera's ray-cast view (render/); the green box is the target found by the "
-            "thesis's Algorithm 3 (difference with the background render, Otsu threshold).</p>"
+            "thesis's Algorithm 3 (difference with the background render, Otsu threshold"
+            + ("; lit pixels only: the instance requires light" if lit_only else "") + ").</p>"
             + "<div class='grid'>" + "".join(figs) + "</div>" + more)
 
 

@@ -2,7 +2,14 @@
 
 1. ``diff = |I_t - I_b|`` with the background photograph I_b, or ``I_t`` alone when there is none
    (a dark background: the threshold alone separates the target);
-2. grayscale (OpenCV BGR weights);
+2. grayscale (OpenCV BGR weights); with a floor ``min_level`` > 0, pixels whose photograph (I_t,
+   gray) is no brighter than it are set to 0 in the difference: they are never target. Validation
+   sets the floor to the level of an unlit surface when the instance requires light
+   (``[quality] require_light``, :func:`camplace.validation.physical.unlit_level`): the night
+   side, lit by the renderer's ambient term alone, is not detected. A photograph with no pixel
+   above the floor (a view of the night side against dark space) detects nothing, where the
+   min-max normalisation of step 3 would stretch the ambient glow to full contrast, Otsu's
+   threshold would fall to 0 and the whole dark outline would count as detected;
 3. min-max normalisation to 0..255 (uint8);
 4. binary threshold: Otsu's (default), the triangle method, or a fixed value on that 0..255 scale;
 5. morphological opening then closing with an elliptical kernel (removes speckle, fills pin holes);
@@ -45,14 +52,24 @@ class DetectionSettings:
         Diameter of the elliptical kernel of the opening and closing (0 or 1: none).
     largest_component : bool
         Keep only the largest 8-connected component of the mask.
+    min_level : float
+        Floor on the photograph's gray level, [0, 1]: pixels no brighter are never target (0: none).
     """
 
     threshold: str | float = "otsu"
     morph_kernel_px: int = 5
     largest_component: bool = False
+    min_level: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
-        return {"threshold": self.threshold, "morph_kernel_px": self.morph_kernel_px, "largest_component": self.largest_component}
+        return {"threshold": self.threshold, "morph_kernel_px": self.morph_kernel_px, "largest_component": self.largest_component,
+                "min_level": self.min_level}
+
+    def with_floor(self, level: float) -> "DetectionSettings":
+        """A copy whose ``min_level`` is at least ``level``."""
+        from dataclasses import replace
+
+        return replace(self, min_level=max(float(self.min_level), float(level)))
 
 
 def parse_threshold(text: str | float) -> str | float:
@@ -176,6 +193,8 @@ def detect_target(image: np.ndarray, background: np.ndarray | None = None, setti
     else:
         diff = img
     gray = to_gray01(diff)
+    if settings.min_level > 0:
+        gray = np.where(to_gray01(img) > settings.min_level, gray, np.float32(0.0))
     lo, hi = float(gray.min()), float(gray.max())
     h, w = gray.shape
     if hi <= lo:

@@ -16,7 +16,10 @@ the photo figure
     Algorithm 3 detected in that camera's emulated photograph, in front of the camera, and its depth
     is within ``DEPTH_TOLERANCE_PX`` pixel footprints of the photo's depth at that pixel (the render's depth channel, as
     an RGB-D camera would record it): a point on the far side of the target projects inside its
-    silhouette too, and without the depth test it would count as seen.
+    silhouette too, and without the depth test it would count as seen. Only what the instance
+    counts as observable is counted (:class:`ObservableRows`): with ``[quality] require_light`` an
+    unlit point is not seen, however dark-but-visible the photograph shows it (the renderer's
+    ambient term), and the instance's incidence limit and depth range apply from the installed pose.
 
 Installation draws (:func:`installation_draws`): camera ``c`` of a system, chosen as candidate ``j``
 of its run, is installed in installation ``t`` from the standard normals of
@@ -44,7 +47,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "INSTALLATION_STREAM", "RunObjective", "load_run_objective", "installation_draws", "camera_keys", "photo_rows", "installed_objective",
-    "seen_in_photo", "photo_value", "summarise_values", "compare_systems", "InstalledSystems",
+    "seen_in_photo", "ObservableRows", "photo_value", "summarise_values", "compare_systems", "InstalledSystems",
 ]
 
 #: Seed stream of the installations photographed (the robust run's out-of-sample stream).
@@ -262,6 +265,58 @@ def seen_in_photo(camera, detected: np.ndarray, depth: np.ndarray, points: np.nd
     return seen
 
 
+@dataclass(frozen=True, eq=False)
+class ObservableRows:
+    """The instance's rules of observation that a photograph cannot judge, on the photo figure's rows.
+
+    A photograph shows whether a point is inside the detected target and in front of the surface
+    shown (:func:`seen_in_photo`); the instance also asks that a surface point be lit
+    (``require_light``), face the camera within ``max_incidence_deg`` and lie between ``near_m``
+    and ``far_m`` in depth, the tests of the visibility matrix (:mod:`camplace.visibility.engine`).
+
+    Attributes
+    ----------
+    positions : (r, 3) float64
+        The rows' world positions, metres.
+    normals : (r, 3) float64
+        Their unit normals (zero for emitters, which skip the facing and light tests).
+    lit : (r,) bool
+        Lit rows (every row when the instance does not require light).
+    cos_max : float
+        Cosine of ``max_incidence_deg`` (0 when it is 90: facing alone).
+    near_m, far_m : float
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    lit: np.ndarray
+    cos_max: float
+    near_m: float
+    far_m: float
+
+    @classmethod
+    def of(cls, instance, points, rows: np.ndarray) -> "ObservableRows":
+        """The rules of ``instance`` on ``points[rows]`` (``points``: the run's TargetPoints)."""
+        from camplace.visibility.engine import lit_points
+
+        q = instance.quality
+        rows = np.asarray(rows, dtype=np.int64)
+        lit = lit_points(instance, points)[rows] if q.require_light else np.ones(len(rows), dtype=bool)
+        cos_max = math.cos(math.radians(q.max_incidence_deg)) if q.max_incidence_deg < 90.0 else 0.0
+        return cls(points.positions[rows], points.normals[rows], lit, cos_max, float(instance.camera.near_m), float(instance.camera.far_m))
+
+    def from_camera(self, camera) -> np.ndarray:
+        """(r,) bool: rows the instance counts as observable from ``camera`` (CameraView) but for
+        frustum and occlusion, which the photograph judges."""
+        view = np.asarray(camera.position, dtype=np.float64) - self.positions
+        dist = np.linalg.norm(view, axis=1)
+        cos = np.einsum("ij,ij->i", self.normals, view) / np.where(dist > 0, dist, 1.0)
+        emitter = ~np.any(self.normals != 0.0, axis=1)
+        facing = (cos > 0) & (cos >= self.cos_max)
+        z = -view @ np.asarray(camera.rotation, dtype=np.float64)[:, 2]
+        return (emitter | (facing & self.lit)) & (z >= self.near_m) & (z <= self.far_m)
+
+
 def photo_value(seen: np.ndarray, weights: np.ndarray, mode: str, views: int) -> float:
     """The photo figure of one installed system.
 
@@ -375,12 +430,15 @@ class InstalledSystems:
         Per camera, its draw key (:func:`camera_keys`).
     objectives : list (system) of RunObjective or None
         The run's objective (random systems: the first run's); None when the run has no points.csv.
+    rules : list (system) of ObservableRows or None
+        What the system's instance counts as observable on the photo figure's rows.
     notes : list of str
     """
 
     def __init__(self, installed, keys, objectives, rows, outdirs, seed: int, installations: int, frame: int,
-                 physical, run_systems: int, notes: list[str]):
+                 physical, run_systems: int, notes: list[str], rules: list | None = None):
         self.installed = installed
+        self.rules = rules if rules is not None else [None] * len(keys)
         self.keys = keys
         self.objectives = objectives
         self.rows = rows
@@ -428,6 +486,12 @@ class InstalledSystems:
             z = installation_draws(seed, keys[s], installations)  # (k, N, 6)
             installed.append([[install_camera(cam, physical, z[c, t]) for c, cam in enumerate(cams)] for t in range(int(installations))])
         rows = [None if o is None else photo_rows(o, frame) for o in objectives]
+        rules, known = [], {}
+        for (inst, _), o, r in zip(systems, objectives, rows, strict=True):
+            key = (id(inst), id(o))  # random systems share the first run's instance and objective
+            if o is not None and key not in known:
+                known[key] = ObservableRows.of(inst, o.points, r)
+            rules.append(None if o is None else known[key])
         same = _same_candidates(outdirs)
         if n_runs >= 2:
             if same:
@@ -438,16 +502,17 @@ class InstalledSystems:
                              "(cameras keyed by candidate index), so the comparison is of two samples, not a paired one")
         if len(systems) > n_runs:
             notes.append("random systems draw their own installations (keyed by system and slot)")
-        return cls(installed, keys, objectives, rows, outdirs, seed, installations, frame, physical, n_runs, notes)
+        return cls(installed, keys, objectives, rows, outdirs, seed, installations, frame, physical, n_runs, notes, rules)
 
     def record_photo(self, system: int, installation: int, camera: int, shot, detected: np.ndarray,
                      depth_tolerance_px: float = DEPTH_TOLERANCE_PX) -> None:
-        """What one emulated photograph sees (:func:`seen_in_photo`); ``system`` is 0-based."""
-        obj, rows = self.objectives[system], self.rows[system]
+        """What one emulated photograph sees (:func:`seen_in_photo`) of what the system's instance counts
+        as observable (:class:`ObservableRows`); ``system`` is 0-based."""
+        obj, rows, rules = self.objectives[system], self.rows[system], self.rules[system]
         if obj is None or shot.depth is None:
             return
-        self.seen[system][installation][camera] = seen_in_photo(shot.actual, detected, shot.depth, obj.points.positions[rows],
-                                                                depth_tolerance_px=depth_tolerance_px)
+        seen = seen_in_photo(shot.actual, detected, shot.depth, obj.points.positions[rows], depth_tolerance_px=depth_tolerance_px)
+        self.seen[system][installation][camera] = seen if rules is None else seen & rules.from_camera(shot.actual)
 
     def finish(self, systems: Sequence[tuple[Any, Sequence[Any]]], *, memory_budget_bytes: int | None = None) -> dict[str, Any]:
         """Score every installation: the ``installed`` record of ``validation.json``.

@@ -35,7 +35,10 @@ from camplace.validation.cameras import CameraView
 log = logging.getLogger(__name__)
 
 __all__ = ["PhysicalCamera", "parse_physical", "perturb_camera", "install_camera", "apply_optics_and_sensor", "EmulatedShot",
-           "emulate_shots", "rotation_from_vector"]
+           "emulate_shots", "rotation_from_vector", "unlit_level"]
+
+#: Noise standard deviations above an unlit surface's mean level that :func:`unlit_level` allows.
+UNLIT_NOISE_SIGMAS = 4.0
 
 
 def perturb_camera(camera: CameraView, physical: PhysicalCamera, rng: np.random.Generator) -> CameraView:
@@ -75,6 +78,37 @@ def install_camera(camera: CameraView, physical: PhysicalCamera, normals: np.nda
     if physical.k1 != 0.0 or physical.k2 != 0.0:
         out = out.with_dist([physical.k1, physical.k2, 0.0, 0.0, 0.0])
     return out
+
+
+def unlit_level(physical: PhysicalCamera | None = None, settings=None, bit_depth: int = 8) -> float:
+    """Gray level ([0, 1]) at or below which a pixel of an emulated photograph shows no lit surface.
+
+    An unlit surface (night side, cast shadow) is rendered with the ambient term alone
+    (:mod:`camplace.validation.render`), plus the room's ``ambient_light``, times the exposure
+    factor; the level returned adds :data:`UNLIT_NOISE_SIGMAS` standard deviations of the sensor
+    noise at that level (Poisson-Gaussian, step 6 of the module docstring) and half a quantisation
+    step of ``bit_depth`` (an 8-bit photograph rounds 0.05 up to 13/255). Vignetting and defocus only
+    lower it. Used as Algorithm 3's ``min_level`` when the instance requires light.
+
+    Parameters
+    ----------
+    physical : PhysicalCamera or None
+        The emulated camera (None: a perfect camera, the render itself).
+    settings : camplace.validation.render.RenderSettings or None
+        The renderer's constants (default ones when None).
+    bit_depth : {8, 16}
+
+    Returns
+    -------
+    float
+    """
+    from camplace.validation.render import RenderSettings
+
+    physical = physical or PhysicalCamera()
+    settings = settings or RenderSettings()
+    mean = max(0.0, (settings.ambient + physical.ambient_light) * physical.exposure_factor)
+    noise = math.sqrt(physical.noise_poisson_a * mean + physical.noise_sigma**2)
+    return float(mean + UNLIT_NOISE_SIGMAS * noise + 0.5 / (2**int(bit_depth) - 1))
 
 
 def _disc_kernel(radius_px: float) -> np.ndarray:

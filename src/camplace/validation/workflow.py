@@ -243,7 +243,10 @@ def render_run(
             "frames": chosen,
             "settings": settings.__dict__,
             "images": records,
+            "warnings": _render_warnings(records),
         }
+        for note in manifest["warnings"]:
+            log.warning("%s", note)
         write_json_atomic(work / "render.json", manifest)
         # rendered light curves: per camera (0-based, as in the run's light_curves.csv) and frame
         lines = ["camera,frame,rendered_intensity,target_px,candidate"]
@@ -251,6 +254,16 @@ def render_run(
             lines.append(f"{r['camera'] - 1},{r['frame']},{r['event_intensity']!r},{int(r['target_px'])},{r['candidate']}")
         write_text_atomic(work / "light_curves.csv", "\n".join(lines) + "\n")
     return manifest
+
+
+def _render_warnings(records: list[dict]) -> list[str]:
+    """A warning when the target covers fewer than ``SMALL_TARGET_PX`` pixels in every rendered view."""
+    from camplace.visibility.footprint import SMALL_TARGET_PX
+
+    if not records or max(int(r["target_px"]) for r in records) >= SMALL_TARGET_PX:
+        return []
+    return [f"the target covers at most {max(int(r['target_px']) for r in records)} px in every rendered view (fewer than "
+            f"{SMALL_TARGET_PX:g} px: Algorithm 3 cannot detect it); check the mesh scale and the camera (see the run's warnings)"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -385,7 +398,7 @@ def parse_target(spec: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _compare_one(name: str, system: int, cam: CameraView, render, background_render: np.ndarray | None,
                  photo: np.ndarray, background: np.ndarray | None, detection_settings, extra: dict,
-                 *, intensity: bool = True) -> tuple[dict, Any, Any]:
+                 *, intensity: bool = True, render_detection=None) -> tuple[dict, Any, Any]:
     """One camera's record: the photo's detection against the prediction and against the target mask.
 
     Parameters
@@ -398,6 +411,9 @@ def _compare_one(name: str, system: int, cam: CameraView, render, background_ren
         The photograph and its background photograph (or None).
     intensity : bool
         Record the render's intensities (False when the render has no light: cameras mode).
+    render_detection : DetectionSettings or None
+        Algorithm 3's settings on the render (default ``detection_settings``; they differ by the
+        unlit floor, :func:`observable_detection`).
 
     Returns
     -------
@@ -409,7 +425,8 @@ def _compare_one(name: str, system: int, cam: CameraView, render, background_ren
     if photo.shape[:2] != (cam.height, cam.width):
         raise CamplaceError(f"camera {name}: photo is {photo.shape[1]}x{photo.shape[0]} but the camera is {cam.width}x{cam.height} (check the calibration or the manifest)")
     det = detect_target(photo, background, detection_settings)
-    expected = expected_detection(render.image, background_render if background is not None else None, detection_settings)
+    expected = expected_detection(render.image, background_render if background is not None else None,
+                                  detection_settings if render_detection is None else render_detection)
     rec: dict[str, Any] = {"name": name, "system": system, "width": cam.width, "height": cam.height}
     rec.update(mask_metrics(expected.mask, det.mask))
     rec.update(target_metrics(render.target_mask, det.mask, expected.mask))
@@ -426,6 +443,36 @@ def _compare_one(name: str, system: int, cam: CameraView, render, background_ren
     rec["n_contours"] = det.n_contours
     rec.update(extra)
     return rec, det, expected
+
+
+def observable_detection(detection, instance, physical, settings) -> tuple[Any, Any]:
+    """Algorithm 3's settings on a system's photographs and on its renders, restricted to what its
+    instance counts as observable.
+
+    With ``[quality] require_light`` and emulated photographs, each gets the floor of an unlit
+    surface (:func:`camplace.validation.physical.unlit_level`): the photographs the emulated
+    camera's, the renders a perfect camera's, so the night side, seen by the ambient term alone, is
+    detected in neither. Real photographs (``physical`` None) keep ``detection``: their unlit level
+    is unknown (set ``--threshold`` for them).
+
+    Parameters
+    ----------
+    detection : DetectionSettings
+    instance : camplace.instance.Instance
+    physical : PhysicalCamera or None
+        The emulated camera; None for real photographs.
+    settings : RenderSettings
+
+    Returns
+    -------
+    (DetectionSettings, DetectionSettings)
+        For the photographs, for the renders.
+    """
+    from camplace.validation.physical import unlit_level
+
+    if physical is None or not instance.quality.require_light:
+        return detection, detection
+    return detection.with_floor(unlit_level(physical, settings)), detection.with_floor(unlit_level(None, settings))
 
 
 def _finish_report(records: list[dict], out: Path, overlays: list[tuple[str, np.ndarray]], settings: dict,
@@ -644,6 +691,8 @@ def validate_runs(
         if physical is None:
             physical = _run_physical(instance0)
     inst_plan = None if photos is not None else InstalledSystems.plan(outdirs, runs, systems, physical, seed, installations, frame)
+    # Algorithm 3 on each system's photos and renders, restricted to what its instance can observe
+    detections = [observable_detection(detection, inst, None if photos is not None else physical, settings) for inst, _ in systems]
     # photographs and figures go to a temporary folder, moved into out at the end: an interrupted
     # validation leaves out as it was
     with staged_folder(out) as work:
@@ -684,14 +733,16 @@ def validate_runs(
                         "pose_error_deg": float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))),
                     }
                 bg_render = render_view(cam, bg_scene, settings=settings, workers=workers).image if bg is not None else None
-                rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, detection, extra)
+                photo_det, render_det = detections[s - 1]
+                rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, photo_det, extra,
+                                                  render_detection=render_det)
                 if inst_plan is not None:
                     inst_plan.record_photo(s - 1, 0, ci, shot, det.mask)
                 records.append(rec)
                 overlays.append((f"overlay.{cam.name}.png", overlay_image(photo, expected.mask, det.mask, det.bbox_xywh, cam.name, target=pred.target_mask)))
         if inst_plan is not None:
-            _photograph_installations(inst_plan, systems, scenes, physical, frame, settings=settings, detection=detection,
-                                      rng=shot_rng, workers=workers)
+            _photograph_installations(inst_plan, systems, scenes, physical, frame, settings=settings,
+                                      detections=[d[0] for d in detections], rng=shot_rng, workers=workers)
         if manifest_rows:
             write_text_atomic(work / PHOTOS_FOLDER / "manifest.csv", "camera,photo,background\n" + "\n".join(manifest_rows) + "\n")
         if not records:
@@ -708,6 +759,8 @@ def validate_runs(
             "manifest": None if manifest is None else str(manifest),
             "physical": None if photos is not None else physical.to_dict(),
             "detection": detection.to_dict(),
+            "detection_floors": [None if p.min_level == detection.min_level and r.min_level == detection.min_level
+                                 else {"photo": p.min_level, "render": r.min_level} for p, r in detections],
             "render": settings.__dict__,
             "installations": int(installations) if photos is None else None,
         }
@@ -723,9 +776,10 @@ def validate_runs(
         return report
 
 
-def _photograph_installations(plan, systems, scenes, physical, frame: int, *, settings, detection, rng, workers) -> None:
+def _photograph_installations(plan, systems, scenes, physical, frame: int, *, settings, detections, rng, workers) -> None:
     """Photograph installations 2..N of every system (not written to disk) and record what each
-    photo sees (:meth:`camplace.validation.installed.InstalledSystems.record_photo`)."""
+    photo sees (:meth:`camplace.validation.installed.InstalledSystems.record_photo`); ``detections``:
+    Algorithm 3's settings per system (:func:`observable_detection`)."""
     from camplace.validation.detect import detect_target
     from camplace.validation.physical import emulate_shots
     from camplace.validation.render import quantise
@@ -737,7 +791,7 @@ def _photograph_installations(plan, systems, scenes, physical, frame: int, *, se
             for ci, cam in enumerate(cams):
                 shot = emulate_shots([cam], fg_scene, bg_scene, physical, settings=settings, emitters=emit, seed=rng, workers=workers,
                                      installed=[plan.installed[s][t][ci]])[0]
-                det = detect_target(quantise(shot.photo, 8), quantise(shot.background, 8), detection)
+                det = detect_target(quantise(shot.photo, 8), quantise(shot.background, 8), detections[s])
                 plan.record_photo(s, t, ci, shot, det.mask)
         log.info("photographed installation %d of %d", t + 1, plan.installations)
 

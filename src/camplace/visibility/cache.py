@@ -43,6 +43,8 @@ def task_key(task) -> str:
         "width_px": task.width_px, "height_px": task.height_px, "near_m": task.near_m, "far_m": task.far_m,
         "graded": task.graded, "required_px_per_m": task.required_px_per_m, "cos_max": task.cos_max_incidence,
     }
+    if task.min_target_px > 0:  # only when set: the keys of matrices without it stay as they were
+        scalars["min_target_px"] = task.min_target_px
     h.update(json.dumps(scalars, sort_keys=True).encode())
     for name in ("positions", "normals", "frame", "active", "eps_m", "cam_positions", "cam_rotations", "K"):
         a = np.ascontiguousarray(getattr(task, name))

@@ -125,6 +125,9 @@ class VisibilityTask:
         ``n . (c - p) > support_tol`` to ``p + eps n`` then lies in the open half-space beyond that
         plane and cannot meet the target, so it is cast against the occluders alone.
     support_tol : (n_frames,) float64
+    min_target_px : float
+        ``[quality] min_target_px`` (0: none); applied by the engine after assembly
+        (:func:`camplace.visibility.engine.drop_small_views`), here for the cache key.
     """
 
     positions: np.ndarray
@@ -146,6 +149,7 @@ class VisibilityTask:
     rest_triangles: dict
     support: np.ndarray
     support_tol: np.ndarray
+    min_target_px: float = 0.0
 
     @property
     def n_candidates(self) -> int:

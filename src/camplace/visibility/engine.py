@@ -11,7 +11,11 @@ A (row, candidate) pair is observed when, in the candidate's camera (OpenCV axes
    ``p + eps * n`` to the light ``L`` is unblocked (emitters glow and skip this test);
 5. the segment from the camera centre to ``p + eps * n`` crosses no triangle of the scene
    (every occluder of the point's frame, the target itself included). ``eps`` is 1e-4 of the
-   target's bounding-box diagonal and keeps the point's own face from occluding it.
+   target's bounding-box diagonal and keeps the point's own face from occluding it;
+6. with ``[quality] min_target_px``, for a surface point: the frame's target covers at least that
+   many pixels in the camera (its convex hull's projected area,
+   :mod:`camplace.visibility.footprint`), so a view that cannot resolve the target observes none
+   of it (applied to the assembled matrix, :func:`drop_small_views`).
 
 Its value, the observation quality, is 1 in ``binary`` mode; in ``graded`` mode it is
 ``min(1, f_px / (distance * required_px_per_m)) * cos(theta)`` for surface points (resolution
@@ -138,6 +142,22 @@ def lit_mask(instance, points: TargetPoints, scenes: dict[int, RayScene], eps_m:
     return lit
 
 
+def frame_eps(instance, frame: int) -> float:
+    """Offset along the normal of a frame's segment ends, metres: :data:`EPS_REL` of the target's bounding-box diagonal."""
+    tv = instance.target_world(frame)[0]
+    return EPS_REL * float(np.linalg.norm(np.ptp(tv, axis=0)))
+
+
+def lit_points(instance, points: TargetPoints) -> np.ndarray:
+    """(m,) bool: rows lit by the instance's light, exactly as the matrix's ``require_light`` test
+    (:func:`lit_mask` on every frame's scene; emitters count as lit)."""
+    frames = [int(f) for f in np.unique(points.frame)]
+    eps = np.zeros(len(instance.frames))
+    for f in frames:
+        eps[f] = frame_eps(instance, f)
+    return lit_mask(instance, points, {f: frame_scene(instance, f) for f in frames}, eps)
+
+
 def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarray, tol: float) -> np.ndarray:
     """(m,) bool: surface rows of ``frame`` whose tangent plane has every target vertex behind it.
 
@@ -179,9 +199,8 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
     support = np.zeros(len(points), dtype=bool)
     for f in frames:
         tv = instance.target_world(f)[0]
-        diag = float(np.linalg.norm(np.ptp(tv, axis=0)))
-        eps[f] = EPS_REL * diag
-        tol[f] = 1e-9 * diag
+        eps[f] = frame_eps(instance, f)
+        tol[f] = 1e-9 * float(np.linalg.norm(np.ptp(tv, axis=0)))
         support |= supporting_rows(points, f, tv, tol[f])
     active = lit_mask(instance, points, full, eps) if q.require_light else np.ones(len(points), dtype=bool)
     cos_max = math.cos(math.radians(q.max_incidence_deg)) if q.max_incidence_deg < 90.0 else 0.0
@@ -205,6 +224,7 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
         rest_triangles={f: s.triangles for f, s in rest.items()},
         support=support,
         support_tol=tol,
+        min_target_px=float(getattr(q, "min_target_px", 0.0)),
     )
     return task, scenes
 
@@ -255,6 +275,56 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
     matrix = sp.csr_matrix((data, indices, indptr.astype(index_dtype)), shape=(m, n), copy=False)
     matrix.has_sorted_indices = True
     return matrix, total
+
+
+_DROP_BLOCK_PAIRS = 1 << 22  # pairs examined at once by drop_small_views
+
+
+def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_matrix, counts: dict) -> tuple[sp.csr_matrix, dict]:
+    """Rule 6 of the module docstring: drop the target's points of a frame from the cameras that see
+    that frame's target smaller than ``[quality] min_target_px`` (emitter rows are kept).
+
+    Parameters
+    ----------
+    instance : camplace.instance.Instance
+    candidates : CandidateSet
+        The matrix's columns (positions, world-from-camera rotations).
+    points : TargetPoints
+        Its rows.
+    matrix : (m, n) scipy.sparse.csr_matrix
+    counts : dict
+        The engine's pair counts; ``observed`` is lowered by the pairs dropped.
+
+    Returns
+    -------
+    (m, n) scipy.sparse.csr_matrix, dict
+    """
+    from camplace.visibility.footprint import small_views
+
+    frames = [int(f) for f in np.unique(points.frame)]
+    small = small_views(instance, candidates.positions, candidates.rotations, frames)  # (n, n_frames)
+    if small is None or not small.any():
+        return matrix, counts
+    m = matrix.shape[0]
+    surface = ~points.is_emitter
+    keep = np.ones(matrix.nnz, dtype=bool)  # 1 byte a pair; the rest is made a block of rows at a time
+    row_counts = np.zeros(m, dtype=np.int64)
+    bounds = np.unique(np.append(np.searchsorted(matrix.indptr, np.arange(0, matrix.nnz, _DROP_BLOCK_PAIRS), side="right") - 1, m))
+    for r0, r1 in zip(bounds[:-1], bounds[1:]):
+        a, b = int(matrix.indptr[r0]), int(matrix.indptr[r1])
+        rows = np.repeat(np.arange(r0, r1), np.diff(matrix.indptr[r0:r1 + 1]))
+        keep[a:b] = ~(small[matrix.indices[a:b], points.frame[rows]] & surface[rows])
+        row_counts[r0:r1] = np.bincount(rows[keep[a:b]] - r0, minlength=r1 - r0)
+    n_drop = int(matrix.nnz - np.count_nonzero(keep))
+    if n_drop == 0:
+        return matrix, counts
+    indptr = np.zeros(m + 1, dtype=matrix.indptr.dtype)
+    np.cumsum(row_counts, out=indptr[1:])
+    out = sp.csr_matrix((matrix.data[keep], matrix.indices[keep], indptr), shape=matrix.shape, copy=False)
+    out.has_sorted_indices = True
+    log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
+             n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
+    return out, {**counts, "observed": int(counts["observed"]) - n_drop}
 
 
 def default_chunk_size(task: VisibilityTask) -> int:
@@ -392,6 +462,8 @@ def compute_visibility(
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
     matrix, total = assemble(task, parts)
+    if task.min_target_px > 0:
+        matrix, total = drop_small_views(instance, candidates, points, matrix, total)
     store_path = None
     if key is not None:
         t0 = time.perf_counter()
