@@ -134,7 +134,7 @@ def _threads(text: str) -> int:
 
 
 def _add_threads_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--threads", type=_threads, default=None, metavar="N",
+    p.add_argument_group("cores").add_argument("--threads", type=_threads, default=None, metavar="N",
                    help="use at most N threads in every stage (default: every core this process may use, "
                         "its CPU affinity)")
 

@@ -63,29 +63,32 @@ def event_weights(pts, instance, event_mode: str) -> np.ndarray:
 
 
 def covered_rows(matrix, selected) -> np.ndarray:
-    """(m,) bool: rows observed by at least one of the ``selected`` columns."""
-    sel = list(selected)
-    if not sel:
-        return np.zeros(matrix.shape[0], dtype=bool)
-    return np.asarray((matrix[:, sel] > 0).sum(axis=1)).ravel() > 0
+    """(m,) bool: rows observed by at least one of the ``selected`` columns (one pass over the CSR
+    arrays, :func:`camplace.visibility.summary.summarise`)."""
+    from camplace.visibility.summary import summarise
+
+    return summarise(matrix.tocsr(), np.ones(matrix.shape[0]), list(selected)).covered
 
 
-def light_curves_csv(instance, vis, selected) -> str:
+def light_curves_csv(instance, vis, selected, seen: np.ndarray | None = None) -> str:
     """``light_curves.csv``: per chosen camera and frame, the event weight it observes.
 
     Columns: camera (0-based position in ``solution.json`` cameras), frame, observed_weight (sum of
     the row weights it observes in that frame; a frame's rows sum to its normalised likelihood),
     observed_fraction (observed_weight / the frame's weight), candidate (column index), time_s.
+    ``seen`` (k, n_frames): the observed weights when already read (:class:`camplace.solution.Solution`'s
+    ``light_curves``); else one pass over the matrix reads them.
     """
+    from camplace.visibility.summary import summarise
+
     pts = vis.points
     n_frames = len(instance.frames)
     frame_total = np.bincount(pts.frame, weights=pts.weight, minlength=n_frames)
     lines = ["camera,frame,observed_weight,observed_fraction,candidate,time_s"]
-    csc = vis.matrix.tocsc()
+    if seen is None:
+        seen = summarise(vis.matrix, pts.weight, selected, pts.frame, n_frames=n_frames).seen
     for cam, j in enumerate(selected):
-        rows = csc.indices[csc.indptr[j]:csc.indptr[j + 1]]
-        seen = np.bincount(pts.frame[rows], weights=pts.weight[rows], minlength=n_frames)
         for f in range(n_frames):
-            frac = seen[f] / frame_total[f] if frame_total[f] > 0 else 0.0
-            lines.append(f"{cam},{f},{float(seen[f])!r},{float(frac)!r},{int(j)},{float(instance.frames[f].time_s)!r}")
+            frac = seen[cam, f] / frame_total[f] if frame_total[f] > 0 else 0.0
+            lines.append(f"{cam},{f},{float(seen[cam, f])!r},{float(frac)!r},{int(j)},{float(instance.frames[f].time_s)!r}")
     return "\n".join(lines) + "\n"

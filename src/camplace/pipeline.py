@@ -38,8 +38,11 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger(__name__)
 
 
-def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
-    """Plain-language warnings for problems the solver answers trivially."""
+def degenerate_warnings(matrix, weights: np.ndarray, k: int, useful: int | None = None) -> list[str]:
+    """Plain-language warnings for problems the solver answers trivially.
+
+    ``useful``: the columns that observe a row of positive weight, when already counted
+    (:func:`camplace.visibility.summary.summarise`); else counted here in one pass."""
     out = []
     live_rows = weights > 0
     if not live_rows.any():
@@ -51,7 +54,10 @@ def degenerate_warnings(matrix, weights: np.ndarray, k: int) -> list[str]:
             "the occluders and [quality] (incidence limit, light, min_target_px)"
         )
         return out
-    useful = int(np.count_nonzero(np.diff(matrix[live_rows].tocsc().indptr)))
+    if useful is None:
+        from camplace.visibility.summary import summarise
+
+        useful = summarise(matrix, weights, []).useful_columns
     if useful < k:
         out.append(
             f"only {useful} candidate(s) observe anything, fewer than k = {k}: the other chosen cameras add "
@@ -436,14 +442,20 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     weights = event_weights(pts, instance, s.event_mode)
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
     k = len(res.selected) if (s.mode == "setcover" or s.fixed) else s.k
-    degenerate = degenerate_warnings(vis.matrix, weights, k) + chosen_view_warnings(instance, cands, res.selected)
+    from camplace.visibility.summary import summarise
+
+    t0 = time.perf_counter()
+    summary = summarise(vis.matrix, weights, res.selected, pts.frame, pts.weight, len(instance.frames))
+    degenerate = degenerate_warnings(vis.matrix, weights, k, summary.useful_columns)
+    degenerate += chosen_view_warnings(instance, cands, res.selected)
+    timings["summary"] = time.perf_counter() - t0
     for note in degenerate:
         log.info("%s", note)
     notes = [*instance.warnings, *mode_warnings(instance, s.mode), *degenerate]
     solver_stats, solver_times = split_timings(dict(res.stats))
     timings.update(solver_times)
     total_weight = float(weights.sum())
-    observed = covered_rows(vis.matrix, res.selected)
+    observed = summary.covered
     peak = peak_frame(instance)
     in_peak = pts.frame == peak
     # no incumbent at all (a time limit before the first solution): objective 0, gap 100%
@@ -477,6 +489,7 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
         robust=robust_record,
         candidates=cands,
         visibility=vis,
+        light_curves=summary.seen,
     )
 
 
@@ -504,6 +517,7 @@ def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_form
         folder.save_visibility(vis, matrix_format)
         timings["write.matrix"] = time.perf_counter() - t1
         folder.save_points(vis.points)
-        write_text_atomic(folder.file("light_curves.csv"), light_curves_csv(instance, vis, solution.selected))
+        write_text_atomic(folder.file("light_curves.csv"), light_curves_csv(instance, vis, solution.selected,
+                                                                            solution.light_curves))
         timings["write"] = time.perf_counter() - t0
         folder.save_solution(solution)

@@ -96,6 +96,9 @@ class Solution:
         robust objective; the coverage figures are the chosen system's at the nominal poses.
     candidates, visibility : optional
         The run's CandidateSet and VisibilityMatrix (not part of ``solution.json``).
+    light_curves : (k, n_frames) float64 or None
+        Per chosen camera and frame, the weight it observes (``light_curves.csv``; read in the same
+        pass over the matrix as the coverage figures, :func:`camplace.visibility.summary.summarise`).
     """
 
     status: str
@@ -125,6 +128,7 @@ class Solution:
     robust: dict | None = None
     candidates: CandidateSet | None = field(default=None, repr=False)
     visibility: VisibilityMatrix | None = field(default=None, repr=False)
+    light_curves: Any = field(default=None, repr=False)
 
     @property
     def selected(self) -> list[int]:
