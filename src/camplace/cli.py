@@ -293,6 +293,9 @@ COMMANDS = {"run": _cmd_run, "visibility": _cmd_visibility, "convert-matrix": _c
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``camplace`` console script; returns the exit code."""
+    from camplace._clock import mark_main
+
+    mark_main()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -352,7 +352,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
     for note in mode_warnings(instance, settings.mode):
         log.warning("%s", note)
     timings: dict[str, float] = {}
-    t0 = time.perf_counter()
+    t0 = first_stage_at = time.perf_counter()
     with reporter.stage("sampling"):
         cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
@@ -366,7 +366,8 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
     res, robust_record = solve_stage(instance, cands, pts, vis.matrix, settings, reporter=reporter, timings=timings)
     solution = make_solution(instance, settings, cands, vis, res, robust_record, timings)
     if outdir is not None:
-        write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter)
+        write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter,
+                    first_stage_at=first_stage_at)
     return solution
 
 
@@ -494,10 +495,12 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
 
 
 def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_format: str = "cpm",
-                reporter: Reporter | None = None) -> None:
+                reporter: Reporter | None = None, first_stage_at: float | None = None) -> None:
     """Write a run folder (:class:`camplace.RunFolder`): scene.ply, instance.toml, candidates.csv, the
     matrix, points.csv, light_curves.csv, and solution.json last (its presence means the outputs are
-    complete). Adds ``write`` and ``write.matrix`` to ``solution.timings_s``."""
+    complete). Adds ``write`` and ``write.matrix`` to ``solution.timings_s``, and with
+    ``first_stage_at`` (``time.perf_counter()`` when the run's first stage began) the whole process's
+    ``startup``, ``setup``, ``process.wall`` and ``process.untimed`` (:func:`camplace._clock.account`)."""
     from camplace.outpaths import check_out_folder
     from camplace.runfolder import RunFolder
     from camplace.visibility import frame_scene, write_ply
@@ -520,4 +523,8 @@ def write_stage(outdir: str | Path, instance, solution: Solution, *, matrix_form
         write_text_atomic(folder.file("light_curves.csv"), light_curves_csv(instance, vis, solution.selected,
                                                                             solution.light_curves))
         timings["write"] = time.perf_counter() - t0
+        if first_stage_at is not None:
+            from camplace._clock import account
+
+            account(timings, first_stage_at)
         folder.save_solution(solution)

@@ -18,7 +18,8 @@ import numpy as np
 
 __all__ = ["MatrixSummary", "summarise"]
 
-_PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False, "parallel": True}
+_JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
+_PJIT = dict(_JIT, parallel=True)
 #: row blocks of the pass (fixed, so that sums do not depend on the thread count)
 BLOCKS = 64
 
@@ -42,26 +43,32 @@ class MatrixSummary:
     seen: np.ndarray
 
 
+@numba.njit(**_JIT)
+def _block(lo, hi, indptr, indices, live, slot, frame, weight, col_live, seen, covered):  # pragma: no cover - compiled
+    """Rows ``lo:hi``: mark the columns that touch a live row, the covered rows, and add per-slot frame weights."""
+    for r in range(lo, hi):
+        lv = live[r]
+        hit = False
+        for t in range(indptr[r], indptr[r + 1]):
+            c = indices[t]
+            if lv:
+                col_live[c] = True
+            s = slot[c]
+            if s >= 0:
+                hit = True
+                seen[s, frame[r]] += weight[r]
+        covered[r] = hit
+
+
 @numba.njit(**_PJIT)
 def _pass(indptr, indices, live, slot, n_cols, n_sel, frame, weight, n_frames, cuts):  # pragma: no cover - compiled
-    """The pass: per row block, columns touching a live row, covered rows, and per-slot frame weights."""
+    """The pass: per row block (in parallel), then the blocks' partial results added in block order."""
     n_blocks = len(cuts) - 1
     col_live = np.zeros((n_blocks, n_cols), dtype=np.bool_)
     seen = np.zeros((n_blocks, max(1, n_sel), n_frames), dtype=np.float64)
     covered = np.zeros(len(indptr) - 1, dtype=np.bool_)
     for b in numba.prange(n_blocks):
-        for r in range(cuts[b], cuts[b + 1]):
-            lv = live[r]
-            hit = False
-            for t in range(indptr[r], indptr[r + 1]):
-                c = indices[t]
-                if lv:
-                    col_live[b, c] = True
-                s = slot[c]
-                if s >= 0:
-                    hit = True
-                    seen[b, s, frame[r]] += weight[r]
-            covered[r] = hit
+        _block(cuts[b], cuts[b + 1], indptr, indices, live, slot, frame, weight, col_live[b], seen[b], covered)
     useful = np.zeros(n_cols, dtype=np.bool_)
     total = np.zeros((max(1, n_sel), n_frames), dtype=np.float64)
     for b in range(n_blocks):  # in block order: the same sums at every thread count
