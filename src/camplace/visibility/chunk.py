@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.visibility.store import populated_empty
 
@@ -294,7 +295,6 @@ class ChunkResult:
 
 _SCRATCH_POOL: list[dict] = []  # idle per-chunk work-array sets, kept between calls
 _SCRATCH_LOCK = threading.Lock()
-_SCRATCH_KEEP = 8
 
 
 def _take_scratch() -> dict:
@@ -309,7 +309,7 @@ def _take_scratch() -> dict:
 
 def _give_scratch(bufs: dict) -> None:
     with _SCRATCH_LOCK:
-        if len(_SCRATCH_POOL) < _SCRATCH_KEEP:
+        if len(_SCRATCH_POOL) < thread_count():  # one set per worker thread
             _SCRATCH_POOL.append(bufs)
 
 

@@ -62,7 +62,7 @@ from camplace.visibility.chunk import (  # noqa: F401  (ENGINE_VERSION, sphere_i
     sphere_inside_view,
 )
 from camplace.visibility.distributed import compute_chunks_dask
-from camplace.visibility.store import populated_empty
+from camplace.visibility.store import first_touch_empty, populate
 
 log = logging.getLogger(__name__)
 
@@ -252,8 +252,8 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
         row_counts[p.rowids] += np.diff(p.offsets)
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.cumsum(row_counts, out=indptr[1:])
-    with ThreadPoolExecutor(max_workers=2) as pool:  # the two big arrays are faulted in side by side
-        indices, data = pool.map(lambda dt: populated_empty(nnz, dt), (index_dtype, np.float32))
+    # the big arrays' pages are faulted in by the merge threads, each for the rows it fills
+    indices, data = first_touch_empty(nnz, index_dtype), first_touch_empty(nnz, np.float32)
     workers = max(1, min(thread_count(workers), m))
     emitter = ~np.any(task.normals != 0.0, axis=1)
     fx = float(task.K[0, 0])
@@ -263,6 +263,8 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
         lo, hi = int(bounds[t]), int(bounds[t + 1])
         if hi <= lo:
             return
+        populate(indices, indptr[lo], indptr[hi])
+        populate(data, indptr[lo], indptr[hi])
         nxt = indptr[:-1].copy()
         for p in parts:
             _kernels.merge_rows(

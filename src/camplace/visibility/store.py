@@ -114,6 +114,48 @@ def populated_empty(n: int, dtype) -> np.ndarray:
     return np.frombuffer(buf, dtype=dtype, count=n)
 
 
+#: ``madvise(MADV_POPULATE_WRITE)`` (Linux >= 5.14; Python's mmap does not name it)
+_MADV_POPULATE_WRITE = 23
+
+
+def first_touch_empty(n: int, dtype) -> np.ndarray:
+    """``np.empty(n, dtype)`` whose pages are faulted in later, by the threads that fill them.
+
+    A large array is an anonymous mapping without its pages; each worker calls :func:`populate`
+    on the range it is about to write, so the pages are faulted in on every worker at once (and on
+    a multi-socket machine land on the worker's memory node) rather than by one thread up front.
+    Small arrays are plain ``np.empty``.
+    """
+    dtype = np.dtype(dtype)
+    nbytes = int(n) * dtype.itemsize
+    if nbytes < _POPULATE_MIN_BYTES:
+        return np.empty(n, dtype=dtype)
+    try:
+        buf = mmap.mmap(-1, nbytes, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    except (OSError, ValueError):  # pragma: no cover - e.g. no overcommit
+        return np.empty(n, dtype=dtype)
+    return np.frombuffer(buf, dtype=dtype, count=n)
+
+
+def populate(array: np.ndarray, lo: int, hi: int) -> None:
+    """Fault in the pages of ``array[lo:hi]`` in one call (an array of :func:`first_touch_empty`).
+
+    Costs one ``madvise`` per call instead of a page fault per 4 KiB (measured on the 2-core VM:
+    0.4-0.7 s for 332 MB by page faults, 0.1 s populated). A no-op for other arrays and where the
+    kernel lacks ``MADV_POPULATE_WRITE`` (the pages then fault in as they are written).
+    """
+    buf = array.base
+    if not isinstance(buf, mmap.mmap) or hi <= lo:
+        return
+    page = mmap.PAGESIZE
+    start = (int(lo) * array.itemsize) // page * page
+    stop = min(len(buf), -(-(int(hi) * array.itemsize) // page) * page)
+    try:
+        buf.madvise(_MADV_POPULATE_WRITE, start, stop - start)
+    except (OSError, ValueError):  # pragma: no cover - an older kernel
+        pass
+
+
 def _workers(workers: int | None) -> int:
     return thread_count(workers)
 
