@@ -182,7 +182,7 @@ def sampler_study(
         if same_as_run:
             matrix = run.matrix[:, : len(cands)]
         else:
-            cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=s, seed=sol.seed)
+            cands = cands.with_run(s, sol.seed)
             matrix = visibility_stage(inst, cands, run.points, reporter=reporter, cache=cache).matrix
         log.info("sampler study: %s matrix in %.2f s (%s)", s, time.perf_counter() - t0, "run's" if same_as_run else "ray cast")
         unit = np.clip((cands.positions[::a] - lo) / (hi - lo), 0.0, 1.0)
