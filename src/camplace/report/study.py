@@ -156,6 +156,9 @@ def sampler_study(
 
     reporter = reporter or Reporter()
     sol, inst = run.solution, run.instance
+    if getattr(inst, "team", None) is not None:
+        raise CamplaceError(f"{inst.source}: the sampler study's candidate ladders are not defined for a camera team "
+                            "([[cameras]] pose x model columns) yet; run it on a single-model instance")
     k = len(sol.cameras)
     aims = run.aims
     a = len(aims)
