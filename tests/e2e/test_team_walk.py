@@ -82,6 +82,14 @@ def test_report_names_the_models(team_run) -> None:
     assert "camera model wide" in html and "camera model science" in html
     assert "not yet enforced" in html
     assert "<td class='l'>science</td>" in html or ">science<" in html
+    # the 3D view draws each chosen camera's frustum with its model's intrinsics
+    from camplace.report.compare import load_run_data
+    from camplace.report.scene3d import run_scene
+
+    sol = json.loads((team_run["out"] / "solution.json").read_text())
+    scene = run_scene(load_run_data(team_run["out"]))
+    assert [c.width_px for c in scene.cameras] == [c["width"] for c in sol["cameras"]]
+    assert len({c.width_px for c in scene.cameras}) == 2
 
 
 def test_render_sizes_follow_the_model(team_run) -> None:

@@ -79,9 +79,10 @@ class CandidateSet:
     def load(cls, path: str | Path) -> "CandidateSet":
         """Read a ``candidates.csv`` (as written by :meth:`save`); rotations must be orthonormal."""
         try:
-            first = Path(path).open().readline().replace(" ", "").strip()
+            with Path(path).open() as fh:
+                first = fh.readline().replace(" ", "").strip()
         except (OSError, UnicodeDecodeError):
-            first = ""
+            first = ""  # read_numeric_csv reports it
         team = first == CSV_HEADER_TEAM
         data = read_numeric_csv(path, CSV_HEADER_TEAM if team else CSV_HEADER, "candidates file")
         rot = data[:, 7:16].reshape(-1, 3, 3)
