@@ -70,6 +70,14 @@ def test_run_records_models_and_the_unenforced_team(team_run) -> None:
     model_col = np.array([int(r["model"]) for r in rows])
     assert np.all(np.diff(model_col) >= 0) and set(model_col) == {0, 1}
     assert model_col[team_run["science"]] == 1
+    # the run folder gives the solver round each column's model and zone membership
+    from camplace.runfolder import RunFolder
+
+    folder = RunFolder(out).candidates
+    np.testing.assert_array_equal(folder.model, model_col)
+    for c in sol["cameras"]:
+        zones = [z.name for z, inside in zip(inst.team.zones, folder.zones[c["candidate"]]) if inside]
+        assert zones == c["zones"] and len(zones) == 1
     # the instance copy keeps the team
     from camplace.instance import load_instance
 

@@ -691,14 +691,16 @@ class _Parser:
 
         team = Team(models=tuple(models), volumes=tuple(volumes), mounts=tuple(mounts), keepouts=tuple(keepouts),
                     zones=tuple(zones), budget=budget)
-        self.check_team(team, k)
+        self.check_team(team, k, "cameras" in data)
         return team
 
-    def check_team(self, team: Team, k: int) -> None:
-        """Quotas, counts and the budget that no choice of k cameras can meet are one-line errors."""
-        pfx = "cameras" if len(team.models) > 1 or team.models[0].name != "camera" else "camera"
+    def check_team(self, team: Team, k: int, listed: bool = True) -> None:
+        """Quotas, counts and the budget that no choice of k cameras can meet are one-line errors.
+
+        ``listed``: the models come from ``[[cameras]]`` (else from the single ``[camera]``).
+        """
         for i, m in enumerate(team.models):
-            field = f"cameras[{i}]" if pfx == "cameras" else "camera"
+            field = f"cameras[{i}]" if listed else "camera"
             if not any(v.allows(m.name) for v in team.volumes) and not any(mt.allows(m.name) for mt in team.mounts):
                 raise self.error(field, f"model {_show(m.name)} has no allowed pose: no [[volumes]] or [[mounts]] section lists it",
                                  f'add "{m.name}" to the models of a [[volumes]] or [[mounts]] section (or leave models out there for every model)')
