@@ -74,8 +74,9 @@ def test_two_models_agree_with_numpy_oracle(order) -> None:
     assert wrong_model_agree / len(rows) < 0.95
 
 
-def test_model0_columns_equal_the_single_model_matrix() -> None:
-    inst = _team_scene()
+@pytest.mark.parametrize("min_target_px", [0.0, 6000.0])
+def test_model_columns_equal_the_single_model_matrices(min_target_px) -> None:
+    inst = _team_scene(QualitySpec(min_target_px=min_target_px))
     pts = make_target_points(inst, 2000, seed=1)
     cands = _columns(inst, "interleaved")
     team_m = compute_visibility(inst, cands, pts, chunk_size=9).matrix
@@ -88,6 +89,9 @@ def test_model0_columns_equal_the_single_model_matrix() -> None:
         got.sort_indices()
         assert (got != ref).nnz == 0
         assert ref.nnz > 0
+        if min_target_px and j == 0:  # the minimum projected size bites (on the wide model's small views)
+            unlimited = compute_visibility(dataclasses.replace(single, quality=QualitySpec()), plain, pts, chunk_size=9).matrix
+            assert unlimited.nnz > ref.nnz
     # and the two models' matrices differ (so the test above could fail)
     a, b = team_m[:, np.flatnonzero(cands.model == 0)], team_m[:, np.flatnonzero(cands.model == 1)]
     order0 = np.argsort(np.flatnonzero(cands.model == 0) // 2)
@@ -125,3 +129,18 @@ def test_task_and_cache_key() -> None:
     single, _ = make_task(dataclasses.replace(inst, team=None), CandidateSet(cands.positions, cands.aims, cands.rotations), pts)
     assert single.cam_model is None
     assert task_key(single) != task_key(task)
+
+
+def test_perturbed_poses_keep_their_model() -> None:
+    from camplace.sampling.perturb import perturb_poses
+
+    inst = _team_scene()
+    cands = _columns(inst, "model-major")
+    cols = [3, 45, 7, 60]
+    pert = perturb_poses(cands, cols, 3, 0.0, 0.0, seed=1)
+    np.testing.assert_array_equal(pert.model, np.tile(cands.model[cols], 3))
+    pts = make_target_points(inst, 800, seed=1)
+    # zero pose error: the installed columns are the nominal ones (scenario-major, models interleaved)
+    a = compute_visibility(inst, pert, pts).matrix
+    b = compute_visibility(inst, cands, pts).matrix[:, np.tile(cols, 3)]
+    assert (a != b).nnz == 0 and b.nnz > 0
