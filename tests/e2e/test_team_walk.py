@@ -150,6 +150,8 @@ def test_validate_scores_each_camera_with_its_model(team_run) -> None:
     sol = json.loads((team_run["out"] / "solution.json").read_text())
     # the installed system, ray cast again at its (unperturbed) poses with each camera's model, scores the run's objective
     assert abs(doc["installed"]["systems"][0]["objective"]["mean"] - sol["objective"]) < 1e-9
+    assert [c["model"] for c in doc["cameras"]] == [c["model"] for c in sol["cameras"]]
+    assert [c["width"] for c in doc["cameras"]] == [c["width"] for c in sol["cameras"]]
     # the science camera alone: its model's intrinsics give its own column of the run's matrix, the wide model's would not
     from camplace.instance import load_instance
     from camplace.solution import Solution

@@ -741,6 +741,8 @@ def validate_runs(
                     }
                 bg_render = render_view(cam, bg_scene, settings=settings, workers=workers).image if bg is not None else None
                 photo_det, render_det = detections[s - 1]
+                if cam.model:  # a team's camera: its model
+                    extra = {**extra, "model": cam.model}
                 rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, photo_det, extra,
                                                   render_detection=render_det)
                 if inst_plan is not None:
