@@ -144,3 +144,13 @@ def test_perturbed_poses_keep_their_model() -> None:
     a = compute_visibility(inst, pert, pts).matrix
     b = compute_visibility(inst, cands, pts).matrix[:, np.tile(cols, 3)]
     assert (a != b).nnz == 0 and b.nnz > 0
+
+
+def test_model_columns_need_a_team_instance() -> None:
+    from camplace.errors import CamplaceError
+
+    inst = _team_scene()
+    pts = make_target_points(inst, 200, seed=1)
+    cands = _columns(inst, "model-major")
+    with pytest.raises(CamplaceError, match="the columns name camera models but the instance has a single"):
+        compute_visibility(dataclasses.replace(inst, team=None), cands, pts)

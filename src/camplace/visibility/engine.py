@@ -233,7 +233,14 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
 def team_intrinsics(instance, candidates) -> dict:
     """The task's ``cam_model`` and ``models`` of a team (nothing for a single-model instance)."""
     model = getattr(candidates, "model", None)
-    if getattr(instance, "team", None) is None or model is None:
+    if getattr(instance, "team", None) is None:
+        if model is not None and len(model) and np.any(np.asarray(model) != 0):
+            raise CamplaceError("candidates: the columns name camera models but the instance has a single [camera] "
+                                "(use the team instance the candidates were sampled for)")
+        return {}
+    if model is None:
+        if len(instance.cameras) > 1:
+            log.warning("visibility: the candidates name no camera model: every column is the first model, %r", instance.camera.name)
         return {}
     models = tuple((c.K(), int(c.width_px), int(c.height_px), float(c.near_m), float(c.far_m)) for c in instance.cameras)
     model = np.asarray(model, dtype=np.int16)
