@@ -209,7 +209,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"warning: {note}", file=sys.stderr)
     for cam in sol.cameras:
         x, y, z = cam["position"]
-        print(f"  camera {cam['candidate']:>6}: position ({x:.3f}, {y:.3f}, {z:.3f}) m")
+        model = f" [{cam['model']}]" if "model" in cam else ""
+        print(f"  camera {cam['candidate']:>6}: position ({x:.3f}, {y:.3f}, {z:.3f}) m{model}")
     if len(instance.frames) > 1:
         print(f"  event mode {sol.event_mode}: expected coverage {100 * sol.expected_coverage:.2f}%, "
               f"peak frame {sol.peak_frame} coverage {100 * sol.peak_coverage:.2f}%")

@@ -26,7 +26,7 @@ from camplace.sampling import CandidateSet
 
 # moved to their own modules; still importable from here
 from camplace.event import covered_rows, event_aims, event_centres, event_weights, light_curves_csv, peak_frame  # noqa: F401
-from camplace.solution import Solution, camera_record, split_timings, versions  # noqa: F401
+from camplace.solution import Solution, camera_record, split_timings, team_record, versions  # noqa: F401
 from camplace.visibility.stages import (  # noqa: F401
     check_input_memory, compute_points, make_run_candidates, stage_seeds, under_ground, visibility_stage,
 )
@@ -99,7 +99,9 @@ def chosen_view_warnings(instance, cands: CandidateSet, selected: Sequence[int])
     sel = np.asarray(list(selected), dtype=np.int64)
     if len(sel) == 0:
         return []
-    return small_target_warnings(instance, cands.positions[sel], cands.rotations[sel], labels=[f"candidate {j}" for j in sel])
+    models = None if cands.model is None else np.asarray(cands.model)[sel]
+    return small_target_warnings(instance, cands.positions[sel], cands.rotations[sel], labels=[f"candidate {j}" for j in sel],
+                                 models=models)
 
 
 @dataclass(frozen=True)
@@ -382,7 +384,7 @@ def sampling_stage(instance, settings: RunSettings) -> tuple[CandidateSet, "Targ
     """
     cand_seed, _ = stage_seeds(settings.seed)
     cands = make_run_candidates(instance, settings.sampler, settings.candidates, settings.orientations, cand_seed)
-    cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=settings.sampler, seed=settings.seed)
+    cands = cands.with_run(settings.sampler, settings.seed)
     return cands, compute_points(instance, settings.points, settings.seed)
 
 
@@ -452,7 +454,11 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     timings["summary"] = time.perf_counter() - t0
     for note in degenerate:
         log.info("%s", note)
-    notes = [*instance.warnings, *mode_warnings(instance, s.mode), *degenerate]
+    cameras = [camera_record(instance, cands, j) for j in res.selected]
+    team, team_notes = team_record(instance, cameras)
+    for note in team_notes:
+        log.warning("%s", note)
+    notes = [*instance.warnings, *mode_warnings(instance, s.mode), *degenerate, *team_notes]
     solver_stats, solver_times = split_timings(dict(res.stats))
     timings.update(solver_times)
     total_weight = float(weights.sum())
@@ -475,7 +481,7 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
         coverage_fraction=float(weights[observed].sum()) / total_weight if total_weight > 0 else 0.0,
         timings_s=timings,
         versions=versions(),
-        cameras=[camera_record(instance, cands, j) for j in res.selected],
+        cameras=cameras,
         instance=instance.name,
         engine=res.engine,
         mode=s.mode,
@@ -488,6 +494,7 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
         points_requested=s.points,
         options=s.options,
         robust=robust_record,
+        team=team,
         candidates=cands,
         visibility=vis,
         light_curves=summary.seen,

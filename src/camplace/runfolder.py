@@ -190,6 +190,17 @@ class RunFolder:
         if "matrix" in self.__dict__ and len(cands) != self.matrix.shape[1]:
             raise CamplaceError(f"{self.file(CANDIDATES_NAME)}: {len(cands)} candidates but the matrix has "
                                 f"{self.matrix.shape[1]} columns (re-run)")
+        if cands.model is not None and self.file(INSTANCE_NAME).is_file():
+            # a team's columns: check the models against the instance and add the zone membership
+            team = getattr(self.instance, "team", None)
+            n_models = len(self.instance.cameras)
+            if team is None or (len(cands) and int(cands.model.max()) >= n_models):
+                raise CamplaceError(f"{self.file(CANDIDATES_NAME)}: column model names camera models the instance.toml "
+                                    f"beside it does not have ({n_models}) (re-run)")
+            from camplace.sampling.candidates import CandidateSet as _C
+
+            cands = _C(cands.positions, cands.aims, cands.rotations, sampler=cands.sampler, seed=cands.seed,
+                       model=cands.model, zones=team.zone_membership(cands.positions))
         return cands
 
     @cached_property

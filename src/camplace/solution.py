@@ -58,7 +58,12 @@ class Solution:
     versions : dict of str to str
     cameras : list of dict
         Per chosen camera: candidate (column index), position [x, y, z], rotation (3x3,
-        world-from-camera, OpenCV axes), K (3x3), width, height, near_m, far_m.
+        world-from-camera, OpenCV axes), K (3x3), width, height, near_m, far_m; for a team also
+        model (its name), model_index, cost and zones (the names of the zones it stands in).
+    team : dict or None
+        A team run (``Instance.team``): the models' costs and counts, the budget, the zones,
+        ``enforced`` (false: the solver chose the best k over all pose x model columns, the
+        counts, budget and quotas are not yet imposed) and what the chosen team ``uses`` of each.
     instance : str
         Instance name.
     engine : str
@@ -126,6 +131,7 @@ class Solution:
     points_requested: int = 0
     options: dict = field(default_factory=dict)
     robust: dict | None = None
+    team: dict | None = None
     candidates: CandidateSet | None = field(default=None, repr=False)
     visibility: VisibilityMatrix | None = field(default=None, repr=False)
     light_curves: Any = field(default=None, repr=False)
@@ -163,6 +169,7 @@ class Solution:
             "points_requested": self.points_requested,
             "options": self.options,
             **({"robust": self.robust} if self.robust is not None else {}),
+            **({"team": self.team} if self.team is not None else {}),
         }
 
     def save(self, outdir: str | Path) -> None:
@@ -192,9 +199,21 @@ class Solution:
 
 
 def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
-    """The ``cameras`` entry of ``solution.json`` for candidate column ``j``."""
-    cam = instance.camera
+    """The ``cameras`` entry of ``solution.json`` for candidate column ``j``.
+
+    For a team (``instance.team``) the record also names the camera ``model`` and carries that
+    model's intrinsics and ``cost``; a single-model instance's records are as they always were.
+    """
+    team = getattr(instance, "team", None)
+    model = 0 if candidates.model is None else int(candidates.model[j])
+    cam = instance.cameras[model] if team is not None else instance.camera
+    extra: dict[str, Any] = {}
+    if team is not None:
+        extra = {"model": cam.name, "model_index": model, "cost": float(cam.cost)}
+        if candidates.zones is not None and len(team.zones):
+            extra["zones"] = [z.name for z, inside in zip(team.zones, candidates.zones[j]) if inside]
     return {
+        **extra,
         "candidate": int(j),
         "position": [float(x) for x in candidates.positions[j]],
         "aim": [float(x) for x in candidates.aims[j]],
@@ -205,6 +224,43 @@ def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
         "near_m": float(cam.near_m),
         "far_m": float(cam.far_m),
     }
+
+
+def team_record(instance, cameras: list[dict]) -> tuple[dict | None, list[str]]:
+    """The ``team`` entry of ``solution.json`` and the warnings of a team run (None, [] without a team).
+
+    Until the solver imposes them, the per-model counts, the budget and the zone quotas are only
+    checked on the chosen cameras: the record says ``"enforced": false`` and a warning names the
+    ones the chosen team breaks (or says that none is enforced when it happens to meet them).
+    """
+    team = getattr(instance, "team", None)
+    if team is None:
+        return None, []
+    rec = team.record()
+    counts = {m.name: 0 for m in team.models}
+    zone_counts = {z.name: 0 for z in team.zones}
+    for c in cameras:
+        counts[c["model"]] += 1
+        for z in c.get("zones", []):
+            zone_counts[z] += 1
+    cost = float(sum(c["cost"] for c in cameras))
+    broken = []
+    for m in team.models:
+        if counts[m.name] < m.min_count or (m.max_count is not None and counts[m.name] > m.max_count):
+            hi = "" if m.max_count is None else f"..{m.max_count}"
+            broken.append(f"{counts[m.name]} {m.name} camera(s) (asked {m.min_count}{hi if hi else '+'})")
+    if team.budget is not None and cost > team.budget:
+        broken.append(f"cost {cost:g} over the budget {team.budget:g}")
+    for z in team.zones:
+        n = zone_counts[z.name]
+        if n < z.min_cameras or (z.max_cameras is not None and n > z.max_cameras):
+            hi = "" if z.max_cameras is None else f"..{z.max_cameras}"
+            broken.append(f"{n} camera(s) in zone {z.name} (asked {z.min_cameras}{hi if hi else '+'})")
+    rec.update({"enforced": False, "uses": {"models": counts, "cost": cost, "zones": zone_counts}, "broken": broken})
+    note = ("team: the per-model counts, the budget and the zone quotas are not yet enforced by the solver "
+            "(it chose the best k cameras over all pose x model columns)")
+    note += ": the chosen team breaks " + "; ".join(broken) if broken else "; the chosen team happens to meet them"
+    return rec, [note]
 
 
 def split_timings(stats: dict, prefix: str = "solver") -> tuple[dict, dict[str, float]]:

@@ -129,3 +129,38 @@ def test_corrupted_toml_text_fails_cleanly(tmp_path_factory, data) -> None:
 def test_base_instance_is_valid(tmp_path: Path) -> None:
     inst = parse_instance(copy.deepcopy(BASE), "fuzz.toml", tmp_path)
     assert inst.k == 2 and len(inst.frames) == 2
+
+
+# A mixed camera team (issue 31): the same mutations over the team tables.
+TEAM_BASE = {k: copy.deepcopy(v) for k, v in BASE.items() if k not in ("camera", "volume")}
+TEAM_BASE.update({
+    "k": 3,
+    "cameras": [
+        {"name": "wide", "cost": 900.0, "min_count": 1, "max_count": 2, "sensor_width_mm": 7.0, "sensor_height_mm": 5.0,
+         "focal_length_mm": 4.0, "width_px": 64, "height_px": 48, "near_m": 0.1, "far_m": 20.0},
+        {"name": "tele", "cost": 5000.0, "max_count": 1, "sensor_width_mm": 13.0, "sensor_height_mm": 13.0,
+         "focal_length_mm": 50.0, "width_px": 32, "height_px": 32, "near_m": 0.5, "far_m": 50.0},
+    ],
+    "volumes": [{"min_m": [-5.0, -5.0, -5.0], "max_m": [5.0, 5.0, 5.0], "models": ["wide"]},
+                {"min_m": [2.0, -5.0, 0.0], "max_m": [5.0, 5.0, 5.0], "models": ["tele"], "share": 2.0}],
+    "mounts": [{"name": "mast", "shape": "box", "size_m": [0.1, 0.1, 2.0], "position_m": [-3.0, 0.0, 0.0],
+                "models": ["tele", "wide"], "offset_m": 0.05}],
+    "keepouts": [{"min_m": [-1.0, -1.0, -1.0], "max_m": [1.0, 1.0, 1.0]},
+                 {"shape": "sphere", "radius_m": 0.5, "subdivisions": 1, "position_m": [3.0, 3.0, 3.0]}],
+    "team": {"budget": 8000.0},
+    "zones": [{"name": "east", "min_m": [0.0, -5.0, -5.0], "max_m": [5.0, 5.0, 5.0], "min_cameras": 1, "max_cameras": 2}],
+})
+TEAM_PATHS = [p for p in paths(TEAM_BASE) if p[0][:1] in (("cameras",), ("volumes",), ("mounts",), ("keepouts",), ("team",), ("zones",))
+              or p[1] in ("cameras", "volumes", "mounts", "keepouts", "team", "zones", "k")]
+team_edit = st.tuples(st.sampled_from(TEAM_PATHS), junk, st.one_of(st.none(), st.sampled_from(["modells", "extra", "min_count"])))
+
+
+def test_team_base_instance_is_valid(tmp_path: Path) -> None:
+    inst = parse_instance(copy.deepcopy(TEAM_BASE), "fuzz.toml", tmp_path)
+    assert inst.team is not None and inst.team.model_names == ("wide", "tele") and len(inst.team.keepouts) == 2
+
+
+@settings(max_examples=1500, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(st.lists(team_edit, min_size=1, max_size=4))
+def test_mutated_teams_fail_cleanly(tmp_path_factory, edits) -> None:
+    check(mutate(TEAM_BASE, edits), "fuzz.toml", tmp_path_factory.getbasetemp())

@@ -90,3 +90,18 @@ def test_chunks_are_independent_of_chunking(problem) -> None:
     task, scenes = make_task(inst, cands, pts)
     parts = [compute_chunk(task, scenes, s, min(s + 7, len(cands))) for s in range(0, len(cands), 7)]
     assert same(assemble(task, parts)[0], local)
+
+
+@pytest.mark.slow
+def test_team_columns_on_a_cluster_are_identical() -> None:
+    """A camera team (issue 31): chunks end at the model boundaries, each with its model's intrinsics."""
+    pytest.importorskip("distributed", reason="the test extra installs dask[distributed]")
+    from camplace.visibility.stages import make_run_candidates, stage_seeds
+
+    inst = builtin("comet-67p-team")
+    pts = make_target_points(inst, 1500, seed=1)
+    cands = make_run_candidates(inst, "sobol", 60, 1, stage_seeds(2)[0])
+    assert len(set(cands.model.tolist())) == 2 and np.count_nonzero(cands.model == 0) % 16 != 0  # a chunk would straddle
+    local = compute_visibility(inst, cands, pts, chunk_size=16).matrix
+    m = compute_visibility(inst, cands, pts, chunk_size=16, dask_address="local:2").matrix
+    assert same(m, local) and local.nnz > 0

@@ -48,6 +48,46 @@ _DATA: dict[str, dict[str, Any]] = {
             {"weight": 1.0, "time_s": 0.0, "position_m": [12.0, 1.5, 1.5], "rotation_deg": [0.0, 0.0, 0.0]}
         ],
     },
+    # A mixed team in the same corridor: two wide machine-vision cameras stand anywhere in the
+    # corridor, one narrow science camera only downstream of the comet or on a mast; nobody within
+    # 1 m of the model, a budget and a camera on each side of it (enforced by the solver round).
+    "comet-67p-team": {
+        "schema_version": 1,
+        "name": "comet-67p-team",
+        "k": 3,
+        "run": {"candidates": 2000, "points": 10000, "sampler": "chaotic", "seed": 0, "time_limit_s": 60.0},
+        "cameras": [
+            {"name": "wide", "cost": 900.0, "min_count": 1, "max_count": 2,
+             "sensor_width_mm": 7.18, "sensor_height_mm": 5.32, "focal_length_mm": 4.0,
+             "width_px": 1280, "height_px": 960, "near_m": 0.1, "far_m": 20.0},
+            {"name": "science", "cost": 6000.0, "min_count": 0, "max_count": 1,
+             "sensor_width_mm": 13.3, "sensor_height_mm": 13.3, "focal_length_mm": 50.0,
+             "width_px": 2048, "height_px": 2048, "near_m": 0.5, "far_m": 40.0},
+        ],
+        "volumes": [
+            {"min_m": [0.3, 0.3, 0.3], "max_m": [29.7, 2.7, 2.7], "models": ["wide"]},
+            {"min_m": [14.0, 0.3, 1.0], "max_m": [22.0, 2.7, 2.7], "models": ["science"]},
+        ],
+        "mounts": [
+            {"name": "mast", "shape": "box", "size_m": [0.1, 0.1, 2.0], "position_m": [9.0, 2.5, 1.3],
+             "models": ["science"], "offset_m": 0.05},
+        ],
+        "keepouts": [{"min_m": [11.0, 0.0, 0.0], "max_m": [13.0, 3.0, 3.0]}],
+        "team": {"budget": 8000.0},
+        "zones": [
+            {"name": "upstream", "min_m": [0.0, 0.0, 0.0], "max_m": [12.0, 3.0, 3.0], "min_cameras": 1},
+            {"name": "downstream", "min_m": [12.0, 0.0, 0.0], "max_m": [30.0, 3.0, 3.0], "min_cameras": 1},
+        ],
+        "light": {"position_m": [10.5, 0.6, 2.8]},
+        "target": {"name": "comet-67p", "shape": "bilobed-comet", "length_m": 0.6, "seed": 7},
+        "occluders": [
+            {"name": "corridor", "shape": "corridor", "size_m": [30.0, 3.0, 3.0],
+             "position_m": [0.0, 0.0, 0.0], "rotation_deg": [0.0, 0.0, 0.0]},
+        ],
+        "frames": [
+            {"weight": 1.0, "time_s": 0.0, "position_m": [12.0, 1.5, 1.5], "rotation_deg": [0.0, 0.0, 0.0]}
+        ],
+    },
 }
 
 # Built-ins whose event is generated from a seed (the run seed, unless given).
@@ -55,6 +95,7 @@ _FACTORIES = {"comet-flyby": comet_flyby_toml, "volcanic-eruption": volcanic_eru
 
 BUILTINS: dict[str, str] = {
     "comet-67p-bunker": "Experiment 03: 3 cameras around a 0.6 m comet 67P model in a 30 x 3 x 3 m lab corridor",
+    "comet-67p-team": "a mixed team in the same corridor: two wide machine-vision cameras, one narrow science camera (volume or mast), a budget, two zones",
     "comet-flyby": "Experiment 01: a comet nucleus with coma and tail crossing the field on a hyperbola, 36 frames",
     "volcanic-eruption": "Experiment 02: a plume rising and drifting over a procedural volcano, peak drawn from the seed",
 }

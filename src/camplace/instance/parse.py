@@ -43,7 +43,11 @@ from camplace.instance.schema import (
     QualitySpec,
     RobustSpec,
     RunDefaults,
+    KeepOut,
+    Mount,
+    Team,
     Volume,
+    Zone,
 )
 
 __all__ = ["load_instance", "parse_instance"]
@@ -58,8 +62,14 @@ MAX_POINTS = 10_000_000
 
 _TOP_KEYS = (
     "schema_version", "name", "k", "run", "camera", "volume", "light", "quality", "target", "occluders", "frames",
-    "physical", "transform", "agents", "robust",
+    "physical", "transform", "agents", "robust", "cameras", "volumes", "mounts", "keepouts", "team", "zones",
 )
+_TEAM_TOP_KEYS = ("cameras", "volumes", "mounts", "keepouts", "team", "zones")
+_MODEL_KEYS = ("name", "cost", "min_count", "max_count")
+_REGION_KEYS = ("models", "share")
+_MOUNT_KEYS = ("position_m", "rotation_deg", "models", "share", "offset_m")
+_ZONE_KEYS = ("name", "min_m", "max_m", "min_cameras", "max_cameras")
+_TEAM_KEYS = ("budget",)
 _RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s", "orientations")
 _AGENTS_KEYS = ("phases", "phase_starts_s", "speed_m_s", "start_positions_m", "start_time_s")
 _ROBUST_KEYS = ("position_sigma_m", "rotation_sigma_deg", "scenarios", "objective", "eval_scenarios")
@@ -470,32 +480,14 @@ class _Parser:
         if k > run.candidates:
             raise self.error("k", f"{k} cameras cannot be chosen from run.candidates = {run.candidates} candidate positions", "lower k or raise run.candidates")
 
-        cam_t = self.table(data, "camera", "")
-        self.check_keys(cam_t, _CAMERA_KEYS, "camera")
-        near = self.number(cam_t, "near_m", "camera", required=True, gt=0.0, unit="metres")
-        far = self.number(cam_t, "far_m", "camera", required=True, gt=0.0, unit="metres")
-        camera = CameraModel(
-            sensor_width_mm=self.number(cam_t, "sensor_width_mm", "camera", required=True, gt=0.0, unit="mm"),
-            sensor_height_mm=self.number(cam_t, "sensor_height_mm", "camera", required=True, gt=0.0, unit="mm"),
-            focal_length_mm=self.number(cam_t, "focal_length_mm", "camera", required=True, gt=0.0, unit="mm"),
-            width_px=self.integer(cam_t, "width_px", "camera", required=True, ge=1),
-            height_px=self.integer(cam_t, "height_px", "camera", required=True, ge=1),
-            near_m=near,
-            far_m=far,
-        )
-        if not far > near:
-            raise self.error("camera.far_m", f"must be > camera.near_m = {near:g}, got {far:g}", "set far_m beyond near_m")
-
-        vol_t = self.table(data, "volume", "")
-        self.check_keys(vol_t, _VOLUME_KEYS, "volume")
-        vmin = self.vec3(vol_t, "min_m", "volume")
-        vmax = self.vec3(vol_t, "max_m", "volume")
-        bad = [f"{ax}: {lo:g} >= {hi:g}" for ax, lo, hi in zip("xyz", vmin, vmax) if not hi > lo]
-        if bad:
-            raise self.error(
-                "volume.max_m", f"must exceed volume.min_m on every axis ({'; '.join(bad)})", "make the camera volume a non-empty box: min_m < max_m on x, y and z"
-            )
-        volume = Volume(min_m=vmin, max_m=vmax)
+        team = None
+        if any(key in data for key in _TEAM_TOP_KEYS):
+            team = self.team(data, k)
+            camera = team.models[0]
+            volume = self.bounding_volume(team)
+        else:
+            camera = self.camera(self.table(data, "camera", ""), "camera")
+            volume = self.box(self.table(data, "volume", ""), "volume", _VOLUME_KEYS)
 
         light_t = self.table(data, "light", "")
         self.check_keys(light_t, _LIGHT_KEYS, "light")
@@ -565,7 +557,192 @@ class _Parser:
             agents=self.agents(self.table(data, "agents", "", required=False), k, len(frames)),
             robust=self.robust(data),
             warnings=tuple(self.warnings),
+            team=team,
         )
+
+    # -- cameras and where they stand -----------------------------------------------------------------
+
+    def camera(self, cam_t: dict, prefix: str, extra: tuple[str, ...] = ()) -> CameraModel:
+        """A camera model table: ``[camera]`` or one ``[[cameras]]`` (``extra``: name, cost, counts)."""
+        self.check_keys(cam_t, _CAMERA_KEYS + extra, prefix)
+        near = self.number(cam_t, "near_m", prefix, required=True, gt=0.0, unit="metres")
+        far = self.number(cam_t, "far_m", prefix, required=True, gt=0.0, unit="metres")
+        team_fields: dict[str, Any] = {}
+        if extra:
+            team_fields["name"] = self.string(cam_t, "name", prefix)
+            team_fields["cost"] = self.number(cam_t, "cost", prefix, default=1.0, ge=0.0)
+            team_fields["min_count"] = self.integer(cam_t, "min_count", prefix, default=0, ge=0)
+            if "max_count" in cam_t:
+                team_fields["max_count"] = self.integer(cam_t, "max_count", prefix, ge=0)
+                if team_fields["max_count"] < team_fields["min_count"]:
+                    raise self.error(_join(prefix, "max_count"), f"must be >= min_count = {team_fields['min_count']}, got {team_fields['max_count']}",
+                                     "raise max_count or lower min_count")
+        camera = CameraModel(
+            sensor_width_mm=self.number(cam_t, "sensor_width_mm", prefix, required=True, gt=0.0, unit="mm"),
+            sensor_height_mm=self.number(cam_t, "sensor_height_mm", prefix, required=True, gt=0.0, unit="mm"),
+            focal_length_mm=self.number(cam_t, "focal_length_mm", prefix, required=True, gt=0.0, unit="mm"),
+            width_px=self.integer(cam_t, "width_px", prefix, required=True, ge=1),
+            height_px=self.integer(cam_t, "height_px", prefix, required=True, ge=1),
+            near_m=near,
+            far_m=far,
+            **team_fields,
+        )
+        if not far > near:
+            raise self.error(_join(prefix, "far_m"), f"must be > {_join(prefix, 'near_m')} = {near:g}, got {far:g}", "set far_m beyond near_m")
+        return camera
+
+    def box(self, table: dict, prefix: str, keys: tuple[str, ...], **extra: Any) -> Volume:
+        """A box table with ``min_m`` < ``max_m`` on every axis (``[volume]``, a ``[[volumes]]`` or a keep-out)."""
+        self.check_keys(table, keys, prefix)
+        vmin = self.vec3(table, "min_m", prefix)
+        vmax = self.vec3(table, "max_m", prefix)
+        bad = [f"{ax}: {lo:g} >= {hi:g}" for ax, lo, hi in zip("xyz", vmin, vmax) if not hi > lo]
+        if bad:
+            raise self.error(
+                _join(prefix, "max_m"), f"must exceed {_join(prefix, 'min_m')} on every axis ({'; '.join(bad)})",
+                "make the box non-empty: min_m < max_m on x, y and z",
+            )
+        return Volume(min_m=vmin, max_m=vmax, **extra)
+
+    def table_list(self, data: dict, key: str) -> list[dict]:
+        """The ``[[key]]`` array of tables (empty when absent)."""
+        value = data.get(key, [])
+        if isinstance(value, dict):
+            singular = {"cameras": "camera", "volumes": "volume"}.get(key)
+            raise self.error(key, f"is a single [{key}] table, not an array of tables" + (f"; did you mean '{singular}'?" if singular else ""),
+                             f"write [[{key}]] (double brackets), one section per entry" + (f", or [{singular}] for one" if singular else ""))
+        if not isinstance(value, list) or not all(isinstance(t, dict) for t in value):
+            raise self.error(key, f"must be an array of tables, got {_type_name(value)} {_show(value)}", f"write each entry as a [[{key}]] section")
+        return value
+
+    def model_list(self, table: dict, prefix: str, names: tuple[str, ...]) -> tuple[str, ...]:
+        """A region's ``models = ["name", ...]`` (empty: every model); each must name a ``[[cameras]]`` model."""
+        if "models" not in table:
+            return ()
+        value = table["models"]
+        field = _join(prefix, "models")
+        if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+            raise self.error(field, f"must be a non-empty array of model names, got {_show(value)}", f"write models = [{', '.join(repr(n) for n in names[:2])}] or leave it out for every model")
+        for v in value:
+            if v not in names:
+                close = difflib.get_close_matches(v, list(names), n=1, cutoff=0.5)
+                raise self.error(field, f"unknown camera model {_show(v)}" + (f"; did you mean '{close[0]}'?" if close else ""),
+                                 f"use a name of a [[cameras]] section: {', '.join(names)}")
+        return tuple(dict.fromkeys(value))
+
+    def team(self, data: dict, k: int) -> Team:
+        """The camera models (``[[cameras]]`` or the single ``[camera]``) and where they may stand."""
+        if "cameras" in data and "camera" in data:
+            raise self.error("camera", "both [camera] and [[cameras]] are given", "move the [camera] table into a [[cameras]] section with a name")
+        if "cameras" in data:
+            cam_list = self.table_list(data, "cameras")
+            if not cam_list:
+                raise self.error("cameras", "has no camera model", "add at least one [[cameras]] section")
+            models = [self.camera(t, f"cameras[{i}]", _MODEL_KEYS) for i, t in enumerate(cam_list)]
+        else:
+            models = [self.camera(self.table(data, "camera", ""), "camera")]
+        names = tuple(m.name for m in models)
+        for i, n in enumerate(names):
+            if n in names[:i]:
+                raise self.error(f"cameras[{i}].name", f"model name {_show(n)} is used twice", "give every [[cameras]] model its own name")
+
+        volumes = []
+        if "volume" in data:
+            volumes.append(self.box(self.table(data, "volume", ""), "volume", _VOLUME_KEYS))
+        for i, t in enumerate(self.table_list(data, "volumes")):
+            p = f"volumes[{i}]"
+            volumes.append(self.box(t, p, _VOLUME_KEYS + _REGION_KEYS, models=self.model_list(t, p, names),
+                                    share=self.number(t, "share", p, default=1.0, gt=0.0)))
+        mounts = []
+        for i, t in enumerate(self.table_list(data, "mounts")):
+            p = f"mounts[{i}]"
+            mesh = self.mesh(t, p, f"mount{i}", _MOUNT_KEYS)
+            mounts.append(Mount(mesh=mesh, pose=self.pose(t, p), models=self.model_list(t, p, names),
+                                offset_m=self.number(t, "offset_m", p, default=0.05, ge=0.0, unit="metres"),
+                                share=self.number(t, "share", p, default=1.0, gt=0.0)))
+        if not volumes and not mounts:
+            raise self.error("volumes", "no region where cameras may stand", "add a [volume], [[volumes]] or [[mounts]] section")
+        keepouts = []
+        for i, t in enumerate(self.table_list(data, "keepouts")):
+            p = f"keepouts[{i}]"
+            if "min_m" in t or "max_m" in t:
+                keepouts.append(KeepOut(box=self.box(t, p, _VOLUME_KEYS)))
+            else:
+                mesh = self.mesh(t, p, f"keepout{i}", _POSE_KEYS)
+                if not is_watertight(mesh.vertices, mesh.faces):
+                    self.warn(p, "the keep-out mesh is not watertight: its inside is only approximate")
+                keepouts.append(KeepOut(mesh=mesh, pose=self.pose(t, p)))
+
+        team_t = self.table(data, "team", "", required=False) or {}
+        self.check_keys(team_t, _TEAM_KEYS, "team")
+        budget = self.number(team_t, "budget", "team", gt=0.0) if "budget" in team_t else None
+
+        zones = []
+        for i, t in enumerate(self.table_list(data, "zones")):
+            p = f"zones[{i}]"
+            self.check_keys(t, _ZONE_KEYS, p)
+            zname = self.string(t, "name", p)
+            if zname in [z.name for z in zones]:
+                raise self.error(_join(p, "name"), f"zone name {_show(zname)} is used twice", "give every [[zones]] section its own name")
+            box = self.box({kk: v for kk, v in t.items() if kk in _VOLUME_KEYS}, p, _VOLUME_KEYS)
+            zmin = self.integer(t, "min_cameras", p, default=0, ge=0, le=k)
+            zmax = self.integer(t, "max_cameras", p, ge=zmin) if "max_cameras" in t else None
+            zones.append(Zone(name=zname, min_m=box.min_m, max_m=box.max_m, min_cameras=zmin, max_cameras=zmax))
+
+        team = Team(models=tuple(models), volumes=tuple(volumes), mounts=tuple(mounts), keepouts=tuple(keepouts),
+                    zones=tuple(zones), budget=budget)
+        self.check_team(team, k, "cameras" in data)
+        return team
+
+    def check_team(self, team: Team, k: int, listed: bool = True) -> None:
+        """Quotas, counts and the budget that no choice of k cameras can meet are one-line errors.
+
+        ``listed``: the models come from ``[[cameras]]`` (else from the single ``[camera]``).
+        """
+        for i, m in enumerate(team.models):
+            field = f"cameras[{i}]" if listed else "camera"
+            if not any(v.allows(m.name) for v in team.volumes) and not any(mt.allows(m.name) for mt in team.mounts):
+                raise self.error(field, f"model {_show(m.name)} has no allowed pose: no [[volumes]] or [[mounts]] section lists it",
+                                 f'add "{m.name}" to the models of a [[volumes]] or [[mounts]] section (or leave models out there for every model)')
+            if m.min_count > k:
+                raise self.error(_join(field, "min_count"), f"{m.min_count} cameras of {_show(m.name)} exceed k = {k}", f"lower min_count to at most {k} or raise k")
+        mins = sum(m.min_count for m in team.models)
+        if mins > k:
+            raise self.error("cameras", f"the models' min_count add up to {mins}, more than k = {k}", "lower some min_count or raise k")
+        if all(m.max_count is not None for m in team.models):
+            maxs = sum(int(m.max_count) for m in team.models)  # type: ignore[arg-type]
+            if maxs < k:
+                raise self.error("cameras", f"the models' max_count add up to {maxs}, fewer than k = {k}", "raise some max_count, drop one, or lower k")
+        if team.budget is not None:
+            cheapest = min(m.cost for m in team.models)
+            if team.budget < cheapest:
+                raise self.error("team.budget", f"{team.budget:g} is below the cheapest camera ({cheapest:g})",
+                                 f"raise the budget to at least {cheapest:g} or lower the models' cost")
+            need = sum(m.cost * m.min_count for m in team.models)
+            if need > team.budget:
+                raise self.error("team.budget", f"{team.budget:g} is below the cost of the models' min_count cameras ({need:g})",
+                                 f"raise the budget to at least {need:g} or lower min_count")
+        regions = [(np.asarray(v.min_m), np.asarray(v.max_m)) for v in team.volumes]
+        regions += [(v.min(axis=0) - mt.offset_m, v.max(axis=0) + mt.offset_m) for mt in team.mounts for v in [mt.world()[0]]]
+        for i, z in enumerate(team.zones):
+            if z.min_cameras == 0:
+                continue
+            zlo, zhi = np.asarray(z.min_m), np.asarray(z.max_m)
+            if not any(np.all(lo < zhi) and np.all(hi > zlo) for lo, hi in regions):
+                raise self.error(f"zones[{i}].min_cameras", f"zone {_show(z.name)} asks for {z.min_cameras} camera(s) but no [[volumes]] or [[mounts]] region reaches into it",
+                                 "move the zone over a region where cameras may stand, or set min_cameras = 0")
+        for i, v in enumerate(team.volumes):
+            for ko in team.keepouts:
+                if ko.box is not None and np.all(np.asarray(ko.box.min_m) <= v.min_m) and np.all(np.asarray(ko.box.max_m) >= v.max_m):
+                    self.warn(f"volumes[{i}]", "lies wholly inside a keep-out box: no camera can stand in it")
+
+    def bounding_volume(self, team: Team) -> Volume:
+        """The box around every region cameras may stand in (``Instance.volume`` of a team)."""
+        los = [np.asarray(v.min_m) for v in team.volumes] + [mt.world()[0].min(axis=0) - mt.offset_m for mt in team.mounts]
+        his = [np.asarray(v.max_m) for v in team.volumes] + [mt.world()[0].max(axis=0) + mt.offset_m for mt in team.mounts]
+        lo, hi = np.min(los, axis=0), np.max(his, axis=0)
+        hi = np.maximum(hi, lo + 1e-6)  # a flat mount still spans a (thin) box
+        return Volume(min_m=tuple(float(x) for x in lo), max_m=tuple(float(x) for x in hi))
 
     def lab_table(self, data: dict, key: str) -> PhysicalCamera | TransformConfig | None:
         """The ``[physical]`` or ``[transform]`` table, parsed by :mod:`camplace.instance.lab` (None when absent)."""

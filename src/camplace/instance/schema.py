@@ -162,7 +162,10 @@ class Frame:
 
 @dataclass(frozen=True)
 class CameraModel:
-    """Pinhole camera intrinsics shared by every candidate (OpenCV convention: x right, y down, z forward).
+    """A pinhole camera model (OpenCV convention: x right, y down, z forward).
+
+    The old single ``[camera]`` table is one model shared by every candidate; a team's
+    ``[[cameras]]`` tables are one model each (:class:`Team`).
 
     Attributes
     ----------
@@ -173,6 +176,13 @@ class CameraModel:
         Image resolution.
     near_m, far_m : float
         Observation range along the optical axis (depth), metres.
+    name : str
+        The model's name (unique in a team; ``camera`` for the single ``[camera]``).
+    cost : float
+        Price of one camera of this model (>= 0; any currency, the unit of ``[team] budget``).
+    min_count, max_count : int, int or None
+        How many cameras of this model the team must hold at least / may hold at most
+        (None: no upper limit). Parsed and validated here; enforced by the solver round.
     """
 
     sensor_width_mm: float
@@ -182,6 +192,10 @@ class CameraModel:
     height_px: int
     near_m: float = 0.05
     far_m: float = 100.0
+    name: str = "camera"
+    cost: float = 1.0
+    min_count: int = 0
+    max_count: int | None = None
 
     @property
     def fx_px(self) -> float:
@@ -214,17 +228,231 @@ class CameraModel:
         )
 
 
+def _box_contains(min_m, max_m, points: np.ndarray) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return np.all((p > np.asarray(min_m, dtype=np.float64)) & (p < np.asarray(max_m, dtype=np.float64)), axis=1)
+
+
 @dataclass(frozen=True)
 class Volume:
-    """Axis-aligned box where cameras may stand: min_m < position < max_m (the thesis's V_xyz < V_obs < V_XYZ)."""
+    """Axis-aligned box where cameras may stand: min_m < position < max_m (the thesis's V_xyz < V_obs < V_XYZ).
+
+    Attributes
+    ----------
+    min_m, max_m : (3,) float
+        Corners, metres.
+    models : tuple of str
+        Camera models that may stand in it (a team's ``[[volumes]]``); empty: every model.
+    share : float
+        Relative share of the sampled positions drawn in it (> 0; default 1 per region).
+    """
 
     min_m: tuple[float, float, float]
     max_m: tuple[float, float, float]
+    models: tuple[str, ...] = ()
+    share: float = 1.0
 
     @property
     def size_m(self) -> np.ndarray:
         """(3,) float64 edge lengths."""
         return np.asarray(self.max_m, dtype=np.float64) - np.asarray(self.min_m, dtype=np.float64)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: points strictly inside the box (points (n, 3) float64, metres)."""
+        return _box_contains(self.min_m, self.max_m, points)
+
+    def allows(self, model: str) -> bool:
+        """Whether camera model ``model`` may stand here."""
+        return not self.models or model in self.models
+
+
+@dataclass(frozen=True, eq=False)
+class Mount:
+    """A surface cameras may be mounted on (a wall, a mast): positions are sampled on its triangles.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        In its local frame.
+    pose : Pose
+        Places it in the world.
+    models : tuple of str
+        Camera models that may be mounted on it; empty: every model.
+    offset_m : float
+        The camera centre stands this far off the surface along the triangle's normal (>= 0).
+    share : float
+        Relative share of the sampled positions drawn on it (> 0).
+    """
+
+    mesh: Mesh
+    pose: Pose = Pose()
+    models: tuple[str, ...] = ()
+    offset_m: float = 0.05
+    share: float = 1.0
+
+    def world(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-space (vertices (n, 3) float64, faces (m, 3) int64)."""
+        return self.mesh.transformed(self.pose)
+
+    def allows(self, model: str) -> bool:
+        """Whether camera model ``model`` may be mounted here."""
+        return not self.models or model in self.models
+
+
+def _solid_angle_sum(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n,) generalised winding number of a triangle mesh at the points (1 inside a closed outward mesh, 0 outside).
+
+    Van Oosterom and Strackee's solid angle of each triangle, summed, over 4 pi.
+    """
+    tri = vertices[faces]  # (m, 3, 3)
+    out = np.zeros(len(points))
+    for s in range(0, len(points), 256):
+        a = tri[None, :, 0, :] - points[s:s + 256, None, :]
+        b = tri[None, :, 1, :] - points[s:s + 256, None, :]
+        c = tri[None, :, 2, :] - points[s:s + 256, None, :]
+        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
+        det = np.einsum("pmi,pmi->pm", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("pmi,pmi->pm", a, b) * lc + np.einsum("pmi,pmi->pm", a, c) * lb
+               + np.einsum("pmi,pmi->pm", b, c) * la)
+        out[s:s + 256] = 2.0 * np.arctan2(det, den).sum(axis=1) / (4.0 * np.pi)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class KeepOut:
+    """A region no camera may stand in: a box (``box``) or a closed mesh (``mesh`` placed by ``pose``)."""
+
+    box: Volume | None = None
+    mesh: Mesh | None = None
+    pose: Pose = Pose()
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: points inside the keep-out (points (n, 3) float64, metres).
+
+        For a mesh: the generalised winding number is above 1/2 (exact inside a closed mesh).
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if self.box is not None:
+            return self.box.contains(p)
+        v, f = self.mesh.transformed(self.pose)  # type: ignore[union-attr]
+        inside = np.zeros(len(p), dtype=bool)
+        near = _box_contains(v.min(axis=0) - 1e-9, v.max(axis=0) + 1e-9, p)
+        if near.any():
+            inside[near] = np.abs(_solid_angle_sum(v, f, p[near])) > 0.5
+        return inside
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(3,), (3,) float64 axis-aligned bounding box, metres."""
+        if self.box is not None:
+            return np.asarray(self.box.min_m, dtype=np.float64), np.asarray(self.box.max_m, dtype=np.float64)
+        v, _ = self.mesh.transformed(self.pose)  # type: ignore[union-attr]
+        return v.min(axis=0), v.max(axis=0)
+
+
+@dataclass(frozen=True)
+class Zone:
+    """A named box region with camera quotas (``[[zones]]``); enforced by the solver round.
+
+    Attributes
+    ----------
+    name : str
+    min_m, max_m : (3,) float
+        Corners, metres; a camera is in the zone when its centre is strictly inside.
+    min_cameras : int
+        Cameras the team must place in it at least.
+    max_cameras : int or None
+        At most (None: no limit).
+    """
+
+    name: str
+    min_m: tuple[float, float, float]
+    max_m: tuple[float, float, float]
+    min_cameras: int = 0
+    max_cameras: int | None = None
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: points strictly inside the zone's box."""
+        return _box_contains(self.min_m, self.max_m, points)
+
+
+@dataclass(frozen=True, eq=False)
+class Team:
+    """A mixed camera team: its models, where each may stand, a budget and zone quotas.
+
+    Present (``Instance.team``) when the file has any of ``[[cameras]]``, ``[[volumes]]``,
+    ``[[mounts]]``, ``[[keepouts]]``, ``[team]`` or ``[[zones]]``; an old file with one
+    ``[camera]`` and one ``[volume]`` has none and runs exactly as before.
+
+    Attributes
+    ----------
+    models : tuple of CameraModel
+        At least one; names unique. Column ``model`` indices refer to this order.
+    volumes : tuple of Volume
+        Boxes cameras may stand in (each for some models or all).
+    mounts : tuple of Mount
+        Surfaces cameras may be mounted on.
+    keepouts : tuple of KeepOut
+        Where no camera may stand (applies to every model).
+    zones : tuple of Zone
+    budget : float or None
+        Largest total cost of the team (None: no budget).
+    """
+
+    models: tuple[CameraModel, ...]
+    volumes: tuple[Volume, ...] = ()
+    mounts: tuple[Mount, ...] = ()
+    keepouts: tuple[KeepOut, ...] = ()
+    zones: tuple[Zone, ...] = ()
+    budget: float | None = None
+
+    @property
+    def model_names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.models)
+
+    def in_keepout(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: points inside any keep-out."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros(len(p), dtype=bool)
+        for k in self.keepouts:
+            out |= k.contains(p)
+        return out
+
+    def allowed_models(self, points: np.ndarray, mount: np.ndarray | None = None) -> np.ndarray:
+        """(n, n_models) bool: which models may stand at each point.
+
+        A model may stand at a point inside one of its volumes, or at a point sampled on one of
+        its mounts (``mount[i]`` is the index of the mount point i was sampled on, -1 for none),
+        and never inside a keep-out.
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros((len(p), len(self.models)), dtype=bool)
+        for v in self.volumes:
+            inside = v.contains(p)
+            for j, m in enumerate(self.models):
+                if v.allows(m.name):
+                    out[:, j] |= inside
+        if mount is not None:
+            mount = np.asarray(mount)
+            for r, mt in enumerate(self.mounts):
+                on = mount == r
+                for j, m in enumerate(self.models):
+                    if mt.allows(m.name):
+                        out[:, j] |= on
+        out[self.in_keepout(p)] = False
+        return out
+
+    def zone_membership(self, points: np.ndarray) -> np.ndarray:
+        """(n, n_zones) bool: whether each point lies in each zone."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return np.column_stack([z.contains(p) for z in self.zones]) if self.zones else np.zeros((len(p), 0), dtype=bool)
+
+    def record(self) -> dict:
+        """JSON-ready summary: models (name, cost, min_count, max_count), budget, zones."""
+        return {
+            "models": [{"name": m.name, "cost": m.cost, "min_count": m.min_count, "max_count": m.max_count} for m in self.models],
+            "budget": self.budget,
+            "zones": [{"name": z.name, "min_cameras": z.min_cameras, "max_cameras": z.max_cameras} for z in self.zones],
+        }
 
 
 @dataclass(frozen=True)
@@ -372,6 +600,10 @@ class Instance:
         validation when there are no photographs (see :mod:`camplace.validation.physical`).
     robust : RobustSpec or None
         The ``[robust]`` table (None when absent): pose error the placement is optimised against.
+    team : Team or None
+        A mixed team (``[[cameras]]``, ``[[volumes]]``, ...; see :class:`Team`); None for the old
+        single ``[camera]`` and ``[volume]``. With a team, ``camera`` is its first model and
+        ``volume`` the bounding box of every region cameras may stand in.
     transform : TransformConfig or None
         The parsed ``[transform]`` table (None when absent): simulation-to-lab coordinate transform
         used by ``camplace export`` (see :mod:`camplace.validation.transform`).
@@ -400,6 +632,12 @@ class Instance:
     agents: AgentsSpec | None = None
     robust: RobustSpec | None = None
     warnings: tuple[str, ...] = ()
+    team: Team | None = None
+
+    @property
+    def cameras(self) -> tuple[CameraModel, ...]:
+        """The camera models: the team's, else the single ``camera``. Column ``model`` indices refer to it."""
+        return self.team.models if self.team is not None else (self.camera,)
 
     def frame_weights(self) -> np.ndarray:
         """(n_frames,) float64 frame likelihoods normalised to sum 1 (uniform if all are 0)."""

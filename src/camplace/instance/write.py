@@ -24,7 +24,7 @@ from camplace._io import write_bytes_atomic, write_text_atomic
 from camplace.geometry import ply_bytes
 from camplace.instance.lab import PhysicalCamera
 from camplace.instance.parse import _one_line
-from camplace.instance.schema import SCHEMA_VERSION, Instance, Mesh, QualitySpec
+from camplace.instance.schema import SCHEMA_VERSION, CameraModel, Instance, Mesh, QualitySpec, Team
 
 __all__ = ["mesh_folder", "save_instance"]
 
@@ -97,7 +97,6 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             t["ground"] = True
         return t
 
-    cam = instance.camera
     d = instance.defaults
     data: dict[str, Any] = {
         "schema_version": SCHEMA_VERSION,
@@ -111,19 +110,17 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
             "time_limit_s": float(d.time_limit_s),
             "orientations": int(d.orientations),
         },
-        "camera": {
-            "sensor_width_mm": float(cam.sensor_width_mm),
-            "sensor_height_mm": float(cam.sensor_height_mm),
-            "focal_length_mm": float(cam.focal_length_mm),
-            "width_px": int(cam.width_px),
-            "height_px": int(cam.height_px),
-            "near_m": float(cam.near_m),
-            "far_m": float(cam.far_m),
-        },
-        "volume": {"min_m": _vec(instance.volume.min_m), "max_m": _vec(instance.volume.max_m)},
+    }
+    team = instance.team
+    if team is None:
+        data["camera"] = camera_table(instance.camera)
+        data["volume"] = {"min_m": _vec(instance.volume.min_m), "max_m": _vec(instance.volume.max_m)}
+    data.update({
         "light": {"position_m": _vec(instance.light.position_m)},
         "target": mesh_table(instance.target, "target", "target"),
-    }
+    })
+    if team is not None:
+        data.update(team_tables(team, lambda mesh, key, stem: mesh_table(mesh, key, stem)))
     if instance.occluders:
         data["occluders"] = [occluder_table(occ, f"occluders[{i}]", f"occluder{i}")
                              for i, occ in enumerate(instance.occluders)]
@@ -189,6 +186,80 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
 
     head = f"# camplace instance, schema v{SCHEMA_VERSION} (metres, degrees). Written by camplace.instance.save_instance."
     write_text_atomic(out, _dumps_toml(data, comments, head))
+
+
+def camera_table(cam: CameraModel, team: bool = False) -> dict[str, Any]:
+    """A ``[camera]`` table, or with ``team`` a ``[[cameras]]`` one (name, cost and counts first)."""
+    out: dict[str, Any] = {}
+    if team:
+        out["name"] = cam.name
+        out["cost"] = float(cam.cost)
+        out["min_count"] = int(cam.min_count)
+        if cam.max_count is not None:
+            out["max_count"] = int(cam.max_count)
+    out.update({
+        "sensor_width_mm": float(cam.sensor_width_mm),
+        "sensor_height_mm": float(cam.sensor_height_mm),
+        "focal_length_mm": float(cam.focal_length_mm),
+        "width_px": int(cam.width_px),
+        "height_px": int(cam.height_px),
+        "near_m": float(cam.near_m),
+        "far_m": float(cam.far_m),
+    })
+    return out
+
+
+def team_tables(team: Team, mesh_table) -> dict[str, Any]:
+    """The team's tables: ``cameras``, ``volumes``, ``mounts``, ``keepouts``, ``team``, ``zones``.
+
+    ``mesh_table(mesh, key, file_stem)`` writes a mesh spec (as for the occluders).
+    """
+    out: dict[str, Any] = {"cameras": [camera_table(m, team=True) for m in team.models]}
+    vols = []
+    for v in team.volumes:
+        t: dict[str, Any] = {"min_m": _vec(v.min_m), "max_m": _vec(v.max_m)}
+        if v.models:
+            t["models"] = list(v.models)
+        if v.share != 1.0:
+            t["share"] = float(v.share)
+        vols.append(t)
+    if vols:
+        out["volumes"] = vols
+    mounts = []
+    for i, mt in enumerate(team.mounts):
+        t = mesh_table(mt.mesh, f"mounts[{i}]", f"mount{i}_{_slug(mt.mesh.name)}")
+        t["position_m"] = _vec(mt.pose.position_m)
+        t["rotation_deg"] = _vec(mt.pose.rotation_deg)
+        if mt.models:
+            t["models"] = list(mt.models)
+        t["offset_m"] = float(mt.offset_m)
+        if mt.share != 1.0:
+            t["share"] = float(mt.share)
+        mounts.append(t)
+    if mounts:
+        out["mounts"] = mounts
+    kos = []
+    for i, ko in enumerate(team.keepouts):
+        if ko.box is not None:
+            kos.append({"min_m": _vec(ko.box.min_m), "max_m": _vec(ko.box.max_m)})
+        else:
+            t = mesh_table(ko.mesh, f"keepouts[{i}]", f"keepout{i}_{_slug(ko.mesh.name)}")
+            t["position_m"] = _vec(ko.pose.position_m)
+            t["rotation_deg"] = _vec(ko.pose.rotation_deg)
+            kos.append(t)
+    if kos:
+        out["keepouts"] = kos
+    if team.budget is not None:
+        out["team"] = {"budget": float(team.budget)}
+    zones = []
+    for z in team.zones:
+        t = {"name": z.name, "min_m": _vec(z.min_m), "max_m": _vec(z.max_m), "min_cameras": int(z.min_cameras)}
+        if z.max_cameras is not None:
+            t["max_cameras"] = int(z.max_cameras)
+        zones.append(t)
+    if zones:
+        out["zones"] = zones
+    return out
 
 
 def _toml_value(value: Any) -> str:

@@ -255,24 +255,15 @@ def phase_camera_records(outdir: str | Path, phase: int) -> tuple[list[dict], li
         raise CamplaceError(f"{outdir / 'plan.json'}: the plan has no agents (status {doc['status']})")
     run = RunFolder(outdir)
     instance, cands = run.instance, run.candidates
-    cam = instance.camera
+    from camplace.solution import camera_record
+
     records = []
     for ag in doc["agents"]:
         j = int(ag["candidates"][int(phase)])
         if not 0 <= j < len(cands):
             raise CamplaceError(f"{outdir / 'plan.json'}: candidate {j} out of range of candidates.csv (re-run the plan)")
-        records.append({
-            "candidate": j,
-            "position": [float(x) for x in cands.positions[j]],
-            "aim": [float(x) for x in cands.aims[j]],
-            "rotation": [[float(x) for x in row] for row in cands.rotations[j]],
-            "K": [[float(x) for x in row] for row in cam.K()],
-            "width": int(cam.width_px),
-            "height": int(cam.height_px),
-            "near_m": float(cam.near_m),
-            "far_m": float(cam.far_m),
-            "agent": int(ag["agent"]),
-        })
+        # the same record as solution.json's (a team's column: its model's intrinsics and name)
+        records.append({**camera_record(instance, cands, j), "agent": int(ag["agent"])})
     return records, [int(f) for f in doc["phases"][int(phase)]["frames"]], doc
 
 

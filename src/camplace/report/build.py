@@ -92,13 +92,27 @@ def _instance_section(run) -> str:
     inst, sol = run.instance, run.solution
     cam = inst.camera
     lt = legacy_target(inst)
+    def words(cam) -> str:
+        return (f"{cam.width_px} x {cam.height_px} px, sensor {cam.sensor_width_mm} x {cam.sensor_height_mm} mm, "
+                f"f = {cam.focal_length_mm} mm, FoV {cam.fov_x_deg:.1f} x {cam.fov_y_deg:.1f} deg, depth {cam.near_m}..{cam.far_m} m")
+
+    team = getattr(inst, "team", None)
+    if team is None:
+        cam_rows = [("camera", words(cam)), ("camera volume", f"{_vec(inst.volume.min_m, 2)} .. {_vec(inst.volume.max_m, 2)} m")]
+    else:
+        counts = lambda m: f"{m.min_count}..{m.max_count}" if m.max_count is not None else f"at least {m.min_count}"  # noqa: E731
+        cam_rows = [(f"camera model {m.name}", f"{words(m)}; cost {m.cost:g}, count {counts(m)}") for m in team.models]
+        cam_rows.append(("where cameras may stand", f"{len(team.volumes)} volume(s), {len(team.mounts)} mount surface(s), "
+                         f"{len(team.keepouts)} keep-out(s); bounding box {_vec(inst.volume.min_m, 2)} .. {_vec(inst.volume.max_m, 2)} m"))
+        cam_rows.append(("team budget and zones", (f"budget {team.budget:g}" if team.budget is not None else "no budget") + "; "
+                         + (", ".join(f"{z.name} ({z.min_cameras}{'..' + str(z.max_cameras) if z.max_cameras is not None else '+'})"
+                                      for z in team.zones) or "no zones")
+                         + " (not yet enforced by the solver)"))
     rows = [
         ("instance", inst.name),
         ("source", inst.source or "–"),
         ("cameras to place (k)", len(sol.cameras)),
-        ("camera", f"{cam.width_px} x {cam.height_px} px, sensor {cam.sensor_width_mm} x {cam.sensor_height_mm} mm, "
-                   f"f = {cam.focal_length_mm} mm, FoV {cam.fov_x_deg:.1f} x {cam.fov_y_deg:.1f} deg, depth {cam.near_m}..{cam.far_m} m"),
-        ("camera volume", f"{_vec(inst.volume.min_m, 2)} .. {_vec(inst.volume.max_m, 2)} m"),
+        *cam_rows,
         ("frames", f"{len(inst.frames)} (event centre aims: {len(run.aims)})"),
         ("target (top view)", f"x {lt.x_t_m:.3f}..{lt.x_t_m + lt.width_m:.3f} m, y {lt.y_t_m:.3f}..{lt.y_t_m + lt.height_m:.3f} m"),
         ("quality", f"{inst.quality.mode}, max incidence {inst.quality.max_incidence_deg} deg"),
@@ -192,10 +206,13 @@ def _system_section(run, comp) -> str:
         f"</tbody></table>"
     )
     rows = []
+    team = getattr(run.instance, "team", None) is not None
     for n, c in enumerate(comp.cameras, start=1):
         hd, el = _heading_pitch_deg(np.array(c["rotation"]))
-        rows.append((n, c["source"], _vec(c["position"]), _vec(c["aim"]), f"{hd:.1f}", f"{el:.1f}", _num(c["observed_weight"], 4)))
-    table = _table(["camera", "source", "position (m)", "aim (m)", "heading (deg)", "elevation (deg)", "observed alone"], rows, left=2)
+        model = (c.get("model", ""),) if team else ()
+        rows.append((n, *model, c["source"], _vec(c["position"]), _vec(c["aim"]), f"{hd:.1f}", f"{el:.1f}", _num(c["observed_weight"], 4)))
+    table = _table(["camera", *(["model"] if team else []), "source", "position (m)", "aim (m)", "heading (deg)", "elevation (deg)",
+                    "observed alone"], rows, left=2)
     extra = ""
     if comp.method == "union":
         extra = (f"<p class='note'>The run's own system ({_num(comp.run_objective, 6)}, status {esc(sol.status)} over its "
@@ -275,6 +292,9 @@ def _campaign_section(run, comp, campaigns) -> tuple[str, dict]:
 def _sampler_section(run, study) -> str:
     from camplace.report.figures import sampler_png
 
+    if study is None and getattr(run.instance, "team", None) is not None:
+        return ("<h2 id='samplers'>Samplers</h2><p class='muted'>Sampler study skipped: its ladders of candidate positions "
+                "are not defined for a camera team (pose x model columns) yet.</p>")
     if study is None:
         return "<h2 id='samplers'>Samplers</h2><p class='muted'>Sampler study skipped (--no-sampler-study).</p>"
     sol = run.solution
@@ -322,21 +342,34 @@ def _cones_section(run, comp, campaigns) -> str:
     grid = cone_grid(inst)
     fov = math.radians(inst.camera.fov_x_deg)
     rng_m = float(inst.camera.far_m)
+
+    def density(pos: np.ndarray, rot: np.ndarray, models) -> np.ndarray:
+        """Cone density, each camera with its model's FoV and far limit."""
+        if models is None or getattr(inst, "team", None) is None:
+            return cone_density(pos, rot, fov, rng_m, grid)
+        models = np.asarray(models)
+        return sum(cone_density(pos[models == j], rot[models == j], math.radians(m.fov_x_deg), float(m.far_m), grid)
+                   for j, m in enumerate(inst.cameras))
+
     pos = np.array([c["position"] for c in comp.cameras])
     rot = np.array([c["rotation"] for c in comp.cameras])
-    panels = [(f"optimised system (objective {comp.objective:.4f})", cone_density(pos, rot, fov, rng_m, grid), pos)]
+    own_models = [c.get("model_index", 0) for c in comp.cameras]
+    panels = [(f"optimised system (objective {comp.objective:.4f})", density(pos, rot, own_models), pos)]
     if campaigns:
         c = campaigns[0]
         for s, label in _pick_five(c):
             panels.append((f"{c.name} system {s + 1}: {label} (objective {c.objective[s]:.4f})",
-                           cone_density(c.positions[s], c.rotations[s], fov, rng_m, grid), c.positions[s]))
+                           density(c.positions[s], c.rotations[s], None if c.model is None else c.model[s]), c.positions[s]))
     lt = legacy_target(inst)
     png = cones_png(panels, grid.extent, (lt.x_t_m, lt.x_t_m + lt.width_m, lt.y_t_m, lt.y_t_m + lt.height_m))
+    wedge = (f"half-angle {inst.camera.fov_x_deg / 2:.1f} deg, radius = far limit {rng_m:g} m" if getattr(inst, "team", None) is None
+             else "half-angle and radius those of its camera model: " + ", ".join(
+                 f"{m.name} {m.fov_x_deg / 2:.1f} deg, {m.far_m:g} m" for m in inst.cameras))
     return (
         "<h2 id='cones'>Vision-cone density (top view)</h2>"
         f"<p class='note'>As the thesis's Figure 7.18: on an x-y grid over the camera volume, the number of cameras whose "
-        f"horizontal field-of-view wedge (apex at the camera, heading of its optical axis, half-angle "
-        f"{inst.camera.fov_x_deg / 2:.1f} deg, radius = far limit {rng_m:g} m) covers each cell; camera pitch is ignored. "
+        f"horizontal field-of-view wedge (apex at the camera, heading of its optical axis, "
+        f"{wedge}) covers each cell; camera pitch is ignored. "
         f"White outline: the target. The campaign systems are the best, 75th percentile, median, 25th percentile and worst "
         f"of the first campaign.</p>"
         + _img(png, "vision-cone density heatmaps", "Vision-cone density of the optimised system (top) and five campaign systems.")
@@ -644,7 +677,10 @@ def write_report(
     with reporter.stage("compare"):
         comp = compare_with_campaigns(run, campaigns, union=union, time_limit_s=time_limit_s)
     study = None
-    if sampler_study:
+    team = getattr(run.instance, "team", None) is not None
+    if team and sampler_study:
+        log.warning("report: sampler study skipped: its candidate ladders are not defined for a camera team yet")
+    if sampler_study and not team:
         study = _load_or_run_study(run, samplers=tuple(samplers), ladder=ladder, time_limit_s=time_limit_s, cache=cache, reporter=reporter)
     with reporter.stage("figures"):
         camp_html, _ = _campaign_section(run, comp, campaigns)

@@ -104,6 +104,9 @@ def problem_fingerprint(instance, points) -> str:
     cam = instance.camera
     h.update(repr((cam.sensor_width_mm, cam.sensor_height_mm, cam.focal_length_mm, cam.width_px, cam.height_px,
                    cam.near_m, cam.far_m)).encode())
+    if getattr(instance, "team", None) is not None:  # every model (single-model fingerprints as they were)
+        h.update(repr([(c.name, c.sensor_width_mm, c.sensor_height_mm, c.focal_length_mm, c.width_px, c.height_px,
+                        c.near_m, c.far_m) for c in instance.cameras]).encode())
     h.update(repr(instance.quality).encode())
     h.update(repr(tuple(float(x) for x in instance.light.position_m)).encode())
     for f in range(len(instance.frames)):
@@ -221,6 +224,9 @@ class Campaign:
         The folder name it was loaded from (or ``campaign-{sampler}``).
     matrix : scipy.sparse.csr_matrix or None
         (n_points, n_systems * k) visibility of the cameras, column ``s * k + c``.
+    model : (n_systems, k) int16 or None
+        A team's camera model of each camera (index into ``Instance.cameras``): each random camera
+        stands at a sampled position with one of the models that may stand there, drawn uniformly.
     """
 
     instance: str
@@ -247,6 +253,7 @@ class Campaign:
     timings_s: dict = field(default_factory=dict)
     name: str = ""
     matrix: Any = field(default=None, repr=False)
+    model: np.ndarray | None = None
 
     @property
     def n_systems(self) -> int:
@@ -263,7 +270,7 @@ class Campaign:
 
         n = self.n_systems * self.k
         return CandidateSet(self.positions.reshape(n, 3), self.aims.reshape(n, 3), self.rotations.reshape(n, 3, 3),
-                            sampler=self.sampler, seed=self.seed)
+                            sampler=self.sampler, seed=self.seed, model=None if self.model is None else self.model.reshape(n))
 
     def summary(self) -> dict[str, Any]:
         """Statistics of the objective and the legacy score, and the best system (1-based)."""
@@ -398,7 +405,7 @@ class Campaign:
             legacy=LegacyTarget.from_dict(meta["legacy"]), total_weight=float(meta.get("total_weight", 1.0)), event_mode=str(meta.get("event_mode", "all")),
             fingerprint=str(meta.get("fingerprint", "")), mode=str(meta.get("mode", "maxcover")),
             views=int(meta.get("views", 2)), min_angle_deg=meta.get("min_angle_deg"), timings_s=dict(meta.get("timings_s", {})),
-            name=outdir.name, matrix=mat,
+            name=outdir.name, matrix=mat, model=None if cams.model is None else cams.model.reshape(n, k),
         )
 
 
@@ -409,12 +416,22 @@ def _camera_poses(instance, sampler: str, n_cams: int, aims: np.ndarray, seed: i
 
     pos_seed, aim_seed = campaign_seed(seed).spawn(2)
     rng = np.random.default_rng(aim_seed)
-    positions = make_run_candidates(instance, sampler, n_cams, 1, pos_seed).positions.copy()
+    model = None
+    if getattr(instance, "team", None) is not None:
+        # a team: n_cams sampled positions, each with one of the models that may stand there
+        from camplace.visibility.stages import team_positions
+
+        positions, mount = team_positions(instance, sampler, n_cams, pos_seed)
+        allowed = instance.team.allowed_models(positions, mount)
+        pick = rng.random(n_cams) * allowed.sum(axis=1)
+        model = np.minimum(np.sum(np.cumsum(allowed, axis=1) <= pick[:, None], axis=1), allowed.shape[1] - 1).astype(np.int16)
+    else:
+        positions = make_run_candidates(instance, sampler, n_cams, 1, pos_seed).positions.copy()
     which = rng.integers(len(aims), size=n_cams) if len(aims) > 1 else np.zeros(n_cams, dtype=np.int64)
     aim_rows = aims[which]
     same = np.linalg.norm(positions - aim_rows, axis=1) < 1e-9  # probability ~0 (as make_candidates)
     positions[same] += 1e-6
-    return positions, aim_rows, look_at(positions, aim_rows)
+    return positions, aim_rows, look_at(positions, aim_rows), model
 
 
 def run_campaign(
@@ -516,13 +533,13 @@ def run_campaign(
 
     t0 = time.perf_counter()
     with reporter.stage("sampling"):
-        positions, aim_rows, rotations = _camera_poses(instance, sampler, systems * k, aims, seed)
+        positions, aim_rows, rotations, model = _camera_poses(instance, sampler, systems * k, aims, seed)
         pts = compute_points(instance, n_points, seed) if rows is None else rows
         fingerprint = problem_fingerprint(instance, pts)
     timings["sampling"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    cands = CandidateSet(positions, aim_rows, rotations, sampler=sampler, seed=seed)
+    cands = CandidateSet(positions, aim_rows, rotations, sampler=sampler, seed=seed, model=model)
     vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=cache)
     timings["visibility"] = time.perf_counter() - t0
 
@@ -545,7 +562,7 @@ def run_campaign(
         legacy_score=leg["delta"].sum(axis=1), legacy_distance_m=leg["distance"], legacy_area=leg["area"],
         legacy_camera_score=leg["delta"], legacy=target, total_weight=float(weights.sum()), event_mode=event_mode,
         fingerprint=fingerprint, mode=mode, views=int(views), min_angle_deg=min_angle_deg, timings_s=timings, name=Path(outdir).name if outdir is not None else f"campaign-{sampler}",
-        matrix=vis.matrix,
+        matrix=vis.matrix, model=None if model is None else model.reshape(systems, k),
     )
     if outdir is not None:
         with reporter.stage("write"):

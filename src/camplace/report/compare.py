@@ -216,16 +216,23 @@ def compare_with_campaigns(
     best = {c.name: float(c.objective.max()) for c in campaigns}
     top = max(best.values(), default=-np.inf)
 
-    def cam_rec(source: str, pos, aim, rot, column) -> dict[str, Any]:
+    names = [c.name for c in run.instance.cameras]
+    team = getattr(run.instance, "team", None) is not None
+
+    def cam_rec(source: str, pos, aim, rot, column, model: int | None = None) -> dict[str, Any]:
         alone = float(np.dot(w, np.asarray((column > 0).toarray()).ravel()))
-        return {"source": source, "position": [float(x) for x in pos], "aim": [float(x) for x in aim],
-                "rotation": [[float(x) for x in r] for r in rot], "observed_weight": alone}
+        rec = {"source": source, "position": [float(x) for x in pos], "aim": [float(x) for x in aim],
+               "rotation": [[float(x) for x in r] for r in rot], "observed_weight": alone}
+        if team:  # the camera model of a team's camera (index into instance.cameras)
+            rec["model"] = names[int(model or 0)]
+            rec["model_index"] = int(model or 0)
+        return rec
 
     # the run's proof is about its own objective; a setcover run's cameras are compared by what they observe
     proof = (float(sol.bound), float(sol.gap), sol.status) if sol.mode != "setcover" else (float(run_obj), 0.0, "feasible")
     if run_obj >= top - TIE and union == "auto":
         cams = [cam_rec(f"run candidate {c['candidate']}", c["position"], c.get("aim", c["position"]), c["rotation"],
-                        run.matrix[:, int(c["candidate"])]) for c in sol.cameras]
+                        run.matrix[:, int(c["candidate"])], c.get("model_index")) for c in sol.cameras]
         note = ("the run's system scores at least as well as every campaign system on the shared rows "
                 "(no re-solve needed)") if campaigns else "no campaign to compare with"
         return Comparison("run", float(run_obj), *proof, cams, float(run_obj), best,
@@ -244,11 +251,12 @@ def compare_with_campaigns(
         local = j - offsets[b]
         if b == 0:
             cams.append(cam_rec(f"run candidate {local}", run.candidates.positions[local], run.candidates.aims[local],
-                                run.candidates.rotations[local], U[:, j]))
+                                run.candidates.rotations[local], U[:, j], int(run.candidates.models()[local])))
         else:
             c = campaigns[b - 1]
             s, cc = divmod(int(local), c.k)
-            cams.append(cam_rec(f"{c.name} system {s + 1} camera {cc + 1}", c.positions[s, cc], c.aims[s, cc], c.rotations[s, cc], U[:, j]))
+            cams.append(cam_rec(f"{c.name} system {s + 1} camera {cc + 1}", c.positions[s, cc], c.aims[s, cc], c.rotations[s, cc], U[:, j],
+                                None if c.model is None else int(c.model[s, cc])))
     why = "requested (--union always)" if union == "always" else f"a campaign system ({top:.6f}) beat the run's system ({run_obj:.6f})"
     note = f"re-solved over the union of the run's {run.matrix.shape[1]} candidates and {U.shape[1] - run.matrix.shape[1]} campaign cameras: {why}"
     log.info("report: %s -> %s objective %.6f", note, res.status, res.objective)

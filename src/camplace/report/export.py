@@ -16,10 +16,15 @@ Cameras are named ``e{experiment}.1.camera_{n}`` like the renders (``OUTDIR/rend
     COLMAP's text model: one PINHOLE camera per image (``fx fy cx cy`` with COLMAP's pixel
     convention, where the centre of the top-left pixel is (0.5, 0.5): cx, cy = ours + 0.5), and per
     image ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` (world-to-camera: x_cam = R(q) x_world + t)
-    followed by an empty 2D-points line; points3D.txt is empty.
+    followed by an empty 2D-points line; points3D.txt is empty. For a team (cameras with a
+    ``model``), one camera entry per camera model instead, shared by that model's images.
 ``cameras.glb``
     A glTF 2.0 binary scene: the instance's occluders and target (frame 0) and one frustum mesh per
     camera (apex at the camera centre, base = the image corners at the distance to its aim point).
+    For a team, frustums are coloured by camera model and named ``frustum.{model}.{camera name}``.
+
+For a team, ``cameras.json`` and ``cameras.csv`` also give each camera's ``model`` (the csv as a
+last column) and ``cameras.json`` its ``cost``.
     glTF is y-up, so every node carries the rotation (x, y, z) -> (x, z, -y) from the run's z-up world.
 """
 
@@ -115,6 +120,8 @@ def write_colmap(cameras, folder: str | Path) -> list[Path]:
                  "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
                  "#   POINTS2D[] as (X, Y, POINT3D_ID)",
                  f"# Number of images: {len(cameras)}, mean observations per image: 0"]
+    by_model = any(getattr(cam, "model", "") for cam in cameras)
+    camera_id: dict[str, int] = {}
     for i, cam in enumerate(cameras, start=1):
         if cam.has_distortion:
             raise CamplaceError(f"camera {cam.name!r}: has lens distortion; the COLMAP export writes PINHOLE cameras only")
@@ -123,11 +130,23 @@ def write_colmap(cameras, folder: str | Path) -> list[Path]:
             raise CamplaceError(f"camera {cam.name!r}: K has a skew term, which COLMAP's PINHOLE model cannot hold")
         # ours: pixel centres at integer coordinates; COLMAP: at +0.5
         params = (K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5)
-        cam_lines.append(f"{i} PINHOLE {cam.width} {cam.height} " + " ".join(repr(float(v)) for v in params))
+        line = f"PINHOLE {cam.width} {cam.height} " + " ".join(repr(float(v)) for v in params)
+        if by_model:  # a team: one COLMAP camera per model, shared by its images
+            key = f"{cam.model}\0{line}"
+            if key not in camera_id:
+                camera_id[key] = len(camera_id) + 1
+                cam_lines.append(f"{camera_id[key]} {line}")
+            cid = camera_id[key]
+        else:
+            cid = i
+            cam_lines.append(f"{i} {line}")
         q, t = colmap_pose(cam.position, cam.rotation)
         name = cam.image or f"{cam.name}.png"
-        img_lines.append(f"{i} " + " ".join(repr(float(v)) for v in (*q, *t)) + f" {i} {name}")
+        img_lines.append(f"{i} " + " ".join(repr(float(v)) for v in (*q, *t)) + f" {cid} {name}")
         img_lines.append("")
+    if by_model:
+        cam_lines[3] = f"# Number of cameras: {len(camera_id)} (one per camera model: " + ", ".join(
+            k.split("\0")[0] for k in camera_id) + ")"
     paths = [folder / "cameras.txt", folder / "images.txt", folder / "points3D.txt"]
     write_text_atomic(paths[0], "\n".join(cam_lines) + "\n")
     write_text_atomic(paths[1], "\n".join(img_lines) + "\n")
@@ -195,10 +214,14 @@ def glb_bytes(cameras, depths_m: Sequence[float], meshes: Sequence[tuple[str, np
         target = name == "target"
         m.visual.face_colors = (235, 140, 52, 255) if target else (190, 195, 205, 90)
         scene.add_geometry(m, node_name=f"scene.{name}", geom_name=f"scene.{name}", transform=Z_UP_TO_Y_UP)
+    models = list(dict.fromkeys(getattr(cam, "model", "") for cam in cameras))
     for i, (cam, d) in enumerate(zip(cameras, depths_m)):
         fr = frustum_mesh(cam, float(d))
-        fr.visual.face_colors = (*_FRUSTUM_COLOURS[i % len(_FRUSTUM_COLOURS)], 160)
-        scene.add_geometry(fr, node_name=f"frustum.{cam.name}", geom_name=f"frustum.{cam.name}", transform=Z_UP_TO_Y_UP)
+        model = getattr(cam, "model", "")
+        colour = models.index(model) if model else i  # a team: one colour per camera model
+        fr.visual.face_colors = (*_FRUSTUM_COLOURS[colour % len(_FRUSTUM_COLOURS)], 160)
+        node = f"frustum.{model}.{cam.name}" if model else f"frustum.{cam.name}"
+        scene.add_geometry(fr, node_name=node, geom_name=node, transform=Z_UP_TO_Y_UP)
     data = scene.export(file_type="glb")
     return bytes(data)
 
@@ -214,6 +237,14 @@ def _solution_cameras(outdir: Path, experiment: str | None, phase: int | None = 
         solution, _ = phase_solution(outdir, solution, phase)
     cams = CameraSet.from_solution(solution, experiment=experiment or instance.name, system=1).cameras
     return instance, solution, cams
+
+
+def _model_of(instance, rec: dict):
+    """The camera model (CameraModel) of a solution's camera record: by name, else the first."""
+    for m in instance.cameras:
+        if m.name == rec.get("model"):
+            return m
+    return instance.camera
 
 
 def default_export_folder(outdir: str | Path, phase: int | None = None) -> Path:
@@ -271,6 +302,9 @@ def export_cameras(
                       "near_m": float(rec.get("near_m", cm.near_m)), "far_m": float(rec.get("far_m", cm.far_m)),
                       "fov_x_deg": cm.fov_x_deg, "fov_y_deg": cm.fov_y_deg,
                       "qvec": [float(x) for x in q], "tvec": [float(x) for x in t]})
+            if "model" in rec:  # a team: the model's own field of view, and its cost
+                m = _model_of(instance, rec)
+                d.update({"model": rec["model"], "cost": float(rec.get("cost", m.cost)), "fov_x_deg": m.fov_x_deg, "fov_y_deg": m.fov_y_deg})
             items.append(d)
         src = str(outdir / "solution.json") if phase is None else f"{outdir / 'plan.json'} phase {phase}"
         doc = {"format": "json", "source": src, "instance": solution.instance,
@@ -280,7 +314,8 @@ def export_cameras(
     if "csv" in fmts:
         buf = io.StringIO()
         wr = csv.writer(buf, lineterminator="\n")
-        wr.writerow(CSV_COLUMNS)
+        team = any("model" in rec for rec in recs)
+        wr.writerow(CSV_COLUMNS + (["model"] if team else []))
         for cam, rec in zip(cams, recs):
             q, t = colmap_pose(cam.position, cam.rotation)
             aim = rec.get("aim") or [float("nan")] * 3
@@ -288,7 +323,8 @@ def export_cameras(
             wr.writerow([cam.name, int(rec["candidate"]), *map(repr, map(float, cam.position)), *map(repr, map(float, aim)),
                          *map(repr, map(float, q)), *map(repr, map(float, t)), *map(repr, map(float, cam.rotation.ravel())),
                          repr(float(K[0, 0])), repr(float(K[1, 1])), repr(float(K[0, 2])), repr(float(K[1, 2])),
-                         cam.width, cam.height, repr(float(rec.get("near_m", cm.near_m))), repr(float(rec.get("far_m", cm.far_m)))])
+                         cam.width, cam.height, repr(float(rec.get("near_m", cm.near_m))), repr(float(rec.get("far_m", cm.far_m))),
+                         *([rec.get("model", "")] if team else [])])
         write_text_atomic(dest / "cameras.csv", buf.getvalue())
         written.append(dest / "cameras.csv")
     if "colmap" in fmts:

@@ -60,7 +60,8 @@ def system_columns(run, comp=None, campaigns: Sequence = ()) -> tuple[list[dict]
 
     sol = run.solution
     own = ([{"label": f"camera {n} (candidate {int(c['candidate'])})", "position": np.asarray(c["position"], dtype=np.float64),
-             "rotation": np.asarray(c["rotation"], dtype=np.float64)} for n, c in enumerate(sol.cameras, start=1)],
+             "rotation": np.asarray(c["rotation"], dtype=np.float64), **_intrinsics(run.instance, c.get("model_index"))}
+            for n, c in enumerate(sol.cameras, start=1)],
            run.matrix[:, [int(c["candidate"]) for c in sol.cameras]].tocsc(), "the run's system")
     if comp is None or comp.method != "union":
         return own
@@ -79,7 +80,8 @@ def system_columns(run, comp=None, campaigns: Sequence = ()) -> tuple[list[dict]
             log.warning("report: 3D view: camera %s of the re-solved system is neither a run candidate nor a campaign camera; "
                         "showing the run's system", c.get("source"))
             return own[0], own[1], "the run's system (the re-solved system's columns were not found)"
-        cams.append({"label": f"camera {n} ({c.get('source', '?')})", "position": pos, "rotation": rot})
+        cams.append({"label": f"camera {n} ({c.get('source', '?')})", "position": pos, "rotation": rot,
+                     **_intrinsics(run.instance, c.get("model_index"))})
         cols.append(col)
     return cams, sp.hstack(cols, format="csc"), "the system re-solved over the union with the campaign cameras"
 
@@ -123,18 +125,28 @@ def multiview_counted(points: np.ndarray, seen: np.ndarray, positions: np.ndarra
     return ok
 
 
+def _intrinsics(instance, model: int | None) -> dict:
+    """A team camera's record fields K, width, height, near_m, far_m (its model's); nothing without a team."""
+    if model is None or getattr(instance, "team", None) is None:
+        return {}
+    m = instance.cameras[int(model)]
+    return {"K": m.K().tolist(), "width": m.width_px, "height": m.height_px, "near_m": m.near_m, "far_m": m.far_m}
+
+
 def _scene_cameras(records: Sequence[dict], sol, depth_points: np.ndarray) -> tuple[SceneCamera, ...]:
+    """The records' cameras, with their own intrinsics when they carry them (a team's), else the first chosen camera's."""
     ref = sol.cameras[0]
     out = []
     for r in records:
-        near, far = float(ref.get("near_m", 0.0)), float(ref.get("far_m", np.inf))
+        src = r if "K" in r else ref
+        near, far = float(src.get("near_m", 0.0)), float(src.get("far_m", np.inf))
         d = reach_depth(r["position"], r["rotation"], depth_points, near, far)
-        out.append(SceneCamera(r["label"], r["position"], r["rotation"], np.asarray(ref["K"], dtype=np.float64), int(ref["width"]),
-                               int(ref["height"]), near_m=near, depth_m=d, note=r.get("note", "")))
+        out.append(SceneCamera(r["label"], r["position"], r["rotation"], np.asarray(src["K"], dtype=np.float64), int(src["width"]),
+                               int(src["height"]), near_m=near, depth_m=d, note=r.get("note", "")))
     return tuple(out)
 
 
-def _campaign_systems(campaigns: Sequence, sol, depth_points: np.ndarray) -> tuple[tuple[str, tuple[SceneCamera, ...]], ...]:
+def _campaign_systems(campaigns: Sequence, sol, depth_points: np.ndarray, instance=None) -> tuple[tuple[str, tuple[SceneCamera, ...]], ...]:
     """The best and the median system of each campaign."""
     out = []
     for c in campaigns:
@@ -144,7 +156,8 @@ def _campaign_systems(campaigns: Sequence, sol, depth_points: np.ndarray) -> tup
             continue
         for s, label in ((int(order[-1]), "best"), (int(order[int(round(0.5 * (n - 1)))]), "median")):
             recs = [{"label": f"{c.name} {label} s{s + 1} c{j + 1}", "position": c.positions[s, j], "rotation": c.rotations[s, j],
-                     "note": f"{c.name} system {s + 1} ({label}, objective {c.objective[s]:.4f}) camera {j + 1}"} for j in range(c.k)]
+                     "note": f"{c.name} system {s + 1} ({label}, objective {c.objective[s]:.4f}) camera {j + 1}",
+                     **_intrinsics(instance, None if getattr(c, "model", None) is None else int(c.model[s, j]))} for j in range(c.k)]
             out.append((f"{c.name} {label} (objective {c.objective[s]:.4f})", _scene_cameras(recs, sol, depth_points)))
     return tuple(out)
 
@@ -213,7 +226,7 @@ def run_scene(run, comp=None, campaigns: Sequence = ()) -> Scene3D:
         weights=pts.weight[rows],
         counted=counted,
         surface=~emit,
-        other_systems=_campaign_systems(campaigns, sol, depth_points),
+        other_systems=_campaign_systems(campaigns, sol, depth_points, run.instance),
         trajectory=trajectory,
         trajectory_labels=labels or (),
         peak_frame=peak if n_frames > 1 else None,

@@ -156,6 +156,9 @@ def sampler_study(
 
     reporter = reporter or Reporter()
     sol, inst = run.solution, run.instance
+    if getattr(inst, "team", None) is not None:
+        raise CamplaceError(f"{inst.source}: the sampler study's candidate ladders are not defined for a camera team "
+                            "([[cameras]] pose x model columns) yet; run it on a single-model instance")
     k = len(sol.cameras)
     aims = run.aims
     a = len(aims)
@@ -182,7 +185,7 @@ def sampler_study(
         if same_as_run:
             matrix = run.matrix[:, : len(cands)]
         else:
-            cands = CandidateSet(cands.positions, cands.aims, cands.rotations, sampler=s, seed=sol.seed)
+            cands = cands.with_run(s, sol.seed)
             matrix = visibility_stage(inst, cands, run.points, reporter=reporter, cache=cache).matrix
         log.info("sampler study: %s matrix in %.2f s (%s)", s, time.perf_counter() - t0, "run's" if same_as_run else "ray cast")
         unit = np.clip((cands.positions[::a] - lo) / (hi - lo), 0.0, 1.0)

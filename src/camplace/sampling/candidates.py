@@ -14,6 +14,8 @@ from camplace.geometry import WORLD_UP, look_at  # noqa: F401  (re-exported)
 from camplace.sampling.samplers import sample_positions
 
 CSV_HEADER = "index,x,y,z,aim_x,aim_y,aim_z," + ",".join(f"r{i}{j}" for i in range(1, 4) for j in range(1, 4))
+#: ``candidates.csv`` of a team instance: one more column, the camera model's index in ``Instance.cameras``.
+CSV_HEADER_TEAM = CSV_HEADER + ",model"
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,6 +32,11 @@ class CandidateSet:
         World-from-camera rotations, OpenCV axes (x right, y down, z forward).
     sampler : str
     seed : int or None
+    model : (n,) int16 or None
+        A team's camera model of each column (index into ``Instance.cameras``); None for the
+        single-model instances without a team (every column is model 0).
+    zones : (n, z) bool or None
+        Whether each column's camera centre lies in each of the team's ``[[zones]]``.
     """
 
     positions: np.ndarray
@@ -37,18 +44,31 @@ class CandidateSet:
     rotations: np.ndarray
     sampler: str = ""
     seed: int | None = None
+    model: np.ndarray | None = None
+    zones: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
 
+    def models(self) -> np.ndarray:
+        """(n,) int16 model index of every column (zeros without a team)."""
+        return np.zeros(len(self), dtype=np.int16) if self.model is None else np.asarray(self.model, dtype=np.int16)
+
+    def with_run(self, sampler: str, seed: int | None) -> "CandidateSet":
+        """The same poses (and models, zones) labelled with a run's sampler and seed."""
+        return CandidateSet(self.positions, self.aims, self.rotations, sampler=sampler, seed=seed, model=self.model, zones=self.zones)
+
     def to_csv(self) -> str:
-        """The ``candidates.csv`` text: ``index,x,y,z,aim_x,aim_y,aim_z,r11,...,r33``."""
+        """The ``candidates.csv`` text: ``index,x,y,z,aim_x,aim_y,aim_z,r11,...,r33`` (and ``,model`` for a team)."""
         buf = io.StringIO()
-        buf.write(CSV_HEADER + "\n")
+        buf.write((CSV_HEADER if self.model is None else CSV_HEADER_TEAM) + "\n")
         n = len(self)
         table = np.column_stack([self.positions, self.aims, self.rotations.reshape(n, 9)])
         for i, row in enumerate(table):
-            buf.write(f"{i}," + ",".join(repr(float(v)) for v in row) + "\n")
+            line = f"{i}," + ",".join(repr(float(v)) for v in row)
+            if self.model is not None:
+                line += f",{int(self.model[i])}"
+            buf.write(line + "\n")
         return buf.getvalue()
 
     def save(self, path: str | Path) -> None:
@@ -58,12 +78,24 @@ class CandidateSet:
     @classmethod
     def load(cls, path: str | Path) -> "CandidateSet":
         """Read a ``candidates.csv`` (as written by :meth:`save`); rotations must be orthonormal."""
-        data = read_numeric_csv(path, CSV_HEADER, "candidates file")
+        try:
+            with Path(path).open() as fh:
+                first = fh.readline().replace(" ", "").strip()
+        except (OSError, UnicodeDecodeError):
+            first = ""  # read_numeric_csv reports it
+        team = first == CSV_HEADER_TEAM
+        data = read_numeric_csv(path, CSV_HEADER_TEAM if team else CSV_HEADER, "candidates file")
         rot = data[:, 7:16].reshape(-1, 3, 3)
         err = np.abs(np.einsum("nji,njk->nik", rot, rot) - np.eye(3)).max(initial=0.0)
         if err > 1e-6:
             raise CamplaceError(f"{path}: rotation columns r11..r33 are not orthonormal (max error {err:.2g})")
-        return cls(positions=data[:, 1:4].copy(), aims=data[:, 4:7].copy(), rotations=rot.copy(), sampler="file")
+        model = None
+        if team:
+            model = data[:, 16]
+            if np.any(model != np.round(model)) or np.any(model < 0):
+                raise CamplaceError(f"{path}: column model must hold whole numbers >= 0 (camera model indices)")
+            model = model.astype(np.int16)
+        return cls(positions=data[:, 1:4].copy(), aims=data[:, 4:7].copy(), rotations=rot.copy(), sampler="file", model=model)
 
 
 def make_candidates(

@@ -137,4 +137,5 @@ def perturb_poses(
     turn = Rotation.from_rotvec((math.radians(float(rotation_sigma_deg)) * z[:, :, 3:]).reshape(-1, 3)).as_matrix()
     rot = np.einsum("cij,scjk->scik", rot0, turn.reshape(s_count, c, 3, 3)).reshape(s_count * c, 3, 3)
     aims = pos + rot[:, :, 2] * np.tile(dist, s_count)[:, None]
-    return CandidateSet(positions=pos, aims=aims, rotations=rot, sampler=cands.sampler, seed=cands.seed)
+    model = None if cands.model is None else np.tile(np.asarray(cands.model)[idx], s_count)
+    return CandidateSet(positions=pos, aims=aims, rotations=rot, sampler=cands.sampler, seed=cands.seed, model=model)

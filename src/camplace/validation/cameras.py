@@ -12,7 +12,8 @@ Pixel centres are at integer coordinates (OpenCV), so the top-left pixel covers 
                   "K": [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "width": 640, "height": 480,
                   "dist": [k1, k2, p1, p2, k3]}, ...]}
 
-``image`` and ``dist`` are optional (``dist`` defaults to no distortion, OpenCV coefficient order).
+``image``, ``dist`` and ``model`` are optional (``dist`` defaults to no distortion, OpenCV coefficient
+order; ``model`` names a team's camera model, ``[[cameras]]`` of the instance).
 The importers of calibration files (Middlebury, COLMAP, OpenCV) are in :mod:`camplace.validation.camera_io`.
 """
 
@@ -58,6 +59,8 @@ class CameraView:
         OpenCV distortion coefficients k1, k2, p1, p2, k3 (zeros: ideal pinhole).
     image : str
         File name of the photograph this camera took, when known (else "").
+    model : str
+        The camera model of a team's camera (``[[cameras]]`` name; "" when there is no team).
     """
 
     name: str
@@ -68,6 +71,7 @@ class CameraView:
     height: int
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     image: str = ""
+    model: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "position", np.asarray(self.position, dtype=np.float64).reshape(3))
@@ -124,11 +128,11 @@ class CameraView:
 
     def with_pose(self, position: np.ndarray, rotation: np.ndarray, name: str | None = None) -> "CameraView":
         """A copy at another pose (same intrinsics)."""
-        return CameraView(name or self.name, position, rotation, self.K, self.width, self.height, self.dist, self.image)
+        return CameraView(name or self.name, position, rotation, self.K, self.width, self.height, self.dist, self.image, self.model)
 
     def with_dist(self, dist: Sequence[float]) -> "CameraView":
         """A copy with other distortion coefficients."""
-        return CameraView(self.name, self.position, self.rotation, self.K, self.width, self.height, dist, self.image)
+        return CameraView(self.name, self.position, self.rotation, self.K, self.width, self.height, dist, self.image, self.model)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready record (see the module docstring)."""
@@ -144,6 +148,8 @@ class CameraView:
             out["dist"] = [float(x) for x in self.dist]
         if self.image:
             out["image"] = self.image
+        if self.model:
+            out["model"] = self.model
         return out
 
     @classmethod
@@ -171,7 +177,7 @@ class CameraView:
             raise CamplaceError(f"{where}: camera {name!r}: width and height must be >= 1")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise CamplaceError(f"{where}: camera {name!r}: K must have positive focal lengths K[0][0], K[1][1]")
-        return cls(name, pos, R, K, width, height, dist, str(rec.get("image", "")))
+        return cls(name, pos, R, K, width, height, dist, str(rec.get("image", "")), str(rec.get("model", "")))
 
     def rays(self, rows: slice | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per-pixel viewing rays (pixel (u, v) -> direction ``R K^-1 [u, v, 1]``, undistorted when set).
@@ -337,6 +343,7 @@ class CameraSet:
                     rec["K"],
                     int(rec["width"]),
                     int(rec["height"]),
+                    model=str(rec.get("model", "")),
                 )
             )
         return cls(tuple(cams), "solution", "solution.json")

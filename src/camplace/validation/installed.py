@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -206,7 +206,11 @@ def installed_objective(instance, objective: RunObjective, installed: Sequence[S
         return np.zeros(n_inst), (np.zeros(n_inst) if rows is not None else None)
     pos = np.array([[c.position for c in cams] for cams in installed], dtype=np.float64).reshape(n_inst * k, 3)
     rot = np.array([[c.rotation for c in cams] for cams in installed], dtype=np.float64).reshape(n_inst * k, 3, 3)
-    poses = CandidateSet(positions=pos, aims=pos + rot[:, :, 2], rotations=rot)
+    model = None
+    if getattr(instance, "team", None) is not None:  # each camera with its model's intrinsics
+        index = {m.name: j for j, m in enumerate(instance.cameras)}
+        model = np.array([[index.get(c.model, 0) for c in cams] for cams in installed], dtype=np.int16).reshape(n_inst * k)
+    poses = CandidateSet(positions=pos, aims=pos + rot[:, :, 2], rotations=rot, model=model)
     matrix = compute_visibility(instance, poses, objective.points, memory_budget_bytes=memory_budget_bytes).matrix.tocsc()
     if rows is not None:
         rows = np.asarray(rows, dtype=np.int64)
@@ -285,6 +289,9 @@ class ObservableRows:
     cos_max : float
         Cosine of ``max_incidence_deg`` (0 when it is 90: facing alone).
     near_m, far_m : float
+    model_ranges : dict of str to (near_m, far_m)
+        A team's depth range per camera model (a camera whose ``model`` is not listed uses
+        ``near_m``, ``far_m``).
     """
 
     positions: np.ndarray
@@ -293,6 +300,7 @@ class ObservableRows:
     cos_max: float
     near_m: float
     far_m: float
+    model_ranges: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, instance, points, rows: np.ndarray) -> "ObservableRows":
@@ -303,7 +311,9 @@ class ObservableRows:
         rows = np.asarray(rows, dtype=np.int64)
         lit = lit_points(instance, points)[rows] if q.require_light else np.ones(len(rows), dtype=bool)
         cos_max = math.cos(math.radians(q.max_incidence_deg)) if q.max_incidence_deg < 90.0 else 0.0
-        return cls(points.positions[rows], points.normals[rows], lit, cos_max, float(instance.camera.near_m), float(instance.camera.far_m))
+        ranges = {m.name: (float(m.near_m), float(m.far_m)) for m in instance.cameras} if getattr(instance, "team", None) is not None else {}
+        return cls(points.positions[rows], points.normals[rows], lit, cos_max, float(instance.camera.near_m), float(instance.camera.far_m),
+                   ranges)
 
     def from_camera(self, camera) -> np.ndarray:
         """(r,) bool: rows the instance counts as observable from ``camera`` (CameraView) but for
@@ -314,7 +324,8 @@ class ObservableRows:
         emitter = ~np.any(self.normals != 0.0, axis=1)
         facing = (cos > 0) & (cos >= self.cos_max)
         z = -view @ np.asarray(camera.rotation, dtype=np.float64)[:, 2]
-        return (emitter | (facing & self.lit)) & (z >= self.near_m) & (z <= self.far_m)
+        near, far = self.model_ranges.get(getattr(camera, "model", ""), (self.near_m, self.far_m))
+        return (emitter | (facing & self.lit)) & (z >= near) & (z <= far)
 
 
 def photo_value(seen: np.ndarray, weights: np.ndarray, mode: str, views: int) -> float:

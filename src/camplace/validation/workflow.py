@@ -232,6 +232,7 @@ def render_run(
                         "width": cam.width,
                         "height": cam.height,
                         "render_s": dt,
+                        **({"model": cam.model} if cam.model else {}),
                     }
                 )
                 log.info("rendered %s (%d target px, %.3f s for both images)", stem, fg.target_px, dt)
@@ -611,13 +612,19 @@ def _random_systems(outdir: Path, instance, solution, n: int, rng: np.random.Gen
         raise CamplaceError(f"--random-systems: {outdir / 'candidates.csv'} has fewer than k = {k} candidates")
     K = np.asarray(solution.cameras[0]["K"], dtype=np.float64)
     w, h = int(solution.cameras[0]["width"]), int(solution.cameras[0]["height"])
+    team = getattr(instance, "team", None) is not None
+    models = cands.models()
+
+    def view(name: str, i: int) -> CameraView:
+        if not team:
+            return CameraView(name, cands.positions[i], cands.rotations[i], K, w, h)
+        m = instance.cameras[int(models[i])]  # a team's candidate: its model's intrinsics
+        return CameraView(name, cands.positions[i], cands.rotations[i], m.K(), m.width_px, m.height_px, model=m.name)
+
     systems = []
     for s in range(n):
         idx = rng.choice(len(cands), size=k, replace=False)
-        systems.append(
-            [CameraView(camera_stem(experiment, first_system + s, j + 1), cands.positions[i], cands.rotations[i], K, w, h)
-             for j, i in enumerate(idx)]
-        )
+        systems.append([view(camera_stem(experiment, first_system + s, j + 1), i) for j, i in enumerate(idx)])
     return systems
 
 
@@ -734,6 +741,8 @@ def validate_runs(
                     }
                 bg_render = render_view(cam, bg_scene, settings=settings, workers=workers).image if bg is not None else None
                 photo_det, render_det = detections[s - 1]
+                if cam.model:  # a team's camera: its model
+                    extra = {**extra, "model": cam.model}
                 rec, det, expected = _compare_one(cam.name, s, cam, pred, bg_render, photo, bg, photo_det, extra,
                                                   render_detection=render_det)
                 if inst_plan is not None:

@@ -50,6 +50,12 @@ def task_key(task) -> str:
         a = np.ascontiguousarray(getattr(task, name))
         h.update(f"{name}{a.dtype.str}{a.shape}".encode())
         h.update(a.tobytes())
+    if task.cam_model is not None:  # a team: per-column models (single-model keys stay as they were)
+        h.update(b"cam_model")
+        h.update(np.ascontiguousarray(task.cam_model, dtype=np.int16).tobytes())
+        for K, w, hh, near, far in task.models:
+            h.update(np.ascontiguousarray(K, dtype=np.float64).tobytes())
+            h.update(json.dumps([int(w), int(hh), float(near), float(far)]).encode())
     for f in sorted(task.scene_triangles):
         a = np.ascontiguousarray(task.scene_triangles[f], dtype=np.float32)
         h.update(f"frame{f}{a.shape}".encode())

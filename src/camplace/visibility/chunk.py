@@ -129,6 +129,11 @@ class VisibilityTask:
     min_target_px : float
         ``[quality] min_target_px`` (0: none); applied by the engine after assembly
         (:func:`camplace.visibility.engine.drop_small_views`), here for the cache key.
+    cam_model : (n,) int16 or None
+        A team's camera model of each candidate, non-decreasing (columns grouped by model); None:
+        every candidate has the intrinsics ``K``, ``width_px``, ... above.
+    models : tuple of (K (3, 3) float64, width_px, height_px, near_m, far_m)
+        The intrinsics of each model of ``cam_model`` (model 0's are also ``K``, ``width_px``, ...).
     """
 
     positions: np.ndarray
@@ -151,10 +156,36 @@ class VisibilityTask:
     support: np.ndarray
     support_tol: np.ndarray
     min_target_px: float = 0.0
+    cam_model: np.ndarray | None = None
+    models: tuple = ()
 
     @property
     def n_candidates(self) -> int:
         return int(self.cam_positions.shape[0])
+
+    def model_ranges(self) -> list[tuple[int, int, int]]:
+        """``(model, start, stop)`` of each run of columns with one camera model, in column order."""
+        n = self.n_candidates
+        if self.cam_model is None or n == 0:
+            return [(0, 0, n)]
+        cuts = np.flatnonzero(np.diff(self.cam_model)) + 1
+        bounds = [0, *cuts.tolist(), n]
+        return [(int(self.cam_model[a]), int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def intrinsics(self, start: int, stop: int) -> tuple[np.ndarray, int, int, float, float]:
+        """``(K, width_px, height_px, near_m, far_m)`` of candidates ``start:stop`` (one model).
+
+        Raises
+        ------
+        ValueError
+            When the range holds candidates of two models.
+        """
+        if self.cam_model is None or stop <= start:
+            return self.K, self.width_px, self.height_px, self.near_m, self.far_m
+        m = int(self.cam_model[start])
+        if int(self.cam_model[stop - 1]) != m or np.any(self.cam_model[start:stop] != m):
+            raise ValueError(f"candidates {start}:{stop} hold more than one camera model")
+        return self.models[m]
 
     @functools.cached_property
     def live_rows(self) -> np.ndarray:
@@ -355,12 +386,10 @@ def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start
         return ChunkResult(start, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)
     lv = task.live_arrays
     n_frames = len(task.eps_m)
+    K, width_px, height_px, near_m, far_m = task.intrinsics(start, stop)
     whole = np.zeros((nc, n_frames), dtype=bool)
     for f, (centre, radius) in task.frame_spheres.items():
-        whole[:, f] = sphere_inside_view(
-            centre, radius, pos, rot, task.K, task.width_px, task.height_px, task.near_m, task.far_m
-        )
-    K = task.K
+        whole[:, f] = sphere_inside_view(centre, radius, pos, rot, K, width_px, height_px, near_m, far_m)
     kept = _scratch(bufs, "kept", nc * len(live), np.int32)
     group = _scratch(bufs, "group", nc * len(live), np.int8)
     sizes = np.zeros(2 * n_frames, dtype=np.int64)
@@ -369,7 +398,7 @@ def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start
         lv["ndotp"], lv["emit"], lv["support"], task.support_tol, lv["frame_blocks"], lv["block_start"],
         lv["block_centre"], lv["block_axis"], lv["block_spread"], lv["block_h_lo"], lv["block_h_hi"], lv["block_emit"],
         lv["block_reach"], float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-        task.width_px, task.height_px, task.near_m, task.far_m, task.cos_max_incidence, kept, group, sizes,
+        width_px, height_px, near_m, far_m, task.cos_max_incidence, kept, group, sizes,
     )
     kept, group = kept[:q], group[:q]
     counts["in_range"], counts["in_frustum"], counts["facing"] = (int(x) for x in steps)

@@ -74,6 +74,7 @@ def compute_chunks_dask(
     *,
     client=None,
     progress: Callable[[int], None] | None = None,
+    stops: list[int] | None = None,
 ) -> list:
     """Compute the chunks starting at ``starts`` on a Dask cluster; results in the order of ``starts``.
 
@@ -88,6 +89,9 @@ def compute_chunks_dask(
         An existing client to use.
     progress : callable or None
         Called with the number of candidates finished as chunks complete.
+    stops : list of int or None
+        The end of each chunk (default ``start + chunk_size``, at most the candidate count): a
+        team's chunks end at its model boundaries.
     """
     if not starts:
         return []
@@ -100,15 +104,16 @@ def compute_chunks_dask(
         n = task.n_candidates
         remote_task = client.scatter(task, broadcast=True, hash=False)
         futures = {}
+        end = {s: (stops[i] if stops is not None else min(s + chunk_size, n)) for i, s in enumerate(starts)}
         for s in starts:
-            fut = client.submit(run_chunk, remote_task, s, min(s + chunk_size, n), pure=False, retries=5)
+            fut = client.submit(run_chunk, remote_task, s, end[s], pure=False, retries=5)
             futures[fut] = s
         results = {}
         for fut in distributed.as_completed(list(futures)):
             s = futures[fut]
             results[s] = fut.result()
             if progress is not None:
-                progress(min(chunk_size, n - s))
+                progress(end[s] - s)
         return [results[s] for s in starts]
     finally:
         if own:

@@ -225,8 +225,28 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
         support=support,
         support_tol=tol,
         min_target_px=float(getattr(q, "min_target_px", 0.0)),
+        **team_intrinsics(instance, candidates),
     )
     return task, scenes
+
+
+def team_intrinsics(instance, candidates) -> dict:
+    """The task's ``cam_model`` and ``models`` of a team (nothing for a single-model instance)."""
+    model = getattr(candidates, "model", None)
+    if getattr(instance, "team", None) is None:
+        if model is not None and len(model) and np.any(np.asarray(model) != 0):
+            raise CamplaceError("candidates: the columns name camera models but the instance has a single [camera] "
+                                "(use the team instance the candidates were sampled for)")
+        return {}
+    if model is None:
+        if len(instance.cameras) > 1:
+            log.warning("visibility: the candidates name no camera model: every column is the first model, %r", instance.camera.name)
+        return {}
+    models = tuple((c.K(), int(c.width_px), int(c.height_px), float(c.near_m), float(c.far_m)) for c in instance.cameras)
+    model = np.asarray(model, dtype=np.int16)
+    if len(model) and (model.min() < 0 or model.max() >= len(models)):
+        raise CamplaceError(f"candidates: camera model index {int(model.max())} is not one of the instance's {len(models)} models")
+    return {"cam_model": model, "models": models}
 
 
 def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None = None) -> tuple[sp.csr_matrix, dict]:
@@ -256,7 +276,9 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
     indices, data = first_touch_empty(nnz, index_dtype), first_touch_empty(nnz, np.float32)
     workers = max(1, min(thread_count(workers), m))
     emitter = ~np.any(task.normals != 0.0, axis=1)
-    fx = float(task.K[0, 0])
+    # every chunk holds one camera model: its fx grades its pairs
+    fxs = [float(task.intrinsics(p.col0, p.col0 + 1)[0][0, 0]) if task.cam_model is not None else float(task.K[0, 0])
+           for p in parts]
     bounds = [0, *np.searchsorted(indptr, [nnz * (t + 1) / workers for t in range(workers - 1)]), m]
 
     def merge(t: int) -> None:
@@ -266,7 +288,7 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
         populate(indices, indptr[lo], indptr[hi])
         populate(data, indptr[lo], indptr[hi])
         nxt = indptr[:-1].copy()
-        for p in parts:
+        for p, fx in zip(parts, fxs):
             _kernels.merge_rows(
                 p.rowids, p.offsets, p.lcols, p.col0, lo, hi, nxt, indices, data, task.graded, task.positions,
                 task.normals, emitter, task.cam_positions, fx, task.required_px_per_m,
@@ -304,7 +326,8 @@ def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_
     from camplace.visibility.footprint import small_views
 
     frames = [int(f) for f in np.unique(points.frame)]
-    small = small_views(instance, candidates.positions, candidates.rotations, frames)  # (n, n_frames)
+    small = small_views(instance, candidates.positions, candidates.rotations, frames,
+                        models=getattr(candidates, "model", None))  # (n, n_frames)
     if small is None or not small.any():
         return matrix, counts
     m = matrix.shape[0]
@@ -332,6 +355,14 @@ def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_
 def default_chunk_size(task: VisibilityTask) -> int:
     """Candidates per work item: about 2 million (row, candidate) pairs, 8 to 256 candidates."""
     return int(np.clip(2_000_000 // max(1, len(task.live_rows)), 8, 256))
+
+
+def team_chunk_plan(task: VisibilityTask, chunk_size: int, workers: int) -> list[tuple[int, int]]:
+    """:func:`chunk_plan` within each run of columns of one camera model (a chunk never holds two)."""
+    plan = []
+    for _, a, b in task.model_ranges():
+        plan += [(a + s, a + e) for s, e in chunk_plan(b - a, chunk_size, workers)]
+    return plan
 
 
 def chunk_plan(n_candidates: int, chunk_size: int, workers: int) -> list[tuple[int, int]]:
@@ -408,6 +439,19 @@ def compute_visibility(
     VisibilityMatrix
     """
     n_cand = len(candidates)
+    model = getattr(candidates, "model", None)
+    if getattr(instance, "team", None) is not None and model is not None and len(model) and np.any(np.diff(model) < 0):
+        # a team's columns in any order: compute them grouped by model, then put them back
+        order = np.argsort(model, kind="stable")
+        grouped = type(candidates)(candidates.positions[order], candidates.aims[order], candidates.rotations[order],
+                                   sampler=candidates.sampler, seed=candidates.seed, model=np.asarray(model)[order])
+        vis = compute_visibility(instance, grouped, points, chunk_size=chunk_size, workers=workers, progress=progress,
+                                 memory_budget_bytes=memory_budget_bytes, dask_address=dask_address, cache_dir=cache_dir)
+        back = np.empty_like(order)
+        back[order] = np.arange(len(order))
+        matrix = vis.matrix[:, back].tocsr()
+        matrix.sort_indices()
+        return VisibilityMatrix(matrix=matrix, points=points, stats=vis.stats, timings_s=vis.timings_s)
     task, scenes = make_task(instance, candidates, points)
     if chunk_size is None:
         chunk_size = default_chunk_size(task)
@@ -429,8 +473,7 @@ def compute_visibility(
     # The first chunk is a pilot: its density is checked against the memory budget before the bulk
     # of the work (in process, the other chunks start beside it and are cancelled on a failed check).
 
-    def check_pilot(first: ChunkResult) -> None:
-        pilot_cols = min(chunk_size, n_cand)
+    def check_pilot(first: ChunkResult, pilot_cols: int) -> None:
         density = len(first.lcols) / max(1, len(points) * pilot_cols)
         need = estimate_matrix_bytes(len(points), n_cand, density)
         if need > budget:
@@ -442,23 +485,30 @@ def compute_visibility(
 
     parts: list[ChunkResult] = []
     if dask_address is not None:
-        if starts:
-            parts.append(compute_chunk(task, scenes, 0, min(chunk_size, n_cand)))
-            check_pilot(parts[0])
+        if task.cam_model is not None:  # chunks end at the model boundaries
+            ranges = [(a + s, a + e) for _, a, b in task.model_ranges() for s, e in chunk_plan(b - a, chunk_size, 1)]
+        else:
+            ranges = [(s, min(s + chunk_size, n_cand)) for s in starts]
+        if ranges:
+            a0, b0 = ranges[0]
+            parts.append(compute_chunk(task, scenes, a0, b0))
+            check_pilot(parts[0], b0 - a0)
             if progress is not None:
-                progress(min(chunk_size, n_cand))
-        parts += compute_chunks_dask(task, starts[1:], chunk_size, dask_address, progress=progress)
+                progress(b0 - a0)
+        rest = ranges[1:]
+        parts += compute_chunks_dask(task, [a for a, _ in rest], chunk_size, dask_address, progress=progress,
+                                     stops=[b for _, b in rest] if task.cam_model is not None else None)
     else:
         workers = thread_count(workers)
 
-        plan = chunk_plan(n_cand, chunk_size, workers)
+        plan = chunk_plan(n_cand, chunk_size, workers) if task.cam_model is None else team_chunk_plan(task, chunk_size, workers)
         pool = ThreadPoolExecutor(max_workers=workers)
         try:
             futures = [pool.submit(compute_chunk, task, scenes, a, b) for a, b in plan]
             for i, ((a, b), fut) in enumerate(zip(plan, futures)):
                 parts.append(fut.result())
                 if i == 0:
-                    check_pilot(parts[0])
+                    check_pilot(parts[0], b - a)
                 if progress is not None:
                     progress(b - a)
         finally:  # on an error or Ctrl-C, chunks not started are dropped

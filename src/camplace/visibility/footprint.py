@@ -131,7 +131,8 @@ def _sphere_footprint_px(v: np.ndarray, pos: np.ndarray, K: np.ndarray) -> np.nd
         return np.where(d2 > r * r, np.pi * f2 * r * r / np.maximum(d2 - r * r, 1e-300), np.inf)
 
 
-def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, frames: Sequence[int] | None = None) -> np.ndarray:
+def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, frames: Sequence[int] | None = None,
+                        models: np.ndarray | None = None) -> np.ndarray:
     """The target's footprint (:func:`hull_footprint_px`) in each camera and frame.
 
     Parameters
@@ -143,6 +144,8 @@ def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, 
         World-from-camera.
     frames : sequence of int or None
         Frames to measure (default: all); the other columns are NaN.
+    models : (c,) int or None
+        Each camera's model (index into ``instance.cameras``; default: all the first model).
 
     Returns
     -------
@@ -150,8 +153,20 @@ def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, 
         Pixels.
     """
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    rotations = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    if models is not None and len(getattr(instance, "cameras", ())) > 1:
+        models = np.asarray(models)
+        out = np.full((len(pos), len(instance.frames)), np.nan)
+        for j in np.unique(models):
+            sel = models == j
+            out[sel] = _footprint_px(instance, pos[sel], rotations[sel], frames, instance.cameras[int(j)].K())
+        return out
+    return _footprint_px(instance, pos, rotations, frames, instance.camera.K())
+
+
+def _footprint_px(instance, pos: np.ndarray, rotations: np.ndarray, frames, K: np.ndarray) -> np.ndarray:
+    """:func:`target_footprint_px` of cameras with one intrinsic matrix ``K``."""
     out = np.full((len(pos), len(instance.frames)), np.nan)
-    K = instance.camera.K()
     local = convex_hull(instance.target.vertices)  # once: each frame's pose is a rigid motion of it
     for f in range(len(instance.frames)) if frames is None else frames:
         pose = instance.frames[int(f)].target_pose
@@ -161,7 +176,8 @@ def target_footprint_px(instance, positions: np.ndarray, rotations: np.ndarray, 
     return out
 
 
-def small_views(instance, positions: np.ndarray, rotations: np.ndarray, frames: Sequence[int] | None = None) -> np.ndarray | None:
+def small_views(instance, positions: np.ndarray, rotations: np.ndarray, frames: Sequence[int] | None = None,
+                models: np.ndarray | None = None) -> np.ndarray | None:
     """Which (camera, frame) views see the target smaller than ``[quality] min_target_px``.
 
     Returns
@@ -172,12 +188,12 @@ def small_views(instance, positions: np.ndarray, rotations: np.ndarray, frames: 
     need = float(getattr(instance.quality, "min_target_px", 0.0))
     if need <= 0:
         return None
-    fp = target_footprint_px(instance, positions, rotations, frames)
+    fp = target_footprint_px(instance, positions, rotations, frames, models)
     return np.nan_to_num(fp, nan=np.inf) < need
 
 
 def small_target_warnings(instance, positions: np.ndarray, rotations: np.ndarray, labels: Sequence[str] | None = None,
-                          threshold: float = SMALL_TARGET_PX) -> list[str]:
+                          threshold: float = SMALL_TARGET_PX, models: np.ndarray | None = None) -> list[str]:
     """Warnings when the chosen cameras see the target smaller than ``threshold`` pixels.
 
     Parameters
@@ -191,6 +207,8 @@ def small_target_warnings(instance, positions: np.ndarray, rotations: np.ndarray
         How to name each camera in a warning (default: 1, 2, ...).
     threshold : float
         Pixels (default :data:`SMALL_TARGET_PX`; at least the instance's ``min_target_px``).
+    models : (k,) int or None
+        Each camera's model (index into ``instance.cameras``).
 
     Returns
     -------
@@ -204,7 +222,7 @@ def small_target_warnings(instance, positions: np.ndarray, rotations: np.ndarray
         return []
     labels = [str(j + 1) for j in range(len(pos))] if labels is None else [str(x) for x in labels]
     threshold = max(float(threshold), float(getattr(instance.quality, "min_target_px", 0.0)))
-    largest = np.max(target_footprint_px(instance, pos, rotations), axis=1)  # (k,) over frames
+    largest = np.max(target_footprint_px(instance, pos, rotations, models=models), axis=1)  # (k,) over frames
     small = f"fewer than {threshold:g} px"
     why = "Algorithm 3's 5 px morphology erases a target that small, so photographs cannot confirm what the run counts as observed"
     if np.all(largest < threshold):

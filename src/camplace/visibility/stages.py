@@ -46,6 +46,8 @@ def make_run_candidates(instance, sampler: str, n: int, orientations: int, seed)
     """
     from camplace.sampling import candidates_from_positions, sample_positions
 
+    if getattr(instance, "team", None) is not None:
+        return make_team_candidates(instance, sampler, n, orientations, seed)
     lo, hi = instance.volume.min_m, instance.volume.max_m
     factor = 1
     while True:
@@ -61,6 +63,144 @@ def make_run_candidates(instance, sampler: str, n: int, orientations: int, seed)
             "(raise volume.max_m above the terrain)"
         )
     return candidates_from_positions(pos, event_aims(instance, orientations), sampler=sampler)
+
+
+def _region_seed(seed, r: int) -> np.random.SeedSequence:
+    """The seed stream of region ``r`` of a run's candidate stream ``seed`` (int or SeedSequence)."""
+    if isinstance(seed, np.random.SeedSequence):
+        return np.random.SeedSequence(seed.entropy, spawn_key=(*seed.spawn_key, r))
+    return np.random.SeedSequence(0 if seed is None else int(seed), spawn_key=(r,))
+
+
+def split_count(n: int, shares) -> np.ndarray:
+    """(r,) int64: ``n`` split over regions in proportion to ``shares`` (largest remainder; ties to the first)."""
+    w = np.asarray(shares, dtype=np.float64)
+    exact = n * w / w.sum()
+    out = np.floor(exact).astype(np.int64)
+    rest = n - int(out.sum())
+    order = np.lexsort((np.arange(len(w)), -(exact - out)))
+    out[order[:rest]] += 1
+    return out
+
+
+def sample_on_mesh(kind: str, n: int, vertices: np.ndarray, faces: np.ndarray, offset_m: float, *, seed=0) -> np.ndarray:
+    """``n`` positions on a triangle mesh, each ``offset_m`` off it along its triangle's unit normal.
+
+    The sampler's unit cube point (u0, u1, u2) picks a triangle by area (u0, inverse CDF) and a
+    point in it uniformly (barycentric ``(1 - s, s (1 - u2), s u2)`` with ``s = sqrt(u1)``).
+
+    Parameters
+    ----------
+    kind : {"chaotic", "uniform", "sobol"}
+    n : int
+    vertices : (v, 3) float64
+        World metres.
+    faces : (m, 3) int64
+        Counter-clockwise seen from outside (the normal points away from the surface).
+    offset_m : float
+    seed : int, SeedSequence or None
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    from camplace.sampling import sample_unit
+
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(cross, axis=1)
+    normal = cross / np.where(area > 0, area, 1.0)[:, None]
+    cdf = np.cumsum(area)
+    u = np.clip(sample_unit(kind, n, 3, seed=seed), 1e-9, 1.0 - 1e-9)
+    t = np.minimum(np.searchsorted(cdf, u[:, 0] * cdf[-1], side="right"), len(tri) - 1)
+    s = np.sqrt(u[:, 1])
+    b = np.column_stack([1.0 - s, s * (1.0 - u[:, 2]), s * u[:, 2]])
+    return np.einsum("ni,nij->nj", b, tri[t]) + float(offset_m) * normal[t]
+
+
+def team_positions(instance, sampler: str, n: int, seed) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` sampled positions where some camera model of the team may stand.
+
+    The count is split over the team's regions (volumes, then mounts) by their ``share``; each
+    region draws its positions from its own seed stream with the run's sampler, rejecting those in
+    a keep-out or under the ground (oversampling as :func:`make_run_candidates`, so a region's
+    positions for a larger count start with those for a smaller one).
+
+    Returns
+    -------
+    positions : (n, 3) float64
+    mount : (n,) int64
+        The mount a position was sampled on (index into ``team.mounts``), -1 for volume samples.
+    """
+    from camplace.sampling import sample_positions
+
+    team = instance.team
+    regions = [*team.volumes, *team.mounts]
+    counts = split_count(n, [r.share for r in regions])
+    out_pos, out_mount = [], []
+    for r, (region, cnt) in enumerate(zip(regions, counts)):
+        if cnt == 0:
+            continue
+        is_mount = r >= len(team.volumes)
+        field = f"mounts[{r - len(team.volumes)}]" if is_mount else f"volumes[{r}]"
+        factor = 1
+        while True:
+            if is_mount:
+                v, f = region.world()
+                pos = sample_on_mesh(sampler, int(cnt) * factor, v, f, region.offset_m, seed=_region_seed(seed, r))
+            else:
+                pos = sample_positions(sampler, int(cnt) * factor, region.min_m, region.max_m, seed=_region_seed(seed, r))
+            ok = ~team.in_keepout(pos) & ~under_ground(instance, pos)
+            if ok.sum() >= cnt or factor >= 256:
+                break
+            factor *= 4
+        pos = pos[ok][:cnt]
+        if len(pos) < cnt:
+            raise CamplaceError(
+                f"{instance.source}: {field}: only {len(pos)} of {int(cnt) * factor} sampled positions are outside the "
+                "keep-outs and above the ground (shrink the [[keepouts]] or move the region)"
+            )
+        out_pos.append(pos)
+        out_mount.append(np.full(len(pos), r - len(team.volumes) if is_mount else -1, dtype=np.int64))
+    if not out_pos:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    return np.concatenate(out_pos), np.concatenate(out_mount)
+
+
+def make_team_candidates(instance, sampler: str, n: int, orientations: int, seed) -> CandidateSet:
+    """The candidate columns of a team: each sampled pose offered with each model that may stand there.
+
+    Columns are model-major: model 0's poses (position ``i`` aimed ``orientations`` ways, in
+    sampling order, as :func:`make_run_candidates`), then model 1's, ...; ``CandidateSet.model``
+    holds the model of every column and ``CandidateSet.zones`` its zone membership.
+
+    Raises
+    ------
+    CamplaceError
+        When a model may stand at none of the sampled positions.
+    """
+    from camplace.sampling import candidates_from_positions
+
+    team = instance.team
+    pos, mount = team_positions(instance, sampler, n, seed)
+    allowed = team.allowed_models(pos, mount)
+    aims = event_aims(instance, orientations)
+    parts, models = [], []
+    for j, m in enumerate(team.models):
+        idx = np.flatnonzero(allowed[:, j])
+        if len(idx) == 0:
+            raise CamplaceError(
+                f"{instance.source}: cameras[{j}]: model {m.name!r} may stand at none of the {len(pos)} sampled positions "
+                "(raise --candidates, or give it a larger [[volumes]] / [[mounts]] region outside the keep-outs)"
+            )
+        c = candidates_from_positions(pos[idx], aims, sampler=sampler)
+        parts.append(c)
+        models.append(np.full(len(c), j, dtype=np.int16))
+    positions = np.concatenate([c.positions for c in parts])
+    return CandidateSet(
+        positions=positions, aims=np.concatenate([c.aims for c in parts]), rotations=np.concatenate([c.rotations for c in parts]),
+        sampler=sampler, model=np.concatenate(models), zones=team.zone_membership(positions),
+    )
 
 
 def stage_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
