@@ -70,7 +70,7 @@ class RunSettings:
     seed, candidates, points, sampler, k, time_limit_s, orientations : resolved values
         ``candidates`` positions, ``points`` surface points requested, ``k`` new cameras.
     engine, event_mode, mode, views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction
-        The solver's options (:func:`camplace.solver.modes.solve`).
+        The solver's options (:func:`camplace.solver.api.solve`).
     matrix_format : {"cpm", "npz"}
     robust : RobustSpec or None
         The instance's ``[robust]`` table unless given.
@@ -80,7 +80,7 @@ class RunSettings:
         The ``options`` record of ``solution.json`` (:meth:`SolveOptions.record`, the run's
         settings, and ``robust``).
     solve_options : SolveOptions or None
-        The solver's options in one object, passed to :func:`camplace.solver.modes.solve` unchanged.
+        The solver's options in one object, passed to :func:`camplace.solver.api.solve` unchanged.
     """
 
     seed: int
@@ -249,7 +249,7 @@ def run(
         ``all`` maximises the expected coverage over all frames (weights P(t)); ``peak`` places the
         cameras for the maximum-likelihood frame alone (the thesis's PS01).
     mode : {"maxcover", "quality", "multiview", "setcover"}
-        The formulation (see :func:`camplace.solver.modes.solve`): the observed weight, the weight
+        The formulation (see :func:`camplace.solver.api.solve`): the observed weight, the weight
         times the best quality, the weight seen by at least ``views`` cameras (optionally
         ``min_angle_deg`` apart), or the fewest cameras observing ``required_fraction`` of it.
     views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction : optional
@@ -339,7 +339,7 @@ def sampling_stage(instance, settings: RunSettings) -> tuple[CandidateSet, "Targ
 
 def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSettings, *,
                 reporter: Reporter | None = None, timings: dict[str, float] | None = None):
-    """Choose the cameras (:func:`camplace.solver.modes.solve`), and against installation error when
+    """Choose the cameras (:func:`camplace.solver.api.solve`), and against installation error when
     the run is robust (:func:`camplace.robust.robust_stage`).
 
     Parameters
@@ -359,7 +359,7 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     robust_record : dict or None
         The ``robust`` entry of ``solution.json``.
     """
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
 
     reporter = reporter or Reporter()
     timings = {} if timings is None else timings

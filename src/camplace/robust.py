@@ -12,7 +12,7 @@ rotation ``R @ Exp(w)``, ``w ~ N(0, sigma_r^2 I)``, the ``[physical]`` model) an
     unchanged, so the answer is proven optimal for the sampled objective like a nominal run.
 ``p10``
     the value reached in at least 90 % of the installations, by the scenario-indicator model of
-    :mod:`camplace.solver.robust_p10` (status, bound and gap as reported there).
+    :mod:`camplace.solver.engines.mip.p10` (status, bound and gap as reported there).
 
 The visibility of the S * n perturbed poses is computed in one pass of the visibility engine on the
 run's points (a CandidateSet of ``S * n`` poses, scenario-major), then its columns are restacked
@@ -20,7 +20,7 @@ into rows by index arithmetic on the sparse entries (:func:`stack_scenarios`).
 
 Out of sample: the chosen system and the nominal optimum are compared on ``eval_scenarios`` fresh
 installations (another seed stream, :data:`~camplace.sampling.perturb.OUT_OF_SAMPLE_STREAM`):
-expected objective and 10th percentile (:func:`camplace.solver.robust_p10.order_p10`), written to
+expected objective and 10th percentile (:func:`camplace.solver.engines.mip.p10.order_p10`), written to
 ``solution.json`` under ``robust``.
 
 With zero sigma every scenario is the nominal installation, so the robust problem is the nominal
@@ -43,7 +43,7 @@ from camplace.instance.schema import RobustSpec
 from camplace.names import ROBUST_OBJECTIVES
 from camplace.sampling import CandidateSet
 from camplace.sampling.perturb import IN_SAMPLE_STREAM, OUT_OF_SAMPLE_STREAM, perturb_poses
-from camplace.solver.robust_p10 import order_p10, scenario_values
+from camplace.solver.engines.mip.p10 import order_p10, scenario_values
 
 __all__ = [
     "ROBUST_MODES", "make_spec", "spec_record", "stack_scenarios", "scenario_matrix", "solve_robust",
@@ -269,8 +269,8 @@ def solve_robust(
         ``mean``: the objective is the sampled expected objective (weights ``w / S`` on the
         stacked rows); ``p10``: the sampled 10th percentile.
     """
-    from camplace.solver.checks import conflict_pairs
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
+    from camplace.solver.problem.checks import conflict_pairs
 
     s_count = spec.scenarios
     mode = options["mode"]
@@ -284,7 +284,7 @@ def solve_robust(
     )
     if spec.objective == "mean":
         return mean
-    from camplace.solver.robust_p10 import solve_p10
+    from camplace.solver.engines.mip.p10 import solve_p10
 
     conflicts = conflict_pairs(np.asarray(positions), float(min_d)) if min_d is not None else None
     return solve_p10(

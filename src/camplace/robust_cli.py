@@ -55,9 +55,9 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     from camplace._io import write_json_atomic
     from camplace.robust import robust_stage
     from camplace.runfolder import RunFolder
+    from camplace.solver.api import solve
     from camplace.solver.cli import _run_defaults
     from camplace.solver.options import parse_index_list
-    from camplace.solver.modes import solve
 
     folder: Path = args.source if args.source.is_dir() else args.source.parent
     for name in ("instance.toml", "candidates.csv", "points.csv"):

@@ -11,13 +11,13 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import camplace.solver.angle_exact as ae
-import camplace.solver.models as models
-import camplace.solver.modes as modes
+import camplace.solver.engines.angle.search as ae
+import camplace.solver.engines.mip.mode_models as models
+import camplace.solver.api as modes
 from camplace.errors import CamplaceError
 from camplace.solver import solve_maxcover
-from camplace.solver._common import memory_budget, memory_budget_bytes
-from camplace.solver.modes import solve
+from camplace.solver._support.memory import memory_budget, memory_budget_bytes
+from camplace.solver.api import solve
 from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -298,7 +298,7 @@ def test_maxcover_engines_over_budget(monkeypatch) -> None:
     from ortools.linear_solver import linear_solver_pb2
     from ortools.sat.python import cp_model
 
-    import camplace.solver.bitset_exact as be
+    import camplace.solver.engines.bitset.search as be
 
     rng = np.random.default_rng(9)
     dense = (rng.random((60, 12)) < 0.3).astype(float)
@@ -506,8 +506,8 @@ def test_three_node_counter_equals_numpy(pw, seed) -> None:
     weights[-23:] = 0.0  # padding rows
     levels = np.packbits(bits.reshape(n_nodes, n_words, 64), axis=2, bitorder="little").view(np.uint64)
     levels = np.ascontiguousarray(levels.reshape(1, n_nodes, n_words))
-    from camplace.solver import _anglekernels as AK
-    from camplace.solver import _bitkernels as BK
+    from camplace.solver._support import bitkernels as BK
+    from camplace.solver.engines.angle import _kernels as AK
 
     planes = BK.weight_planes(weights)
     for a, b, c in [(0, 1, 2), (1, 3, 4), (0, 2, 4)]:
@@ -525,7 +525,7 @@ def test_three_node_counter_equals_numpy(pw, seed) -> None:
 def test_grouped_two_view_counter_with_a_repeated_node_equals_numpy(seed) -> None:
     """k = 4 with one node twice (three groups): the node's rows seen by two of its columns
     (``levels[1]``) count, so the three-distinct-nodes counter must not be taken."""
-    from camplace.solver import _bitkernels as BK
+    from camplace.solver._support import bitkernels as BK
 
     rng = np.random.default_rng(seed)
     n_words, n_nodes = 6, 4

@@ -10,13 +10,13 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import camplace.solver.bitset_exact as bitset_mod
-import camplace.solver.modes as modes
+import camplace.solver.engines.bitset.search as bitset_mod
+import camplace.solver.api as modes
+from camplace.solver.api import solve
+from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
+from camplace.solver.engines.bitset.search import solve_bitset
+from camplace.solver.problem.presolve import presolve
 from camplace.solver.result import ModeOutcome
-from camplace.solver.bitset_exact import solve_bitset
-from camplace.solver.modes import solve
-from camplace.solver.pair_cap import opposite_pair_bound
-from camplace.solver.presolve import presolve
 from tests.solver._oracle import ExpiringDeadline, mode_objective, small_instances, tolerance
 
 

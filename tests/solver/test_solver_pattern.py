@@ -12,8 +12,8 @@ import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 from camplace.solver import solve
-from camplace.solver.checks import values_matrix
 from camplace.solver.cli import load_problem, register
+from camplace.solver.problem.checks import values_matrix
 from camplace.visibility import store
 from tests.solver._oracle import brute_force_mode
 

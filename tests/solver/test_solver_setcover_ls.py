@@ -1,4 +1,4 @@
-"""The set-cover engine (:mod:`camplace.solver.setcover_ls`) against enumeration and published optima.
+"""The set-cover engine (:mod:`camplace.solver.engines.setcover.local_search`) against enumeration and published optima.
 
 Oracles: exhaustive enumeration of column subsets (small random instances, full and partial
 covers, unit / integer / fractional costs) and the proven optima of the OR-Library instances and
@@ -18,9 +18,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.errors import CamplaceError
-from camplace.solver import setcover_ls as S
-from camplace.solver.formats import read_gecco, read_orlib
-from camplace.solver.modes import solve
+from camplace.solver.api import solve
+from camplace.solver.engines.setcover import local_search as S
+from camplace.solver.problem.formats import read_gecco, read_orlib
 from tests._floats import assert_ge, assert_le
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

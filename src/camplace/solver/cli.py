@@ -117,7 +117,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         pattern = args.mode != "quality" and args.min_angle is None
         loading = pool.submit(load_problem, args.source, pattern)
         from camplace._io import write_json_atomic
-        from camplace.solver.modes import solve
+        from camplace.solver.api import solve
 
         matrix, weights, positions, points = loading.result()
     load_s = time.perf_counter() - t0
@@ -153,8 +153,8 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 def _cmd_setcover(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from camplace.solver.formats import read_cover
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
+    from camplace.solver.problem.formats import read_cover
 
     inst = read_cover(args.file, args.fmt)
     if args.iterations is not None and args.iterations < 1:

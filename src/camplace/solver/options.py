@@ -32,7 +32,7 @@ class SolveOptions:
     Attributes
     ----------
     mode : {"maxcover", "quality", "multiview", "setcover"}
-        The formulation (:mod:`camplace.solver.modes`).
+        The formulation (:mod:`camplace.solver.api`).
     k : int or None
         Number of NEW cameras (every mode but ``setcover``, which must not get it).
     views : int

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["ModeOutcome", "SolverResult", "STATUSES", "jsonable", "relative_gap"]
+__all__ = ["ModeOutcome", "SolverResult", "STATUSES", "jsonable", "relative_gap", "EngineOutcome"]
 
 STATUSES = ("optimal", "feasible", "infeasible", "unknown")
 
@@ -152,4 +152,26 @@ class ModeOutcome:
     objective: float
     bound: float
     engine: str
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EngineOutcome:
+    """What an engine returns on a presolved instance (indices are REDUCED column indices).
+
+    Attributes
+    ----------
+    selected : tuple of int
+        Reduced column indices (empty if no solution was found).
+    status : str
+        ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
+    bound : float
+        Proven upper bound on the optimum, in original weight units.
+    stats : dict
+        JSON-serialisable engine details.
+    """
+
+    selected: tuple[int, ...]
+    status: str
+    bound: float
     stats: dict[str, Any] = field(default_factory=dict)
