@@ -15,7 +15,7 @@ from pathlib import Path
 from camplace._signals import ctrl_c_noted
 from camplace.errors import CamplaceError
 from camplace.names import EVENT_MODES, SAMPLERS
-from camplace.robust_cli import add_robust_options, print_oos, spec_from_args, wrap_solve
+from camplace.robust.cli import add_robust_options, print_oos, spec_from_args
 from camplace.solver.options import add_solver_options, options_from_args
 
 MATRIX_FORMATS = ("cpm", "npz")  # camplace.visibility.store.MATRIX_FORMATS (not imported: startup time)
@@ -100,15 +100,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     for module in _verb_modules():
         COMMANDS.update(module.register(sub, _add_run_options))
-    if "solve" in COMMANDS and "solve" in sub.choices:
-        add_robust_options(sub.choices["solve"])
-        COMMANDS["solve"] = wrap_solve(COMMANDS["solve"])
     return parser
 
 
 # Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
-# and imports nothing heavy at module level.
-VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli", "camplace.solver.cli", "camplace.plan.cli")
+# and imports nothing heavy at module level. ``solve`` is the robust stage's verb (it solves robustly
+# when asked; camplace.robust.cli), ``setcover`` the solver's.
+VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli", "camplace.robust.cli", "camplace.solver.cli",
+                                 "camplace.plan.cli")
 
 
 def _verb_modules():

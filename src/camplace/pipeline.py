@@ -376,8 +376,8 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     from camplace.robust import robust_stage
 
     return robust_stage(
-        instance, cands, pts, matrix, weights, res, s.robust, s.options, seed=s.seed, cache=s.cache, reporter=reporter,
-        memory_budget_bytes=s.memory_budget_bytes, timings=timings,
+        instance, cands, pts, matrix, weights, res, s.robust, s.solve_options, seed=s.seed, cache=s.cache,
+        reporter=reporter, timings=timings,
     )
 
 

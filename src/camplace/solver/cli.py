@@ -1,5 +1,6 @@
-"""Verbs of the solver stage: ``solve`` (re-solve a run's visibility matrix) and ``setcover``
-(public set-cover benchmark files).
+"""Verbs of the solver stage: ``setcover`` (public set-cover benchmark files), and the plain
+``solve`` (re-solve a run's visibility matrix; the verb itself is registered by
+:mod:`camplace.robust.cli`, which adds the robust options).
 
 Imports nothing heavy at module level (numpy, scipy and OR-Tools load when a verb runs).
 """
@@ -22,14 +23,11 @@ EXIT_NO_SOLUTION = 3
 
 
 def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
-    """Add the solver verbs to ``subparsers``; returns {verb: handler}."""
-    p = subparsers.add_parser("solve", help="choose cameras on a stored visibility matrix (any mode, side constraints)")
-    p.add_argument("source", type=Path, help="output folder of 'camplace run' (or 'visibility') or its matrix file (visibility.cpm or .npz)")
-    add_solver_options(p, k_default="the run's k")
-    p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
-                   help="row weights: all frames, or the maximum-likelihood frame alone (default: the run's, else all)")
-    p.add_argument("-o", "--out", type=Path, required=True, help="solution JSON to write")
+    """Add the solver's own verb, ``setcover``, to ``subparsers``; returns {verb: handler}.
 
+    The ``solve`` verb is registered by :mod:`camplace.robust.cli` (a later stage: it also solves
+    robustly) with :func:`add_solve_arguments` and :func:`cmd_solve` from here.
+    """
     p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
     p.add_argument("file", type=Path, help="instance file")
     p.add_argument("--format", choices=["orlib", "gecco"], required=True, dest="fmt", help="file format")
@@ -44,7 +42,16 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: cost, bound, status, time_s, selected, engine, uncoverable_rows, "
                         "time_to_best_s")
-    return {"solve": _cmd_solve, "setcover": _cmd_setcover}
+    return {"setcover": _cmd_setcover}
+
+
+def add_solve_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of the ``solve`` verb (a run folder or matrix, the solver's options, ``-o``)."""
+    p.add_argument("source", type=Path, help="output folder of 'camplace run' (or 'visibility') or its matrix file (visibility.cpm or .npz)")
+    add_solver_options(p, k_default="the run's k")
+    p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
+                   help="row weights: all frames, or the maximum-likelihood frame alone (default: the run's, else all)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="solution JSON to write")
 
 
 
@@ -75,7 +82,7 @@ def load_problem(source: Path, pattern: bool = True) -> tuple[Any, Any, Any, Any
     return matrix, weights, positions, points
 
 
-def _run_defaults(source: Path) -> dict[str, Any]:
+def run_defaults(source: Path) -> dict[str, Any]:
     """``k`` (new cameras) and ``event_mode`` of the run whose folder holds the matrix, if any."""
     from camplace.runfolder import SOLUTION_NAME, RunFolder
 
@@ -106,7 +113,8 @@ def _peak_weights(source: Path, weights: Any, peak: int | None) -> Any:
     return w / w.sum() if w.sum() > 0 else w
 
 
-def _cmd_solve(args: argparse.Namespace) -> int:
+def cmd_solve(args: argparse.Namespace) -> int:
+    """``camplace solve SOURCE -o OUT``: choose cameras on a stored visibility matrix."""
     import time
     from concurrent.futures import ThreadPoolExecutor
 
@@ -123,7 +131,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     load_s = time.perf_counter() - t0
     if (args.min_distance is not None or args.min_angle is not None) and positions is None:
         raise CamplaceError(f"--min-distance/--min-angle need candidates.csv beside {args.source}")
-    run = _run_defaults(args.source)
+    run = run_defaults(args.source)
     if args.k is None and args.mode != "setcover":
         args.k = run.get("k")
     if args.mode != "setcover" and args.k is None:

@@ -286,8 +286,8 @@ def photo_value(seen: np.ndarray, weights: np.ndarray, mode: str, views: int) ->
 
 
 def summarise_values(values: Sequence[float]) -> dict[str, Any]:
-    """Mean, 10th percentile (:func:`camplace.solver.engines.mip.p10.order_p10`), min, max and the values."""
-    from camplace.solver.engines.mip.p10 import order_p10
+    """Mean, 10th percentile (:func:`camplace.robust.p10.order_p10`), min, max and the values."""
+    from camplace.robust.p10 import order_p10
 
     v = np.asarray(values, dtype=np.float64)
     return {"mean": float(v.mean()), "p10": order_p10(v), "min": float(v.min()), "max": float(v.max()), "values": [float(x) for x in v]}

@@ -1,5 +1,8 @@
-"""Command-line options of robust placement (``run`` and ``solve``: ``--pose-error``, ``--scenarios``,
-``--robust-objective``) and the robust ``solve`` of a stored run.
+"""Command line of robust placement: its options (``run`` and ``solve``: ``--pose-error``,
+``--scenarios``, ``--robust-objective``) and the ``solve`` verb, registered here like the verbs of
+:mod:`camplace.plan.cli` and :mod:`camplace.validation.cli` (:func:`register`): the solver's own
+arguments and plain solve (:mod:`camplace.solver.cli`), and the robust solve of a stored run when a
+robust option is given.
 
 Imports nothing heavy at module level.
 """
@@ -29,7 +32,7 @@ def add_robust_options(p: argparse.ArgumentParser) -> None:
 
 def spec_from_args(instance, args: argparse.Namespace):
     """The RobustSpec of a run (instance table overridden by the options), or None."""
-    from camplace.robust import make_spec
+    from camplace.robust.stage import make_spec
 
     return make_spec(getattr(instance, "robust", None), args.pose_error, args.scenarios, args.robust_objective)
 
@@ -39,13 +42,23 @@ def wants_robust(args: argparse.Namespace) -> bool:
     return any(getattr(args, name, None) is not None for name in ("pose_error", "scenarios", "robust_objective"))
 
 
-def wrap_solve(handler: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
-    """``solve``: the robust solve when a robust option is given, else ``handler``."""
+def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
+    """Add the ``solve`` verb to ``subparsers``; returns {verb: handler}."""
+    from camplace.solver.cli import add_solve_arguments
 
-    def run(args: argparse.Namespace) -> int:
-        return cmd_solve_robust(args) if wants_robust(args) else handler(args)
+    p = subparsers.add_parser("solve", help="choose cameras on a stored visibility matrix (any mode, side constraints)")
+    add_solve_arguments(p)
+    add_robust_options(p)
+    return {"solve": cmd_solve}
 
-    return run
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    """``solve``: the robust solve when a robust option is given, else the solver's plain solve."""
+    if wants_robust(args):
+        return cmd_solve_robust(args)
+    from camplace.solver.cli import cmd_solve as plain_solve
+
+    return plain_solve(args)
 
 
 def cmd_solve_robust(args: argparse.Namespace) -> int:
@@ -53,11 +66,11 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     import numpy as np
 
     from camplace._io import write_json_atomic
-    from camplace.robust import robust_stage
+    from camplace.robust.stage import check_request, robust_stage, spec_record
     from camplace.runfolder import RunFolder
     from camplace.solver.api import solve
-    from camplace.solver.cli import _run_defaults
-    from camplace.solver.options import parse_index_list
+    from camplace.solver.cli import run_defaults
+    from camplace.solver.options import options_from_args
 
     folder: Path = args.source if args.source.is_dir() else args.source.parent
     for name in ("instance.toml", "candidates.csv", "points.csv"):
@@ -68,7 +81,7 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     run_folder = RunFolder(folder)
     instance = run_folder.instance
     spec = spec_from_args(instance, args)
-    run = _run_defaults(folder)
+    run = run_defaults(folder)
     k = args.k if args.k is not None else run.get("k")
     if k is None:
         raise CamplaceError(f"--k: required (no solution.json in {folder} to take it from)")
@@ -76,24 +89,14 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     cands, matrix, pts = run_folder.candidates, run_folder.matrix, run_folder.points
     weights = run_folder.weights(event_mode)
     seed = _run_seed(folder, instance.defaults.seed)
-    fixed, forbidden = parse_index_list(args.fixed, "fixed"), parse_index_list(args.forbidden, "forbidden")
-    options = {
-        "mode": args.mode, "k": int(k), "views": args.views if args.mode == "multiview" else None,
-        "min_angle_deg": args.min_angle, "required_fraction": None, "fixed": sorted(fixed), "forbidden": sorted(forbidden),
-        "min_distance_m": args.min_distance, "engine": args.engine, "time_limit_s": args.time_limit,
-        "event_mode": event_mode, "source": str(args.source),
-    }
-    from camplace.robust import check_request, spec_record
-
-    check_request(spec, args.mode, args.min_angle, args.engine)
+    opts = options_from_args(args, k=int(k))  # passed unchanged to the nominal and the robust solve
+    options = {**opts.record(), "event_mode": event_mode, "source": str(args.source)}
+    check_request(spec, opts.mode, opts.min_angle_deg, opts.engine)
     options["robust"] = spec_record(spec)
-    geometric = args.min_distance is not None or args.min_angle is not None
-    nominal = solve(
-        matrix, weights, int(k), mode=args.mode, views=args.views, min_angle_deg=args.min_angle,
-        positions=cands.positions if geometric else None, points=pts.positions if args.min_angle is not None else None,
-        fixed=fixed, forbidden=forbidden, min_distance_m=args.min_distance, engine=args.engine, time_limit_s=args.time_limit,
-    )
-    res, record = robust_stage(instance, cands, pts, matrix, np.asarray(weights, dtype=np.float64), nominal, spec, options,
+    geometric = opts.min_distance_m is not None or opts.min_angle_deg is not None
+    nominal = solve(matrix, weights, positions=cands.positions if geometric else None,
+                    points=pts.positions if opts.min_angle_deg is not None else None, options=opts)
+    res, record = robust_stage(instance, cands, pts, matrix, np.asarray(weights, dtype=np.float64), nominal, spec, opts,
                                seed=seed)
     out = res.to_dict()
     out["options"] = options

@@ -1,31 +1,5 @@
-"""Robust placement: choose the cameras that still work when they are installed a little off.
-
-A robust run samples S installations (scenarios) of every candidate
-(:func:`camplace.sampling.perturb.perturb_poses`: position error ``N(0, sigma_p^2)`` per axis,
-rotation ``R @ Exp(w)``, ``w ~ N(0, sigma_r^2 I)``, the ``[physical]`` model) and optimises
-
-``mean``
-    the expected objective over the scenarios. It is the run's formulation (maxcover, quality,
-    multiview) on the scenarios' rows stacked: row ``s * m + i`` is point ``i`` in scenario
-    ``s`` with weight ``w_i / S``, column ``j`` candidate ``j`` as installed in scenario ``s``
-    (:func:`stack_scenarios`). Every exact engine of :func:`camplace.solver.solve` applies
-    unchanged, so the answer is proven optimal for the sampled objective like a nominal run.
-``p10``
-    the value reached in at least 90 % of the installations, by the scenario-indicator model of
-    :mod:`camplace.solver.engines.mip.p10` (status, bound and gap as reported there).
-
-The visibility of the S * n perturbed poses is computed in one pass of the visibility engine on the
-run's points (a CandidateSet of ``S * n`` poses, scenario-major), then its columns are restacked
-into rows by index arithmetic on the sparse entries (:func:`stack_scenarios`).
-
-Out of sample: the chosen system and the nominal optimum are compared on ``eval_scenarios`` fresh
-installations (another seed stream, :data:`~camplace.sampling.perturb.OUT_OF_SAMPLE_STREAM`):
-expected objective and 10th percentile (:func:`camplace.solver.engines.mip.p10.order_p10`), written to
-``solution.json`` under ``robust``.
-
-With zero sigma every scenario is the nominal installation, so the robust problem is the nominal
-one: the run then keeps the nominal answer as it is (no stacking, the same cameras and figures).
-"""
+"""The robust stage: scenario matrices, the robust solve and the out-of-sample check (see
+:mod:`camplace.robust`)."""
 
 from __future__ import annotations
 
@@ -41,9 +15,10 @@ import scipy.sparse as sp
 from camplace.errors import CamplaceError
 from camplace.instance.schema import RobustSpec
 from camplace.names import ROBUST_OBJECTIVES
+from camplace.robust.p10 import order_p10, scenario_values
 from camplace.sampling import CandidateSet
 from camplace.sampling.perturb import IN_SAMPLE_STREAM, OUT_OF_SAMPLE_STREAM, perturb_poses
-from camplace.solver.engines.mip.p10 import order_p10, scenario_values
+from camplace.solver.options import SolveOptions
 
 __all__ = [
     "ROBUST_MODES", "make_spec", "spec_record", "stack_scenarios", "scenario_matrix", "solve_robust",
@@ -244,7 +219,7 @@ def scenario_matrix(
 
 
 def solve_robust(
-    stacked: sp.csr_matrix, weights: np.ndarray, spec: RobustSpec, options: dict[str, Any], *,
+    stacked: sp.csr_matrix, weights: np.ndarray, spec: RobustSpec, options: SolveOptions, *,
     positions: np.ndarray | None = None, incumbents: Sequence[Sequence[int]] = (),
 ):
     """Solve the robust objective on a stacked scenario matrix.
@@ -255,9 +230,10 @@ def solve_robust(
     weights : (m,) float64
         The run's row weights (one scenario).
     spec : RobustSpec
-    options : dict
-        The run's options (``options`` of ``solution.json``: :meth:`camplace.solver.options.SolveOptions.record`): mode, k, views, fixed,
-        forbidden, min_distance_m, engine, time_limit_s.
+    options : SolveOptions
+        The run's solver options, as the nominal solve got them (mode, k, views, fixed, forbidden,
+        min_distance_m, engine, time_limit_s and the memory budget, which every solve and model
+        here keeps to).
     positions : (n, 3) float64 or None
         Nominal camera positions (for ``min_distance_m``).
     incumbents : sequence of systems
@@ -273,26 +249,23 @@ def solve_robust(
     from camplace.solver.problem.checks import conflict_pairs
 
     s_count = spec.scenarios
-    mode = options["mode"]
-    min_d = options.get("min_distance_m")
+    min_d = options.min_distance_m
     w_stacked = np.tile(np.asarray(weights, dtype=np.float64), s_count) / s_count
-    mean = solve(
-        stacked, w_stacked, options["k"], mode=mode, views=options.get("views") or 2,
-        positions=positions if min_d is not None else None, fixed=tuple(options.get("fixed") or ()),
-        forbidden=tuple(options.get("forbidden") or ()), min_distance_m=min_d, engine=options["engine"],
-        time_limit_s=options.get("time_limit_s"),
-    )
+    mean = solve(stacked, w_stacked, positions=positions if min_d is not None else None, options=options)
     if spec.objective == "mean":
         return mean
-    from camplace.solver.engines.mip.p10 import solve_p10
+    from camplace.robust.p10 import solve_p10
+
+    from camplace.solver._support.memory import memory_budget
 
     conflicts = conflict_pairs(np.asarray(positions), float(min_d)) if min_d is not None else None
-    return solve_p10(
-        stacked, weights, s_count, options["k"], mode=mode, views=options.get("views") or 2,
-        fixed=tuple(options.get("fixed") or ()), forbidden=tuple(options.get("forbidden") or ()), conflicts=conflicts,
-        incumbents=[mean.selected, *incumbents], mean_bound=mean.bound,
-        engine="mip" if options["engine"] == "mip" else "auto", time_limit_s=options.get("time_limit_s"),
-    )
+    with memory_budget(options.memory_budget_bytes):  # the per-scenario solves and the p10 model keep to it
+        return solve_p10(
+            stacked, weights, s_count, int(options.k), mode=options.mode,
+            views=options.views if options.mode == "multiview" else 2, fixed=options.fixed,
+            forbidden=options.forbidden, conflicts=conflicts, incumbents=[mean.selected, *incumbents],
+            mean_bound=mean.bound, engine="mip" if options.engine == "mip" else "auto", time_limit_s=options.time_limit_s,
+        )
 
 
 def out_of_sample(
@@ -327,8 +300,7 @@ def _summary(values: np.ndarray) -> dict[str, float]:
 
 def robust_stage(
     instance, cands: CandidateSet, pts, nominal_matrix: sp.csr_matrix, weights: np.ndarray, nominal, spec: RobustSpec,
-    options: dict[str, Any], *, seed: int, cache: bool = True, memory_budget_bytes: int | None = None, reporter=None,
-    timings: dict[str, float] | None = None,
+    options: SolveOptions, *, seed: int, cache: bool = True, reporter=None, timings: dict[str, float] | None = None,
 ):
     """The robust solve and its out-of-sample check (the hook of :func:`camplace.pipeline.run`).
 
@@ -343,8 +315,9 @@ def robust_stage(
     nominal : camplace.solver.SolverResult
         The nominal optimum.
     spec : RobustSpec
-    options : dict
-        The run's options (``options`` of ``solution.json``: :meth:`camplace.solver.options.SolveOptions.record`).
+    options : SolveOptions
+        The run's solver options, as the nominal solve got them; its memory budget also caps the
+        scenarios' visibility.
     seed : int
         The run seed (scenario draws).
     timings : dict or None
@@ -360,8 +333,9 @@ def robust_stage(
         mean, p10, min, max on fresh scenarios, and ``values``), ``seed_streams``.
     """
     timings = {} if timings is None else timings
-    mode, views = options["mode"], options.get("views") or 2
-    check_request(spec, mode, options.get("min_angle_deg"), options.get("engine", "auto"))
+    mode, views = options.mode, options.views if options.mode == "multiview" else 2
+    memory_budget_bytes = options.memory_budget_bytes
+    check_request(spec, mode, options.min_angle_deg, options.engine)
     record: dict[str, Any] = {
         "settings": spec_record(spec),
         "seed_streams": {"in_sample": IN_SAMPLE_STREAM, "out_of_sample": OUT_OF_SAMPLE_STREAM},
