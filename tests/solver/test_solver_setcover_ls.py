@@ -152,8 +152,8 @@ def test_same_seed_and_iterations_same_answer_in_any_number_of_calls() -> None:
     assert np.array_equal(a.pw, b.pw) and np.array_equal(a.score, b.score)
     small = dense[:40, :60]  # small enough for SCIP to prove quickly after the search
     small = small[small.any(axis=1)]
-    r1 = solve(small, np.ones(small.shape[0]), mode="setcover", seed=3, iterations=3000)
-    r2 = solve(small, np.ones(small.shape[0]), mode="setcover", seed=3, iterations=3000)
+    r1 = solve(small, np.ones(small.shape[0]), mode="setcover", search_seed=3, iterations=3000)
+    r2 = solve(small, np.ones(small.shape[0]), mode="setcover", search_seed=3, iterations=3000)
     assert r1.selected == r2.selected and r1.objective == r2.objective
 
 

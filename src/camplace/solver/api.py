@@ -26,7 +26,7 @@ Modes (``Q`` is the (m, n) points x candidates matrix, values in (0, 1], > 0 mea
     :mod:`camplace.solver.engines.setcover.local_search` (reductions, local search, Lagrangian bound; ``auto`` then
     runs SCIP on small reduced instances, ``mip`` / ``cpsat`` always; engine ``local-search`` in
     the result when no model ran); with ``min_distance_m`` conflicts, by the SCIP / CP-SAT model
-    directly. ``seed`` and ``iterations`` set the local search.
+    directly. ``search_seed`` and ``iterations`` set the local search.
 
 Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted in ``k``),
 ``forbidden`` (never chosen) and ``min_distance_m`` (chosen cameras, fixed included, pairwise at
@@ -115,7 +115,7 @@ def solve(
     engine: str = "auto",
     time_limit_s: float | None = None,
     memory_budget_bytes: int | None = None,
-    seed: int = 0,
+    search_seed: int = 0,
     iterations: int | None = None,
     options: SolveOptions | None = None,
 ) -> SolverResult:
@@ -153,7 +153,7 @@ def solve(
     memory_budget_bytes : int, optional
         Cap on the memory any engine or model may use (``--memory-budget-gb``); engines also stay
         within :data:`~camplace.solver._support.memory.MEMORY_FRACTION` of the memory available.
-    seed : int
+    search_seed : int
         setcover: seed of the local search (:mod:`camplace.solver.engines.setcover.local_search`).
     iterations : int, optional
         setcover: iteration budget of the local search; with it and no time limit the answer is
@@ -180,14 +180,14 @@ def solve(
         options = SolveOptions(
             mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction,
             fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, engine=engine,
-            time_limit_s=time_limit_s, costs=costs, memory_budget_bytes=memory_budget_bytes, seed=seed,
+            time_limit_s=time_limit_s, costs=costs, memory_budget_bytes=memory_budget_bytes, search_seed=search_seed,
             iterations=iterations,
         )
     else:
         given = dict(k=k, mode=mode, views=views, min_angle_deg=min_angle_deg, costs=costs,
                      required_fraction=required_fraction, fixed=fixed, forbidden=forbidden,
                      min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
-                     memory_budget_bytes=memory_budget_bytes, seed=seed, iterations=iterations)
+                     memory_budget_bytes=memory_budget_bytes, search_seed=search_seed, iterations=iterations)
         mixed = sorted(name for name, value in given.items() if not _is_default(name, value))
         if mixed:
             raise CamplaceError(f"solve: give {', '.join(mixed)} inside options=SolveOptions(...), not beside it")
@@ -278,7 +278,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         if conflicts.size:  # the model runs directly (otherwise setcover_ls checks its own memory)
             check_setcover_memory(q, w, free_cols, conflicts, engine)
         ctx = setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0,
-                        o.seed, o.iterations)
+                        o.search_seed, o.iterations)
     else:
         if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
             raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")

@@ -36,7 +36,8 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
                         "always that model after the local search (default auto)")
     p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
     p.add_argument("--unicost", action="store_true", help="ignore the file's column costs (every column costs 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the local search (default 0)")
+    p.add_argument("--search-seed", "--seed", type=int, default=0, dest="search_seed",
+                   help="seed of the local search (default 0; --seed is the old name)")
     p.add_argument("--iterations", type=int, default=None,
                    help="iteration budget of the local search (with it and no time limit the answer is reproducible)")
     p.add_argument("--json", action="store_true",
@@ -168,8 +169,8 @@ def _cmd_setcover(args: argparse.Namespace) -> int:
     if args.iterations is not None and args.iterations < 1:
         raise CamplaceError(f"--iterations: must be a positive number of iterations, got {args.iterations}")
     costs = np.ones(inst.matrix.shape[1]) if args.unicost else inst.costs
-    opts = SolveOptions(mode="setcover", costs=costs, engine=args.engine, time_limit_s=args.time_limit, seed=args.seed,
-                        iterations=args.iterations)
+    opts = SolveOptions(mode="setcover", costs=costs, engine=args.engine, time_limit_s=args.time_limit,
+                        search_seed=args.search_seed, iterations=args.iterations)
     res = solve(inst.matrix, np.ones(inst.matrix.shape[0]), options=opts)
     unc = int(res.stats.get("uncoverable_points", 0))
     if args.json:
