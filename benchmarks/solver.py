@@ -77,7 +77,8 @@ def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int, lit: bool = Tr
     import dataclasses
 
     from camplace.instance import builtin
-    from camplace.pipeline import compute_points, event_aims, stage_seeds
+    from camplace.event import event_aims
+    from camplace.visibility.stages import compute_points, stage_seeds
     from camplace.sampling import make_candidates
     from camplace.visibility import compute_visibility
     from camplace.visibility.cache import default_cache_dir

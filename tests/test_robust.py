@@ -22,7 +22,8 @@ from scipy.spatial.transform import Rotation
 
 from camplace.errors import CamplaceError, InstanceError
 from camplace.instance import RobustSpec, builtin_toml, parse_instance, resolve_instance
-from camplace.pipeline import compute_points, make_run_candidates, run, stage_seeds
+from camplace.pipeline import run
+from camplace.visibility.stages import compute_points, make_run_candidates, stage_seeds
 from camplace.robust import make_spec, scenario_matrix, solve_robust, stack_scenarios
 from camplace.robust.p10 import order_p10, scenario_values, solve_p10
 from camplace.sampling import CandidateSet

@@ -174,7 +174,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_visibility(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
-    from camplace.pipeline import compute_points, visibility_stage
+    from camplace.visibility.stages import compute_points, visibility_stage
     from camplace.runfolder import RunFolder
     from camplace.sampling import CandidateSet
     from camplace.visibility import frame_scene, write_ply

@@ -21,19 +21,20 @@ import numpy as np
 from camplace._io import remove_stale_temps, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
+from camplace.event import covered_rows, event_weights, light_curves_csv, peak_frame
 from camplace.names import EVENT_MODES, SAMPLERS
 from camplace.sampling import CandidateSet
-
-# moved to their own modules; still importable from here
-from camplace.event import covered_rows, event_aims, event_centres, event_weights, light_curves_csv, peak_frame  # noqa: F401
-from camplace.solution import Solution, camera_record, split_timings, versions  # noqa: F401
-from camplace.visibility.stages import (  # noqa: F401
-    check_input_memory, compute_points, make_run_candidates, stage_seeds, under_ground, visibility_stage,
+from camplace.solution import Solution, camera_record, split_timings, versions
+from camplace.visibility.stages import (
+    check_input_memory, compute_points, make_run_candidates, stage_seeds, visibility_stage,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
     from camplace.visibility.engine import VisibilityMatrix
     from camplace.visibility.points import TargetPoints
+
+__all__ = ["RunSettings", "degenerate_warnings", "resolve_settings", "run", "run_settings", "sampling_stage", "solve_stage",
+           "make_solution", "write_stage"]
 
 log = logging.getLogger(__name__)
 

@@ -476,7 +476,7 @@ def validate_cameras(
     the prediction is Algorithm 3 run on that render (the target on black; against a black
     background render when the photo has a background photograph).
     Writes ``validation.json``, ``overlay.{camera}.png`` figures and ``scene3d.html`` (every
-    camera of ``cameras`` around the target, :mod:`camplace.validation.scene3d`) into ``out``.
+    camera of ``cameras`` around the target, :mod:`camplace.validation.camera_scene`) into ``out``.
 
     Returns
     -------
@@ -527,7 +527,7 @@ def _target_label(spec: str) -> str:
 
 def _write_cameras_scene(out: Path, cameras, target, **scene_options) -> None:
     """``out/scene3d.html`` (skipped with a warning when plotly is missing)."""
-    from camplace.validation.scene3d import cameras_scene, write_scene3d
+    from camplace.validation.camera_scene import cameras_scene, write_scene3d
 
     write_scene3d(out, cameras_scene(cameras, target, **scene_options))
 

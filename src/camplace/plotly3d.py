@@ -1,7 +1,7 @@
 """An interactive 3D view of a camera plan: occluders, the target coloured by coverage, camera frusta.
 
 Built from plain arrays (no instance, run folder or solver object), so that the report
-(:mod:`camplace.report.scene3d`) and validation (:mod:`camplace.validation.scene3d`) share it
+(:mod:`camplace.report.run_scene`) and validation (:mod:`camplace.validation.camera_scene`) share it
 without importing one another. plotly draws it (``Mesh3d`` and ``Scatter3d`` traces); the page
 fragment inlines plotly.js, so it works offline and makes no network request. The scene's data
 also goes into the page, readable, as ``<script type="application/json" id="{div_id}-data">``

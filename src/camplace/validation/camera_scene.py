@@ -19,7 +19,7 @@ import numpy as np
 
 from camplace._io import write_text_atomic
 from camplace.errors import CamplaceError
-from camplace.scene3d import Scene3D, SceneCamera, SceneMesh, reach_depth
+from camplace.plotly3d import Scene3D, SceneCamera, SceneMesh, reach_depth
 
 log = logging.getLogger(__name__)
 
@@ -150,7 +150,7 @@ def write_scene3d(out: str | Path, scene: Scene3D, *, intro_html: str = "") -> P
     Returns None, with a warning, when plotly is missing (and removes a stale ``scene3d.html``
     of an earlier validation there).
     """
-    from camplace.scene3d import require_plotly, scene_page
+    from camplace.plotly3d import require_plotly, scene_page
 
     path = Path(out) / SCENE3D_FILE
     try:

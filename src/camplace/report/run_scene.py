@@ -2,7 +2,7 @@
 
 :func:`run_scene` turns a run folder's data (instance.toml, solution.json, candidates.csv,
 points.csv, visibility.cpm, as read by :func:`camplace.report.compare.load_run_data`) into a
-:class:`camplace.scene3d.Scene3D`; :func:`scene3d_section` is the report's HTML section.
+:class:`camplace.plotly3d.Scene3D`; :func:`scene3d_section` is the report's HTML section.
 
 Coverage of a point = how many of the optimised system's cameras observe it, read from the
 visibility matrix (``> 0``). For an event with several frames the view shows the peak frame (the
@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from camplace.errors import CamplaceError
-from camplace.scene3d import Scene3D, SceneCamera, SceneMesh, reach_depth
+from camplace.plotly3d import Scene3D, SceneCamera, SceneMesh, reach_depth
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +219,7 @@ def run_scene(run, comp=None, campaigns: Sequence = ()) -> Scene3D:
 
 def scene3d_section(run, comp=None, campaigns: Sequence = ()) -> str:
     """The report's ``3D view`` section (plotly.js inlined), or a note when plotly is missing."""
-    from camplace.scene3d import require_plotly, scene_fragment
+    from camplace.plotly3d import require_plotly, scene_fragment
 
     head = "<h2 id='scene3d'>3D view: where the cameras stand and what they see</h2>"
     try:
