@@ -11,11 +11,13 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import camplace.solver.api as modes
 import camplace.solver.engines.angle.search as ae
 import camplace.solver.engines.mip.mode_models as models
-import camplace.solver.api as modes
+import camplace.solver.routes as routes
 from camplace.errors import CamplaceError
 from camplace.solver import solve_maxcover
+from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import memory_budget, memory_budget_bytes
 from camplace.solver.api import solve
 from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective
@@ -240,14 +242,14 @@ def test_angle_model_estimate_counts_the_conflict_rows() -> None:
     assert n_rows == 1 + int((s[live] + 1).sum()) + bad
     assert nnz == 10 + int((3 * s[live] + 1).sum()) + 2 * bad
     model, *_ = models.build_model(q, q, w, w, np.zeros(80), 3, "multiview", 2, 30.0, pos, pts, (), free,
-                                   np.zeros((0, 2), dtype=np.int64), 0.0, 0.0, None)
+                                   np.zeros((0, 2), dtype=np.int64), 0.0, Deadline(None))
     assert model.n_vars <= n_vars and len(model.rows) <= n_rows  # points without any good pair are skipped
     assert sum(r.idx.size for r in model.rows) <= nnz
 
 
 def test_angle_model_over_budget_falls_back_without_building(monkeypatch) -> None:
     dense, w, pos, pts = _sphere_instance(120, 9, 6)
-    _forbid(monkeypatch, modes, "build_model")
+    _forbid(monkeypatch, routes, "build_model")
     _forbid(monkeypatch, ae.K, "build_bits")
     best = brute_force_mode(dense, w, 5, "multiview", min_angle_deg=30.0, pos=pos, pts=pts)
     res = solve(dense, w, 5, mode="multiview", min_angle_deg=30.0, positions=pos, points=pts,
@@ -280,7 +282,7 @@ def test_general_models_over_budget_fall_back_or_stop(monkeypatch, mode) -> None
     dense = (rng.random((50, 10)) < 0.4) * rng.uniform(0.1, 1.0, (50, 10))
     w = rng.uniform(0.0, 1.0, 50)
     pos = rng.normal(size=(10, 3)) * 3
-    _forbid(monkeypatch, modes, "build_model")
+    _forbid(monkeypatch, routes, "build_model")
     assert modes.conflict_pairs(pos, 3.0).shape[0] > 0  # the general model (with conflict rows)
     best = brute_force_mode(dense, w, 3, mode, fixed=(8,), pos=pos, dmin=3.0)
     res = solve(dense, w, 3, mode=mode, fixed=(8,), positions=pos, min_distance_m=3.0, memory_budget_bytes=_TINY)

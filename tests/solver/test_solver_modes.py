@@ -253,17 +253,17 @@ def test_too_large_model_is_not_built(monkeypatch) -> None:
     with a valid bound under ``auto``, and an explicitly requested engine is a one-line error;
     either way no memory goes into a model."""
     import camplace.solver.choose as choose
-    import camplace.solver.api as modes
+    import camplace.solver.routes as routes
 
     rng = np.random.default_rng(7)
     dense = (rng.random((30, 8)) < 0.4) * rng.uniform(0.1, 1.0, (30, 8))
     w = rng.uniform(0.0, 1.0, 30)
-    monkeypatch.setattr(modes, "model_bytes", lambda *a: 1 << 60)
+    monkeypatch.setattr(routes, "model_bytes", lambda *a: 1 << 60)
 
     def never(*args, **kwargs):
         raise AssertionError("the model was built")
 
-    monkeypatch.setattr(modes, "build_model", never)
+    monkeypatch.setattr(routes, "build_model", never)
     monkeypatch.setattr(choose, "LARGE_K_MAX", 4)  # k = 5 takes the general model's path (not the large-k engine)
     for mode in ("quality", "multiview"):
         res = solve(dense, w, 5, mode=mode, views=3)  # auto with k = 5: the SCIP model

@@ -104,13 +104,13 @@ def test_solve_tightens_an_unproven_multiview_bound(monkeypatch) -> None:
     dense = circle(40, 12)
     w = np.full(40, 0.025)
     seen = {}
-    real = modes._cover_modes
+    real = modes.run_cover
 
-    def loose(q, w_, k, mode, views, *args):
-        seen["limit"] = args[-2]
-        return ModeOutcome((0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": k})
+    def loose(problem):
+        seen["limit"] = problem.deadline.limit
+        return ModeOutcome((0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": problem.k})
 
-    monkeypatch.setattr(modes, "_cover_modes", loose)
+    monkeypatch.setattr(modes, "run_cover", loose)
     res = solve(dense, w, 3, mode="multiview", views=2, time_limit_s=10.0)
     assert seen["limit"] == pytest.approx(9.5)  # 5 % of the time is kept for the cap ...
     solve(dense, w, 3, mode="multiview", views=2, time_limit_s=100.0)
@@ -127,7 +127,7 @@ def test_solve_tightens_an_unproven_multiview_bound(monkeypatch) -> None:
     assert res.bound == pytest.approx(1.0) and "opposite_pairs" not in res.stats
     assert seen["limit"] == pytest.approx(10.0)
 
-    monkeypatch.setattr(modes, "_cover_modes", real)
+    monkeypatch.setattr(modes, "run_cover", real)
     res = solve(dense, w, 3, mode="multiview", views=2)  # the real engine proves it without the cap
     assert res.status == "optimal" and res.objective == pytest.approx(0.5)
     assert "opposite_pairs" not in res.stats

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 import camplace.solver.choose as choose
 import camplace.solver.api as modes
+import camplace.solver.routes as routes
 import camplace.solver.engines.quality.portfolio as portfolio
 import camplace.solver.engines.quality.tree as qt
 from camplace.errors import CamplaceError
@@ -129,7 +130,7 @@ def test_memory_guard(monkeypatch, mode) -> None:
     def huge(*args, **kwargs):  # the exact engines' estimates (models are checked separately)
         return 1 << 60
 
-    for mod, name in [(modes, "bitset_bytes"), (choose, "quality_tree_bytes"),
+    for mod, name in [(routes, "bitset_bytes"), (choose, "quality_tree_bytes"),
                       (choose, "quality_exact_bytes"), (dispatch, "bitset_bytes")]:
         monkeypatch.setattr(mod, name, huge)
     monkeypatch.setattr(choose, "_QUALITY_EXPAND_MAX", -1)  # quality: the tree engine would be next

@@ -24,8 +24,9 @@ reason is in ``stats["engine_choice"]``).
 Layout (modelled on :mod:`scipy.optimize`: one entry, one options object, one result type, each
 engine in its own private module):
 
-* :mod:`~camplace.solver.api`: ``solve`` and ``solve_maxcover`` (checks, presolve, the engine
-  choice, the memory fallbacks, the final result);
+* :mod:`~camplace.solver.api`: ``solve`` and ``solve_maxcover`` (the checks, the solve's one
+  deadline, the final result); :mod:`~camplace.solver.routes` (the k-camera modes as one problem
+  object, ``CoverProblem``, and the engine table ``ROUTES`` keyed by the engine choice's route);
   :mod:`~camplace.solver.options` (``SolveOptions`` and the command-line flags),
   :mod:`~camplace.solver.choose` (engine choice), :mod:`~camplace.solver.result` (``SolverResult``;
   ``EngineOutcome`` and ``ModeOutcome`` between an engine and ``solve``), :mod:`~camplace.solver.cli`.

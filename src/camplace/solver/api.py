@@ -68,24 +68,18 @@ import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 from camplace.names import MODES
-from camplace.solver._support.deadline import remaining
+from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import NearCandidates, greedy
 from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes
-from camplace.solver.choose import choose_engine, problem_sizes, too_big_message
-from camplace.solver.engines.angle.search import greedy_angle, solve_angle
 from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
-from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
-from camplace.solver.engines.large_k.search import run_large_k
-from camplace.solver.engines.maxcover import memory_fallback, run_maxcover_engine
-from camplace.solver.engines.mip.linear import model_bytes, solve_model
-from camplace.solver.engines.mip.mode_models import BuildTimeout, build_model, check_setcover_memory, model_size
-from camplace.solver.engines.quality.portfolio import quality_engines
+from camplace.solver.engines.mip.mode_models import check_setcover_memory
 from camplace.solver.engines.setcover.mode import setcover
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
-from camplace.solver.problem.objectives import cheap_bound, expand_levels, mode_value
-from camplace.solver.problem.presolve import check_weights, presolve
+from camplace.solver.problem.objectives import cheap_bound, mode_value
+from camplace.solver.problem.presolve import check_weights
 from camplace.solver.result import ModeOutcome, SolverResult, jsonable, relative_gap
+from camplace.solver.routes import CoverProblem, fixed_base, run_cover
 
 __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
 
@@ -210,7 +204,8 @@ def _is_default(name: str, value: Any) -> bool:
 
 def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions) -> SolverResult:
     """:func:`solve` within the memory budget (``o`` is already checked)."""
-    t0 = time.perf_counter()
+    deadline = Deadline(o.time_limit_s)  # the solve's one deadline, passed down to the engines
+    t0 = deadline.start
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
     min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
     q = values_matrix(matrix)
@@ -257,7 +252,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     if too_many is not None:
         assert pos is not None and min_distance_m is not None
         return _spaced_fallback(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, forbidden_t,
-                                float(min_distance_m), engine, too_many, t0)
+                                float(min_distance_m), engine, too_many, deadline)
 
     fixed_set = set(fixed_t)
     banned = set(forbidden_t)
@@ -277,8 +272,8 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     if mode == "setcover":
         if conflicts.size:  # the model runs directly (otherwise setcover_ls checks its own memory)
             check_setcover_memory(q, w, free_cols, conflicts, engine)
-        ctx = setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, time_limit_s, t0,
-                        o.search_seed, o.iterations)
+        ctx = setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, deadline,
+                       o.search_seed, o.iterations)
     else:
         if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
             raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
@@ -293,14 +288,15 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         # multiview with fewer cameras than 2 x views: opposite points cap the bound when the search
         # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
         cap = mode == "multiview" and k + len(fixed_t) < 2 * views
-        inner = time_limit_s
+        inner = deadline
         if cap and time_limit_s is not None:
-            inner = time_limit_s - min(_CAP_SHARE * time_limit_s, _CAP_MAX_S)
-        ctx = _cover_modes(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, engine, inner, t0)
+            inner = deadline.shortened(min(_CAP_SHARE * time_limit_s, _CAP_MAX_S))
+        ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, engine,
+                                     inner, stats={"k": k}))
         searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
         if cap and ctx.selected is not None and ctx.status != "optimal" and not searched:
             ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
-                                     remaining(t0, time_limit_s))
+                                     deadline.left())
 
     selected, status, objective, bound, name, stats = (ctx.selected, ctx.status, ctx.objective, ctx.bound, ctx.engine,
                                                         ctx.stats)
@@ -330,36 +326,6 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     )
 
 
-def _fixed_base(q: sp.csr_matrix, w: np.ndarray, fixed: Sequence[int], mode: str) -> tuple[np.ndarray, np.ndarray]:
-    """What the fixed cameras already give every row, and the row weights left to the new cameras.
-
-    Parameters
-    ----------
-    q : (m, n) scipy.sparse.csr_matrix
-    w : (m,) float64
-    fixed : sequence of int
-    mode : {"maxcover", "quality", "multiview"}
-
-    Returns
-    -------
-    base : (m,) float64
-        maxcover: 1.0 where a fixed camera observes the row; quality: the best fixed value;
-        multiview: how many fixed cameras observe the row (zeros without fixed cameras).
-    weights : (m,) float64
-        maxcover: ``w`` with the rows the fixed cameras cover set to 0; otherwise ``w``.
-    """
-    m = q.shape[0]
-    fx = list(fixed)
-    if not fx:
-        return np.zeros(m), w
-    if mode == "maxcover":
-        covered = np.diff(q[:, fx].tocsr().indptr) > 0
-        return covered.astype(np.float64), np.where(covered, 0.0, w)
-    if mode == "quality":
-        return q[:, fx].max(axis=1).toarray().ravel(), w
-    return np.asarray((q[:, fx] > 0).sum(axis=1)).ravel().astype(np.float64), w
-
-
 def _opposite_pair_cap(
     ctx: ModeOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
     cameras: int, allowed: np.ndarray, time_limit_s: float | None,
@@ -371,195 +337,10 @@ def _opposite_pair_cap(
     return replace(ctx, bound=cap) if cap < ctx.bound else ctx
 
 
-def _cover_modes(
-    q: sp.csr_matrix, w: np.ndarray, k: int, mode: str, views: int, min_angle_deg: float | None,
-    pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...], free_cols: np.ndarray,
-    conflicts: np.ndarray, engine: str, time_limit_s: float | None, t0: float,
-) -> ModeOutcome:
-    """maxcover / quality / multiview."""
-    m, n = q.shape
-    stats: dict[str, Any] = {"k": k}
-
-    def value(sel: Sequence[int]) -> float:
-        return mode_value(q, w, list(sel), mode=mode, views=views, min_angle_deg=min_angle_deg, positions=pos, points=pts)
-
-    fixed_value = value(fixed_t)
-    if k == 0:
-        return ModeOutcome(tuple(fixed_t), "optimal", fixed_value, fixed_value, "exact", stats)
-
-    # Residual instance on the free columns: what the new cameras add on top of the fixed ones.
-    qf = q if free_cols.size == n else q[:, free_cols].tocsr()
-    base, resid_w = _fixed_base(q, w, fixed_t, mode)
-    resid = qf
-    if mode == "quality" and fixed_t:  # what a new camera adds over the fixed ones' best quality
-        resid = qf.copy()
-        resid.data = np.maximum(resid.data - np.repeat(base, np.diff(resid.indptr)), 0.0)
-        resid.eliminate_zeros()
-
-    budget = memory_budget_bytes()
-    opts = SolveOptions(mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, engine=engine)
-    choice = choose_engine(problem_sizes(resid, k, free_cols.size, len(fixed_t), conflicts.shape[0], mode), opts,
-                           budget)
-    if choice.route == "large-k":
-        got = run_large_k(resid, resid_w, k, mode, views, engine, remaining(t0, time_limit_s), stats)
-        if got is not None:
-            stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
-            sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in got[0]}))
-            const = fixed_value if mode == "maxcover" else float(w @ base) if mode == "quality" else 0.0
-            return ModeOutcome(sel, got[1], value(sel), got[2] + const, got[3], stats)
-        # it does not fit in memory (auto): the choice without the large-k engines
-        choice = choose_engine(problem_sizes(resid, k, free_cols.size, len(fixed_t), conflicts.shape[0], mode), opts,
-                               budget, large_k=False)
-    stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
-    stats.update(choice.stats)
-    if "memory_fallback" in choice.stats:
-        log.warning("%s; falling back to the general model", choice.stats["memory_fallback"])
-    if choice.route == "quality-portfolio":
-        return quality_engines(resid, resid_w, k, choice.tree, choice.gram, fixed_t, free_cols, value,
-                               float(w @ base), t0, time_limit_s, stats)
-    angle_ok = mode == "multiview" and min_angle_deg is not None and conflicts.shape[0] == 0
-    name = choice.engine
-    angle_tried = choice.route == "angle"
-    if angle_tried:
-        got = _angle_engine(q, w, k, views, min_angle_deg, pos, pts, fixed_t, free_cols, engine, t0, time_limit_s,
-                            value, stats)
-        if got is not None:
-            return got
-        name = "mip"
-
-    if choice.route == "multiview":
-        pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
-        mp, np_ = pre.shape
-        need = bitset_bytes(mp, np_, min(views, k), k)
-        if need > budget:
-            _too_big(engine, stats, need, budget)
-            name = "mip"
-        else:
-            out = solve_bitset(pre, views=views, time_limit_s=remaining(t0, time_limit_s))
-            sel = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
-            stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
-            return ModeOutcome(sel, out.status if sel else "unknown", value(sel) if sel else 0.0, float(out.bound), name,
-                               stats)
-
-    if choice.route in ("maxcover", "quality-levels"):
-        # Plain max coverage (possibly of quality level rows): presolve + the existing engines.
-        pat, pw = (resid, resid_w) if mode == "maxcover" else expand_levels(resid, resid_w)
-        pre = presolve(pat, pw, k)
-        name, out = run_maxcover_engine(name, engine, pre, remaining(t0, time_limit_s), stats, budget)
-        new = tuple(int(free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
-        sel = tuple(sorted(set(fixed_t) | set(new))) if new else None
-        objective = value(sel) if sel else fixed_value
-        const = fixed_value if mode == "maxcover" else float(w @ base)
-        stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
-                      "engine_stats": dict(out.stats)})
-        return ModeOutcome(sel, out.status if sel else "unknown", objective, float(out.bound) + const, name, stats)
-
-    # General model (SCIP / CP-SAT). The greedy answer comes first: it is the hint, and the answer
-    # (with a cheap valid bound) when the time limit passes while the model is still being built.
-    nf = free_cols.size
-    adj: list[set[int]] | None = None
-    if conflicts.size:
-        adj = [set() for _ in range(nf)]
-        for a, b in np.searchsorted(free_cols, conflicts).tolist():
-            adj[a].add(b)
-            adj[b].add(a)
-    g_base = np.zeros(m) if mode == "quality" else base
-    hint_local = greedy(resid.tocsc() if mode != "multiview" else qf.tocsc(), resid_w, mode, views, g_base, k,
-                         np.ones(nf, dtype=bool), adj)
-    hint_sel = None
-    if hint_local is not None:
-        hint_sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in hint_local}))
-    budget = memory_budget_bytes()
-    size = model_size(q, resid, resid_w, w, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts,
-                       budget)
-    need = model_bytes(name, *size)
-    stats["model_estimate"] = {"variables": size[0], "rows": size[1], "nonzeros": size[2], "bytes": need}
-    try:
-        if need > budget:
-            exc = OverBudget(need, budget, f"the {'SCIP' if name == 'mip' else 'CP-SAT'} model of mode {mode}")
-            if engine == name:
-                raise CamplaceError(f"{exc.message}; use fewer candidates / points"
-                                    + (", or engine exact" if angle_ok else ""))
-            if angle_ok and not angle_tried:  # auto, k > 4: the angle engine gives a valid bound at the limit
-                memory_fallback(exc, engine, name, stats, "falling back to the exact angle engine")
-                got = _angle_engine(q, w, k, views, min_angle_deg, pos, pts, fixed_t, free_cols, engine, t0,
-                                    time_limit_s, value, stats)
-                if got is not None:
-                    return got
-            memory_fallback(exc, engine, name, stats, "returning the greedy answer with a cheap bound")
-            raise BuildTimeout(f"skipped: {exc.message}")
-        model, x, wmax, const = build_model(q, resid, resid_w, w, base, k, mode, views, min_angle_deg, pos, pts,
-                                             fixed_t, free_cols, conflicts, fixed_value, t0, time_limit_s)
-    except BuildTimeout as exc:
-        stats["model_build"] = (str(exc) or "interrupted by the time limit") + ": greedy answer, cheap bound"
-        bound = cheap_bound(q, qf, w, base, k, mode, views)
-        if angle_ok:  # the greedy above ignores the angle; this one counts it (O(m + n) memory)
-            assert pos is not None and pts is not None and min_angle_deg is not None
-            new = greedy_angle(q, w, k, views, float(min_angle_deg), pos, pts, np.asarray(fixed_t, dtype=np.int64),
-                               free_cols, time_limit_s=remaining(t0, time_limit_s))
-            cand = tuple(sorted(set(fixed_t) | set(new)))
-            if hint_sel is None or value(cand) > value(hint_sel):
-                hint_sel = cand
-        if hint_sel is None:
-            return ModeOutcome(None, "unknown", fixed_value, bound, name, stats)
-        return ModeOutcome(hint_sel, "feasible", value(hint_sel), bound, name, stats)
-    hint = None
-    if hint_local is not None:
-        hint = {int(x[j]): (1.0 if j in hint_local else 0.0) for j in range(nf)}
-    out = solve_model(model, name, time_limit_s=remaining(t0, time_limit_s), hint=hint)
-    stats["engine_stats"] = dict(out.stats)
-    sel = None
-    if out.values is not None:
-        new = [int(free_cols[j]) for j in np.flatnonzero(out.values[x] > 0.5)]
-        sel = tuple(sorted(set(fixed_t) | set(new)))
-    objective = value(sel) if sel is not None else -math.inf
-    status = out.status
-    if hint_sel is not None:
-        hv = value(hint_sel)
-        stats["hint_value"] = hv
-        if sel is None or hv > objective:
-            sel, objective = hint_sel, hv
-            if status in ("unknown", "optimal"):
-                status = "feasible"
-    if sel is None:
-        return ModeOutcome(None, status, fixed_value, math.inf, name, stats)
-    bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
-    return ModeOutcome(sel, status, objective, bound, name, stats)
-
-
-def _angle_engine(
-    q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float | None, pos: np.ndarray | None,
-    pts: np.ndarray | None, fixed_t: tuple[int, ...], free_cols: np.ndarray, engine: str, t0: float,
-    time_limit_s: float | None, value: Any, stats: dict[str, Any],
-) -> ModeOutcome | None:
-    """The exact angle engine (:mod:`camplace.solver.engines.angle.search`); None when it does not fit in
-    memory and ``auto`` may fall back (``exact`` requested: a one-line error)."""
-    assert pos is not None and pts is not None and min_angle_deg is not None
-    try:
-        out = solve_angle(q, w, k, views, float(min_angle_deg), pos, pts, np.asarray(fixed_t, dtype=np.int64),
-                          free_cols, time_limit_s=remaining(t0, time_limit_s), budget_bytes=memory_budget_bytes())
-    except OverBudget as exc:
-        _too_big(engine, stats, exc.need, exc.budget)
-        return None
-    sel = tuple(sorted(set(fixed_t) | set(out.selected)))
-    stats["engine_stats"] = dict(out.stats)
-    return ModeOutcome(sel, out.status, value(sel), float(out.bound), "exact", stats)
-
-
-def _too_big(engine: str, stats: dict[str, Any], need: int, budget: int) -> None:
-    """The exact engine would need more memory than is free: an error when it was asked for,
-    otherwise a logged fallback to the general model (recorded in ``stats``)."""
-    msg = too_big_message(need, budget)
-    if engine == "exact":
-        raise CamplaceError(msg + "; use engine mip (or fewer candidates / points)")
-    log.warning("%s; falling back to the general model", msg)
-    stats["memory_fallback"] = msg
-
-
 def _spaced_fallback(
     q: sp.csr_matrix, w: np.ndarray, k: Any, mode: str, views: int, min_angle_deg: float | None, pos: np.ndarray,
     points: np.ndarray | None, fixed: Sequence[int], forbidden: Sequence[int], dmin: float, engine: str,
-    exc: OverBudget, t0: float,
+    exc: OverBudget, deadline: Deadline,
 ) -> SolverResult:
     """Too many conflicting pairs to list: the greedy answer (spacing checked with a k-d tree) and the
     cheap bound, which ignores the spacing and so stays valid."""
@@ -583,7 +364,7 @@ def _spaced_fallback(
                             "(lower k, or forbid/fix fewer cameras)")
     pts = points
     qf = q[:, free_cols].tocsr()
-    base, gw = _fixed_base(q, w, fixed_t, mode)
+    base, gw = fixed_base(q, w, fixed_t, mode)
     msg = f"{exc.message}; returning the greedy answer with a bound that ignores the spacing"
     log.warning("%s", msg)
     local = greedy(qf.tocsc(), gw, mode, views, base, k, np.ones(free_cols.size, dtype=bool),
@@ -599,7 +380,7 @@ def _spaced_fallback(
              "rows_in": int(m), "cols_in": int(n), "k": k}
     return SolverResult(selected=tuple(sel or ()), status=status, objective=float(objective),
                         bound=float(max(bound, objective)), gap=float(gap), engine="mip",
-                        time_s=time.perf_counter() - t0, stats=jsonable(stats))
+                        time_s=deadline.elapsed(), stats=jsonable(stats))
 
 
 def solve_maxcover(

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from camplace.errors import CamplaceError
+from camplace.solver._support.memory import too_big_message
 from camplace.solver.engines.bitset.search import BITSET_MAX_K as EXACT_MAX_K
 from camplace.solver.engines.large_k.search import LARGE_K_MAX
 from camplace.solver.engines.quality.min_gram import QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, quality_exact_bytes
@@ -148,12 +149,6 @@ def problem_sizes(resid: Any, k: int, free: int, fixed: int, conflicts: int, mod
         expanded = float(np.sum(s * (s + 1) / 2))
     return ProblemSizes(k=int(k), points=int(resid.shape[0]), free=int(free), nnz=int(resid.nnz), fixed=int(fixed),
                         conflicts=int(conflicts), min_gram_pairs=gram, expanded_nnz=expanded)
-
-
-def too_big_message(need: int, budget: int) -> str:
-    """The exact engine's one-line memory message."""
-    return (f"the exact engine needs about {need / 2**30:.1f} GiB for this instance but only "
-            f"{budget / 2**30:.1f} GiB may be used")
 
 
 def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: int, large_k: bool = True) -> EngineChoice:

@@ -1,16 +1,25 @@
-"""The memory budget of the engines: how many bytes an engine may allocate, and the error it raises
-before allocating more."""
+"""The memory budget of the engines and the one policy for an engine that does not fit.
+
+How many bytes an engine may allocate (:func:`memory_budget_bytes`, capped by
+:func:`memory_budget`), the error an engine raises before allocating more (:class:`OverBudget`),
+and what happens then: an engine asked for by name is a one-line error, under ``auto`` a logged
+warning, ``stats["memory_fallback"]`` and the next engine (:func:`memory_fallback`,
+:func:`exact_too_big`)."""
 
 from __future__ import annotations
 
 import contextlib
 import contextvars
+import logging
 import os
-from typing import Iterator
+from typing import Any, Iterator
 
 from camplace.errors import CamplaceError
 
-__all__ = ["MEMORY_FRACTION", "OverBudget", "memory_budget", "memory_budget_bytes"]
+__all__ = ["MEMORY_FRACTION", "OverBudget", "memory_budget", "memory_budget_bytes", "memory_fallback", "exact_too_big",
+           "too_big_message"]
+
+log = logging.getLogger(__name__)
 
 MEMORY_FRACTION = 0.6  # an engine's working memory may use this share of the memory available at its start
 _FALLBACK_AVAILABLE = 4 << 30  # assumed when the platform does not say
@@ -91,3 +100,34 @@ def _available_fraction() -> int:
         except (AttributeError, ValueError, OSError):
             avail = _FALLBACK_AVAILABLE
     return int(MEMORY_FRACTION * avail)
+
+
+_FIX = {"exact": "use engine mip, or fewer candidates / points",
+        "mip": "use engine exact, or fewer candidates / points",
+        "cpsat": "use engine exact, or fewer candidates / points"}
+
+
+def memory_fallback(exc: OverBudget, requested: str, name: str, stats: dict[str, Any], then: str) -> None:
+    """Engine ``name`` does not fit: a one-line error when it was requested by name, otherwise a
+    logged warning and ``stats["memory_fallback"]`` (``then`` says what happens instead)."""
+    if requested == name:
+        raise CamplaceError(f"{exc.message}; {_FIX.get(name, 'use fewer candidates / points')}")
+    msg = f"{exc.message}; {then}"
+    log.warning("%s", msg)
+    stats["memory_fallback"] = msg
+
+
+def too_big_message(need: int, budget: int) -> str:
+    """The exact engine's one-line memory message."""
+    return (f"the exact engine needs about {need / 2**30:.1f} GiB for this instance but only "
+            f"{budget / 2**30:.1f} GiB may be used")
+
+
+def exact_too_big(engine: str, stats: dict[str, Any], need: int, budget: int) -> None:
+    """An exact engine of a k-camera mode would need more memory than is free: an error when
+    ``exact`` was asked for, otherwise a logged fallback to the general model (recorded in ``stats``)."""
+    msg = too_big_message(need, budget)
+    if engine == "exact":
+        raise CamplaceError(msg + "; use engine mip (or fewer candidates / points)")
+    log.warning("%s; falling back to the general model", msg)
+    stats["memory_fallback"] = msg

@@ -5,41 +5,26 @@ Every engine states its memory before allocating (:func:`~camplace.solver.engine
 an engine the caller asked for by name is a one-line :class:`~camplace.errors.CamplaceError`;
 under ``auto`` the other engine is tried (the bitset engine is exact for any k and returns a valid
 bound at the time limit), and as a last resort the greedy answer comes back with the trivial bound
-(every observed row), with a logged warning and ``stats["memory_fallback"]``.
+(every observed row), with a logged warning and ``stats["memory_fallback"]`` (the policy:
+:func:`camplace.solver._support.memory.memory_fallback`).
 """
 
 from __future__ import annotations
 
-import logging
 from typing import Any
 
 import numpy as np
 
-from camplace.errors import CamplaceError
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.mip.ortools import solve_cpsat, solve_mip
 from camplace.solver.problem.presolve import Presolved
 from camplace.solver.result import EngineOutcome
 
-__all__ = ["run_maxcover_engine", "memory_fallback"]
+__all__ = ["run_maxcover_engine"]
 
-log = logging.getLogger(__name__)
-
+#: The max-coverage engines by name.
 _FUNCS = {"exact": solve_bitset, "mip": solve_mip, "cpsat": solve_cpsat}
-_FIX = {"exact": "use engine mip, or fewer candidates / points",
-        "mip": "use engine exact, or fewer candidates / points",
-        "cpsat": "use engine exact, or fewer candidates / points"}
-
-
-def memory_fallback(exc: OverBudget, requested: str, name: str, stats: dict[str, Any], then: str) -> None:
-    """Engine ``name`` does not fit: a one-line error when it was requested by name, otherwise a
-    logged warning and ``stats["memory_fallback"]`` (``then`` says what happens instead)."""
-    if requested == name:
-        raise CamplaceError(f"{exc.message}; {_FIX.get(name, 'use fewer candidates / points')}")
-    msg = f"{exc.message}; {then}"
-    log.warning("%s", msg)
-    stats["memory_fallback"] = msg
 
 
 def run_maxcover_engine(name: str, requested: str, pre: Presolved, time_limit_s: float | None,

@@ -561,7 +561,7 @@ def _views_scip(pre: Any, views: int, k: int, start: tuple[int, ...],
 
 
 def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, views: int, engine: str,
-                time_limit_s: float | None, stats: dict[str, Any],
+                deadline: Deadline, stats: dict[str, Any],
                 seed: int = 0) -> tuple[tuple[int, ...], str, float, str] | None:
     """The engines for ``4 < k <= LARGE_K_MAX`` behind :func:`camplace.solver.api.solve`.
 
@@ -582,7 +582,8 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     mode : {"maxcover", "quality", "multiview"}
     engine : {"auto", "exact"}
         ``exact``: an engine that does not fit in memory is a one-line error.
-    time_limit_s : float or None
+    deadline : Deadline
+        The solve's deadline (the shares above are of the time left at the call).
     stats : dict
         Filled with ``engine_stats`` (and ``memory_fallback`` when the engine is skipped).
 
@@ -591,13 +592,13 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     (selected local columns, status, bound in residual units, engine name), or None when the
     engine does not fit in memory under ``auto`` (the caller falls back to its general model).
     """
-    from camplace.solver._support.memory import OverBudget
+    from camplace.solver._support.memory import OverBudget, memory_fallback
     from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
-    from camplace.solver.engines.maxcover import memory_fallback, run_maxcover_engine
+    from camplace.solver.engines.maxcover import run_maxcover_engine
     from camplace.solver.engines.mip.linear import model_bytes
     from camplace.solver.problem.presolve import presolve
 
-    deadline = Deadline(time_limit_s)
+    time_limit_s = deadline.left()
     m, n = resid.shape
     budget = memory_budget_bytes()
     if mode == "multiview":

@@ -10,18 +10,17 @@ compares :func:`~camplace.solver.engines.mip.linear.model_bytes` of it with the 
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.engines.angle._kernels import count_bad_pairs
 from camplace.solver.engines.mip.linear import LinearModel, model_bytes
-from camplace.solver.problem.objectives import selected_row_stats
-from camplace.solver.problem.objectives import angle_ok_pairs
+from camplace.solver.problem.objectives import angle_ok_pairs, selected_row_stats
 from camplace.solver.problem.presolve import as_pattern
 
 __all__ = ["BuildTimeout", "add_level_chain", "merge_rows", "model_size", "build_model", "check_setcover_memory", "setcover_model"]
@@ -131,7 +130,7 @@ def build_model(
     q: sp.csr_matrix, resid: sp.csr_matrix, resid_w: np.ndarray, w: np.ndarray, base: np.ndarray, k: int,
     mode: str, views: int,
     min_angle_deg: float | None, pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...],
-    free_cols: np.ndarray, conflicts: np.ndarray, fixed_value: float, t0: float, time_limit_s: float | None,
+    free_cols: np.ndarray, conflicts: np.ndarray, fixed_value: float, deadline: Deadline,
 ) -> tuple[LinearModel, np.ndarray, float, float]:
     """The SCIP / CP-SAT model of a k-camera mode: (model, x variables, objective scale, constant).
 
@@ -139,7 +138,7 @@ def build_model(
     """
 
     def check(r: int) -> None:
-        if (r & 255) == 0 and time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+        if (r & 255) == 0 and deadline.expired():
             raise BuildTimeout
 
     model = LinearModel(maximize=True)

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from camplace.solver._support.deadline import remaining
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.quality.min_gram import solve_quality_exact
 from camplace.solver.engines.quality.tree import solve_quality_tree
 from camplace.solver.result import ModeOutcome
@@ -26,7 +26,7 @@ _TREE_FIRST_MIN_S = 2.0
 
 def quality_engines(
     resid: sp.csr_matrix, resid_w: np.ndarray, k: int, tree_ok: bool, gram_ok: bool, fixed_t: tuple[int, ...],
-    free_cols: np.ndarray, value: Any, const: float, t0: float, time_limit_s: float | None, stats: dict[str, Any],
+    free_cols: np.ndarray, value: Any, const: float, deadline: Deadline, stats: dict[str, Any],
 ) -> ModeOutcome:
     """The exact quality engines as a portfolio: the quantised tree first (fast on the spatially
     coherent qualities of real scenes); if it has not proven the optimum within its share of the
@@ -34,12 +34,12 @@ def quality_engines(
     not depend on coherence). The better camera set wins; the smaller bound holds for both."""
     runs: list[tuple[str, Any]] = []
     if tree_ok:
-        limit = remaining(t0, time_limit_s)
+        limit = deadline.left()
         if gram_ok:
             limit = _TREE_FIRST_S if limit is None else min(limit, max(_TREE_FIRST_MIN_S, _TREE_FIRST_SHARE * limit))
         runs.append(("tree", solve_quality_tree(resid, resid_w, k, time_limit_s=limit)))
     if gram_ok and (not runs or runs[0][1].status != "optimal"):
-        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, time_limit_s=remaining(t0, time_limit_s))))
+        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, time_limit_s=deadline.left())))
     best = None
     for name, out in runs:
         sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))

@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
-from camplace.solver._support.deadline import remaining
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.mip.linear import solve_model
 from camplace.solver.engines.mip.mode_models import setcover_model
 from camplace.solver.engines.setcover.local_search import solve_cover
@@ -28,7 +28,7 @@ log = logging.getLogger(__name__)
 
 def setcover(
     q: sp.csr_matrix, w: np.ndarray, costs: Any, required_fraction: float, fixed_t: tuple[int, ...],
-    free_cols: np.ndarray, conflicts: np.ndarray, engine: str, time_limit_s: float | None, t0: float,
+    free_cols: np.ndarray, conflicts: np.ndarray, engine: str, deadline: Deadline,
     seed: int = 0, iterations: int | None = None,
 ) -> ModeOutcome:
     """Minimum-cost cover: the cost of the new cameras and a LOWER bound.
@@ -82,13 +82,13 @@ def setcover(
         return finish((), "optimal", 0.0)
     if conflicts.size == 0:
         out = solve_cover(sub, c[free_cols], sw if frac < 1.0 else None, need if frac < 1.0 else None, engine=engine,
-                          time_limit_s=remaining(t0, time_limit_s), seed=seed, max_iterations=iterations)
+                          time_limit_s=deadline.left(), seed=seed, max_iterations=iterations)
         stats["setcover"] = out.stats
         if out.selected is None:
             return ModeOutcome(None, "unknown", math.nan, out.bound, out.engine, stats)
         return finish(out.selected, out.status, out.bound, out.engine)
     model, x, rows_after = setcover_model(sub, sw, c[free_cols], free_cols, conflicts, frac, need, coverable_w)
-    out = solve_model(model, name, time_limit_s=remaining(t0, time_limit_s))
+    out = solve_model(model, name, time_limit_s=deadline.left())
     stats["engine_stats"] = dict(out.stats)
     stats["rows_after"] = rows_after
     if out.values is None:
