@@ -169,9 +169,12 @@ class EngineOutcome:
         Proven upper bound on the optimum, in original weight units.
     stats : dict
         JSON-serialisable engine details.
+    engine : str
+        The engine that found ``selected`` (``"exact"``, ``"mip"``, ``"cpsat"``).
     """
 
     selected: tuple[int, ...]
     status: str
     bound: float
     stats: dict[str, Any] = field(default_factory=dict)
+    engine: str = "exact"

@@ -172,9 +172,9 @@ def _large_k(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
     if got is None:
         return None
     p.stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
-    sel = p.with_fixed(got[0])
+    sel = p.with_fixed(got.selected)
     const = p.fixed_value if p.mode == "maxcover" else float(p.w @ p.base) if p.mode == "quality" else 0.0
-    return ModeOutcome(sel, got[1], p.value(sel), got[2] + const, got[3], p.stats)
+    return ModeOutcome(sel, got.status, p.value(sel), got.bound + const, got.engine, p.stats)
 
 
 def _quality_portfolio(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:

@@ -49,7 +49,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numba
@@ -63,8 +62,9 @@ from camplace.solver._support.frontier import Frontier, best_leaf
 from camplace.solver._support.memory import OverBudget
 from camplace.solver.engines.angle import _kernels as AK
 from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bytes
+from camplace.solver.result import EngineOutcome
 
-__all__ = ["AngleOutcome", "angle_bytes", "greedy_angle", "solve_angle"]
+__all__ = ["angle_bytes", "greedy_angle", "solve_angle"]
 
 log = logging.getLogger(__name__)
 
@@ -85,27 +85,6 @@ _REFINE_MIN_CUT = 0.3  # cone refinement of a tuple level stays on while it remo
 _REFINE_TRIALS = 2000  # ... judged after this many tries ...
 _REFINE_SAMPLE = 32  # ... and tried on 1 in this many tuples of a level where it is off
 _DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
-
-
-@dataclass(frozen=True)
-class AngleOutcome:
-    """Result of :func:`solve_angle`.
-
-    Attributes
-    ----------
-    selected : tuple of int
-        The new cameras (original column indices, sorted); empty if none was found.
-    status : str
-        ``"optimal"`` or ``"feasible"``.
-    bound : float
-        Upper bound on the objective (fixed cameras included), in weight units.
-    stats : dict
-    """
-
-    selected: tuple[int, ...]
-    status: str
-    bound: float
-    stats: dict[str, Any] = field(default_factory=dict)
 
 
 def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_tuples: int = _FRONTIER_MIN) -> int:
@@ -471,7 +450,7 @@ def solve_angle(
     *,
     time_limit_s: float | None = None,
     budget_bytes: int,
-) -> AngleOutcome:
+) -> EngineOutcome:
     """Best ``k`` new cameras for multi-view coverage with a minimum triangulation angle.
 
     Parameters
@@ -501,7 +480,9 @@ def solve_angle(
 
     Returns
     -------
-    AngleOutcome
+    EngineOutcome
+        ``selected``: the new cameras (original column indices, sorted; empty if none was found);
+        ``bound``: an upper bound on the objective, fixed cameras included, in weight units.
 
     Raises
     ------
@@ -547,7 +528,7 @@ def solve_angle(
     scale = unit if unit is not None else 1.0
     margin = 0.0 if unit is not None else _FLOAT_MARGIN * float(wu.sum())
     if search.size == 0 or k + fixed.size < views:
-        return AngleOutcome(tuple(int(j) for j in free[:k]), "optimal", const, dict(stats, trivial=True))
+        return EngineOutcome(tuple(int(j) for j in free[:k]), "optimal", const, dict(stats, trivial=True))
 
     with ctrl_c_deferred():
         colw = AK.column_weights(q.indptr, q.indices, q.data, search, wu[search], n)
@@ -632,7 +613,7 @@ def solve_angle(
     log.info("angle: k=%d views=%d angle %.3g deg on %d rows x %d columns, %s value %.9g bound %.9g, %d bound "
              "evaluations, %.3f s", k, views, theta_deg, layout.rows.size, tree.cols_ord.size, status, const + best * scale,
              const + bound * scale, evaluated, deadline.elapsed())
-    return AngleOutcome(best_set, status, const + bound * scale, stats)
+    return EngineOutcome(best_set, status, const + bound * scale, stats)
 
 
 def _last_mask(m: int) -> np.uint64:

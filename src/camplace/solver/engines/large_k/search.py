@@ -562,7 +562,7 @@ def _views_scip(pre: Any, views: int, k: int, start: tuple[int, ...],
 
 def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, views: int, engine: str,
                 deadline: Deadline, stats: dict[str, Any],
-                seed: int = 0) -> tuple[tuple[int, ...], str, float, str] | None:
+                seed: int = 0) -> EngineOutcome | None:
     """The engines for ``4 < k <= LARGE_K_MAX`` behind :func:`camplace.solver.api.solve`.
 
     ``maxcover`` and ``quality``: :func:`solve_large_k` (under ``auto``, maxcover gets a tenth of
@@ -589,8 +589,10 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
 
     Returns
     -------
-    (selected local columns, status, bound in residual units, engine name), or None when the
-    engine does not fit in memory under ``auto`` (the caller falls back to its general model).
+    EngineOutcome or None
+        ``selected``: local (free-column) indices; ``bound`` in residual units; ``engine`` the one
+        that found the set; ``stats`` the caller's ``stats``. None when the engine does not fit in
+        memory under ``auto`` (the caller falls back to its general model).
     """
     from camplace.solver._support.memory import OverBudget, memory_fallback
     from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
@@ -638,7 +640,7 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
                 if got[1] == "optimal":
                     status = "optimal"
         stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": es})
-        return tuple(int(j) for j in pre.original_columns(sel)), status, bound, name
+        return EngineOutcome(tuple(int(j) for j in pre.original_columns(sel)), status, bound, stats, engine=name)
     need = large_k_bytes(m, n, resid.nnz)
     if need > budget:
         memory_fallback(OverBudget(need, budget, "the large-k engine"), engine, "exact", stats,
@@ -662,4 +664,4 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         bound = min(bound, float(mip.bound))
         if mip.status == "optimal":
             status = "optimal"
-    return sel, status, bound, name
+    return EngineOutcome(sel, status, bound, stats, engine=name)
