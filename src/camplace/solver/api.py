@@ -291,7 +291,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         inner = deadline
         if cap and time_limit_s is not None:
             inner = deadline.shortened(min(_CAP_SHARE * time_limit_s, _CAP_MAX_S))
-        ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, engine,
+        ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, o,
                                      inner, stats={"k": k}))
         searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
         if cap and ctx.selected is not None and ctx.status != "optimal" and not searched:

@@ -99,8 +99,9 @@ class CoverProblem:
         Candidates the new cameras may be chosen from.
     conflicts : (p, 2) int64
         Pairs of free candidates closer than the minimum distance.
-    engine : str
-        The engine asked for (``auto``, ``exact``, ``mip``, ``cpsat``).
+    options : SolveOptions
+        The caller's options, unchanged (the engine choice reads them; ``engine`` is the engine
+        asked for: ``auto``, ``exact``, ``mip``, ``cpsat``).
     deadline : Deadline
         The solve's deadline (made once by ``solve``).
     stats : dict
@@ -124,7 +125,7 @@ class CoverProblem:
     fixed_t: tuple[int, ...]
     free_cols: np.ndarray
     conflicts: np.ndarray
-    engine: str
+    options: SolveOptions
     deadline: Deadline
     stats: dict[str, Any] = field(default_factory=dict)
 
@@ -140,6 +141,11 @@ class CoverProblem:
         self.fixed_value = self.value(self.fixed_t)
         self.budget = memory_budget_bytes()
 
+    @property
+    def engine(self) -> str:
+        """The engine asked for (``options.engine``)."""
+        return self.options.engine
+
     def value(self, sel: Sequence[int]) -> float:
         """The mode's objective of the cameras ``sel`` (original indices)."""
         return mode_value(self.q, self.w, list(sel), mode=self.mode, views=self.views, min_angle_deg=self.min_angle_deg,
@@ -151,11 +157,9 @@ class CoverProblem:
 
     def choose(self, large_k: bool = True) -> EngineChoice:
         """:func:`~camplace.solver.choose.choose_engine` on this problem's sizes."""
-        opts = SolveOptions(mode=self.mode, k=self.k, views=self.views, min_angle_deg=self.min_angle_deg,
-                            engine=self.engine)
         sizes = problem_sizes(self.resid, self.k, self.free_cols.size, len(self.fixed_t), self.conflicts.shape[0],
                               self.mode)
-        return choose_engine(sizes, opts, self.budget, large_k=large_k)
+        return choose_engine(sizes, self.options, self.budget, large_k=large_k)
 
     @property
     def angle_ok(self) -> bool:

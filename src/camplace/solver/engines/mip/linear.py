@@ -190,6 +190,53 @@ def solve_model(
     raise CamplaceError(f"unknown model backend {backend!r} (use mip or cpsat)")
 
 
+def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_values: Sequence[float] = (), *,
+             no_scip: str = "use engine='cpsat'"):
+    """Solve an ``MPModelProto`` with SCIP: one thread, the hint, the relative gap ``_OPT_TOL`` and
+    what is left of ``deadline`` (the one SCIP set-up of the package: the mode models and the
+    max-coverage MIP engine both run here).
+
+    Parameters
+    ----------
+    proto : ortools.linear_solver.linear_solver_pb2.MPModelProto
+    deadline : Deadline
+        The build time counts from its start.
+    hint_vars, hint_values : sequence
+        Variable indices and their hinted values.
+    no_scip : str
+        What to do instead when OR-Tools has no SCIP (the end of the one-line error).
+
+    Returns
+    -------
+    solver : pywraplp.Solver
+    variables : list of pywraplp.Variable
+    code : int
+        ``solver.Solve``'s result status.
+    build_s : float
+        Seconds from the deadline's start until the solve began.
+    """
+    from ortools.linear_solver import pywraplp
+
+    solver = pywraplp.Solver.CreateSolver("SCIP")
+    if solver is None:
+        raise CamplaceError(f"OR-Tools was built without SCIP; {no_scip}")
+    err = solver.LoadModelFromProto(proto)
+    if err:
+        raise RuntimeError(f"SCIP model load failed: {err}")
+    solver.SetNumThreads(1)
+    variables = solver.variables()
+    if len(hint_vars):
+        solver.SetHint([variables[i] for i in hint_vars], [float(v) for v in hint_values])
+    build_s = deadline.elapsed()
+    rem = deadline.remaining()
+    if rem is not None:
+        solver.SetTimeLimit(max(1, int(rem * 1000)))
+    params = pywraplp.MPSolverParameters()
+    params.SetDoubleParam(pywraplp.MPSolverParameters.RELATIVE_MIP_GAP, _OPT_TOL)
+    code = solver.Solve(params)
+    return solver, variables, code, build_s
+
+
 def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None) -> ModelOutcome:
     from ortools.linear_solver import linear_solver_pb2, pywraplp
 
@@ -207,24 +254,9 @@ def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, 
         ct.var_index.extend(row.idx.tolist())
         ct.coefficient.extend(row.coef.tolist())
         nnz += row.idx.size
-    solver = pywraplp.Solver.CreateSolver("SCIP")
-    if solver is None:
-        raise CamplaceError("OR-Tools was built without SCIP; use engine='cpsat'")
-    err = solver.LoadModelFromProto(proto)
-    if err:
-        raise RuntimeError(f"SCIP model load failed: {err}")
-    solver.SetNumThreads(1)
-    variables = solver.variables()
-    if hint:
-        keys = sorted(hint)
-        solver.SetHint([variables[i] for i in keys], [float(hint[i]) for i in keys])
-    build_s = deadline.elapsed()
-    rem = deadline.remaining()
-    if rem is not None:
-        solver.SetTimeLimit(max(1, int(rem * 1000)))
-    params = pywraplp.MPSolverParameters()
-    params.SetDoubleParam(pywraplp.MPSolverParameters.RELATIVE_MIP_GAP, _OPT_TOL)
-    code = solver.Solve(params)
+    keys = sorted(hint) if hint else []
+    solver, variables, code, build_s = run_scip(proto, deadline, keys, [float(hint[i]) for i in keys] if hint else [],
+                                                no_scip="use engine='cpsat'")
     stats: dict[str, Any] = {
         "backend": "SCIP",
         "variables": model.n_vars,

@@ -25,11 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import greedy_incumbent
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
-from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat
+from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat, run_scip
 from camplace.solver.problem.presolve import Presolved
 from camplace.solver.result import EngineOutcome
 
@@ -171,22 +170,8 @@ def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOut
     card.var_index.extend(range(n))
     card.coefficient.extend([1.0] * n)
 
-    solver = pywraplp.Solver.CreateSolver("SCIP")
-    if solver is None:
-        raise CamplaceError("OR-Tools was built without SCIP; use engine='cpsat' or 'exact'")
-    err = solver.LoadModelFromProto(proto)
-    if err:
-        raise RuntimeError(f"SCIP model load failed: {err}")
-    solver.SetNumThreads(1)
-    variables = solver.variables()
-    solver.SetHint(variables[:n], [1.0 if j in hint else 0.0 for j in range(n)])
-    build_s = deadline.elapsed()
-    rem = deadline.remaining()
-    if rem is not None:
-        solver.SetTimeLimit(max(1, int(rem * 1000)))
-    params = pywraplp.MPSolverParameters()
-    params.SetDoubleParam(pywraplp.MPSolverParameters.RELATIVE_MIP_GAP, _OPT_TOL)
-    code = solver.Solve(params)
+    solver, variables, code, build_s = run_scip(proto, deadline, range(n), [1.0 if j in hint else 0.0 for j in range(n)],
+                                                no_scip="use engine='cpsat' or 'exact'")
 
     stats: dict[str, Any] = {
         "backend": "SCIP",
