@@ -68,10 +68,15 @@ class RunSettings:
 
     Attributes
     ----------
-    seed, candidates, points, sampler, k, time_limit_s, orientations : resolved values
-        ``candidates`` positions, ``points`` surface points requested, ``k`` new cameras.
-    engine, event_mode, mode, views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction
-        The solver's options (:func:`camplace.solver.api.solve`).
+    seed, candidates, points, sampler, k, orientations : resolved values
+        ``candidates`` positions, ``points`` surface points requested, ``k`` new cameras (the
+        instance's k also for setcover, whose solver options have none).
+    solve_options : SolveOptions
+        The solver's options in one object, the one carrier of mode, k, views, min_angle_deg,
+        required_fraction, fixed, forbidden, min_distance_m, engine, time_limit_s and the memory
+        budget, passed to :func:`camplace.solver.solve` unchanged (and to the robust stage). The
+        attributes of those names read it.
+    event_mode : {"all", "peak"}
     matrix_format : {"cpm", "npz"}
     robust : RobustSpec or None
         The instance's ``[robust]`` table unless given.
@@ -80,8 +85,6 @@ class RunSettings:
     options : dict
         The ``options`` record of ``solution.json`` (:meth:`SolveOptions.record`, the run's
         settings, and ``robust``).
-    solve_options : SolveOptions or None
-        The solver's options in one object, passed to :func:`camplace.solver.api.solve` unchanged.
     """
 
     seed: int
@@ -89,24 +92,26 @@ class RunSettings:
     points: int
     sampler: str
     k: int
-    time_limit_s: float
     orientations: int
-    engine: str = "auto"
+    solve_options: Any
     event_mode: str = "all"
-    mode: str = "maxcover"
-    views: int = 2
-    min_angle_deg: float | None = None
-    fixed: tuple[int, ...] = ()
-    forbidden: tuple[int, ...] = ()
-    min_distance_m: float | None = None
-    required_fraction: float = 1.0
     matrix_format: str = "cpm"
     robust: Any = None
     cache: bool = True
     dask_address: str | None = None
     memory_budget_gb: float | None = None
     options: dict = field(default_factory=dict, compare=False)
-    solve_options: Any = None
+
+    # the solver's options: read from solve_options (one carrier)
+    mode = property(lambda self: self.solve_options.mode)
+    views = property(lambda self: self.solve_options.views)
+    min_angle_deg = property(lambda self: self.solve_options.min_angle_deg)
+    required_fraction = property(lambda self: self.solve_options.required_fraction)
+    fixed = property(lambda self: self.solve_options.fixed)
+    forbidden = property(lambda self: self.solve_options.forbidden)
+    min_distance_m = property(lambda self: self.solve_options.min_distance_m)
+    engine = property(lambda self: self.solve_options.engine)
+    time_limit_s = property(lambda self: self.solve_options.time_limit_s)
 
     @property
     def memory_budget_bytes(self) -> int | None:
@@ -164,19 +169,20 @@ def resolve_settings(
         raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
     if n_points < 1:
         raise CamplaceError(f"--points: must be >= 1, got {n_points}")
-    if time_limit_s <= 0:
-        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
     if matrix_format not in ("cpm", "npz"):
         raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
 
     check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
     if memory_budget_gb is not None and not memory_budget_gb > 0:
         raise CamplaceError(f"--memory-budget-gb: must be > 0, got {memory_budget_gb}")
-    solve_opts = SolveOptions(
+    # the caller's SolveOptions with the run's defaults filled in (its other fields, e.g. the
+    # setcover search seed, go through unchanged), or one made from the keyword options
+    solve_opts = (solve_options or SolveOptions()).replace(
         mode=mode, k=None if mode == "setcover" else k, views=views, min_angle_deg=min_angle_deg,
         required_fraction=required_fraction, fixed=tuple(fixed), forbidden=tuple(forbidden),
         min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
-        memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
+        memory_budget_bytes=(int(memory_budget_gb * 2**30) if memory_budget_gb is not None
+                             else None if solve_options is None else solve_options.memory_budget_bytes),
     )
     options = {**solve_opts.record(), "event_mode": event_mode, "sampler": sampler, "seed": seed, "candidates": n_cand,
                "points": n_points, "orientations": orientations}
@@ -187,11 +193,9 @@ def resolve_settings(
         check_request(robust, mode, min_angle_deg, engine)
         options["robust"] = spec_record(robust)
     return RunSettings(
-        seed=seed, candidates=n_cand, points=n_points, sampler=sampler, k=k, time_limit_s=time_limit_s,
-        orientations=orientations, engine=engine, event_mode=event_mode, mode=mode, views=views,
-        min_angle_deg=min_angle_deg, fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
-        required_fraction=required_fraction, matrix_format=matrix_format, robust=robust, cache=cache,
-        dask_address=dask_address, memory_budget_gb=memory_budget_gb, options=options, solve_options=solve_opts,
+        seed=seed, candidates=n_cand, points=n_points, sampler=sampler, k=k, orientations=orientations,
+        solve_options=solve_opts, event_mode=event_mode, matrix_format=matrix_format, robust=robust, cache=cache,
+        dask_address=dask_address, memory_budget_gb=memory_budget_gb, options=options,
     )
 
 
