@@ -1,13 +1,18 @@
-"""The open tuples of the best-first searches (bitset, angle and quality-tree engines)."""
+"""The open tuples of the best-first searches (bitset, angle and quality-tree engines), and the one
+best-first loop over them (:func:`best_first`)."""
 
 from __future__ import annotations
 
 import heapq
 import math
+import time
+from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["best_leaf", "push_chunks", "Frontier"]
+from camplace.solver._support.deadline import Deadline
+
+__all__ = ["best_leaf", "push_chunks", "Frontier", "best_first"]
 
 def best_leaf(children: np.ndarray, value: np.ndarray, leaf: np.ndarray) -> tuple[float, np.ndarray] | None:
     """The best tuple of leaves among expanded children (value -inf: not made or pruned).
@@ -116,3 +121,83 @@ class Frontier:
         lifo = self.n_open + cv.shape[0] > self.depth_first_open
         for c0 in range(0, cv.shape[0], self.chunk):
             self._add(ch[c0 : c0 + self.chunk], cv[c0 : c0 + self.chunk], lifo)
+
+
+def best_first(
+    front: Frontier,
+    expand: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    offer: Callable[[float, np.ndarray], None],
+    threshold: Callable[[], float],
+    deadline: Deadline,
+    stats: dict[str, Any],
+    *,
+    max_open: int,
+    batch: int,
+    batch_min: int,
+    batch_max: int,
+    batch_s: float,
+) -> tuple[str, float, int, float]:
+    """The best-first loop of the tuple searches: pop a batch of open tuples that can still beat
+    ``threshold()``, expand it, offer its best tuple of leaves, push the children that stay open.
+
+    A batch takes about ``batch_s`` seconds at the rate of the previous one (at most a quarter of
+    the time left, between ``batch_min`` and ``batch_max`` tuples). The search stops when the
+    frontier is empty (``"optimal"``), at the deadline or with more than ``max_open`` open tuples
+    (``"feasible"``; ``stats["stopped"]`` says which).
+
+    Parameters
+    ----------
+    front : Frontier
+        The open tuples (the root(s) already pushed).
+    expand : callable
+        ``expand(tuples, bounds) -> (children (F, c, k), value (F, c), leaf (F, c))``.
+    offer : callable
+        ``offer(value, leaves)`` with the best tuple of leaves of a batch (the engine keeps it if it
+        beats its incumbent).
+    threshold : callable
+        The value an open tuple must beat (incumbent plus margin), read before every pop and push.
+    deadline : Deadline
+    stats : dict
+        Gets ``stopped`` when the search does not finish.
+    max_open : int
+    batch, batch_min, batch_max : int
+        The first batch size and the bounds of the later ones.
+    batch_s : float
+
+    Returns
+    -------
+    status : {"optimal", "feasible"}
+    open_bound : float
+        The largest bound still open (-inf when the search finished).
+    batches : int
+        Batches expanded.
+    time_expand_s : float
+        Seconds spent in ``expand``.
+    """
+    status, open_bound = "optimal", -math.inf
+    batches = 0
+    t_expand = 0.0
+    while front.n_open:
+        if deadline.expired() or front.n_open > max_open:
+            status = "feasible"
+            open_bound = front.top()
+            stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
+            break
+        tup, tup_bound = front.pop_batch(batch, threshold())
+        if tup.shape[0] == 0:
+            continue
+        batches += 1
+        t_batch = time.perf_counter()
+        children, value, leaf = expand(tup, tup_bound)
+        spent = time.perf_counter() - t_batch
+        t_expand += spent
+        # next batch: about batch_s seconds, and at most a quarter of the time left
+        per = spent / tup.shape[0]
+        left_s = deadline.remaining()
+        want = batch_s if left_s is None else min(batch_s, 0.25 * left_s)
+        batch = int(min(batch_max, max(batch_min, want / max(per, 1e-9))))
+        top = best_leaf(children, value, leaf)
+        if top is not None:
+            offer(*top)
+        front.push(children, value, leaf, threshold())
+    return status, open_bound, batches, t_expand

@@ -58,7 +58,7 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.frontier import Frontier, best_leaf
+from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.memory import OverBudget
 from camplace.solver.engines.angle import _kernels as AK
 from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bytes
@@ -563,40 +563,31 @@ def solve_angle(
     best_set = inc.best_set
     front = Frontier(np.zeros((1, k + 1), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap), _CHUNK)
     cpu_search = time.process_time()
-    t_expand = 0.0
-    evaluated = batches = exact_evals = cheap_prunes = angle_free = angle_prunes = requeued = 0
-    batch = min(_BATCH, _BATCH_MIN)
-    status, open_bound = "optimal", -math.inf
-    while front.n_open:
-        if deadline.expired() or front.n_open > cap:
-            status = "feasible"
-            open_bound = front.top()
-            stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
-            break
-        tup, tup_bound = front.pop_batch(batch, best + margin)
-        if tup.shape[0] == 0:
-            continue
-        batches += 1
-        t_batch = time.perf_counter()
-        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, n_back = tree.expand(tup, tup_bound, best, margin, front.top())
-        # next batch: about _BATCH_S seconds, and at most a quarter of the time left
-        t_expand += time.perf_counter() - t_batch
-        per = (time.perf_counter() - t_batch) / tup.shape[0]
-        want = _BATCH_S if deadline.remaining() is None else min(_BATCH_S, 0.25 * (deadline.remaining() or 0.0))
-        batch = int(min(_BATCH, max(_BATCH_MIN, want / max(per, 1e-9))))
+    evaluated = exact_evals = cheap_prunes = angle_free = angle_prunes = requeued = 0
+
+    def expand(tup: np.ndarray, tup_bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        nonlocal evaluated, exact_evals, cheap_prunes, angle_free, angle_prunes, requeued
+        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, n_back = tree.expand(
+            tup, tup_bound, best, margin, front.top())
         evaluated += n_made
         exact_evals += n_exact
         cheap_prunes += n_cheap
         angle_free += n_free
         angle_prunes += n_angle
         requeued += n_back
-        top = best_leaf(children, value, leaf)
-        if top is not None and top[0] > best:
-            best, best_set = top[0], tree.columns(top[1][:k])
+        return children, value, leaf
+
+    def offer(value: float, nodes: np.ndarray) -> None:
+        nonlocal best, best_set
+        if value > best:
+            best, best_set = value, tree.columns(nodes[:k])
             log.debug("angle: incumbent %.9g %s", const + best * scale, best_set)
-        front.push(children, value, leaf, best + margin)
-        log.debug("angle: %d bounds (%d pruned without the angle, %d angle-free), open %d, top %.6g, %.1f s",
-                  evaluated, cheap_prunes, angle_free, front.n_open, const + front.top() * scale, deadline.elapsed())
+
+    status, open_bound, batches, t_expand = best_first(
+        front, expand, offer, lambda: best + margin, deadline, stats, max_open=cap, batch=min(_BATCH, _BATCH_MIN),
+        batch_min=_BATCH_MIN, batch_max=_BATCH, batch_s=_BATCH_S)
+    log.debug("angle: %d bounds (%d pruned without the angle, %d angle-free), open %d, %.1f s",
+              evaluated, cheap_prunes, angle_free, front.n_open, deadline.elapsed())
     bound = max(best, open_bound)
     if bound <= best + margin:
         status, bound = "optimal", best

@@ -65,7 +65,7 @@ from numba import prange
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.frontier import Frontier, best_leaf
+from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.greedy import greedy_swap
 from camplace.solver._support.memory import memory_budget_bytes
 from camplace.solver.engines.bitset.pair_cap import match_opposite
@@ -287,33 +287,20 @@ def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.
     total = float(lw.sum())
     stats["time_setup_s"] = deadline.elapsed()
     front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([min(root, total)]), _DEPTH_FIRST_OPEN, _CHUNK)
-    evaluated = chunks = 0
-    batch = _BATCH_MIN
-    status, open_bound = "optimal", -math.inf
-    while front.n_open:
-        if deadline.expired() or front.n_open > _FRONTIER_MAX:
-            status = "feasible"
-            open_bound = front.top()
-            stats["stopped"] = "time limit" if deadline.expired() else "open tuples"
-            break
-        tup, _ = front.pop_batch(batch, st.best + st.margin)
-        if tup.shape[0] == 0:
-            continue
-        chunks += 1
-        t_batch = time.perf_counter()
+    evaluated = 0
+
+    def expand(tup: np.ndarray, _bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        nonlocal evaluated
         with ctrl_c_deferred():
             children, value, leaf, n_made = _expand_pairs(tup, lo, hi, left, right, levels, views, lw, planes, mask,
                                                           total, st.best, st.margin, colmax, pw)
-        # next batch: about _BATCH_S seconds, and at most a quarter of the time left
-        per = (time.perf_counter() - t_batch) / tup.shape[0]
-        left_s = deadline.remaining()
-        want = _BATCH_S if left_s is None else min(_BATCH_S, 0.25 * left_s)
-        batch = int(min(_BATCH, max(_BATCH_MIN, want / max(per, 1e-9))))
         evaluated += int(n_made)
-        top = best_leaf(children, value, leaf)
-        if top is not None:
-            st.offer(top[0], [int(perm[lo[x]]) for x in top[1]])
-        front.push(children, value, leaf, st.best + st.margin)
+        return children, value, leaf
+
+    status, open_bound, chunks, _ = best_first(
+        front, expand, lambda v, nodes: st.offer(v, [int(perm[lo[x]]) for x in nodes]), lambda: st.best + st.margin,
+        deadline, stats, max_open=_FRONTIER_MAX, batch=_BATCH_MIN, batch_min=_BATCH_MIN, batch_max=_BATCH,
+        batch_s=_BATCH_S)
     stats.update({"search": "opposite pairs", "bound_evaluations": evaluated, "chunks": chunks, "peak_open": int(front.peak),
                   "depth_first_batches": front.lifo_batches,
                   "words": int(levels.shape[2])})
