@@ -270,7 +270,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     conflicts = conflicts[keep_conf]
 
     if mode == "setcover":
-        if conflicts.size:  # the model runs directly (otherwise setcover_ls checks its own memory)
+        if conflicts.size:  # the model runs directly (otherwise the local search checks its own memory)
             check_setcover_memory(q, w, free_cols, conflicts, engine)
         ctx = setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, deadline,
                        o.search_seed, o.iterations)
