@@ -157,24 +157,29 @@ class ModeOutcome:
 
 @dataclass(frozen=True)
 class EngineOutcome:
-    """What an engine returns on a presolved instance (indices are REDUCED column indices).
+    """What every engine returns (the column indices are those of the matrix the engine was given:
+    the presolved instance's REDUCED indices, the free columns, or the input's, as each engine says).
 
     Attributes
     ----------
-    selected : tuple of int
-        Reduced column indices (empty if no solution was found).
+    selected : tuple of int, or None
+        Column indices (empty, or None for the set-cover search, if no solution was found).
     status : str
         ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
     bound : float
-        Proven upper bound on the optimum, in original weight units.
+        Proven bound on the optimum (upper when maximising, lower for set cover), in original
+        weight (or cost) units.
     stats : dict
         JSON-serialisable engine details.
     engine : str
-        The engine that found ``selected`` (``"exact"``, ``"mip"``, ``"cpsat"``).
+        The engine that found ``selected`` (``"exact"``, ``"mip"``, ``"cpsat"``, ``"local-search"``).
+    objective : float
+        The value of ``selected`` where the engine reports it (set cover: its cost), else NaN.
     """
 
-    selected: tuple[int, ...]
+    selected: tuple[int, ...] | None
     status: str
     bound: float
     stats: dict[str, Any] = field(default_factory=dict)
     engine: str = "exact"
+    objective: float = math.nan

@@ -72,9 +72,10 @@ from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.engines.setcover import _kernels as K
+from camplace.solver.result import EngineOutcome
 
-__all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "CoverOutcome",
-           "solve_cover", "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work", "restart_unit_work",
+__all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "solve_cover",
+           "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work", "restart_unit_work",
            "run_searches", "search_threads"]
 
 log = logging.getLogger(__name__)
@@ -809,36 +810,9 @@ def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) 
     return "mip", ""
 
 
-@dataclass(frozen=True)
-class CoverOutcome:
-    """Answer of :func:`solve_cover` (input column indices).
-
-    Attributes
-    ----------
-    selected : tuple of int or None
-        Input columns of the cover (None: no cover found).
-    status : str
-        ``"optimal"``, ``"feasible"`` or ``"unknown"``.
-    cost : float
-        Its cost.
-    bound : float
-        Lower bound on the optimal cost.
-    engine : str
-        ``"local-search"`` when no model ran, else the model's backend (``"mip"``, ``"cpsat"``).
-    stats : dict
-    """
-
-    selected: tuple[int, ...] | None
-    status: str
-    cost: float
-    bound: float
-    engine: str
-    stats: dict[str, Any]
-
-
 def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None = None,
                 need: float | None = None, *, engine: str = "auto", time_limit_s: float | None = None,
-                seed: int = 0, max_iterations: int | None = None) -> CoverOutcome:
+                seed: int = 0, max_iterations: int | None = None) -> EngineOutcome:
     """Reductions, local search, Lagrangian bound and (if it applies) SCIP / CP-SAT.
 
     Parameters
@@ -870,7 +844,10 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
 
     Returns
     -------
-    CoverOutcome
+    EngineOutcome
+        ``selected``: input columns of the cover (None: no cover found); ``objective``: its cost;
+        ``bound``: a lower bound on the optimal cost; ``engine``: ``"local-search"`` when no model
+        ran, else the model's backend (``"mip"``, ``"cpsat"``).
     """
     t0 = time.perf_counter()
 
@@ -891,7 +868,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         sel = _prune_input(pattern, c, weights, need, red.input_columns(()))
         cost = float(c[list(sel)].sum())
         stats["time_s"] = time.perf_counter() - t0
-        return CoverOutcome(sel, "optimal", cost, cost, "local-search", stats)
+        return EngineOutcome(sel, "optimal", cost, stats, engine="local-search", objective=cost)
     ls = LocalSearch(red, seed=seed)
     rem = left()
     lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost,
@@ -973,7 +950,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     stats["time_s"] = time.perf_counter() - t0
     stats["time_to_best_s"] = max(0.0, found_s)
     log.info("setcover: %s cost %.9g bound %.9g (%s) in %.2f s", status, cost, bound, name, stats["time_s"])
-    return CoverOutcome(sel, status, cost, bound, name, stats)
+    return EngineOutcome(sel, status, bound, stats, engine=name, objective=cost)
 
 
 def _prune_input(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None, need: float | None,
