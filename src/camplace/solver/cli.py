@@ -13,12 +13,10 @@ import math
 from pathlib import Path
 from typing import Any, Callable
 
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, EXIT_OK, EXIT_NO_SOLUTION
 from camplace.names import EVENT_MODES, SETCOVER_ENGINES
 from camplace.solver.options import SolveOptions, add_solver_options, options_from_args
 
-EXIT_OK = 0
-EXIT_NO_SOLUTION = 3
 SOLVE_NAME = "solve.json"  # the default -o of 'camplace solve', in the run folder
 
 
