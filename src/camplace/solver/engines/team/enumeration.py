@@ -102,6 +102,11 @@ def enumerate_teams(
     timed_out = [False]
     chosen: list[int] = []
 
+    # the fixed cameras alone may already break a limit that only grows
+    fixed_ok = (cost0 <= budget and all(mcount[i] <= mmax[i] for i in range(nm))
+                and all(zcount[i] <= zmax[i] for i in range(nz))
+                and (team.pose is None or len(used_poses) == len(fixed)))
+
     def leaf() -> None:
         visited[0] += 1
         if exact and len(chosen) != k:
@@ -152,7 +157,8 @@ def enumerate_teams(
             if fp is not None:
                 used_poses.discard(int(fp[i]))
 
-    dfs(0, cost0)
+    if fixed_ok:
+        dfs(0, cost0)
     stats = {"teams_visited": int(visited[0]), "timed_out": bool(timed_out[0])}
     if best[0] is None:
         return None, ("unknown" if timed_out[0] else "infeasible"), best[1], stats

@@ -1,0 +1,266 @@
+"""Camera teams in the solver (issue 31): every constraint and objective against enumeration.
+
+The oracle below checks the constraints itself (it does not call ``TeamConstraints.violations``)
+and enumerates every subset of the allowed columns; each engine (the exact enumeration, SCIP,
+CP-SAT) must reach its optimum, meet every constraint, and agree on infeasibility.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from camplace.errors import CamplaceError
+from camplace.solver.api import solve
+from camplace.solver.options import SolveOptions
+from camplace.solver.problem.team import TeamConstraints, pose_index
+from camplace.solver.routes import choose_team_engine
+
+_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+def _ok(sel, fixed, inst) -> bool:
+    """Independent check of every constraint on a full selection (fixed included)."""
+    model, cost, zones, pose = inst["model"], inst["cost"], inst["zones"], inst["pose"]
+    sel = list(sel)
+    for mi, (lo, hi) in enumerate(inst["model_limits"]):
+        c = sum(1 for j in sel if model[j] == mi)
+        if c < lo or (hi is not None and c > hi):
+            return False
+    if inst["budget"] is not None and sum(cost[j] for j in sel) > inst["budget"] + 1e-9:
+        return False
+    for zi, (lo, hi) in enumerate(inst["zone_limits"]):
+        c = sum(1 for j in sel if zones[j, zi])
+        if c < lo or (hi is not None and c > hi):
+            return False
+    if inst["one_per_pose"] and len({pose[j] for j in sel}) < len(sel):
+        return False
+    new = len(set(sel) - set(fixed))
+    if inst["k"] is not None:
+        if inst["cardinality"] == "exact" and new != inst["k"]:
+            return False
+        if inst["cardinality"] == "budget" and new > inst["k"]:
+            return False
+    return True
+
+
+def _oracle(inst, mode: str):
+    """(best objective or None when infeasible) by enumerating every subset of the allowed columns."""
+    a = inst["a"] > 0
+    w = inst["w"]
+    fixed, forbidden = inst["fixed"], inst["forbidden"]
+    n = a.shape[1]
+    free = [j for j in range(n) if j not in fixed and j not in forbidden]
+    coverable = a[:, list(range(n))].any(axis=1) if n else np.zeros(len(w), bool)
+    coverable &= np.array([any(a[i, j] for j in list(fixed) + free) for i in range(len(w))], dtype=bool)
+    best = None
+    for r in range(len(free) + 1):
+        for combo in itertools.combinations(free, r):
+            sel = list(fixed) + list(combo)
+            if not _ok(sel, fixed, inst):
+                continue
+            cov = a[:, sel].any(axis=1) if sel else np.zeros(len(w), bool)
+            if mode == "maxcover":
+                v = float(w[cov].sum())
+                best = v if best is None or v > best else best
+            else:
+                if np.any(coverable & (w > 0) & ~cov):
+                    continue
+                v = float(sum(inst["cost"][j] for j in combo))
+                best = v if best is None or v < best else best
+    return best
+
+
+@st.composite
+def team_instances(draw):
+    n_poses = draw(st.integers(2, 4))
+    n_models = draw(st.integers(1, 2))
+    # each pose offered with a non-empty subset of the models; columns model-major (as the sampler)
+    offered = [[p for p in range(n_poses) if draw(st.booleans()) or mi == 0] for mi in range(n_models)]
+    model = np.array([mi for mi in range(n_models) for _ in offered[mi]], dtype=np.int64)
+    pose = np.array([p for mi in range(n_models) for p in offered[mi]], dtype=np.int64)
+    n = model.size
+    m = draw(st.integers(0, 8))
+    bits = draw(st.lists(st.booleans(), min_size=m * n, max_size=m * n))
+    a = np.array(bits, dtype=np.float32).reshape(m, n)
+    w = np.array(draw(st.lists(st.sampled_from([0.0, 0.5, 1.0, 2.0, 3.25]), min_size=m, max_size=m)))
+    model_cost = [draw(st.sampled_from([0.0, 1.0, 2.0, 3.0, 5.0])) for _ in range(n_models)]
+    cost = np.array([model_cost[mi] for mi in model], dtype=np.float64)
+    limits = []
+    for _ in range(n_models):
+        lo = draw(st.integers(0, 2))
+        hi = draw(st.one_of(st.none(), st.integers(lo, 3)))
+        limits.append((lo, hi) if draw(st.booleans()) else (0, None))
+    budget = draw(st.one_of(st.none(), st.sampled_from([0.0, 2.0, 4.0, 6.0, 9.0])))
+    n_zones = draw(st.integers(0, 2))
+    pose_zone = np.array(draw(st.lists(st.booleans(), min_size=n_poses * n_zones, max_size=n_poses * n_zones)),
+                         dtype=bool).reshape(n_poses, n_zones)
+    zones = pose_zone[pose] if n_zones else np.zeros((n, 0), bool)
+    zone_limits = []
+    for _ in range(n_zones):
+        lo = draw(st.integers(0, 2))
+        zone_limits.append((lo, draw(st.one_of(st.none(), st.integers(lo, 2)))))
+    one_per_pose = draw(st.booleans())
+    cardinality = draw(st.sampled_from(["exact", "budget"]))
+    k = draw(st.integers(0, 3)) if cardinality == "exact" else draw(st.one_of(st.none(), st.integers(0, 3)))
+    fixed = tuple(sorted(set(draw(st.lists(st.integers(0, n - 1), max_size=1)))))
+    forbidden = tuple(j for j in sorted(set(draw(st.lists(st.integers(0, n - 1), max_size=2)))) if j not in fixed)
+    free = n - len(fixed) - len(forbidden)
+    if cardinality == "exact" and k is not None:
+        k = min(k, free)
+    if not fixed and cardinality == "exact" and k == 0:
+        k = min(1, free)
+    return dict(a=a, w=w, model=model, pose=pose, cost=cost, model_limits=limits, budget=budget, zones=zones,
+                zone_limits=zone_limits, one_per_pose=one_per_pose, cardinality=cardinality, k=k, fixed=fixed,
+                forbidden=forbidden, n_models=n_models)
+
+
+def _constraints(inst) -> TeamConstraints:
+    return TeamConstraints(
+        model=inst["model"], model_names=tuple(f"m{i}" for i in range(inst["n_models"])),
+        model_min=tuple(lo for lo, _ in inst["model_limits"]), model_max=tuple(hi for _, hi in inst["model_limits"]),
+        cost=inst["cost"], budget=inst["budget"], zone_names=tuple(f"z{i}" for i in range(len(inst["zone_limits"]))),
+        zone_member=inst["zones"], zone_min=tuple(lo for lo, _ in inst["zone_limits"]),
+        zone_max=tuple(hi for _, hi in inst["zone_limits"]), pose=inst["pose"] if inst["one_per_pose"] else None,
+        cardinality=inst["cardinality"])
+
+
+def _solve(inst, mode: str, engine: str):
+    k = None if mode == "setcover" else inst["k"]
+    opts = SolveOptions(mode=mode, k=k, engine=engine, fixed=inst["fixed"], forbidden=inst["forbidden"],
+                        team=_constraints(inst))
+    return solve(sp.csr_matrix(inst["a"]), inst["w"], options=opts)
+
+
+def _agree(inst, mode: str, engine: str) -> None:
+    if mode == "maxcover" and inst["k"] is None and inst["cardinality"] == "exact":
+        return
+    if mode == "setcover":
+        inst = {**inst, "k": None}
+    want = _oracle(inst, mode)
+    res = _solve(inst, mode, engine)
+    if want is None:
+        assert res.status == "infeasible", (res, inst)
+        assert res.selected == () and math.isnan(res.objective)
+        return
+    assert res.status == "optimal", (res, want, inst)
+    assert _ok(res.selected, inst["fixed"], inst), (res.selected, inst)
+    assert set(inst["fixed"]) <= set(res.selected) and not set(inst["forbidden"]) & set(res.selected)
+    assert res.objective == pytest.approx(want, abs=1e-9), (res, want, inst)
+    assert res.bound == pytest.approx(want, abs=1e-9) and res.gap == 0.0
+    assert res.stats["engine_choice"]["route"] == "team"
+
+
+@settings(max_examples=120, **_SETTINGS)
+@given(team_instances(), st.sampled_from(["maxcover", "setcover"]))
+def test_enumeration_matches_oracle(inst, mode) -> None:
+    _agree(inst, mode, "exact")
+
+
+@settings(max_examples=60, **_SETTINGS)
+@given(team_instances(), st.sampled_from(["maxcover", "setcover"]))
+def test_scip_model_matches_oracle(inst, mode) -> None:
+    _agree(inst, mode, "mip")
+
+
+@settings(max_examples=25, **_SETTINGS)
+@given(team_instances(), st.sampled_from(["maxcover", "setcover"]))
+def test_cpsat_model_matches_oracle(inst, mode) -> None:
+    _agree(inst, mode, "cpsat")
+
+
+# -- each constraint binds alone (the unconstrained optimum breaks it) --------------------------------
+
+
+def _base():
+    # 4 poses x 2 models; model 1 sees everything its pose's model-0 column sees, and more
+    a0 = np.array([[1, 0, 0, 0], [1, 1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=np.float32)
+    a1 = a0.copy()
+    a1[2, 0] = a1[0, 1] = a1[4, 2] = 1
+    a = np.concatenate([a0, a1], axis=1)
+    return dict(a=a, w=np.array([1.0, 1.0, 2.0, 1.5, 0.5]), model=np.repeat([0, 1], 4), pose=np.tile(np.arange(4), 2),
+                cost=np.repeat([1.0, 4.0], 4), model_limits=[(0, None), (0, None)], budget=None,
+                zones=np.zeros((8, 0), bool), zone_limits=[], one_per_pose=False, cardinality="exact", k=2, fixed=(),
+                forbidden=(), n_models=2)
+
+
+@pytest.mark.parametrize("change", [
+    dict(model_limits=[(0, None), (0, 0)]),                 # no model-1 camera
+    dict(model_limits=[(2, None), (0, None)]),              # at least two model-0 cameras
+    dict(budget=5.0, cardinality="budget", k=None),         # any number within the budget
+    dict(one_per_pose=True, w=np.array([5.0, 5.0, 1.0, 1.5, 0.5]),  # one camera per pose: both models at pose 0
+         a=np.array([[1, 0, 0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 1, 0, 0, 0], [0, 1, 1, 1, 0, 1, 1, 1], [0, 0, 0, 0, 0, 0, 0, 0],
+                     [0, 0, 0, 0, 0, 0, 0, 0]], dtype=np.float32)),
+    dict(zones=np.array([[0], [0], [0], [1]] * 2, dtype=bool), zone_limits=[(1, None)]),  # a quota at pose 3
+    dict(zones=np.array([[1], [1], [0], [0]] * 2, dtype=bool), zone_limits=[(0, 0)]),     # nothing in zone 0..1
+], ids=["model-max", "model-min", "budget", "pose", "zone-min", "zone-max"])
+def test_each_constraint_binds(change) -> None:
+    inst = {**_base(), **change}
+    free = {**inst, "one_per_pose": False}
+    unconstrained = _solve({**free, "model_limits": [(0, None)] * 2, "budget": None, "zone_limits": [(0, None)] * len(
+        inst["zone_limits"]), "cardinality": "exact", "k": 2}, "maxcover", "exact")
+    assert not _ok(unconstrained.selected, (), inst), "the case must bind"
+    for engine in ("exact", "mip"):
+        _agree(inst, "maxcover", engine)
+
+
+def test_no_dominance_across_models() -> None:
+    """Column 0 (model 0) sees a superset of column 4 (model 1) at the same cost; with one model-1
+    camera required the model-1 column must still be there to choose."""
+    a = np.array([[1, 0, 0, 1, 1], [1, 0, 1, 0, 0], [0, 1, 0, 0, 0]], dtype=np.float32)
+    a = np.concatenate([a, np.array([[1], [0], [0]], dtype=np.float32)], axis=1)  # column 5: model 1
+    t = TeamConstraints(model=[0, 0, 0, 0, 0, 1], model_names=("a", "b"), model_min=(0, 1), model_max=(None, None),
+                        cost=np.ones(6))
+    for engine in ("auto", "exact", "mip"):
+        res = solve(sp.csr_matrix(a), np.ones(3), options=SolveOptions(k=2, engine=engine, team=t))
+        assert res.status == "optimal" and 5 in res.selected and res.objective == 2.0
+
+
+def test_infeasible_quota() -> None:
+    inst = {**_base(), "zones": np.zeros((8, 1), bool), "zone_limits": [(1, None)]}  # no pose stands in the zone
+    for engine in ("auto", "exact", "mip", "cpsat"):
+        res = _solve(inst, "maxcover", engine)
+        assert res.status == "infeasible" and res.selected == () and res.gap == math.inf
+        assert res.to_dict()["objective"] is None
+
+
+def test_setcover_uses_the_model_costs() -> None:
+    # column 4 (model 1, cost 4) covers rows 0..2 alone; columns 0 and 2 (cost 1 each) cover them too
+    a = np.array([[1, 0, 0, 0, 1], [0, 0, 1, 0, 1], [1, 0, 1, 0, 1]], dtype=np.float32)
+    t = TeamConstraints(model=[0, 0, 0, 0, 1], model_names=("a", "b"), model_min=(0, 0), model_max=(None, None),
+                        cost=[1, 1, 1, 1, 4])
+    for engine in ("exact", "mip"):
+        res = solve(sp.csr_matrix(a), np.ones(3), options=SolveOptions(mode="setcover", engine=engine, team=t))
+        assert res.status == "optimal" and res.selected == (0, 2) and res.objective == 2.0
+
+
+def test_engine_choice_is_recorded() -> None:
+    assert choose_team_engine("auto", 100, 20_000)[0] == "enumerate"
+    name, reason = choose_team_engine("auto", 1e9, 20_000)
+    assert name == "mip" and "1e+09" in reason
+    assert choose_team_engine("cpsat", 10, 20_000)[0] == "cpsat"
+
+
+def test_pose_index_matches_position_and_rotation() -> None:
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 0], [1, 0, 0], [0, 0, 0]], dtype=float)
+    rot = np.tile(np.eye(3), (5, 1, 1))
+    rot[4] = np.diag([1.0, -1.0, -1.0])  # same position, another rotation: another pose
+    assert pose_index(pos, rot).tolist() == [0, 1, 0, 1, 2]
+
+
+def test_options_check_the_team() -> None:
+    t = TeamConstraints(model=[0, 0], model_names=("a",), model_min=(0,), model_max=(None,), cost=[1, 1])
+    with pytest.raises(CamplaceError, match="modes maxcover and setcover"):
+        SolveOptions(mode="quality", k=1, team=t)
+    with pytest.raises(CamplaceError, match="describe 2 candidate columns"):
+        solve(sp.csr_matrix(np.ones((2, 3))), np.ones(2), options=SolveOptions(k=1, team=t))
+    with pytest.raises(CamplaceError, match="shape"):
+        TeamConstraints(model=[0, 0], model_names=("a",), model_min=(0,), model_max=(None,), cost=[1, 1],
+                        zone_names=("z",), zone_member=np.zeros((3, 1), bool), zone_min=(0,), zone_max=(None,))
+    assert SolveOptions(k=1, team=t).record()["team"]["models"] == [{"name": "a", "min_count": 0, "max_count": None}]
