@@ -3,7 +3,7 @@
 Whole commands in subprocesses (``python -m camplace``) at tiny sizes on the built-in
 ``comet-67p-team``; one camera column of the narrow science model is fixed so that the system
 holds both models, and every output must carry each camera's model consistently: solution.json
-(and its team record, ``enforced: false``, with the warning), candidates.csv, the report, the
+(and its team record, ``enforced: true``, every constraint checked here on the cameras), candidates.csv, the report, the
 renders (image size per model), cameras.json / cameras.csv, COLMAP (one camera entry per model)
 and the GLB (frusta per model).
 """
@@ -47,7 +47,27 @@ def team_run(tmp_path_factory):
     return {"out": out, "env": env, "tmp": tmp, "science": science, "stderr": r.stderr, "inst": inst}
 
 
-def test_run_records_models_and_the_unenforced_team(team_run) -> None:
+def _check_team_holds(sol: dict, inst) -> None:
+    """Every constraint of the team holds on solution.json's cameras (checked here from the instance)."""
+    team = inst.team
+    cams = sol["cameras"]
+    for m in team.models:
+        c = sum(1 for cam in cams if cam["model"] == m.name)
+        assert c >= m.min_count and (m.max_count is None or c <= m.max_count), (m.name, c)
+    cost = sum(inst.cameras[cam["model_index"]].cost for cam in cams)
+    assert team.budget is None or cost <= team.budget + 1e-9, cost
+    for z in team.zones:
+        inside = int(sum(bool(z.contains(np.array([cam["position"]]))[0]) for cam in cams))
+        assert inside >= z.min_cameras and (z.max_cameras is None or inside <= z.max_cameras), (z.name, inside)
+    poses = {(tuple(cam["position"]), tuple(map(tuple, cam["rotation"]))) for cam in cams}
+    assert len(poses) == len(cams), "two cameras share a pose"
+    rec = sol["team"]
+    assert rec["enforced"] is True and rec["broken"] == [] and rec["cardinality"] == "budget"
+    assert rec["uses"]["cost"] == pytest.approx(cost)
+    assert sol["solver_stats"]["engine_choice"]["route"] == "team"
+
+
+def test_run_records_models_and_enforces_the_team(team_run) -> None:
     out = team_run["out"]
     sol = json.loads((out / "solution.json").read_text())
     models = [c["model"] for c in sol["cameras"]]
@@ -59,11 +79,13 @@ def test_run_records_models_and_the_unenforced_team(team_run) -> None:
         assert m.name == c["model"] and c["width"] == m.width_px and c["K"] == m.K().tolist() and c["far_m"] == m.far_m
         assert c["cost"] == m.cost
     team = sol["team"]
-    assert team["enforced"] is False and team["budget"] == 8000.0
+    assert team["enforced"] is True and team["budget"] == 8000.0
     assert team["uses"]["models"] == {"wide": models.count("wide"), "science": models.count("science")}
     assert team["uses"]["cost"] == sum(c["cost"] for c in sol["cameras"])
-    assert any(w.startswith("team: the per-model counts, the budget and the zone quotas are not yet enforced") for w in sol["warnings"])
-    assert "not yet enforced" in team_run["stderr"]  # said, never silently
+    _check_team_holds(sol, inst)
+    assert sol["status"] == "optimal"
+    assert not any("not yet enforced" in w for w in sol["warnings"])
+    assert "not yet enforced" not in team_run["stderr"]
     # candidates.csv: the model column, model-major
     with open(out / "candidates.csv") as fh:
         rows = list(csv.DictReader(fh))
@@ -88,7 +110,7 @@ def test_run_records_models_and_the_unenforced_team(team_run) -> None:
 def test_report_names_the_models(team_run) -> None:
     html = (team_run["out"] / "report.html").read_text()
     assert "camera model wide" in html and "camera model science" in html
-    assert "not yet enforced" in html
+    assert "enforced by the solver" in html and "not yet enforced" not in html
     assert "<td class='l'>science</td>" in html or ">science<" in html
     # the 3D view draws each chosen camera's frustum with its model's intrinsics
     from camplace.report.compare import load_run_data

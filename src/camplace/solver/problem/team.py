@@ -251,3 +251,19 @@ def _duplicates(values: np.ndarray) -> np.ndarray:
     """The values that occur more than once."""
     u, c = np.unique(values, return_counts=True)
     return u[c > 1]
+
+
+def team_options(team: Any, candidates: Any, options: Any) -> Any:
+    """``options`` (a :class:`~camplace.solver.options.SolveOptions`) carrying the constraints of
+    ``team`` on ``candidates`` (the pipeline's and ``camplace solve``'s one place to build them).
+
+    Unchanged when there is no team or the mode cannot enforce them (quality, multiview: the
+    run then records ``team.enforced: false``). With a budget the cardinality is ``"budget"``:
+    any number of cameras within it, ``k`` dropped."""
+    from camplace.solver.options import TEAM_MODES
+
+    if team is None or options.mode not in TEAM_MODES:
+        return options
+    tc = TeamConstraints.from_team(team, candidates)
+    k = None if (options.mode == "setcover" or tc.cardinality == "budget") else options.k
+    return options.replace(team=tc, k=k)
