@@ -211,3 +211,44 @@ def test_init_writes_the_mixed_team(tmp_path) -> None:
 
     inst = load_instance(tmp_path / "team.toml")
     assert inst.team.model_names == ("wide", "science")
+
+
+_GAP_ZONE = """
+[[zones]]
+name = "gap"
+min_m = [11.2, 0.0, 0.0]
+max_m = [12.8, 3.0, 3.0]
+min_cameras = 1
+"""  # inside the keep-out: no camera of any model may stand there
+
+
+def test_solve_enforces_the_team_and_an_impossible_quota_exits_1(team_run, tmp_path) -> None:
+    """``camplace solve`` on the run folder builds the same constraints; a quota no pose can meet
+    (a zone inside the keep-out) is infeasible: exit 1 from ``solve`` and from ``run``."""
+    import shutil
+
+    env, out = team_run["env"], team_run["out"]
+    r = _cli("solve", str(out), "--fixed", str(team_run["science"]), "-o", str(tmp_path / "again.json"), env=env, cwd=tmp_path)
+    again = json.loads((tmp_path / "again.json").read_text())
+    sol = json.loads((out / "solution.json").read_text())
+    assert again["status"] == "optimal" and abs(again["objective"] - sol["objective"]) < 1e-9
+    assert team_run["science"] in again["selected"]
+    assert again["options"]["team"]["cardinality"] == "budget" and again["stats"]["engine_choice"]["route"] == "team"
+    # the same folder with the impossible zone added to its instance
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)
+    (bad / "instance.toml").write_text((bad / "instance.toml").read_text() + _GAP_ZONE)
+    r = subprocess.run([sys.executable, "-m", "camplace", "solve", str(bad), "-o", str(tmp_path / "bad.json")],
+                       capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert r.returncode == 1, (r.stdout, r.stderr[-2000:])
+    assert r.stdout.startswith("infeasible") and "Traceback" not in r.stderr
+    assert json.loads((tmp_path / "bad.json").read_text())["status"] == "infeasible"
+    # and a whole run of such an instance
+    from camplace.instance import save_instance
+
+    save_instance(team_run["inst"], tmp_path / "team.toml")
+    (tmp_path / "team.toml").write_text((tmp_path / "team.toml").read_text() + _GAP_ZONE)
+    r = subprocess.run([sys.executable, "-m", "camplace", "run", str(tmp_path / "team.toml"), "-o", str(tmp_path / "run"),
+                        *SIZES], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert r.returncode == 1, (r.stdout, r.stderr[-2000:])
+    assert r.stdout.startswith("infeasible") and "Traceback" not in r.stderr

@@ -18,7 +18,7 @@ from camplace.names import EVENT_MODES, SETCOVER_ENGINES
 from camplace.solver.options import SolveOptions, add_solver_options, options_from_args
 
 EXIT_OK = 0
-EXIT_NO_SOLUTION = 3
+EXIT_NO_SOLUTION = 1  # as camplace.cli (3 is EXIT_IO there): no answer, e.g. an infeasible team
 SOLVE_NAME = "solve.json"  # the default -o of 'camplace solve', in the run folder
 
 
