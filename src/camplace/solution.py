@@ -271,8 +271,8 @@ def team_record(instance, cameras: list[dict], *, enforced: bool = False,
         # the solver checked every constraint; anything broken here is a bug worth saying loudly
         return rec, ([f"team: the solver enforced the constraints but the chosen team breaks {'; '.join(broken)}"]
                      if broken else [])
-    note = ("team: the per-model counts, the budget and the zone quotas are not yet enforced by the solver "
-            "(it chose the best k cameras over all pose x model columns)")
+    note = ("team: the per-model counts, the budget and the zone quotas are not enforced in this mode (the solver "
+            "enforces them in maxcover and setcover; it chose the best k cameras over all pose x model columns)")
     note += ": the chosen team breaks " + "; ".join(broken) if broken else "; the chosen team happens to meet them"
     return rec, [note]
 

@@ -243,8 +243,33 @@ def test_setcover_uses_the_model_costs() -> None:
 def test_engine_choice_is_recorded() -> None:
     assert choose_team_engine("auto", 100, 20_000)[0] == "enumerate"
     name, reason = choose_team_engine("auto", 1e9, 20_000)
-    assert name == "mip" and "1e+09" in reason
+    assert name == "bnb" and "1e+09" in reason
+    assert choose_team_engine("auto", 1e9, 20_000, "setcover")[0] == "mip"
+    assert choose_team_engine("auto", 1e9, 20_000, "maxcover", conflicts=3)[0] == "mip"
     assert choose_team_engine("cpsat", 10, 20_000)[0] == "cpsat"
+
+
+@settings(max_examples=120, **_SETTINGS)
+@given(team_instances())
+def test_branch_and_bound_matches_oracle(inst) -> None:
+    if inst["k"] is None and inst["cardinality"] == "exact":
+        return
+    import camplace.solver.engines.team.enumeration as en
+
+    saved = en.ENUMERATION_LIMIT
+    en.ENUMERATION_LIMIT = -1
+    try:
+        want = _oracle(inst, "maxcover")
+        res = _solve(inst, "maxcover", "auto")
+    finally:
+        en.ENUMERATION_LIMIT = saved
+    assert res.stats["engine_choice"]["engine"] == "bnb"
+    if want is None:
+        assert res.status == "infeasible", (res, inst)
+        return
+    assert res.status == "optimal", (res, want, inst)
+    assert _ok(res.selected, inst["fixed"], inst), (res.selected, inst)
+    assert res.objective == pytest.approx(want, abs=1e-9), (res, want, inst)
 
 
 def test_pose_index_matches_position_and_rotation() -> None:

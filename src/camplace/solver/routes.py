@@ -348,19 +348,25 @@ def run_cover(p: CoverProblem) -> ModeOutcome:
 # ----------------------------------------------------------------------------------------------
 
 
-def choose_team_engine(engine: str, count: float, limit: int) -> tuple[str, str]:
-    """The engine of a team solve and why (pure): ``("enumerate" | "mip" | "cpsat", reason)``.
+def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxcover",
+                       conflicts: int = 0) -> tuple[str, str]:
+    """The engine of a team solve and why (pure): ``("enumerate" | "bnb" | "mip" | "cpsat", reason)``.
 
     ``count`` is :func:`~camplace.solver.engines.team.enumeration.team_count`, the teams the exact
-    enumeration would visit at most."""
+    enumeration would visit at most; ``bnb`` is the branch and bound of
+    :mod:`camplace.solver.engines.team.bnb` (maxcover without minimum-distance conflicts)."""
     if engine in ("mip", "cpsat"):
         return engine, f"engine {engine} requested: the team model"
-    if engine == "exact":
-        return "enumerate", f"engine exact requested: enumeration of at most {count:.3g} teams"
     if count <= limit:
         return "enumerate", f"at most {count:.3g} teams (<= {limit}): the exact enumeration proves the answer"
-    return "mip", (f"{count:.3g} possible teams (> {limit}): the team model (SCIP) enforces the counts, the budget, "
-                   "the zone quotas and one camera per pose")
+    if mode == "maxcover" and conflicts == 0:
+        return "bnb", (f"{count:.3g} possible teams (> {limit}), maxcover: the team branch and bound on marginal "
+                       "gains proves the answer (no column dropped by dominance)")
+    if engine == "exact":
+        return "enumerate", f"engine exact requested: enumeration of at most {count:.3g} teams"
+    why = "setcover" if mode == "setcover" else "minimum-distance conflicts"
+    return "mip", (f"{count:.3g} possible teams (> {limit}), {why}: the team model (SCIP) enforces the counts, "
+                   "the budget, the zone quotas and one camera per pose")
 
 
 def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
@@ -375,7 +381,7 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     team = o.team
     mode = o.mode
     count = team_count(team, k, fixed_t, free_cols)
-    name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT)
+    name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]))
     stats: dict[str, Any] = {"k": k, "team": team.record(),
                              "engine_choice": {"engine": name, "route": "team", "reason": reason}}
     costs = None if o.costs is None else np.asarray(o.costs, dtype=np.float64)
@@ -394,6 +400,13 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         stats["engine_stats"] = est
         engine = "exact"
         bound = (math.inf if maximize else -math.inf) if status != "optimal" else math.nan
+    elif name == "bnb":
+        from camplace.solver.engines.team.bnb import team_branch_and_bound
+
+        sel, status, _, bound, est = team_branch_and_bound(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
+                                                           deadline=deadline)
+        stats["engine_stats"] = est
+        engine = "exact"
     else:
         out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
                                costs=costs, required_fraction=o.required_fraction, backend=name,
