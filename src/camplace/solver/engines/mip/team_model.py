@@ -178,5 +178,6 @@ def solve_team_model(
         bound = out.bound
         return TeamModelOutcome(None, out.status, bound, stats)
     chosen = tuple(sorted(int(cols[i]) for i in range(cols.size) if out.values[int(x[i])] > 0.5))
-    bound = out.bound * scale + const if math.isfinite(out.bound) else out.bound
+    raw = out.bound if abs(out.bound) < 1e19 else math.copysign(math.inf, out.bound)  # SCIP's "no bound yet" is 1e20
+    bound = raw * scale + const if math.isfinite(raw) else raw
     return TeamModelOutcome(chosen, out.status, bound, stats)
