@@ -249,21 +249,29 @@ def test_engine_choice_is_recorded() -> None:
     assert choose_team_engine("cpsat", 10, 20_000)[0] == "cpsat"
 
 
-@settings(max_examples=120, **_SETTINGS)
-@given(team_instances())
-def test_branch_and_bound_matches_oracle(inst) -> None:
+@pytest.mark.parametrize("patterns", [True, False], ids=["patterns", "whole-team"])
+@settings(max_examples=100, **_SETTINGS)
+@given(inst=team_instances())
+def test_branch_and_bound_matches_oracle(inst, patterns) -> None:
+    """The large-instance route at small sizes: per-model count patterns (single-model ones by the
+    k-camera engines, mixed ones by the branch and bound), or the branch and bound on the whole team."""
     if inst["k"] is None and inst["cardinality"] == "exact":
         return
     import camplace.solver.engines.team.enumeration as en
+    import camplace.solver.engines.team.patterns as pt
 
-    saved = en.ENUMERATION_LIMIT
+    saved = en.ENUMERATION_LIMIT, pt.MAX_PATTERNS
     en.ENUMERATION_LIMIT = -1
+    if not patterns:
+        pt.MAX_PATTERNS = -1
     try:
         want = _oracle(inst, "maxcover")
         res = _solve(inst, "maxcover", "auto")
     finally:
-        en.ENUMERATION_LIMIT = saved
+        en.ENUMERATION_LIMIT, pt.MAX_PATTERNS = saved
     assert res.stats["engine_choice"]["engine"] == "bnb"
+    if not patterns:
+        assert "patterns" not in res.stats["engine_stats"]
     if want is None:
         assert res.status == "infeasible", (res, inst)
         return

@@ -380,6 +380,8 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
 
     team = o.team
     mode = o.mode
+    if team.pose is not None and len(fixed_t):  # a pose a fixed camera holds takes no other model
+        free_cols = free_cols[~np.isin(team.pose[free_cols], team.pose[list(fixed_t)])]
     count = team_count(team, k, fixed_t, free_cols)
     name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]))
     stats: dict[str, Any] = {"k": k, "team": team.record(),
@@ -402,9 +404,20 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         bound = (math.inf if maximize else -math.inf) if status != "optimal" else math.nan
     elif name == "bnb":
         from camplace.solver.engines.team.bnb import team_branch_and_bound
+        from camplace.solver.engines.team.patterns import count_patterns, model_costs, solve_by_patterns
 
-        sel, status, _, bound, est = team_branch_and_bound(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
-                                                           deadline=deadline)
+        mc = model_costs(team)
+        patterns = []
+        if mc is not None:
+            avail = np.bincount(team.model[free_cols], minlength=len(team.model_names))
+            patterns = count_patterns(team, k, fixed_t, avail, mc)
+        if patterns:  # per-model count patterns: single-model ones by the k-camera engines
+            stats["engine_choice"]["reason"] += f"; {len(patterns)} per-model count patterns"
+            sel, status, _, bound, est = solve_by_patterns(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
+                                                           deadline=deadline, patterns=patterns)
+        else:
+            sel, status, _, bound, est = team_branch_and_bound(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
+                                                               deadline=deadline)
         stats["engine_stats"] = est
         engine = "exact"
     else:

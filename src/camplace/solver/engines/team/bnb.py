@@ -46,9 +46,12 @@ class _State:
 
 def team_branch_and_bound(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, k: int | None, fixed: tuple[int, ...],
-    free_cols: np.ndarray, deadline: Deadline,
+    free_cols: np.ndarray, deadline: Deadline, incumbent: float = -math.inf,
 ) -> tuple[tuple[int, ...] | None, str, float, float, dict[str, Any]]:
     """Maximum coverage under the team's constraints (module docstring); no conflicting pairs.
+
+    With ``incumbent`` (a value some other team reaches) only better teams are looked for: when
+    none exists the status is ``"dominated"`` (no selection, bound ``incumbent``).
 
     Returns
     -------
@@ -201,6 +204,8 @@ def team_branch_and_bound(
         if v > best_val:
             best_val, best_sel = v, list(st.chosen)
     stats["greedy_value"] = None if best_sel is None else best_val + base
+    if math.isfinite(incumbent) and incumbent - base > best_val:
+        best_val, best_sel = incumbent - base, None  # beat it or nothing
 
     # depth-first branch and bound
     total = float(wa.sum())
@@ -259,6 +264,8 @@ def team_branch_and_bound(
         node(st, wa.copy(), 0.0, np.zeros(nf, dtype=bool), 0)
     stats.update({"nodes": int(nodes[0]), "timed_out": bool(timed_out[0]),
                   "root_bound": None if not math.isfinite(root_bound[0]) else root_bound[0] + base})
+    if best_sel is None and math.isfinite(incumbent) and fixed_ok and not timed_out[0]:
+        return None, "dominated", math.nan, incumbent, stats
     if best_sel is None:
         if timed_out[0]:
             return None, "unknown", math.nan, (root_bound[0] + base if math.isfinite(root_bound[0]) else math.inf), stats
