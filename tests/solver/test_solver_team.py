@@ -57,8 +57,10 @@ def _oracle(inst, mode: str):
     fixed, forbidden = inst["fixed"], inst["forbidden"]
     n = a.shape[1]
     free = [j for j in range(n) if j not in fixed and j not in forbidden]
-    coverable = a[:, list(range(n))].any(axis=1) if n else np.zeros(len(w), bool)
-    coverable &= np.array([any(a[i, j] for j in list(fixed) + free) for i in range(len(w))], dtype=bool)
+    # coverable: by a camera that could be in a team (a column at a fixed camera's pose could not)
+    held = {inst["pose"][j] for j in fixed} if inst["one_per_pose"] else set()
+    usable = list(fixed) + [j for j in free if inst["pose"][j] not in held]
+    coverable = np.array([any(a[i, j] for j in usable) for i in range(len(w))], dtype=bool)
     best = None
     for r in range(len(free) + 1):
         for combo in itertools.combinations(free, r):

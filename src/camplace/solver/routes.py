@@ -404,15 +404,18 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         bound = (math.inf if maximize else -math.inf) if status != "optimal" else math.nan
     elif name == "bnb":
         from camplace.solver.engines.team.bnb import team_branch_and_bound
-        from camplace.solver.engines.team.patterns import count_patterns, model_costs, solve_by_patterns
+        from camplace.solver.engines.team.patterns import count_patterns, maximal_patterns, model_costs, solve_by_patterns
 
         mc = model_costs(team)
         patterns = []
         if mc is not None:
             avail = np.bincount(team.model[free_cols], minlength=len(team.model_names))
             patterns = count_patterns(team, k, fixed_t, avail, mc)
+            n_all = len(patterns)
+            patterns = maximal_patterns(team, patterns, avail)
         if patterns:  # per-model count patterns: single-model ones by the k-camera engines
-            stats["engine_choice"]["reason"] += f"; {len(patterns)} per-model count patterns"
+            stats["engine_choice"]["reason"] += (f"; {n_all} per-model count patterns, {len(patterns)} not dominated "
+                                                 "by a larger one")
             sel, status, _, bound, est = solve_by_patterns(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
                                                            deadline=deadline, patterns=patterns)
         else:

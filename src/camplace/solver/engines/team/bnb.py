@@ -66,30 +66,53 @@ def team_branch_and_bound(
     fixed = tuple(int(j) for j in fixed)
     free_cols = np.asarray(free_cols, dtype=np.int64)
     nf = free_cols.size
-    pat = (q > 0) if q.dtype != np.bool_ else q
-    pat = sp.csr_matrix(pat)
+    pat = sp.csr_matrix(q > 0) if q.dtype != np.bool_ else sp.csr_matrix(q)
     base_rows = (np.asarray(pat[:, list(fixed)].sum(axis=1)).ravel() > 0) if fixed else np.zeros(m, dtype=bool)
     base = float(w[base_rows].sum())
-    sub = pat[:, free_cols].tocsr()
+    sub = pat[:, free_cols]
+    del pat
     keep = np.flatnonzero(~base_rows & (w > 0) & (np.diff(sub.indptr) > 0))
-    a, wa = merge_rows(sub[keep].astype(np.int8).tocsr(), w[keep])
+    sub = sub[keep]
+    a, wa = merge_rows(sub, w[keep])
+    del sub
     csc = a.tocsc()
+    del a
     csc.sort_indices()
     indices = csc.indices.astype(np.int32, copy=False)
-    starts = csc.indptr[:-1].astype(np.int64)  # into the gathered values plus a 0 sentinel (trailing empty columns)
-    empty = np.diff(csc.indptr) == 0
-    stats: dict[str, Any] = {"rows": int(a.shape[0]), "columns": int(nf), "nnz": int(indices.size)}
-    del sub, a
+    indptr = csc.indptr.astype(np.int64)
+    del csc
+    empty = np.diff(indptr) == 0
+    stats: dict[str, Any] = {"rows": int(wa.size), "columns": int(nf), "nnz": int(indices.size)}
+    # the gains are computed in chunks of whole columns with reused buffers (no 8-byte copy of all
+    # the indices, no fresh pages per node)
+    chunk_nnz = 1 << 20
+    bounds = [0]
+    while bounds[-1] < nf:
+        nxt = int(np.searchsorted(indptr, indptr[bounds[-1]] + chunk_nnz, side="right")) - 1
+        bounds.append(min(nf, max(nxt, bounds[-1] + 1)))
+    span = max([int(indptr[b] - indptr[a_]) for a_, b in zip(bounds[:-1], bounds[1:])] + [0])
+    idx_buf = np.empty(span, dtype=np.intp)
+    val_buf = np.empty(span + 1)
 
     def gains(uncovered_w: np.ndarray) -> np.ndarray:
+        g = np.zeros(nf)
         if indices.size == 0:
-            return np.zeros(nf)
-        vals = np.empty(indices.size + 1)
-        np.take(uncovered_w, indices, out=vals[:-1])
-        vals[-1] = 0.0
-        g = np.add.reduceat(vals, starts) if nf else np.zeros(0)
+            return g
+        for c0, c1 in zip(bounds[:-1], bounds[1:]):
+            s0, s1 = int(indptr[c0]), int(indptr[c1])
+            if s1 == s0:
+                continue
+            ib = idx_buf[:s1 - s0]
+            ib[...] = indices[s0:s1]
+            vb = val_buf[:s1 - s0 + 1]
+            np.take(uncovered_w, ib, out=vb[:-1])
+            vb[-1] = 0.0
+            g[c0:c1] = np.add.reduceat(vb, indptr[c0:c1] - s0)
         g[empty] = 0.0
         return g
+
+    def col_rows(i: int) -> np.ndarray:
+        return indices[indptr[i]:indptr[i + 1]]
 
     nm, nz = len(team.model_names), len(team.zone_names)
     fm = team.model[free_cols]
@@ -161,7 +184,7 @@ def team_branch_and_bound(
     def cover(cols: list[int]) -> np.ndarray:
         cov = np.zeros(wa.size, dtype=bool)
         for i in cols:
-            cov[indices[csc.indptr[i]:csc.indptr[i + 1]]] = True
+            cov[col_rows(i)] = True
         return cov
 
     # greedy incumbent: fill the minimums first (best gain among the columns that help), then the rest
@@ -173,7 +196,7 @@ def team_branch_and_bound(
                     and (team.pose is None or len(st.poses) == len(fixed)))
     unc = wa.copy()
     banned0 = np.zeros(nf, dtype=bool)
-    for _ in range(kmax if (nf and fixed_ok) else 0):
+    for _ in range(kmax if (nf and fixed_ok and not math.isfinite(incumbent)) else 0):
         ok = allowed(st, banned0)
         if not ok.any():
             break
@@ -194,7 +217,7 @@ def team_branch_and_bound(
             break
         push(st, i)
         banned0[i] = True
-        unc[indices[csc.indptr[i]:csc.indptr[i + 1]]] = 0.0
+        unc[col_rows(i)] = 0.0
         if complete(st):
             v = float(wa.sum() - unc.sum())
             if v > best_val:
@@ -250,7 +273,7 @@ def team_branch_and_bound(
             if timed_out[0]:
                 open_bound[0] = max(open_bound[0], cb)
                 break
-            rows = indices[csc.indptr[i]:csc.indptr[i + 1]]
+            rows = col_rows(i)
             saved = unc_w[rows].copy()
             local_banned[i] = True  # chosen in the child, excluded from the later siblings
             push(st, i)

@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from camplace.solver._support.deadline import Deadline
 from camplace.solver.problem.team import TeamConstraints
 
-__all__ = ["model_costs", "count_patterns", "solve_by_patterns", "MAX_PATTERNS"]
+__all__ = ["model_costs", "count_patterns", "maximal_patterns", "solve_by_patterns", "MAX_PATTERNS"]
 
 #: More patterns than this: the branch and bound on the whole team instead.
 MAX_PATTERNS = 200
@@ -83,6 +83,30 @@ def count_patterns(team: TeamConstraints, k: int | None, fixed: tuple[int, ...],
             return []
     out.sort(key=lambda c: (-sum(c), c))
     return out
+
+
+def maximal_patterns(team: TeamConstraints, patterns: list[tuple[int, ...]], avail: np.ndarray) -> list[tuple[int, ...]]:
+    """The patterns no other one dominates (max coverage only; all of them under zone maxima).
+
+    ``c`` is dominated by a feasible ``c' >= c`` (``c' != c``) when every model that ``c'`` adds
+    has at least ``sum(c')`` free columns: any team of ``c`` (on at most ``sum(c) < sum(c')``
+    poses) then extends to one of ``c'`` on free poses, and coverage never drops when cameras are
+    added; the budget, the model maxima and the zone minimums hold for ``c'`` by construction.
+    A zone maximum could break the extension, so none is dropped then."""
+    if any(v is not None for v in team.zone_max):
+        return patterns
+    keep = []
+    for c in patterns:
+        dominated = False
+        for d in patterns:
+            if d == c or any(dv < cv for dv, cv in zip(d, c)):
+                continue
+            if all(avail[mi] >= sum(d) for mi in range(len(c)) if d[mi] > c[mi]):
+                dominated = True
+                break
+        if not dominated:
+            keep.append(c)
+    return keep
 
 
 def solve_by_patterns(
