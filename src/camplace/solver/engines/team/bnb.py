@@ -1,9 +1,10 @@
 """The exact max-coverage engine for camera teams at full size: branch and bound on marginal gains
 (issue 31).
 
-Works on the rows that matter (not covered by a fixed camera, positive weight, seen by some free
-column; identical rows merged) and the free columns' row lists (int32 indices only: the gains of
-every column against the uncovered rows are one gather and one segmented sum). Depth first; at a
+Works on the free columns' row lists (int32 indices of the CSC matrix, no copy when every column
+is free) with the rows that do not count (covered by a fixed camera, weight 0) weighted 0: the
+gains of every column against the uncovered rows are one gather and one segmented sum, in chunks
+with reused buffers. Depth first; at a
 node with ``r`` more cameras possible (the count, the budget at the cheapest allowed costs and the
 models' maxima), the bound is ``min(value + sum of the r largest gains of the columns that may
 still be added, value + weight not yet covered)`` (valid: coverage is submodular). Children are
@@ -24,7 +25,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.solver._support.deadline import Deadline
-from camplace.solver.engines.mip.mode_models import merge_rows
 from camplace.solver.problem.team import TeamConstraints
 
 __all__ = ["team_branch_and_bound"]
@@ -66,23 +66,32 @@ def team_branch_and_bound(
     fixed = tuple(int(j) for j in fixed)
     free_cols = np.asarray(free_cols, dtype=np.int64)
     nf = free_cols.size
-    pat = sp.csr_matrix(q > 0) if q.dtype != np.bool_ else sp.csr_matrix(q)
-    base_rows = (np.asarray(pat[:, list(fixed)].sum(axis=1)).ravel() > 0) if fixed else np.zeros(m, dtype=bool)
+    csc = q.tocsc() if sp.issparse(q) else sp.csc_matrix(q)
+    if csc.dtype != np.bool_:
+        csc.eliminate_zeros()  # values in (0, 1]: a stored entry observes
+    base_rows = np.zeros(m, dtype=bool)
+    for f in fixed:
+        base_rows[csc.indices[csc.indptr[f]:csc.indptr[f + 1]]] = True
     base = float(w[base_rows].sum())
-    sub = pat[:, free_cols]
-    del pat
-    keep = np.flatnonzero(~base_rows & (w > 0) & (np.diff(sub.indptr) > 0))
-    sub = sub[keep]
-    a, wa = merge_rows(sub, w[keep])
-    del sub
-    csc = a.tocsc()
-    del a
-    csc.sort_indices()
-    indices = csc.indices.astype(np.int32, copy=False)
-    indptr = csc.indptr.astype(np.int64)
+    # the free columns' row lists (no copy when every column is free), rows that do not count: weight 0
+    if nf == n and np.array_equal(free_cols, np.arange(n)):
+        indices = csc.indices.astype(np.int32, copy=False)
+        indptr = csc.indptr.astype(np.int64)
+    else:
+        starts = csc.indptr[free_cols].astype(np.int64)
+        lens = csc.indptr[free_cols + 1].astype(np.int64) - starts
+        indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        src = np.repeat(starts - indptr[:-1], lens) + np.arange(int(indptr[-1]), dtype=np.int64)
+        indices = csc.indices[src].astype(np.int32, copy=False)
+        del src
     del csc
+    wa = np.where(base_rows | ~(w > 0), 0.0, w).astype(np.float64)
+    seen = np.zeros(m, dtype=bool)
+    seen[indices] = True
+    wa[~seen] = 0.0
+    del seen
     empty = np.diff(indptr) == 0
-    stats: dict[str, Any] = {"rows": int(wa.size), "columns": int(nf), "nnz": int(indices.size)}
+    stats: dict[str, Any] = {"rows": int(np.count_nonzero(wa)), "columns": int(nf), "nnz": int(indices.size)}
     # the gains are computed in chunks of whole columns with reused buffers (no 8-byte copy of all
     # the indices, no fresh pages per node)
     chunk_nnz = 1 << 20
