@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from camplace.errors import CamplaceError
-from camplace.names import ENGINES, MODES
+from camplace.names import ENGINES, MODES, TEAM_MODES
 
 __all__ = ["SolveOptions", "add_solver_options", "options_from_args", "parse_index_list"]
 
@@ -109,9 +109,6 @@ class SolveOptions:
         }
 
 
-#: The modes that enforce :class:`~camplace.solver.problem.team.TeamConstraints`.
-TEAM_MODES = ("maxcover", "setcover")
-
 #: Names of the :class:`SolveOptions` fields (the keyword options of :func:`camplace.solver.solve`).
 OPTION_NAMES: tuple[str, ...] = tuple(f.name for f in fields(SolveOptions))
 
@@ -140,9 +137,7 @@ def _check(o: SolveOptions) -> None:
         if o.min_angle_deg is not None and int(v) < 2:
             raise CamplaceError("min_angle_deg needs views >= 2")
     if o.team is not None:
-        from camplace.solver.problem.team import TeamConstraints
-
-        if not isinstance(o.team, TeamConstraints):
+        if not all(hasattr(o.team, a) for a in ("violations", "cardinality", "record")):  # no import: this module stays light
             raise CamplaceError(f"team must be a TeamConstraints, got {type(o.team).__name__}")
         if o.mode not in TEAM_MODES:
             raise CamplaceError(f"team constraints apply to modes {' and '.join(TEAM_MODES)} only, not {o.mode!r}")

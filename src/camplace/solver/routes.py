@@ -370,7 +370,8 @@ def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxco
 
 
 def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
-             free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline) -> ModeOutcome:
+             free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline,
+             k_solver: Callable[[SolveOptions], Any] | None = None) -> ModeOutcome:
     """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
     the exact enumeration on small instances, else the team model of
     :mod:`camplace.solver.engines.mip.team_model`; no column is dropped by dominance (a column may be
@@ -413,11 +414,11 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
             patterns = count_patterns(team, k, fixed_t, avail, mc)
             n_all = len(patterns)
             patterns = maximal_patterns(team, patterns, avail)
-        if patterns:  # per-model count patterns: single-model ones by the k-camera engines
+        if patterns and k_solver is not None:  # per-model count patterns: single-model ones by the k-camera engines
             stats["engine_choice"]["reason"] += (f"; {n_all} per-model count patterns, {len(patterns)} not dominated "
                                                  "by a larger one")
             sel, status, _, bound, est = solve_by_patterns(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
-                                                           deadline=deadline, patterns=patterns)
+                                                           deadline=deadline, patterns=patterns, k_solver=k_solver)
         else:
             sel, status, _, bound, est = team_branch_and_bound(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
                                                                deadline=deadline)

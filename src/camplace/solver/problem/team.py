@@ -260,7 +260,7 @@ def team_options(team: Any, candidates: Any, options: Any) -> Any:
     Unchanged when there is no team or the mode cannot enforce them (quality, multiview: the
     run then records ``team.enforced: false``). With a budget the cardinality is ``"budget"``:
     any number of cameras within it, ``k`` dropped."""
-    from camplace.solver.options import TEAM_MODES
+    from camplace.names import TEAM_MODES
 
     if team is None or options.mode not in TEAM_MODES:
         return options

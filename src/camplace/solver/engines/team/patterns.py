@@ -22,7 +22,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -111,10 +111,12 @@ def maximal_patterns(team: TeamConstraints, patterns: list[tuple[int, ...]], ava
 
 def solve_by_patterns(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, k: int | None, fixed: tuple[int, ...],
-    free_cols: np.ndarray, deadline: Deadline, patterns: list[tuple[int, ...]],
+    free_cols: np.ndarray, deadline: Deadline, patterns: list[tuple[int, ...]], k_solver: Callable[[Any], Any],
 ) -> tuple[tuple[int, ...] | None, str, float, float, dict[str, Any]]:
-    """The best team over ``patterns`` (module docstring): ``(selected, status, objective, bound, stats)``."""
-    from camplace.solver.api import solve
+    """The best team over ``patterns`` (module docstring): ``(selected, status, objective, bound, stats)``.
+
+    ``k_solver(options)`` solves the same matrix and weights without a team (the caller's
+    :func:`camplace.solver.api.solve`, passed in: this module does not import the api)."""
     from camplace.solver.engines.team.bnb import team_branch_and_bound
     from camplace.solver.options import SolveOptions
     from camplace.solver.problem.objectives import mode_value
@@ -153,7 +155,7 @@ def solve_by_patterns(
             mi = used[0]
             mine = free_cols[team.model[free_cols] == mi]
             forbidden = np.setdiff1d(np.arange(n), np.concatenate([mine, np.asarray(fixed, dtype=np.int64)]))
-            res = solve(q, w, options=SolveOptions(mode="maxcover", k=int(c[mi]), fixed=fixed,
+            res = k_solver(SolveOptions(mode="maxcover", k=int(c[mi]), fixed=fixed,
                                                    forbidden=tuple(int(j) for j in forbidden), time_limit_s=left))
             entry.update(status=res.status, value=res.objective, bound=res.bound, engine=res.engine,
                          route=(res.stats.get("engine_choice") or {}).get("route"))
