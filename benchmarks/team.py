@@ -4,7 +4,8 @@ single-model run of the same size.
 Not a test. Writes ``comet-67p-bunker-team`` (the built-in comet-67p-bunker, its one camera
 replaced by two models: ``wide``, the bunker's own camera, cost 1; ``tele``, twice the focal
 length, cost 2, at most 2; ``[team] budget = 3``: any number of cameras within it, e.g. three
-wide ones or one of each, as the single run's k = 3) and runs, each in its own process (so that the peak RSS is that run's alone):
+wide ones or one of each, as the single run's k = 3) and runs, each in its own process (so that
+the peak RSS is that run's alone):
 
 1. ``camplace run`` of the single-model instance and of the team at the same size (default: the
    instance's, 2000 candidate positions x 10000 points; the team offers each position with both
