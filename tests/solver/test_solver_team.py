@@ -249,6 +249,9 @@ def test_engine_choice_is_recorded() -> None:
     assert choose_team_engine("auto", 1e9, 20_000, "setcover")[0] == "mip"
     assert choose_team_engine("auto", 1e9, 20_000, "maxcover", conflicts=3)[0] == "mip"
     assert choose_team_engine("cpsat", 10, 20_000)[0] == "cpsat"
+    assert choose_team_engine("exact", 1e5, 20_000, "setcover")[0] == "enumerate"
+    with pytest.raises(CamplaceError, match="no exact team engine"):
+        choose_team_engine("exact", 1e9, 20_000, "setcover")
 
 
 @pytest.mark.parametrize("patterns", [True, False], ids=["patterns", "whole-team"])

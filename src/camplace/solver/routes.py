@@ -348,6 +348,10 @@ def run_cover(p: CoverProblem) -> ModeOutcome:
 # ----------------------------------------------------------------------------------------------
 
 
+#: ``engine="exact"`` enumerates at most this many teams where the branch and bound does not apply.
+_EXACT_TEAM_LIMIT = 2_000_000
+
+
 def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxcover",
                        conflicts: int = 0) -> tuple[str, str]:
     """The engine of a team solve and why (pure): ``("enumerate" | "bnb" | "mip" | "cpsat", reason)``.
@@ -363,6 +367,10 @@ def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxco
         return "bnb", (f"{count:.3g} possible teams (> {limit}), maxcover: the team branch and bound on marginal "
                        "gains proves the answer (no column dropped by dominance)")
     if engine == "exact":
+        if count > _EXACT_TEAM_LIMIT:
+            raise CamplaceError(f"engine exact: no exact team engine for this case ({count:.3g} possible teams, "
+                                f"{'setcover' if mode == 'setcover' else 'minimum-distance conflicts'}); "
+                                "use engine auto or mip")
         return "enumerate", f"engine exact requested: enumeration of at most {count:.3g} teams"
     why = "setcover" if mode == "setcover" else "minimum-distance conflicts"
     return "mip", (f"{count:.3g} possible teams (> {limit}), {why}: the team model (SCIP) enforces the counts, "
