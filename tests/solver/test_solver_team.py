@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -358,3 +359,68 @@ def test_minimum_distance_with_a_team(inst, mode, engine) -> None:
         return
     assert res.status == "optimal" and spaced_ok(res.selected) and _ok(res.selected, fixed, spaced), (res, inst)
     assert res.objective == pytest.approx(best, abs=1e-9), (res, best, inst)
+
+
+def test_from_team_on_the_builtin_team() -> None:
+    """comet-67p-team's candidates: each model's columns, costs, zones and the shared poses."""
+    from camplace.instance import builtin
+    from camplace.solver.problem.team import team_options
+    from camplace.visibility.stages import make_run_candidates, stage_seeds
+
+    inst = builtin("comet-67p-team")
+    cands = make_run_candidates(inst, "chaotic", 60, 1, stage_seeds(0)[0])
+    t = TeamConstraints.from_team(inst.team, cands)
+    assert t.cardinality == "budget" and t.budget == 8000.0 and t.model_names == ("wide", "science")
+    assert np.array_equal(t.model, cands.model) and np.array_equal(t.cost, np.where(cands.model == 0, 900.0, 6000.0))
+    assert t.zone_member.shape == (len(cands), 2) and np.array_equal(t.zone_member, cands.zones)
+    # a pose offered to both models: the same index, and distinct poses get distinct ones
+    shared = 0
+    for j in np.flatnonzero(cands.model == 1):
+        same = np.flatnonzero((t.pose == t.pose[j]) & (np.arange(len(cands)) != j))
+        for i in same:
+            assert np.array_equal(cands.positions[i], cands.positions[j]) and cands.model[i] == 0
+            shared += 1
+    assert shared > 0
+    assert len(np.unique(t.pose)) == len({(tuple(p), tuple(r.ravel())) for p, r in zip(cands.positions, cands.rotations)})
+    # the options: budget cardinality drops k; quality cannot enforce and stays as it was
+    o = team_options(inst.team, cands, SolveOptions(k=3))
+    assert o.team is not None and o.k is None
+    q = SolveOptions(mode="quality", k=3)
+    assert team_options(inst.team, cands, q) is q
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_branch_and_bound_bound_is_valid_under_a_time_limit(seed) -> None:
+    """A mid-size team (60 poses x 2 models, a zone quota, k = 4): the branch and bound proves
+    SCIP's optimum without a limit, and under a tiny limit keeps a bound no lower than it."""
+    rng = np.random.default_rng(seed)
+    n_poses, m = 60, 200
+    a = sp.csr_matrix((rng.random((m, 2 * n_poses)) < 0.08).astype(np.float32))
+    w = rng.random(m)
+    zones = np.zeros((2 * n_poses, 1), dtype=bool)
+    zones[np.r_[0:8, n_poses:n_poses + 8], 0] = True
+    t = TeamConstraints(model=np.repeat([0, 1], n_poses), model_names=("a", "b"), model_min=(1, 1), model_max=(3, 2),
+                        cost=np.repeat([1.0, 2.0], n_poses), zone_names=("z",), zone_member=zones, zone_min=(1,),
+                        zone_max=(None,), pose=np.tile(np.arange(n_poses), 2))
+    ref = solve(a, w, options=SolveOptions(k=4, engine="mip", team=t))
+    assert ref.status == "optimal"
+    full = solve(a, w, options=SolveOptions(k=4, team=t))
+    assert full.stats["engine_choice"]["engine"] == "bnb"
+    assert full.status == "optimal" and full.objective == pytest.approx(ref.objective, abs=1e-9)
+
+    # larger (150 poses, k = 5): proven without a limit, cut short by 0.05 s with a valid bound
+    n_poses, m = 150, 400
+    a = sp.csr_matrix((rng.random((m, 2 * n_poses)) < 0.1).astype(np.float32))
+    w = rng.random(m)
+    zones = np.zeros((2 * n_poses, 1), dtype=bool)
+    zones[np.r_[0:8, n_poses:n_poses + 8], 0] = True
+    t = replace(t, model=np.repeat([0, 1], n_poses), model_max=(3, 3), cost=np.repeat([1.0, 2.0], n_poses),
+                zone_member=zones, pose=np.tile(np.arange(n_poses), 2))
+    full = solve(a, w, options=SolveOptions(k=5, team=t))
+    assert full.status == "optimal"
+    solve(a, w, options=SolveOptions(k=5, team=t, time_limit_s=0.05))  # warm (imports)
+    quick = solve(a, w, options=SolveOptions(k=5, team=t, time_limit_s=0.05))
+    assert quick.status in ("optimal", "feasible") and not t.violations(quick.selected, k=5)
+    assert quick.bound >= full.objective - 1e-9 and quick.objective <= full.objective + 1e-9
+    if quick.status == "feasible":
+        assert quick.gap > 0 and any(p["status"] != "optimal" for p in quick.stats["engine_stats"]["patterns"])
