@@ -228,8 +228,8 @@ def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
     }
 
 
-def team_record(instance, cameras: list[dict], *, enforced: bool = False,
-                cardinality: str | None = None) -> tuple[dict | None, list[str]]:
+def team_record(instance, cameras: list[dict], *, enforced: bool = False, cardinality: str | None = None,
+                why_not: str | None = None) -> tuple[dict | None, list[str]]:
     """The ``team`` entry of ``solution.json`` and the warnings of a team run (None, [] without a team).
 
     With ``enforced`` (the solver imposed the per-model counts, the budget, the zone quotas and
@@ -237,7 +237,8 @@ def team_record(instance, cameras: list[dict], *, enforced: bool = False,
     ``"enforced": true`` and its ``cardinality`` (``exact``: k cameras; ``budget``: any number
     within the budget). Otherwise (a mode that cannot enforce them) they are only checked on the
     chosen cameras: ``"enforced": false`` and a warning names the ones the chosen team breaks (or
-    says that none is enforced when it happens to meet them). ``uses`` and ``broken`` either way.
+    says that none is enforced when it happens to meet them; ``why_not`` replaces the reason
+    given). ``uses`` and ``broken`` either way.
     """
     team = getattr(instance, "team", None)
     if team is None:
@@ -271,8 +272,9 @@ def team_record(instance, cameras: list[dict], *, enforced: bool = False,
         # the solver checked every constraint; anything broken here is a bug worth saying loudly
         return rec, ([f"team: the solver enforced the constraints but the chosen team breaks {'; '.join(broken)}"]
                      if broken else [])
-    note = ("team: the per-model counts, the budget and the zone quotas are not enforced in this mode (the solver "
-            "enforces them in maxcover and setcover; it chose the best k cameras over all pose x model columns)")
+    note = ("team: the per-model counts, the budget and the zone quotas are not enforced "
+            + (why_not or "in this mode (the solver enforces them in maxcover and setcover; it chose the best k cameras "
+               "over all pose x model columns)"))
     note += ": the chosen team breaks " + "; ".join(broken) if broken else "; the chosen team happens to meet them"
     return rec, [note]
 

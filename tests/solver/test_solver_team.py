@@ -424,3 +424,21 @@ def test_branch_and_bound_bound_is_valid_under_a_time_limit(seed) -> None:
     assert quick.bound >= full.objective - 1e-9 and quick.objective <= full.objective + 1e-9
     if quick.status == "feasible":
         assert quick.gap > 0 and any(p["status"] != "optimal" for p in quick.stats["engine_stats"]["patterns"])
+
+
+def test_team_record_says_whether_the_solver_enforced() -> None:
+    from camplace.instance import builtin
+    from camplace.solution import team_record
+
+    inst = builtin("comet-67p-team")
+    eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    cams = [{"model": "wide", "cost": 900.0, "zones": ["upstream"], "position": [1.0, 1.0, 1.0], "rotation": eye},
+            {"model": "science", "cost": 6000.0, "zones": ["downstream"], "position": [15.0, 1.0, 1.0], "rotation": eye}]
+    rec, notes = team_record(inst, cams, enforced=True, cardinality="budget")
+    assert rec["enforced"] is True and rec["cardinality"] == "budget" and rec["broken"] == [] and notes == []
+    assert rec["uses"] == {"models": {"wide": 1, "science": 1}, "cost": 6900.0, "zones": {"upstream": 1, "downstream": 1}}
+    rec, notes = team_record(inst, cams[:1], why_not="by the robust placement")
+    assert rec["enforced"] is False and rec["broken"] == ["0 camera(s) in zone downstream (asked 1+)"]
+    assert notes[0].startswith("team: the per-model counts, the budget and the zone quotas are not enforced by the robust")
+    _, notes = team_record(inst, [cams[0], {**cams[0], "candidate": 9}], enforced=True, cardinality="budget")
+    assert "two cameras share a pose" in notes[0]  # said loudly, never expected
