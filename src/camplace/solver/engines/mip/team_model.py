@@ -78,6 +78,8 @@ def solve_team_model(
         A feasible selection (original columns) given to the solver.
     """
     m, n = q.shape
+    if backend == "cpsat" and mode == "setcover" and required_fraction < 1.0:
+        raise CamplaceError("engine cpsat: a team set cover with required_fraction < 1 has a weighted row; use engine mip")
     cols = np.concatenate([np.asarray(fixed, dtype=np.int64), np.asarray(free_cols, dtype=np.int64)])
     nfix = len(fixed)
     model = LinearModel(maximize=mode == "maxcover")
@@ -87,8 +89,8 @@ def solve_team_model(
     pos_of = np.full(n, -1, dtype=np.int64)
     pos_of[cols] = np.arange(cols.size)
     stats: dict[str, Any] = {"columns": int(cols.size)}
-    csc_free = q[:, free_cols].tocsr()
-    pat = (csc_free > 0).astype(np.int8).tocsr() if csc_free.dtype != np.bool_ else csc_free.astype(np.int8).tocsr()
+    q_free = q[:, free_cols].tocsr()
+    pat = (q_free > 0).astype(np.int8).tocsr() if q_free.dtype != np.bool_ else q_free.astype(np.int8).tocsr()
     if nfix:
         covered_fixed = np.asarray((q[:, list(fixed)] > 0).sum(axis=1)).ravel() > 0
     else:
