@@ -423,9 +423,12 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     weights = event_weights(pts, instance, s.event_mode)
     geometric = s.min_angle_deg is not None or s.min_distance_m is not None
     t0 = time.perf_counter()
+    from camplace.solver.problem.team import team_options
+
+    opts = team_options(getattr(instance, "team", None), cands, s.solve_options)  # issue 31: the team's constraints
     with reporter.stage("solve"):
         res = solve(matrix, weights, positions=cands.positions if geometric else None,
-                    points=pts.positions if geometric else None, options=s.solve_options)
+                    points=pts.positions if geometric else None, options=opts)
     timings["solve"] = time.perf_counter() - t0
     if s.robust is None:
         return res, None
@@ -449,7 +452,9 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     pts = vis.points
     weights = event_weights(pts, instance, s.event_mode)
     # the system's size: the fixed cameras plus the new ones (setcover: as many as it needed)
-    k = len(res.selected) if (s.mode == "setcover" or s.fixed) else s.k
+    enforced = "team" in res.stats  # the solver enforced the team's constraints (issue 31)
+    budget_team = enforced and res.stats["team"].get("cardinality") == "budget"
+    k = len(res.selected) if (s.mode == "setcover" or s.fixed or budget_team) else s.k
     from camplace.visibility.summary import summarise
 
     t0 = time.perf_counter()
@@ -460,7 +465,12 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     for note in degenerate:
         log.info("%s", note)
     cameras = [camera_record(instance, cands, j) for j in res.selected]
-    team, team_notes = team_record(instance, cameras)
+    why_not = None
+    if robust_record is not None and not enforced:
+        why_not = "by the robust placement (it chose among every pose x model column; the nominal solve enforced them)"
+    team, team_notes = team_record(instance, cameras, enforced=enforced,
+                                   cardinality=res.stats["team"].get("cardinality") if enforced else None,
+                                   why_not=why_not)
     for note in team_notes:
         log.warning("%s", note)
     notes = [*instance.warnings, *mode_warnings(instance, s.mode), *degenerate, *team_notes]
@@ -475,7 +485,7 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     gap = float(res.gap) if np.isfinite(res.gap) else 1.0
     return Solution(
         status=res.status,
-        objective=float(res.objective),
+        objective=float(res.objective) if np.isfinite(res.objective) else 0.0,  # an infeasible team: no cameras
         bound=bound,
         gap=gap,
         k=k,

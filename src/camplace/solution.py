@@ -62,8 +62,10 @@ class Solution:
         model (its name), model_index, cost and zones (the names of the zones it stands in).
     team : dict or None
         A team run (``Instance.team``): the models' costs and counts, the budget, the zones,
-        ``enforced`` (false: the solver chose the best k over all pose x model columns, the
-        counts, budget and quotas are not yet imposed) and what the chosen team ``uses`` of each.
+        ``enforced`` (true: the solver imposed the counts, the budget, the quotas and one camera
+        per pose, ``cardinality`` says whether k or the budget set the number of cameras; false:
+        a mode that cannot, the best k over all pose x model columns) and what the chosen team
+        ``uses`` of each.
     instance : str
         Instance name.
     engine : str
@@ -226,12 +228,17 @@ def camera_record(instance, candidates: CandidateSet, j: int) -> dict[str, Any]:
     }
 
 
-def team_record(instance, cameras: list[dict]) -> tuple[dict | None, list[str]]:
+def team_record(instance, cameras: list[dict], *, enforced: bool = False, cardinality: str | None = None,
+                why_not: str | None = None) -> tuple[dict | None, list[str]]:
     """The ``team`` entry of ``solution.json`` and the warnings of a team run (None, [] without a team).
 
-    Until the solver imposes them, the per-model counts, the budget and the zone quotas are only
-    checked on the chosen cameras: the record says ``"enforced": false`` and a warning names the
-    ones the chosen team breaks (or says that none is enforced when it happens to meet them).
+    With ``enforced`` (the solver imposed the per-model counts, the budget, the zone quotas and
+    one camera per pose: :class:`camplace.solver.problem.team.TeamConstraints`) the record says
+    ``"enforced": true`` and its ``cardinality`` (``exact``: k cameras; ``budget``: any number
+    within the budget). Otherwise (a mode that cannot enforce them) they are only checked on the
+    chosen cameras: ``"enforced": false`` and a warning names the ones the chosen team breaks (or
+    says that none is enforced when it happens to meet them; ``why_not`` replaces the reason
+    given). ``uses`` and ``broken`` either way.
     """
     team = getattr(instance, "team", None)
     if team is None:
@@ -256,9 +263,18 @@ def team_record(instance, cameras: list[dict]) -> tuple[dict | None, list[str]]:
         if n < z.min_cameras or (z.max_cameras is not None and n > z.max_cameras):
             hi = "" if z.max_cameras is None else f"..{z.max_cameras}"
             broken.append(f"{n} camera(s) in zone {z.name} (asked {z.min_cameras}{hi if hi else '+'})")
-    rec.update({"enforced": False, "uses": {"models": counts, "cost": cost, "zones": zone_counts}, "broken": broken})
-    note = ("team: the per-model counts, the budget and the zone quotas are not yet enforced by the solver "
-            "(it chose the best k cameras over all pose x model columns)")
+    rec.update({"enforced": bool(enforced), "uses": {"models": counts, "cost": cost, "zones": zone_counts},
+                "broken": broken})
+    if enforced:
+        rec["cardinality"] = cardinality
+        if len({(tuple(c["position"]), tuple(map(tuple, c["rotation"]))) for c in cameras}) < len(cameras):
+            broken.append("two cameras share a pose")
+        # the solver checked every constraint; anything broken here is a bug worth saying loudly
+        return rec, ([f"team: the solver enforced the constraints but the chosen team breaks {'; '.join(broken)}"]
+                     if broken else [])
+    note = ("team: the per-model counts, the budget and the zone quotas are not enforced "
+            + (why_not or "in this mode (the solver enforces them in maxcover and setcover; it chose the best k cameras "
+               "over all pose x model columns)"))
     note += ": the chosen team breaks " + "; ".join(broken) if broken else "; the chosen team happens to meet them"
     return rec, [note]
 

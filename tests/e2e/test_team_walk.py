@@ -3,7 +3,7 @@
 Whole commands in subprocesses (``python -m camplace``) at tiny sizes on the built-in
 ``comet-67p-team``; one camera column of the narrow science model is fixed so that the system
 holds both models, and every output must carry each camera's model consistently: solution.json
-(and its team record, ``enforced: false``, with the warning), candidates.csv, the report, the
+(and its team record, ``enforced: true``, every constraint checked here on the cameras), candidates.csv, the report, the
 renders (image size per model), cameras.json / cameras.csv, COLMAP (one camera entry per model)
 and the GLB (frusta per model).
 """
@@ -47,7 +47,27 @@ def team_run(tmp_path_factory):
     return {"out": out, "env": env, "tmp": tmp, "science": science, "stderr": r.stderr, "inst": inst}
 
 
-def test_run_records_models_and_the_unenforced_team(team_run) -> None:
+def _check_team_holds(sol: dict, inst) -> None:
+    """Every constraint of the team holds on solution.json's cameras (checked here from the instance)."""
+    team = inst.team
+    cams = sol["cameras"]
+    for m in team.models:
+        c = sum(1 for cam in cams if cam["model"] == m.name)
+        assert c >= m.min_count and (m.max_count is None or c <= m.max_count), (m.name, c)
+    cost = sum(inst.cameras[cam["model_index"]].cost for cam in cams)
+    assert team.budget is None or cost <= team.budget + 1e-9, cost
+    for z in team.zones:
+        inside = int(sum(bool(z.contains(np.array([cam["position"]]))[0]) for cam in cams))
+        assert inside >= z.min_cameras and (z.max_cameras is None or inside <= z.max_cameras), (z.name, inside)
+    poses = {(tuple(cam["position"]), tuple(map(tuple, cam["rotation"]))) for cam in cams}
+    assert len(poses) == len(cams), "two cameras share a pose"
+    rec = sol["team"]
+    assert rec["enforced"] is True and rec["broken"] == [] and rec["cardinality"] == "budget"
+    assert rec["uses"]["cost"] == pytest.approx(cost)
+    assert sol["solver_stats"]["engine_choice"]["route"] == "team"
+
+
+def test_run_records_models_and_enforces_the_team(team_run) -> None:
     out = team_run["out"]
     sol = json.loads((out / "solution.json").read_text())
     models = [c["model"] for c in sol["cameras"]]
@@ -59,11 +79,13 @@ def test_run_records_models_and_the_unenforced_team(team_run) -> None:
         assert m.name == c["model"] and c["width"] == m.width_px and c["K"] == m.K().tolist() and c["far_m"] == m.far_m
         assert c["cost"] == m.cost
     team = sol["team"]
-    assert team["enforced"] is False and team["budget"] == 8000.0
+    assert team["enforced"] is True and team["budget"] == 8000.0
     assert team["uses"]["models"] == {"wide": models.count("wide"), "science": models.count("science")}
     assert team["uses"]["cost"] == sum(c["cost"] for c in sol["cameras"])
-    assert any(w.startswith("team: the per-model counts, the budget and the zone quotas are not yet enforced") for w in sol["warnings"])
-    assert "not yet enforced" in team_run["stderr"]  # said, never silently
+    _check_team_holds(sol, inst)
+    assert sol["status"] == "optimal"
+    assert not any("not yet enforced" in w for w in sol["warnings"])
+    assert "not yet enforced" not in team_run["stderr"]
     # candidates.csv: the model column, model-major
     with open(out / "candidates.csv") as fh:
         rows = list(csv.DictReader(fh))
@@ -88,7 +110,7 @@ def test_run_records_models_and_the_unenforced_team(team_run) -> None:
 def test_report_names_the_models(team_run) -> None:
     html = (team_run["out"] / "report.html").read_text()
     assert "camera model wide" in html and "camera model science" in html
-    assert "not yet enforced" in html
+    assert "enforced by the solver" in html and "not yet enforced" not in html
     assert "<td class='l'>science</td>" in html or ">science<" in html
     # the 3D view draws each chosen camera's frustum with its model's intrinsics
     from camplace.report.compare import load_run_data
@@ -189,3 +211,44 @@ def test_init_writes_the_mixed_team(tmp_path) -> None:
 
     inst = load_instance(tmp_path / "team.toml")
     assert inst.team.model_names == ("wide", "science")
+
+
+_GAP_ZONE = """
+[[zones]]
+name = "gap"
+min_m = [11.2, 0.0, 0.0]
+max_m = [12.8, 3.0, 3.0]
+min_cameras = 1
+"""  # inside the keep-out: no camera of any model may stand there
+
+
+def test_solve_enforces_the_team_and_an_impossible_quota_exits_1(team_run, tmp_path) -> None:
+    """``camplace solve`` on the run folder builds the same constraints; a quota no pose can meet
+    (a zone inside the keep-out) is infeasible: exit 1 from ``solve`` and from ``run``."""
+    import shutil
+
+    env, out = team_run["env"], team_run["out"]
+    r = _cli("solve", str(out), "--fixed", str(team_run["science"]), "-o", str(tmp_path / "again.json"), env=env, cwd=tmp_path)
+    again = json.loads((tmp_path / "again.json").read_text())
+    sol = json.loads((out / "solution.json").read_text())
+    assert again["status"] == "optimal" and abs(again["objective"] - sol["objective"]) < 1e-9
+    assert team_run["science"] in again["selected"]
+    assert again["options"]["team"]["cardinality"] == "budget" and again["stats"]["engine_choice"]["route"] == "team"
+    # the same folder with the impossible zone added to its instance
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)
+    (bad / "instance.toml").write_text((bad / "instance.toml").read_text() + _GAP_ZONE)
+    r = subprocess.run([sys.executable, "-m", "camplace", "solve", str(bad), "-o", str(tmp_path / "bad.json")],
+                       capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert r.returncode == 1, (r.stdout, r.stderr[-2000:])
+    assert r.stdout.startswith("infeasible") and "Traceback" not in r.stderr
+    assert json.loads((tmp_path / "bad.json").read_text())["status"] == "infeasible"
+    # and a whole run of such an instance
+    from camplace.instance import save_instance
+
+    save_instance(team_run["inst"], tmp_path / "team.toml")
+    (tmp_path / "team.toml").write_text((tmp_path / "team.toml").read_text() + _GAP_ZONE)
+    r = subprocess.run([sys.executable, "-m", "camplace", "run", str(tmp_path / "team.toml"), "-o", str(tmp_path / "run"),
+                        *SIZES], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert r.returncode == 1, (r.stdout, r.stderr[-2000:])
+    assert r.stdout.startswith("infeasible") and "Traceback" not in r.stderr

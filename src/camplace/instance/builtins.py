@@ -50,7 +50,7 @@ _DATA: dict[str, dict[str, Any]] = {
     },
     # A mixed team in the same corridor: two wide machine-vision cameras stand anywhere in the
     # corridor, one narrow science camera only downstream of the comet or on a mast; nobody within
-    # 1 m of the model, a budget and a camera on each side of it (enforced by the solver round).
+    # 1 m of the model, a budget and a camera on each side of it (enforced by the solver).
     "comet-67p-team": {
         "schema_version": 1,
         "name": "comet-67p-team",

@@ -182,7 +182,7 @@ class CameraModel:
         Price of one camera of this model (>= 0; any currency, the unit of ``[team] budget``).
     min_count, max_count : int, int or None
         How many cameras of this model the team must hold at least / may hold at most
-        (None: no upper limit). Parsed and validated here; enforced by the solver round.
+        (None: no upper limit). Parsed and validated here; enforced by the solver (:class:`camplace.solver.problem.team.TeamConstraints`).
     """
 
     sensor_width_mm: float
@@ -351,7 +351,7 @@ class KeepOut:
 
 @dataclass(frozen=True)
 class Zone:
-    """A named box region with camera quotas (``[[zones]]``); enforced by the solver round.
+    """A named box region with camera quotas (``[[zones]]``); enforced by the solver (maxcover, setcover).
 
     Attributes
     ----------

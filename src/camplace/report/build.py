@@ -107,7 +107,8 @@ def _instance_section(run) -> str:
         cam_rows.append(("team budget and zones", (f"budget {team.budget:g}" if team.budget is not None else "no budget") + "; "
                          + (", ".join(f"{z.name} ({z.min_cameras}{'..' + str(z.max_cameras) if z.max_cameras is not None else '+'})"
                                       for z in team.zones) or "no zones")
-                         + " (not yet enforced by the solver)"))
+                         + (" (enforced by the solver)" if (getattr(sol, "team", None) or {}).get("enforced")
+                            else " (not enforced in this mode)")))
     rows = [
         ("instance", inst.name),
         ("source", inst.source or "–"),

@@ -79,7 +79,7 @@ from camplace.solver.problem.checks import conflict_count, conflict_pairs, coord
 from camplace.solver.problem.objectives import cheap_bound, mode_value
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.result import ModeOutcome, SolverResult, jsonable, relative_gap
-from camplace.solver.routes import CoverProblem, fixed_base, run_cover
+from camplace.solver.routes import CoverProblem, fixed_base, run_cover, run_team
 
 __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
 
@@ -269,7 +269,20 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     keep_conf = free[conflicts[:, 0]] & free[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
     conflicts = conflicts[keep_conf]
 
-    if mode == "setcover":
+    if o.team is not None:  # a camera team (issue 31): its own route, every constraint enforced
+        o.team.check_columns(n)
+        if mode == "setcover" or (k is None and o.team.cardinality == "budget"):
+            k_team = None
+        else:
+            if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral) or int(k) < 0:
+                raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
+            k_team = int(k)
+            if o.team.cardinality == "exact" and k_team > free_cols.size:
+                raise CamplaceError(f"cannot choose k={k_team} new cameras from {free_cols.size} allowed candidates "
+                                    "(lower k, or forbid/fix fewer cameras)")
+        ctx = run_team(q, w, o, k_team, fixed_t, free_cols, conflicts, deadline,
+                       k_solver=lambda sub: _solve(q, w, None, None, sub))  # single-model count patterns
+    elif mode == "setcover":
         if conflicts.size:  # the model runs directly (otherwise the local search checks its own memory)
             check_setcover_memory(q, w, free_cols, conflicts, engine)
         ctx = setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, deadline,
@@ -314,6 +327,8 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     scale = 1.0 if minimize else float(w.sum())
     if selected is not None and status == "feasible" and abs(bound - objective) <= _OPT_TOL * max(abs(bound), scale):
         status, bound, gap = "optimal", objective, 0.0
+    if selected is None and o.team is not None:  # no team meets the constraints (or none found in time)
+        objective, gap = math.nan, math.inf
     sel = tuple(sorted(int(j) for j in (selected or ())))
     stats.update({"mode": mode, "engine_requested": engine, "fixed": list(fixed_t), "forbidden": list(forbidden_t),
                   "new": [j for j in sel if j not in fixed_set], "conflict_pairs": int(conflicts.shape[0]),

@@ -128,6 +128,21 @@ def _peak_weights(source: Path, weights: Any, peak: int | None) -> Any:
     return w / w.sum() if w.sum() > 0 else w
 
 
+def _with_team(source: Path, opts: SolveOptions) -> SolveOptions:
+    """``opts`` with the team constraints of the run folder's instance (issue 31), when it has a team
+    (``instance.toml`` and ``candidates.csv`` beside the matrix); unchanged otherwise."""
+    from camplace.runfolder import CANDIDATES_NAME, INSTANCE_NAME, RunFolder
+    from camplace.solver.problem.team import team_options
+
+    run = RunFolder(source)
+    if not (run.has(INSTANCE_NAME) and run.has(CANDIDATES_NAME)):
+        return opts
+    team = getattr(run.instance, "team", None)
+    if team is None:
+        return opts
+    return team_options(team, run.candidates, opts)
+
+
 def cmd_solve(args: argparse.Namespace) -> int:
     """``camplace solve SOURCE -o OUT``: choose cameras on a stored visibility matrix."""
     import time
@@ -157,6 +172,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     if args.event_mode == "peak":
         weights = _peak_weights(args.source, weights, run.get("peak_frame"))
     opts = options_from_args(args)
+    opts = _with_team(args.source, opts)
     res = solve(matrix, weights, positions=positions, points=points if opts.min_angle_deg is not None else None,
                 options=opts)
     out = res.to_dict()

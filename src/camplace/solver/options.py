@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from camplace.errors import CamplaceError
-from camplace.names import ENGINES, MODES
+from camplace.names import ENGINES, MODES, TEAM_MODES
 
 __all__ = ["SolveOptions", "add_solver_options", "options_from_args", "parse_index_list"]
 
@@ -57,6 +57,11 @@ class SolveOptions:
         draws candidates and points, is another one). Recorded as ``search_seed``.
     iterations : int or None
         setcover: iteration budget of the local search.
+    team : TeamConstraints or None
+        A camera team's constraints (:class:`camplace.solver.problem.team.TeamConstraints`: per
+        model counts, budget, zone quotas, one camera per pose); modes ``maxcover`` and
+        ``setcover``. With cardinality ``"budget"`` ``k`` may be None (any number of cameras).
+        Not compared or hashed.
     """
 
     mode: str = "maxcover"
@@ -73,6 +78,7 @@ class SolveOptions:
     memory_budget_bytes: int | None = None
     search_seed: int = 0
     iterations: int | None = None
+    team: Any = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "fixed", () if self.fixed is None else tuple(self.fixed))
@@ -99,6 +105,7 @@ class SolveOptions:
             "engine": self.engine,
             "time_limit_s": None if self.time_limit_s is None else float(self.time_limit_s),
             "search_seed": int(self.search_seed) if self.mode == "setcover" else None,
+            **({"team": self.team.record()} if self.team is not None else {}),
         }
 
 
@@ -129,6 +136,11 @@ def _check(o: SolveOptions) -> None:
             raise CamplaceError(f"views must be an integer >= 1, got {v!r}")
         if o.min_angle_deg is not None and int(v) < 2:
             raise CamplaceError("min_angle_deg needs views >= 2")
+    if o.team is not None:
+        if not all(hasattr(o.team, a) for a in ("violations", "cardinality", "record")):  # no import: this module stays light
+            raise CamplaceError(f"team must be a TeamConstraints, got {type(o.team).__name__}")
+        if o.mode not in TEAM_MODES:
+            raise CamplaceError(f"team constraints apply to modes {' and '.join(TEAM_MODES)} only, not {o.mode!r}")
     if o.mode == "setcover":
         if o.k is not None:
             raise CamplaceError("mode 'setcover' chooses the number of cameras itself: do not give k")

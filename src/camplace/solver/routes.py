@@ -341,3 +341,110 @@ def run_cover(p: CoverProblem) -> ModeOutcome:
     if got is not None:
         return got
     return _model(p, choice, name="mip", angle_tried=choice.route == "angle")
+
+
+# ----------------------------------------------------------------------------------------------
+# camera teams (issue 31)
+# ----------------------------------------------------------------------------------------------
+
+
+#: ``engine="exact"`` enumerates at most this many teams where the branch and bound does not apply.
+_EXACT_TEAM_LIMIT = 2_000_000
+
+
+def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxcover",
+                       conflicts: int = 0) -> tuple[str, str]:
+    """The engine of a team solve and why (pure): ``("enumerate" | "bnb" | "mip" | "cpsat", reason)``.
+
+    ``count`` is :func:`~camplace.solver.engines.team.enumeration.team_count`, the teams the exact
+    enumeration would visit at most; ``bnb`` is the branch and bound of
+    :mod:`camplace.solver.engines.team.bnb` (maxcover without minimum-distance conflicts)."""
+    if engine in ("mip", "cpsat"):
+        return engine, f"engine {engine} requested: the team model"
+    if count <= limit:
+        return "enumerate", f"at most {count:.3g} teams (<= {limit}): the exact enumeration proves the answer"
+    if mode == "maxcover" and conflicts == 0:
+        return "bnb", (f"{count:.3g} possible teams (> {limit}), maxcover: the team branch and bound on marginal "
+                       "gains proves the answer (no column dropped by dominance)")
+    if engine == "exact":
+        if count > _EXACT_TEAM_LIMIT:
+            raise CamplaceError(f"engine exact: no exact team engine for this case ({count:.3g} possible teams, "
+                                f"{'setcover' if mode == 'setcover' else 'minimum-distance conflicts'}); "
+                                "use engine auto or mip")
+        return "enumerate", f"engine exact requested: enumeration of at most {count:.3g} teams"
+    why = "setcover" if mode == "setcover" else "minimum-distance conflicts"
+    return "mip", (f"{count:.3g} possible teams (> {limit}), {why}: the team model (SCIP) enforces the counts, "
+                   "the budget, the zone quotas and one camera per pose")
+
+
+def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
+             free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline,
+             k_solver: Callable[[SolveOptions], Any] | None = None) -> ModeOutcome:
+    """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
+    the exact enumeration on small instances, else the team model of
+    :mod:`camplace.solver.engines.mip.team_model`; no column is dropped by dominance (a column may be
+    the only one of its model, zone, cost or pose class that meets a constraint)."""
+    from camplace.solver.engines.mip.team_model import solve_team_model
+    from camplace.solver.engines.team.enumeration import ENUMERATION_LIMIT, enumerate_teams, team_count
+
+    team = o.team
+    mode = o.mode
+    if team.pose is not None and len(fixed_t):  # a pose a fixed camera holds takes no other model
+        free_cols = free_cols[~np.isin(team.pose[free_cols], team.pose[list(fixed_t)])]
+    count = team_count(team, k, fixed_t, free_cols)
+    name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]))
+    stats: dict[str, Any] = {"k": k, "team": team.record(),
+                             "engine_choice": {"engine": name, "route": "team", "reason": reason}}
+    costs = None if o.costs is None else np.asarray(o.costs, dtype=np.float64)
+    maximize = mode == "maxcover"
+
+    def value(sel: tuple[int, ...]) -> float:
+        if maximize:
+            return mode_value(q, w, sel, mode="maxcover")
+        c = team.cost if costs is None else costs
+        return float(sum(c[j] for j in sel if j not in fixed_t))
+
+    if name == "enumerate":
+        sel, status, _, est = enumerate_teams(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols,
+                                              conflicts=conflicts, costs=costs, required_fraction=o.required_fraction,
+                                              deadline=deadline)
+        stats["engine_stats"] = est
+        engine = "exact"
+        bound = (math.inf if maximize else -math.inf) if status != "optimal" else math.nan
+    elif name == "bnb":
+        from camplace.solver.engines.team.bnb import team_branch_and_bound
+        from camplace.solver.engines.team.patterns import count_patterns, maximal_patterns, model_costs, solve_by_patterns
+
+        mc = model_costs(team)
+        patterns = []
+        if mc is not None:
+            avail = np.bincount(team.model[free_cols], minlength=len(team.model_names))
+            patterns = count_patterns(team, k, fixed_t, avail, mc)
+            n_all = len(patterns)
+            patterns = maximal_patterns(team, patterns, avail)
+        if patterns and k_solver is not None:  # per-model count patterns: single-model ones by the k-camera engines
+            stats["engine_choice"]["reason"] += (f"; {n_all} per-model count patterns, {len(patterns)} not dominated "
+                                                 "by a larger one")
+            sel, status, _, bound, est = solve_by_patterns(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
+                                                           deadline=deadline, patterns=patterns, k_solver=k_solver)
+        else:
+            sel, status, _, bound, est = team_branch_and_bound(q, w, team, k=k, fixed=fixed_t, free_cols=free_cols,
+                                                               deadline=deadline)
+        stats["engine_stats"] = est
+        engine = "exact"
+    else:
+        out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
+                               costs=costs, required_fraction=o.required_fraction, backend=name,
+                               time_limit_s=deadline.left())
+        stats.update(out.stats)
+        sel, status, bound, engine = out.selected, out.status, out.bound, name
+    if sel is None:
+        return ModeOutcome(None, status, math.nan, bound, engine, stats)
+    objective = value(sel)
+    if status == "optimal":
+        bound = objective
+    stats["team_uses"] = team.uses(sel)
+    broken = team.violations(sel, k=k, fixed=fixed_t)
+    if broken:  # never expected: the engines enforce them
+        raise CamplaceError(f"internal error: the team solve broke its constraints: {'; '.join(broken)}")
+    return ModeOutcome(sel, status, objective, bound, engine, stats)

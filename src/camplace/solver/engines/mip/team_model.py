@@ -1,0 +1,185 @@
+"""The camera-team model (issue 31): max coverage or minimum-cost cover under
+:class:`~camplace.solver.problem.team.TeamConstraints`, for SCIP or CP-SAT.
+
+Variables ``x_j`` for every allowed column (fixed ones with ``x_j = 1``), no column dropped (a
+dominance argument across models, zones or costs would be wrong once these constraints apply)::
+
+    maxcover   maximise  sum_r w_r y_r      y_r <= sum_{j observes r, j free} x_j, y_r in [0, 1]
+    setcover   minimise  sum_{j free} c_j x_j
+               s.t.      sum_{j observes r} x_j >= 1   (every coverable row of positive weight), or
+                         sum_r w_r y_r >= f * W           (required_fraction f < 1)
+
+and the team rows: ``sum_{j free} x_j = k`` (cardinality ``exact``; ``<= k`` for ``budget`` with
+a k), ``lo_m <= sum_{j of model m} x_j <= hi_m``, ``sum_j cost_j x_j <= budget``,
+``lo_z <= sum_{j in zone z} x_j <= hi_z``, ``sum_{j at pose p} x_j <= 1`` and ``x_a + x_b <= 1``
+for every pair closer than ``min_distance_m``. Rows covered by a fixed camera leave the objective
+(their weight is the constant ``base``); identical rows are merged (weights summed).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace.errors import CamplaceError
+from camplace.solver.engines.mip.linear import LinearModel, solve_model
+from camplace.solver.engines.mip.mode_models import merge_rows
+from camplace.solver.problem.team import TeamConstraints
+
+__all__ = ["TeamModelOutcome", "solve_team_model"]
+
+
+@dataclass(frozen=True)
+class TeamModelOutcome:
+    """``selected`` (original columns, fixed included, or None), the model's ``status`` and
+    ``bound`` (objective units: coverage weight including ``base``, or cost of the new cameras) and
+    ``stats``."""
+
+    selected: tuple[int, ...] | None
+    status: str
+    bound: float
+    stats: dict[str, Any]
+
+
+def _integral(values: np.ndarray) -> bool:
+    return bool(np.all(np.abs(values - np.round(values)) <= 1e-9 * np.maximum(1.0, np.abs(values))))
+
+
+def solve_team_model(
+    q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, mode: str, k: int | None, fixed: tuple[int, ...],
+    free_cols: np.ndarray, conflicts: np.ndarray, costs: np.ndarray | None, required_fraction: float,
+    backend: str, time_limit_s: float | None, hint: tuple[int, ...] | None = None,
+) -> TeamModelOutcome:
+    """Build and solve the team model (see the module docstring).
+
+    Parameters
+    ----------
+    q : (m, n) csr_matrix
+    w : (m,) float64
+    team : TeamConstraints
+    mode : {"maxcover", "setcover"}
+    k : int or None
+        New cameras (exactly, or at most for cardinality ``budget``); None: no count.
+    fixed : tuple of int
+    free_cols : (f,) int64
+        Columns that may be chosen (not fixed, not forbidden, not in conflict with a fixed one).
+    conflicts : (c, 2) int64
+        Pairs of free columns that may not both be chosen.
+    costs : (n,) float64 or None
+        setcover objective costs (default: the team's).
+    required_fraction : float
+    backend : {"mip", "cpsat"}
+    time_limit_s : float or None
+    hint : tuple of int, optional
+        A feasible selection (original columns) given to the solver.
+    """
+    m, n = q.shape
+    if backend == "cpsat" and mode == "setcover" and required_fraction < 1.0:
+        raise CamplaceError("engine cpsat: a team set cover with required_fraction < 1 has a weighted row; use engine mip")
+    cols = np.concatenate([np.asarray(fixed, dtype=np.int64), np.asarray(free_cols, dtype=np.int64)])
+    nfix = len(fixed)
+    model = LinearModel(maximize=mode == "maxcover")
+    x = model.add_vars(cols.size, integer=True)
+    for i in range(nfix):
+        model.lb[int(x[i])] = 1.0
+    pos_of = np.full(n, -1, dtype=np.int64)
+    pos_of[cols] = np.arange(cols.size)
+    stats: dict[str, Any] = {"columns": int(cols.size)}
+    q_free = q[:, free_cols].tocsr()
+    pat = (q_free > 0).astype(np.int8).tocsr() if q_free.dtype != np.bool_ else q_free.astype(np.int8).tocsr()
+    if nfix:
+        covered_fixed = np.asarray((q[:, list(fixed)] > 0).sum(axis=1)).ravel() > 0
+    else:
+        covered_fixed = np.zeros(m, dtype=bool)
+    const = 0.0
+    if mode == "maxcover":
+        const = float(w[covered_fixed].sum())
+        keep = np.flatnonzero(~covered_fixed & (w > 0) & (np.diff(pat.indptr) > 0))
+        a, wa = merge_rows(pat[keep].tocsr(), w[keep])
+        stats["rows"] = int(a.shape[0])
+        wmax = float(wa.max()) if wa.size else 1.0
+        y = model.add_vars(a.shape[0], integer=False, obj=wa / wmax)
+        for r in range(a.shape[0]):
+            idx = a.indices[a.indptr[r]:a.indptr[r + 1]]
+            model.add_row(np.r_[y[r], x[nfix + idx]], np.r_[1.0, -np.ones(idx.size)], hi=0.0)
+        scale = wmax
+    else:
+        c = team.cost if costs is None else np.asarray(costs, dtype=np.float64)
+        cf = c[free_cols]
+        for i, j in enumerate(free_cols):
+            model.obj[int(x[nfix + i])] = float(cf[i])
+        coverable = (np.diff(pat.indptr) > 0) & (w > 0) & ~covered_fixed
+        stats["uncoverable_points"] = int(((w > 0) & ~covered_fixed & ~coverable).sum())
+        keep = np.flatnonzero(coverable)
+        a, wa = merge_rows(pat[keep].tocsr(), w[keep])
+        stats["rows"] = int(a.shape[0])
+        if required_fraction >= 1.0:
+            for r in range(a.shape[0]):
+                idx = a.indices[a.indptr[r]:a.indptr[r + 1]]
+                model.add_row(x[nfix + idx], np.ones(idx.size), lo=1.0)
+        else:
+            total = float(w[(w > 0) & (covered_fixed | (np.diff(pat.indptr) > 0))].sum())
+            need = required_fraction * total - float(w[covered_fixed].sum())
+            if need > 0:
+                y = model.add_vars(a.shape[0], integer=False)
+                for r in range(a.shape[0]):
+                    idx = a.indices[a.indptr[r]:a.indptr[r + 1]]
+                    model.add_row(np.r_[y[r], x[nfix + idx]], np.r_[1.0, -np.ones(idx.size)], hi=0.0)
+                wmax = float(wa.max())
+                model.add_row(y, wa / wmax, lo=need / wmax * (1 - 1e-12))
+        scale = 1.0
+    # the team rows
+    nf = len(free_cols)
+    if k is not None:
+        if team.cardinality == "exact":
+            model.add_row(x[nfix:], np.ones(nf), lo=float(k), hi=float(k))
+        else:
+            model.add_row(x[nfix:], np.ones(nf), hi=float(k))
+    cm = team.model[cols]
+    for mi, (lo, hi) in enumerate(zip(team.model_min, team.model_max)):
+        sel = np.flatnonzero(cm == mi)
+        if lo > 0 or hi is not None:
+            model.add_row(x[sel], np.ones(sel.size), lo=float(lo), hi=math.inf if hi is None else float(hi))
+    if team.budget is not None:
+        cc = team.cost[cols]
+        variant = None
+        if not _integral(cc) or not _integral(np.array([team.budget])):
+            if backend == "cpsat":
+                raise CamplaceError("engine cpsat needs whole-number costs and budget under team constraints; use engine mip")
+        else:
+            variant = (np.round(cc).astype(np.int64), -math.inf, float(math.floor(team.budget + 1e-9)))
+        model.add_row(x, cc, hi=float(team.budget) * (1 + 1e-12) + 1e-9, int_variant=variant)
+    zm = team.zone_member[cols]
+    for zi, (lo, hi) in enumerate(zip(team.zone_min, team.zone_max)):
+        sel = np.flatnonzero(zm[:, zi])
+        if lo > 0 or hi is not None:
+            model.add_row(x[sel], np.ones(sel.size), lo=float(lo), hi=math.inf if hi is None else float(hi))
+    if team.pose is not None:
+        pc = team.pose[cols]
+        order = np.argsort(pc, kind="stable")
+        bounds = np.flatnonzero(np.r_[True, np.diff(pc[order]) != 0, True])
+        groups = 0
+        for s, e in zip(bounds[:-1], bounds[1:]):
+            if e - s > 1:
+                model.add_row(x[order[s:e]], np.ones(e - s), hi=1.0)
+                groups += 1
+        stats["pose_rows"] = groups
+    for a_, b_ in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2).tolist():
+        model.add_row([x[pos_of[a_]], x[pos_of[b_]]], [1.0, 1.0], hi=1.0)
+    hint_d = None
+    if hint is not None:
+        hs = set(hint)
+        hint_d = {int(x[i]): (1.0 if int(cols[i]) in hs else 0.0) for i in range(cols.size)}
+    out = solve_model(model, backend, time_limit_s=time_limit_s, hint=hint_d)
+    stats["engine_stats"] = dict(out.stats)
+    if out.values is None:
+        bound = out.bound
+        return TeamModelOutcome(None, out.status, bound, stats)
+    chosen = tuple(sorted(int(cols[i]) for i in range(cols.size) if out.values[int(x[i])] > 0.5))
+    raw = out.bound if abs(out.bound) < 1e19 else math.copysign(math.inf, out.bound)  # SCIP's "no bound yet" is 1e20
+    bound = raw * scale + const if math.isfinite(raw) else raw
+    return TeamModelOutcome(chosen, out.status, bound, stats)

@@ -1,0 +1,1 @@
+"""Exact engines for camera teams (issue 31): enumeration of the feasible teams."""
