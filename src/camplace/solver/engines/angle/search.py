@@ -49,7 +49,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import Any
+from typing import Any, Sequence
 
 import numba
 import numpy as np
@@ -450,6 +450,7 @@ def solve_angle(
     *,
     time_limit_s: float | None = None,
     budget_bytes: int,
+    start: Sequence[int] | None = None,
 ) -> EngineOutcome:
     """Best ``k`` new cameras for multi-view coverage with a minimum triangulation angle.
 
@@ -477,6 +478,9 @@ def solve_angle(
         On expiry the best set found comes back with status ``"feasible"`` and a valid bound.
     budget_bytes : int
         Memory the engine may use.
+    start : sequence of int, optional
+        ``k`` new cameras (original column indices, free) found elsewhere, e.g. by a solve on a
+        subset of the candidates: offered as the first incumbent (the answer is never worse).
 
     Returns
     -------
@@ -535,6 +539,9 @@ def solve_angle(
     inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, deadline,
                      None if deadline.limit is None else _INCUMBENT_SHARE * deadline.limit)
     lap("column_weights")
+    if start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all():
+        inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
+        stats["start"] = const + inc.best * scale
     inc.run(k, colw)
     stats["initial_incumbent"] = const + inc.best * scale
     lap("incumbent")
