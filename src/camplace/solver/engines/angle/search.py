@@ -71,7 +71,10 @@ log = logging.getLogger(__name__)
 _FLOAT_MARGIN = 1e-9
 _PAIRS_MIN_SHARE = 0.05  # opposite-pairs layout when it matches at least this share of the weight
 _PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
-_INCUMBENT_SHARE = 0.1  # greedy + swaps stop after this share of the time limit
+_INCUMBENT_SHARE = 0.1
+#: the layout and the tree cost about this many times the first pass over the rows: with less time
+#: left than that the engine returns its incumbent at once (the set-up is not interruptible)
+_SETUP_COST = 4.0  # greedy + swaps stop after this share of the time limit
 _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
 _CHUNK = 4096  # tuples per stack entry
@@ -545,6 +548,12 @@ def solve_angle(
     inc.run(k, colw)
     stats["initial_incumbent"] = const + inc.best * scale
     lap("incumbent")
+    left = deadline.remaining()
+    if deadline.expired() or (left is not None and left < _SETUP_COST * stats["times_s"]["rows"]):
+        # no time for the layout and the tree (compiled, not interruptible): the incumbent, and every
+        # countable row as the bound (the angle only removes weight)
+        stats.update({"stopped": "time limit", "skipped": "set-up", "bound_evaluations": 0})
+        return EngineOutcome(inc.best_set, "feasible", const + float(wu.sum()) * scale, stats)
 
     # bit rows: spatial blocks, with the opposite-pairs layout when it pays
     layout = None
