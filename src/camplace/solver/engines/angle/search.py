@@ -542,10 +542,10 @@ def solve_angle(
     inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, deadline,
                      None if deadline.limit is None else _INCUMBENT_SHARE * deadline.limit)
     lap("column_weights")
+    inc.run(k, colw)  # at least one greedy start of its own (it stops at the first with no time)
     if start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all():
+        stats["start"] = const + inc.value(sorted(int(j) for j in start)) * scale
         inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
-        stats["start"] = const + inc.best * scale
-    inc.run(k, colw)
     stats["initial_incumbent"] = const + inc.best * scale
     lap("incumbent")
     left = deadline.remaining()
