@@ -125,3 +125,15 @@ def test_angle_engine_takes_a_start() -> None:
                       start=(0, 1, 2))
     assert "start" in out.stats
     assert out.status == "optimal"
+
+
+def test_warm_start_keeps_the_minimum_distance(full_search_interrupted) -> None:
+    q, w = _instance(14)
+    pos = np.random.default_rng(5).uniform(0.0, 10.0, size=(q.shape[1], 3))
+    got = solve(q, w, 3, positions=pos, min_distance_m=2.0, time_limit_s=20.0)
+    assert "warm_start" in got.stats and got.stats["conflict_pairs"] > 0
+    sel = list(got.selected)
+    assert len(sel) == 3
+    d = np.linalg.norm(pos[sel][:, None, :] - pos[sel][None, :, :], axis=-1)
+    assert (d[np.triu_indices(3, 1)] >= 2.0).all()
+    assert got.bound >= got.objective
