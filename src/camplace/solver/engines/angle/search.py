@@ -542,14 +542,20 @@ def solve_angle(
     inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, deadline,
                      None if deadline.limit is None else _INCUMBENT_SHARE * deadline.limit)
     lap("column_weights")
-    inc.run(k, colw)  # at least one greedy start of its own (it stops at the first with no time)
-    if start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all():
+    start_ok = start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all()
+    left = deadline.remaining()
+    # a greedy start costs about k passes over the matrix (like the first): with a warm start and not
+    # the time for one, the warm start alone is the incumbent
+    if not (start_ok and left is not None and left <= (k + _SETUP_COST) * stats["times_s"]["rows"]):
+        inc.run(k, colw)  # at least one greedy start of its own
+    if start_ok:
+        assert start is not None
         stats["start"] = const + inc.value(sorted(int(j) for j in start)) * scale
         inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
     stats["initial_incumbent"] = const + inc.best * scale
     lap("incumbent")
     left = deadline.remaining()
-    if deadline.expired() or (left is not None and left < _SETUP_COST * stats["times_s"]["rows"]):
+    if left is not None and left <= _SETUP_COST * stats["times_s"]["rows"]:
         # no time for the layout and the tree (compiled, not interruptible): the incumbent, and every
         # countable row as the bound (the angle only removes weight)
         stats.update({"stopped": "time limit", "skipped": "set-up", "bound_evaluations": 0})

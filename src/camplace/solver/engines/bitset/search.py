@@ -424,7 +424,7 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
     stats["initial_incumbent"] = st.best * st.scale
     stats["time_incumbent_s"] = deadline.elapsed() - stats["time_bitsets_s"]
     left = deadline.remaining()
-    if deadline.expired() or (left is not None and left < _TREE_COST * stats["time_bitsets_s"]):
+    if left is not None and left <= _TREE_COST * stats["time_bitsets_s"]:
         # no time for the search's set-up (compiled, not interruptible): the incumbent, the trivial bound
         stats.update({"time_setup_s": deadline.elapsed(), "bound_evaluations": 0, "skipped": "time limit"})
         return _finish(st, "feasible", st.total, stats, deadline, m, n)
