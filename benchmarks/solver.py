@@ -16,6 +16,13 @@ Usage::
     PYTHONPATH=src python benchmarks/solver.py --modes multiview-angle --source bunker-all   # issue 16
     PYTHONPATH=src python benchmarks/solver.py --modes quality-k8 --source bunker-all   # issue 16, k = 8
     PYTHONPATH=src python benchmarks/solver.py --quality-engines     # min-Gram vs quantised tree
+    PYTHONPATH=src python benchmarks/solver.py --ladder flyby        # issue 30: 500 .. 32,000 positions
+    PYTHONPATH=src python benchmarks/solver.py --ladder flyby --ladder-positions 500 2000 --ladder-modes multiview
+
+``--ladder flyby`` solves comet-flyby (seed 1, 5,000 requested points, 3 aims per position;
+matrices from ``benchmarks/flyby_ladder.py``, cached) at 500 / 2,000 / 8,000 / 32,000 positions
+in maxcover and in multiview (2 views, minimum angle 20 degrees), k = 3, ``--ladder-time-limit``
+(default 60 s) each, and prints objective, bound, gap and the solve's wall time per row.
 
 ``--modes`` runs the issue's mode targets (maxcover 10,000 x 50,000; multiview and quality
 1,000 x 20,000 and 10,000 x 50,000) with ``solve(..., engine="auto")`` and prints one line each,
@@ -138,6 +145,32 @@ def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere")
         )
         sys.stdout.flush()
 
+def run_ladder(positions: list[int], modes: list[str], limit: float, k: int) -> None:
+    """Issue 30's comet-flyby ladder: one line per (mode, positions) with objective, bound, gap and
+    the solve's wall time (setup, presolve and model building included), and the load average."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from flyby_ladder import MIN_ANGLE_DEG as ANGLE, flyby_inputs
+
+    print(f"   {'mode':9s} {'positions':>9s} {'columns':>7s} {'status':8s} {'objective':>9s} {'bound':>9s} "
+          f"{'gap':>8s} {'time s':>7s} {'load':>5s}  engine")
+    for n in positions:
+        got = flyby_inputs(n)
+        for mode in modes:
+            geo: dict[str, Any] = {}
+            if mode == "multiview":
+                geo = {"min_angle_deg": ANGLE, "positions": got["positions"], "points": got["points"]}
+            t = time.perf_counter()
+            res = solve(got["matrix"], got["weights"], k, mode=mode, views=2, time_limit_s=limit, **geo)
+            wall = time.perf_counter() - t
+            name = "maxcover" if mode == "maxcover" else f"mv+{ANGLE:g}deg"
+            print(f"   {name:9s} {n:9d} {got['matrix'].shape[1]:7d} {res.status:8s} {res.objective:9.5f} "
+                  f"{res.bound:9.5f} {res.gap:8.2e} {wall:7.1f} {os.getloadavg()[0]:5.2f}  {res.engine}"
+                  f"{' (warm start ' + format(res.stats['warm_start']['objective'], '.5f') + ')' if 'warm_start' in res.stats else ''}")
+            sys.stdout.flush()
+            del res
+        del got
+
+
 def run_quality_engines(seed: int, k: int) -> None:
     """The two exact quality engines on the same graded comet-67p-bunker matrices (same run):
     min-Gram triple enumeration vs the quantised tree, times and their ratio."""
@@ -192,6 +225,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--source", choices=["sphere", "bunker", "bunker-all"], default="sphere",
                     help="--modes matrices: the structured sphere, or comet-67p-bunker visibility (cached) of "
                          "its lit side only (bunker, as in the issue) or of every surface point (bunker-all)")
+    ap.add_argument("--ladder", choices=["flyby"], default=None,
+                    help="issue 30's candidate ladder on comet-flyby (objective, bound, gap, time per row) instead")
+    ap.add_argument("--ladder-positions", nargs="*", type=int, default=[500, 2000, 8000, 32000])
+    ap.add_argument("--ladder-modes", nargs="*", choices=["maxcover", "multiview"], default=["maxcover", "multiview"])
+    ap.add_argument("--ladder-time-limit", type=float, default=60.0)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     print(
@@ -199,6 +237,10 @@ def main(argv: list[str] | None = None) -> int:
         f"load average at start: {os.getloadavg()[0]:.2f}"
     )
 
+    if args.ladder:
+        run_ladder(args.ladder_positions, args.ladder_modes, args.ladder_time_limit, args.k)
+        print(f"load average at end: {os.getloadavg()[0]:.2f}")
+        return 0
     if args.quality_engines:
         run_quality_engines(args.seed, args.k)
         return 0

@@ -307,7 +307,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, o,
                                      inner, stats={"k": k}))
         searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
-        if cap and ctx.selected is not None and ctx.status != "optimal" and not searched:
+        if cap and ctx.selected is not None and ctx.status != "optimal" and not searched and not deadline.expired():
             ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
                                      deadline.left())
 

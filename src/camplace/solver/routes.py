@@ -106,6 +106,10 @@ class CoverProblem:
         The solve's deadline (made once by ``solve``).
     stats : dict
         The result's stats, filled by the runners.
+    start : tuple of int, optional
+        New cameras (original column indices, all free) found by a cheaper solve on a subset of the
+        candidates (:func:`run_cover`'s warm start): the engines that take a first incumbent start
+        from it, and the route's answer is never worse than it.
 
     The residual instance the new cameras see is derived once: ``qf`` (the free columns),
     ``base`` and ``resid_w`` (:func:`fixed_base`), ``resid`` (quality with fixed cameras: what a
@@ -128,6 +132,7 @@ class CoverProblem:
     options: SolveOptions
     deadline: Deadline
     stats: dict[str, Any] = field(default_factory=dict)
+    start: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         n = self.q.shape[1]
@@ -160,6 +165,14 @@ class CoverProblem:
         sizes = problem_sizes(self.resid, self.k, self.free_cols.size, len(self.fixed_t), self.conflicts.shape[0],
                               self.mode)
         return choose_engine(sizes, self.options, self.budget, large_k=large_k)
+
+    def start_local(self) -> np.ndarray | None:
+        """``start`` as free-column positions (None without one)."""
+        if self.start is None:
+            return None
+        loc = np.searchsorted(self.free_cols, np.asarray(self.start, dtype=np.int64))
+        return loc if loc.size == self.k and np.array_equal(self.free_cols[np.minimum(loc, self.free_cols.size - 1)],
+                                                            np.asarray(self.start)) else None
 
     @property
     def angle_ok(self) -> bool:
@@ -194,7 +207,7 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> ModeOutcome |
     try:
         out = solve_angle(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts,
                           np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, time_limit_s=p.deadline.left(),
-                          budget_bytes=memory_budget_bytes())
+                          budget_bytes=memory_budget_bytes(), start=p.start)
     except OverBudget as exc:
         exact_too_big(p.engine, p.stats, exc.need, exc.budget)
         return None
@@ -205,13 +218,13 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> ModeOutcome |
 
 def _multiview(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
     """The bitset engine with ``views`` per point (:func:`~camplace.solver.engines.bitset.search.solve_bitset`)."""
-    pre = presolve(p.resid, p.resid_w, p.k, dominance=False)  # dominance is only valid for one view
+    pre = presolve(p.resid, p.resid_w, p.k, dominance=False, deadline=p.deadline)  # dominance: one view only
     mp, np_ = pre.shape
     need = bitset_bytes(mp, np_, min(p.views, p.k), p.k)
     if need > p.budget:
         exact_too_big(p.engine, p.stats, need, p.budget)
         return None
-    out = solve_bitset(pre, views=p.views, time_limit_s=p.deadline.left())
+    out = solve_bitset(pre, views=p.views, time_limit_s=p.deadline.left(), start=_reduced_start(p, pre))
     sel = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
     p.stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
     return ModeOutcome(sel, out.status if sel else "unknown", p.value(sel) if sel else 0.0, float(out.bound),
@@ -222,8 +235,9 @@ def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
     """Plain max coverage (of the points, or of quality's level rows): presolve, then the max-coverage
     engines within the memory budget (:func:`~camplace.solver.engines.maxcover.run_maxcover_engine`)."""
     pat, pw = (p.resid, p.resid_w) if p.mode == "maxcover" else expand_levels(p.resid, p.resid_w)
-    pre = presolve(pat, pw, p.k)
-    name, out = run_maxcover_engine(choice.engine, p.engine, pre, p.deadline.left(), p.stats, p.budget)
+    pre = presolve(pat, pw, p.k, deadline=p.deadline)
+    name, out = run_maxcover_engine(choice.engine, p.engine, pre, p.deadline.left(), p.stats, p.budget,
+                                    start=_reduced_start(p, pre))
     new = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
     sel = tuple(sorted(set(p.fixed_t) | set(new))) if new else None
     objective = p.value(sel) if sel else p.fixed_value
@@ -253,6 +267,9 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
     hint_sel = None
     if hint_local is not None:
         hint_sel = p.with_fixed(hint_local)
+    start = p.start_local()
+    if start is not None and (hint_sel is None or p.value(p.with_fixed(start)) > p.value(hint_sel)):
+        hint_local, hint_sel = [int(j) for j in start], p.with_fixed(start)  # the warm start is the better hint
     budget = memory_budget_bytes()
     size = model_size(q, p.resid, p.resid_w, w, mode, views, p.min_angle_deg, p.pos, p.pts, p.fixed_t, p.free_cols,
                       p.conflicts, budget)
@@ -309,6 +326,12 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
     return ModeOutcome(sel, status, objective, bound, name, stats)
 
 
+def _reduced_start(p: CoverProblem, pre) -> tuple[int, ...] | None:
+    """``p.start`` as reduced columns of ``pre`` (None without one, or when presolve dropped one)."""
+    loc = p.start_local()
+    return None if loc is None else pre.reduced_columns(loc)
+
+
 #: The runner of every route of :data:`camplace.solver.choose.ROUTES`.
 ROUTES: dict[str, Runner] = {
     "large-k": _large_k,
@@ -321,10 +344,76 @@ ROUTES: dict[str, Runner] = {
 }
 
 
+#: Warm start (issue 30: more candidates must never mean a worse answer): a problem with more free
+#: candidates than this, k <= WARM_MAX_K and a time limit, is first solved on a subset of them ...
+WARM_MIN_COLS = 4000
+WARM_MAX_K = 4
+#: ... the best 1 / WARM_SHRINK of its free candidates by the weight they observe (that solve
+#: warm-starts itself the same way while it is still large: a coarse-to-fine ladder) ...
+WARM_SHRINK = 4
+#: ... within this share of the time left; its answer is the full search's first incumbent.
+WARM_SHARE = 0.3
+
+
+def warm_subset(p: CoverProblem) -> np.ndarray:
+    """The free candidates of the warm start's smaller solve: the ``1 / WARM_SHRINK`` observing the
+    most weight (``p.resid_w`` times the matrix values, a heuristic ranking; ties: the lower index),
+    sorted original column indices."""
+    wr = np.where(p.resid_w > 0, p.resid_w, 0.0)
+    if p.resid.dtype.kind == "f" and p.resid.dtype != wr.dtype:
+        wr = wr.astype(p.resid.dtype)  # a ranking: no float64 copy of a float32 matrix
+    colw = np.asarray(p.resid.T @ wr).ravel()  # values x weights
+    size = max(p.k, -(-p.free_cols.size // WARM_SHRINK))
+    top = np.lexsort((np.arange(p.free_cols.size), -colw))[:size]
+    return np.sort(p.free_cols[top])
+
+
+def _warm_started(p: CoverProblem) -> ModeOutcome:
+    """Solve ``p`` on :func:`warm_subset` first (``WARM_SHARE`` of the time left), offer that
+    answer to the full search as its first incumbent (``p.start``), and keep the better of the
+    two: the answer is at least as good as the subset's, and the bound is the full search's."""
+    sub_free = warm_subset(p)
+    # the smaller problem on its own columns (the fixed cameras and the subset): one slice of the
+    # matrix, so that its own warm start slices a smaller one
+    cols = np.union1d(sub_free, np.asarray(p.fixed_t, dtype=np.int64))
+    keep = np.isin(p.conflicts, sub_free).all(axis=1) if p.conflicts.size else np.zeros(0, dtype=bool)
+    conflicts = np.searchsorted(cols, p.conflicts[keep]) if p.conflicts.size else p.conflicts
+    sub = CoverProblem(p.q[:, cols].tocsr(), p.w, p.k, p.mode, p.views, p.min_angle_deg,
+                       None if p.pos is None else p.pos[cols], p.pts,
+                       tuple(int(j) for j in np.searchsorted(cols, np.asarray(p.fixed_t, dtype=np.int64))),
+                       np.searchsorted(cols, sub_free), conflicts, p.options, p.deadline.share(WARM_SHARE),
+                       stats={"k": p.k})
+    got = run_cover(sub)
+    got_sel = None if got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
+    warm = {"columns": int(sub_free.size), "status": got.status, "objective": float(got.objective),
+            "engine": got.engine, "time_s": p.deadline.elapsed()}
+    if "warm_start" in got.stats:
+        warm["inner"] = got.stats["warm_start"]
+    p.stats["warm_start"] = warm
+    del sub
+    if got_sel is not None:
+        p.start = tuple(sorted(set(got_sel) - set(p.fixed_t)))
+    out = _run_cover(p)
+    if got_sel is not None and (out.selected is None or got.objective > out.objective):
+        warm["kept"] = True  # the full search found nothing better within the limit
+        status = "optimal" if out.status == "optimal" and out.bound <= got.objective else "feasible"
+        out = ModeOutcome(got_sel, status, got.objective, max(out.bound, got.objective), out.engine, out.stats)
+    return out
+
+
 def run_cover(p: CoverProblem) -> ModeOutcome:
     """Choose the engine of ``p`` and run it from :data:`ROUTES`; a runner that does not fit in
     memory under ``auto`` hands over to the general model (the large-k engines: to the choice
-    made without them)."""
+    made without them). A large problem with a time limit is warm-started from a solve on a
+    subset of its candidates (:func:`_warm_started`)."""
+    if (p.k and p.k <= WARM_MAX_K and p.start is None and p.free_cols.size > WARM_MIN_COLS
+            and p.deadline.limit is not None):
+        return _warm_started(p)
+    return _run_cover(p)
+
+
+def _run_cover(p: CoverProblem) -> ModeOutcome:
+    """:func:`run_cover` without the warm start."""
     if p.k == 0:
         return ModeOutcome(tuple(p.fixed_t), "optimal", p.fixed_value, p.fixed_value, "exact", p.stats)
     choice = p.choose()

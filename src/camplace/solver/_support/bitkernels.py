@@ -142,16 +142,34 @@ def dominated_columns(bits, size, row_nnz, indptr, indices, data, rows):  # prag
     -------
     (n,) bool
     """
-    n, n_words = bits.shape
+    n = bits.shape[0]
     out = np.zeros(n, dtype=np.bool_)
+    any_nonempty, first_empty = empty_columns(size)
+    dominated_range(bits, size, row_nnz, indptr, indices, data, rows, 0, n, any_nonempty, first_empty, out)
+    return out
+
+
+@numba.njit(**_JIT)
+def empty_columns(size):  # pragma: no cover - compiled
+    """(whether any column is non-empty, the first empty column or -1): what
+    :func:`dominated_range` needs to drop empty columns."""
     first_empty = -1
     any_nonempty = False
-    for c in range(n):
+    for c in range(size.shape[0]):
         if size[c] > 0:
             any_nonempty = True
         elif first_empty < 0:
             first_empty = c
-    for a in range(n):
+    return any_nonempty, first_empty
+
+
+@numba.njit(**_JIT)
+def dominated_range(bits, size, row_nnz, indptr, indices, data, rows, a0, a1, any_nonempty, first_empty,
+                    out):  # pragma: no cover - compiled
+    """:func:`dominated_columns` for columns ``a0 <= a < a1`` only, into ``out`` (so that a caller
+    can stop between ranges at a deadline: columns never tested stay kept, which is still valid)."""
+    n_words = bits.shape[1]
+    for a in range(a0, a1):
         if size[a] == 0:
             out[a] = any_nonempty or a != first_empty
             continue
@@ -181,7 +199,6 @@ def dominated_columns(bits, size, row_nnz, indptr, indices, data, rows):  # prag
             if ok:
                 out[a] = True
                 break
-    return out
 
 
 @numba.njit(**_JIT)

@@ -45,3 +45,11 @@ class Deadline:
     def shortened(self, seconds: float) -> "Deadline":
         """The same deadline ``seconds`` earlier (for a step that must leave time to another)."""
         return Deadline(None if self.limit is None else self.limit - float(seconds), start=self.start)
+
+    def share(self, fraction: float) -> "Deadline":
+        """A deadline (same start) ending after ``fraction`` of the time left now: a step's slice of
+        what is left (without a limit when this one has none)."""
+        if self.limit is None:
+            return Deadline(None, start=self.start)
+        left = max(0.0, self.limit - self.elapsed())
+        return Deadline(self.elapsed() + max(0.0, float(fraction)) * left, start=self.start)

@@ -28,10 +28,12 @@ _FUNCS = {"exact": solve_bitset, "mip": solve_mip, "cpsat": solve_cpsat}
 
 
 def run_maxcover_engine(name: str, requested: str, pre: Presolved, time_limit_s: float | None,
-                        stats: dict[str, Any], budget: int | None = None) -> tuple[str, EngineOutcome]:
+                        stats: dict[str, Any], budget: int | None = None,
+                        start: tuple[int, ...] | None = None) -> tuple[str, EngineOutcome]:
     """Run engine ``name`` ("exact", "mip" or "cpsat") on ``pre`` within the memory budget
     (``budget`` bytes for the exact engine, default :func:`memory_budget_bytes`; the models check
-    their own).
+    their own). ``start``, reduced column indices of a known selection, is the exact engine's
+    first incumbent (a warm start).
 
     Returns
     -------
@@ -48,6 +50,7 @@ def run_maxcover_engine(name: str, requested: str, pre: Presolved, time_limit_s:
                 have = memory_budget_bytes() if budget is None else budget
                 if need > have:
                     raise OverBudget(need, have, "the exact engine")
+                return name, solve_bitset(pre, time_limit_s=time_limit_s, start=start)
             return name, _FUNCS[name](pre, time_limit_s=time_limit_s)
         except OverBudget as exc:
             nxt = next((e for e in ("exact", "mip") if e not in tried), None)

@@ -35,6 +35,7 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support import bitkernels as _bk
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.problem.checks import kernel_data
 
 __all__ = ["Presolved", "presolve", "as_pattern", "canonical_csr", "check_weights"]
@@ -45,6 +46,10 @@ _ROW_CHUNK = 1 << 15  # rows per dense float32 GEMM chunk (far below 2**24: inte
 _DENSE_BYTES = 256 * 1024 * 1024  # max bytes of one dense float32 working block
 _SPARSE_SPEEDUP = 40.0  # how much faster BLAS is per multiply-add than a sparse product
 BITSET_BYTES = 1 << 30  # column dominance on bitsets up to this many bytes of bitsets (else a Gram product)
+#: With a deadline, column dominance stops (keeping the columns not yet tested: still exact) after
+#: this share of the time left when presolve starts, so that the search keeps the rest.
+DOMINANCE_SHARE = 0.2
+_DOMINANCE_BLOCK = 1024  # columns per compiled dominance call between deadline checks
 
 
 def as_pattern(matrix: Any) -> sp.csr_matrix:
@@ -232,7 +237,7 @@ def _gram_column_blocks(b: sp.csr_matrix, block: int) -> Iterator[tuple[np.ndarr
         yield cols, g
 
 
-def _dominated_columns(b: sp.csr_matrix) -> np.ndarray:
+def _dominated_columns(b: sp.csr_matrix, stop: Deadline | None = None) -> np.ndarray:
     """Boolean mask of dominated columns of a 0/1 matrix.
 
     Column ``a`` is dominated if some other column ``j`` contains its row set and either has more
@@ -243,6 +248,8 @@ def _dominated_columns(b: sp.csr_matrix) -> np.ndarray:
     ----------
     b : (m, n) scipy.sparse.csr_matrix
         0/1 matrix.
+    stop : Deadline, optional
+        Stop testing (the columns not yet tested are kept) once it has expired.
 
     Returns
     -------
@@ -254,6 +261,8 @@ def _dominated_columns(b: sp.csr_matrix) -> np.ndarray:
     idx = np.arange(n, dtype=np.int64)
     block = int(max(1, min(n, (64 * 1024 * 1024) // (8 * max(n, 1)))))
     for cols, g in _gram_column_blocks(b, block):
+        if stop is not None and stop.expired():
+            break
         da = size[cols][:, None]
         subset = g == da  # |a & j| == |a|  <=>  a is a subset of j
         stronger = (size[None, :] > da) | ((size[None, :] == da) & (idx[None, :] < cols[:, None]))
@@ -282,7 +291,8 @@ def canonical_csr(matrix: Any) -> sp.csr_matrix:
     return as_pattern(matrix)
 
 
-def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray) -> np.ndarray:
+def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray,
+                      stop: Deadline | None = None) -> np.ndarray:
     """Dominated columns of the pattern of ``a[rows]`` (same rule as :func:`_dominated_columns`).
 
     Each column becomes a bitset of ``rows``; the candidate dominators of a column are the
@@ -297,6 +307,9 @@ def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray) -
         Rows to consider.
     row_nnz : (m,) int64
         Number of values > 0 of every row.
+    stop : Deadline, optional
+        Test the columns in blocks and stop once it has expired: the columns not yet tested are
+        kept (every dropped column is still inside a kept one, so the optimum is unchanged).
 
     Returns
     -------
@@ -307,10 +320,20 @@ def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray) -
         data = kernel_data(a)
         bits = _bk.build_bits(a.indptr, a.indices, data, rows, np.arange(n, dtype=np.int64), n)
         size = _bk.column_sizes(bits)
-        return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, data, rows)
+        if stop is None or stop.limit is None:
+            return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, data, rows)
+        out = np.zeros(n, dtype=np.bool_)
+        any_nonempty, first_empty = _bk.empty_columns(size)
+        for a0 in range(0, n, _DOMINANCE_BLOCK):
+            if stop.expired():
+                break
+            _bk.dominated_range(bits, size, row_nnz, a.indptr, a.indices, data, rows, a0, min(n, a0 + _DOMINANCE_BLOCK),
+                                any_nonempty, first_empty, out)
+        return out
 
 
-def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Presolved:
+def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True,
+             deadline: Deadline | None = None) -> Presolved:
     """Reduce a max-coverage instance without changing its optimum value.
 
     Parameters
@@ -323,6 +346,10 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         Number of columns that will be chosen (at least ``k`` columns are always kept).
     dominance : bool
         Drop dominated columns (default True).
+    deadline : Deadline, optional
+        The solve's deadline: the dominance tests stop after :data:`DOMINANCE_SHARE` of the time
+        left (the columns not yet tested are kept, which keeps the optimum; ``stats``
+        ``dominance_stopped``).
 
     Returns
     -------
@@ -349,13 +376,16 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
 
     # Column dominance (weights are irrelevant once dead rows are gone).
     t1 = time.perf_counter()
-    if dominance and n > k and live_rows.size > 0:
+    stop = None if deadline is None or deadline.limit is None else deadline.share(DOMINANCE_SHARE)
+    if dominance and n > k and live_rows.size > 0 and not (stop is not None and stop.expired()):
         if float(n) * live_rows.size / 8.0 <= BITSET_BYTES:
-            dominated = dominated_bitsets(a, live_rows, row_nnz)
+            dominated = dominated_bitsets(a, live_rows, row_nnz, stop)
             stats["dominance_method"] = "bitsets"
         else:
-            dominated = _dominated_columns(as_pattern(a[live_rows]))
+            dominated = _dominated_columns(as_pattern(a[live_rows]), stop)
             stats["dominance_method"] = "gram"
+        if stop is not None and stop.expired():
+            stats["dominance_stopped"] = True
     else:
         dominated = np.zeros(n, dtype=bool)
     keep = ~dominated

@@ -49,7 +49,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import Any
+from typing import Any, Sequence
 
 import numba
 import numpy as np
@@ -71,7 +71,10 @@ log = logging.getLogger(__name__)
 _FLOAT_MARGIN = 1e-9
 _PAIRS_MIN_SHARE = 0.05  # opposite-pairs layout when it matches at least this share of the weight
 _PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
-_INCUMBENT_SHARE = 0.1  # greedy + swaps stop after this share of the time limit
+_INCUMBENT_SHARE = 0.1
+#: the layout and the tree cost about this many times the first pass over the rows: with less time
+#: left than that the engine returns its incumbent at once (the set-up is not interruptible)
+_SETUP_COST = 4.0  # greedy + swaps stop after this share of the time limit
 _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
 _CHUNK = 4096  # tuples per stack entry
@@ -450,6 +453,7 @@ def solve_angle(
     *,
     time_limit_s: float | None = None,
     budget_bytes: int,
+    start: Sequence[int] | None = None,
 ) -> EngineOutcome:
     """Best ``k`` new cameras for multi-view coverage with a minimum triangulation angle.
 
@@ -477,6 +481,9 @@ def solve_angle(
         On expiry the best set found comes back with status ``"feasible"`` and a valid bound.
     budget_bytes : int
         Memory the engine may use.
+    start : sequence of int, optional
+        ``k`` new cameras (original column indices, free) found elsewhere, e.g. by a solve on a
+        subset of the candidates: offered as the first incumbent (the answer is never worse).
 
     Returns
     -------
@@ -535,9 +542,24 @@ def solve_angle(
     inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, deadline,
                      None if deadline.limit is None else _INCUMBENT_SHARE * deadline.limit)
     lap("column_weights")
-    inc.run(k, colw)
+    start_ok = start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all()
+    left = deadline.remaining()
+    # a greedy start costs about k passes over the matrix (like the first): with a warm start and not
+    # the time for one, the warm start alone is the incumbent
+    if not (start_ok and left is not None and left <= (k + _SETUP_COST) * stats["times_s"]["rows"]):
+        inc.run(k, colw)  # at least one greedy start of its own
+    if start_ok:
+        assert start is not None
+        stats["start"] = const + inc.value(sorted(int(j) for j in start)) * scale
+        inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
     stats["initial_incumbent"] = const + inc.best * scale
     lap("incumbent")
+    left = deadline.remaining()
+    if left is not None and left <= _SETUP_COST * stats["times_s"]["rows"]:
+        # no time for the layout and the tree (compiled, not interruptible): the incumbent, and every
+        # countable row as the bound (the angle only removes weight)
+        stats.update({"stopped": "time limit", "skipped": "set-up", "bound_evaluations": 0})
+        return EngineOutcome(inc.best_set, "feasible", const + float(wu.sum()) * scale, stats)
 
     # bit rows: spatial blocks, with the opposite-pairs layout when it pays
     layout = None

@@ -84,6 +84,9 @@ _STACK = 1 << 14
 _STARTS = 2  # greedy starts (the best columns), besides the plain greedy
 _SWAP_ROUNDS = 50
 _PAIRS_MIN_SHARE = 0.05  # the opposite-pairs layout when it matches at least this share of the weight
+#: the search's set-up (bisection order, tree) costs about this many times building the bitsets: with
+#: less time left than that the incumbent comes back at once (the set-up is not interruptible)
+_TREE_COST = 5.0
 _PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
 _CHUNK = 8192  # tuples per stack entry of the opposite-pairs search
 _BATCH = 1 << 16  # tuples expanded per parallel call there at most ...
@@ -420,6 +423,11 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
         st.incumbent()
     stats["initial_incumbent"] = st.best * st.scale
     stats["time_incumbent_s"] = deadline.elapsed() - stats["time_bitsets_s"]
+    left = deadline.remaining()
+    if left is not None and left <= _TREE_COST * stats["time_bitsets_s"]:
+        # no time for the search's set-up (compiled, not interruptible): the incumbent, the trivial bound
+        stats.update({"time_setup_s": deadline.elapsed(), "bound_evaluations": 0, "skipped": "time limit"})
+        return _finish(st, "feasible", st.total, stats, deadline, m, n)
     with ctrl_c_deferred():
         perm = K.bisection_order(st.bits)
     layout = _pair_layout(pre, views, deadline, stats) if 1 < views and k < 2 * views else None

@@ -502,7 +502,7 @@ def _residual(qs: _Quality, keep: np.ndarray, forced: np.ndarray, k: int, best: 
         return sel, qs.value(sel), const
     limit = deadline.remaining()
     if binary:
-        pre = presolve(sub, w, kr)
+        pre = presolve(sub, w, kr, deadline=deadline)
         out = solve_bitset(pre, time_limit_s=limit)
         local = pre.original_columns(out.selected)
     else:
@@ -653,10 +653,10 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     stats["engine_stats"] = dict(out.stats)
     sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
     if status != "optimal" and mode == "maxcover" and engine == "auto" and not deadline.expired():
-        pre = presolve(resid, resid_w, k)
+        pre = presolve(resid, resid_w, k, deadline=deadline)
         used, mip = run_maxcover_engine("mip", engine, pre, deadline.remaining(), stats)
         stats["engine_stats"]["then"] = dict(mip.stats, engine=used)
-        if mip.selected:
+        if mip.selected and "model_build" not in mip.stats:  # (stopped while building: the greedy answer)
             cand = tuple(int(j) for j in pre.original_columns(mip.selected))
             vs = _Views(resid, resid_w, 1)
             if vs.value(cand) > vs.value(sel) + vs.margin:

@@ -114,6 +114,19 @@ def _pick_k(values: np.ndarray, k: int) -> tuple[int, ...]:
     return tuple(sorted(int(j) for j in order))
 
 
+_BUILD_CHECK = 256  # model rows built between deadline checks
+
+
+def _build_stopped(pre: Presolved, hint: tuple[int, ...], backend: str, deadline: Deadline) -> EngineOutcome:
+    """The time limit passed while the model was being built: the greedy answer and the trivial
+    bound (every remaining row's weight)."""
+    log.info("%s: the time limit passed while building the model: greedy answer, trivial bound", backend)
+    stats = {"backend": backend, "model_build": "interrupted by the time limit", "hint_value": _value(pre, hint),
+             "time_build_s": deadline.elapsed()}
+    return EngineOutcome(selected=tuple(hint), status="feasible", bound=max(float(pre.weights.sum()), _value(pre, hint)),
+                         stats=stats)
+
+
 def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOutcome:
     """Solve the presolved instance with SCIP through ``ortools.linear_solver.pywraplp``.
 
@@ -157,6 +170,8 @@ def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOut
     csr = pre.matrix.tocsr()
     indptr, indices = csr.indptr, csr.indices
     for i in range(m):
+        if i % _BUILD_CHECK == 0 and deadline.expired():
+            return _build_stopped(pre, hint, "SCIP", deadline)
         ct = proto.constraint.add()
         ct.lower_bound = 0.0
         ct.upper_bound = math.inf
@@ -250,6 +265,8 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
     csr = pre.matrix.tocsr()
     indptr, indices = csr.indptr, csr.indices
     for i in range(m):
+        if i % _BUILD_CHECK == 0 and deadline.expired():
+            return _build_stopped(pre, hint, "CP-SAT", deadline)
         lits = [x[j] for j in indices[indptr[i] : indptr[i + 1]].tolist()]
         lits.append(~y[i])
         model.add_bool_or(lits)

@@ -1,0 +1,139 @@
+"""Issue 30: the time limit is the user's on every route, and more candidates never mean a worse
+answer (the warm start from a solve on a subset of the candidates)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from camplace.solver import routes
+from camplace.solver._support.deadline import Deadline
+from camplace.solver.api import solve
+
+LIMIT_S = 1.5
+SLACK_S = 1.0  # the "small constant": the checks before the clock starts, the result's stats
+
+
+@pytest.fixture(scope="module")
+def large() -> dict:
+    """A large random instance (3,000 points x 16,000 candidates, about 14 M nonzeros) with
+    positions: big enough that presolve and every engine's set-up take seconds."""
+    rng = np.random.default_rng(30)
+    m, n = 3000, 16000
+    dens = rng.uniform(0.05, 0.5, size=n)
+    nnz_col = rng.binomial(m, dens)
+    rows = np.concatenate([rng.choice(m, size=c, replace=False) for c in nnz_col])
+    cols = np.repeat(np.arange(n), nnz_col)
+    q = sp.csr_matrix((np.ones(rows.size, dtype=np.float32), (rows, cols)), shape=(m, n))
+    q.sort_indices()
+    pts = rng.normal(size=(m, 3))
+    pos = rng.normal(size=(n, 3)) * 10.0
+    w = rng.uniform(0.5, 1.5, m)
+    return {"q": q, "w": w, "pos": pos, "pts": pts}
+
+
+@pytest.mark.parametrize("case", ["maxcover", "multiview", "angle", "quality", "mip", "k6"])
+def test_solve_ends_within_the_time_limit_on_every_route(large, case: str) -> None:
+    q, w = large["q"], large["w"]
+    kw: dict = {"k": 3, "time_limit_s": LIMIT_S}
+    if case == "multiview":
+        kw.update(mode="multiview", views=2)
+    elif case == "angle":
+        kw.update(mode="multiview", views=2, min_angle_deg=20.0, positions=large["pos"], points=large["pts"])
+    elif case == "quality":
+        q = q.copy()
+        q.data = np.linspace(0.1, 1.0, q.nnz, dtype=np.float32)
+        kw.update(mode="quality")
+    elif case == "mip":
+        kw.update(engine="mip")
+    elif case == "k6":
+        kw.update(k=6)
+    t = time.perf_counter()
+    res = solve(q, w, **kw)
+    wall = time.perf_counter() - t
+    assert wall <= LIMIT_S * 1.05 + SLACK_S, f"{case}: {wall:.2f} s for a {LIMIT_S} s limit ({res.engine})"
+    assert res.status in ("optimal", "feasible")
+    assert res.bound >= res.objective
+
+
+def _instance(seed: int) -> tuple[sp.csr_matrix, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    m, n = 200, 800
+    dens = rng.uniform(0.01, 0.08, size=n)
+    a = (rng.random((m, n)) < dens).astype(np.float32)
+    return sp.csr_matrix(a), rng.uniform(0.5, 1.5, m)
+
+
+@pytest.fixture
+def full_search_interrupted(monkeypatch):
+    """The full search gets no time (its deadline has passed when it starts: it returns its first
+    incumbent, greedy + swaps or the warm start), the subset's search all it needs: deterministic
+    stand-in for a search that cannot finish on many candidates within the limit."""
+    run = routes.ROUTES["maxcover"]
+
+    def interrupted(p, choice):
+        if p.free_cols.size > 200:
+            p.deadline = Deadline(0.0)
+        return run(p, choice)
+
+    monkeypatch.setitem(routes.ROUTES, "maxcover", interrupted)
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 200)
+
+
+@pytest.mark.parametrize("seed", [8, 14, 28, 30])
+def test_more_candidates_never_give_a_worse_answer(full_search_interrupted, monkeypatch, seed: int) -> None:
+    q, w = _instance(seed)
+    got = solve(q, w, 3, time_limit_s=20.0)
+    warm = got.stats["warm_start"]
+    assert warm["columns"] == 200 and warm["status"] == "optimal"
+    # the subset's optimum, solved on its own
+    sub = np.asarray(sorted(np.lexsort((np.arange(800), -np.asarray(q.T @ w.astype(np.float32)).ravel()))[:200]))
+    alone_sub = solve(q[:, sub], w, 3, engine="exact")
+    assert alone_sub.status == "optimal"
+    assert got.objective >= alone_sub.objective - 1e-12
+    assert got.bound >= got.objective
+    # without the warm start the interrupted full search returns less: the warm start is what helps
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 10**9)
+    alone = solve(q, w, 3, time_limit_s=20.0)
+    assert "warm_start" not in alone.stats
+    assert alone.objective < alone_sub.objective - 1e-9
+    assert alone.bound >= got.objective - 1e-9  # both bounds are valid for the same problem
+
+
+def test_warm_start_keeps_fixed_cameras_and_maps_columns_back(full_search_interrupted) -> None:
+    q, w = _instance(8)
+    got = solve(q, w, 2, fixed=[5], forbidden=[7], time_limit_s=20.0)
+    assert "warm_start" in got.stats
+    assert 5 in got.selected and 7 not in got.selected and len(got.selected) == 3
+    from camplace.solver.problem.objectives import mode_value
+
+    assert got.objective == pytest.approx(mode_value(q, w, list(got.selected), mode="maxcover"), abs=1e-12)
+
+
+def test_angle_engine_takes_a_start() -> None:
+    from camplace.solver.engines.angle.search import solve_angle
+
+    rng = np.random.default_rng(3)
+    m, n = 120, 30
+    q = sp.csr_matrix((rng.random((m, n)) < 0.3).astype(np.float32))
+    pts, pos, w = rng.normal(size=(m, 3)), rng.normal(size=(n, 3)) * 5.0, np.ones(m)
+    free = np.arange(n, dtype=np.int64)
+    out = solve_angle(q, w, 3, 2, 20.0, pos, pts, np.zeros(0, dtype=np.int64), free, budget_bytes=1 << 30,
+                      start=(0, 1, 2))
+    assert "start" in out.stats
+    assert out.status == "optimal"
+
+
+def test_warm_start_keeps_the_minimum_distance(full_search_interrupted) -> None:
+    q, w = _instance(14)
+    pos = np.random.default_rng(5).uniform(0.0, 10.0, size=(q.shape[1], 3))
+    got = solve(q, w, 3, positions=pos, min_distance_m=2.0, time_limit_s=20.0)
+    assert "warm_start" in got.stats and got.stats["conflict_pairs"] > 0
+    sel = list(got.selected)
+    assert len(sel) == 3
+    d = np.linalg.norm(pos[sel][:, None, :] - pos[sel][None, :, :], axis=-1)
+    assert (d[np.triu_indices(3, 1)] >= 2.0).all()
+    assert got.bound >= got.objective
