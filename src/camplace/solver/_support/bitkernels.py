@@ -63,6 +63,18 @@ def _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w):  # pragma:
 
 
 @numba.njit(**_JIT)
+def live_rows_block(lo, hi, indptr, data, w, live, cnt):  # pragma: no cover - compiled
+    """:func:`live_rows` for rows ``lo .. hi - 1``, into ``live`` and ``cnt``."""
+    for r in range(lo, hi):
+        c = 0
+        for p in range(indptr[r], indptr[r + 1]):
+            if data[p] > 0:
+                c += 1
+        cnt[r] = c
+        live[r] = c > 0 and w[r] > 0
+
+
+@numba.njit(**_JIT)
 def live_rows(indptr, indices, data, w):  # pragma: no cover - compiled
     """Rows with weight > 0 and at least one entry > 0; and each row's number of entries > 0.
 
@@ -74,14 +86,33 @@ def live_rows(indptr, indices, data, w):  # pragma: no cover - compiled
     m = indptr.shape[0] - 1
     live = np.zeros(m, dtype=np.bool_)
     cnt = np.zeros(m, dtype=np.int64)
-    for r in range(m):
-        c = 0
+    live_rows_block(0, m, indptr, data, w, live, cnt)
+    return live, cnt
+
+
+@numba.njit(**_JIT)
+def build_bits_block(lo, hi, indptr, indices, data, rows, col_map, out_t):  # pragma: no cover - compiled
+    """Bits ``lo .. hi - 1`` (multiples of 64 but the last) of :func:`build_bits`, into the
+    word-major ``out_t`` ((n_words, n_cols) uint64, zeroed)."""
+    for i in range(lo, hi):
+        r = rows[i]
+        if r < 0:
+            continue
+        wd = i >> 6
+        bit = np.uint64(1) << np.uint64(i & 63)
         for p in range(indptr[r], indptr[r + 1]):
             if data[p] > 0:
-                c += 1
-        cnt[r] = c
-        live[r] = c > 0 and w[r] > 0
-    return live, cnt
+                c = col_map[indices[p]]
+                if c >= 0:
+                    out_t[wd, c] |= bit
+
+
+@numba.njit(**_JIT)
+def transpose_block(lo, hi, src, dst):  # pragma: no cover - compiled
+    """``dst[c, :] = src[:, c]`` for columns ``c`` in ``lo .. hi - 1``."""
+    for wd in range(src.shape[0]):
+        for c in range(lo, hi):
+            dst[c, wd] = src[wd, c]
 
 
 @numba.njit(**_JIT)
@@ -104,56 +135,36 @@ def build_bits(indptr, indices, data, rows, col_map, n_cols):  # pragma: no cove
     """
     n_words = (rows.shape[0] + 63) // 64
     out_t = np.zeros((n_words, n_cols), dtype=np.uint64)  # word-major while building
-    for i in range(rows.shape[0]):
-        r = rows[i]
-        if r < 0:
-            continue
-        wd = i >> 6
-        bit = np.uint64(1) << np.uint64(i & 63)
-        for p in range(indptr[r], indptr[r + 1]):
-            if data[p] > 0:
-                c = col_map[indices[p]]
-                if c >= 0:
-                    out_t[wd, c] |= bit
+    build_bits_block(0, rows.shape[0], indptr, indices, data, rows, col_map, out_t)
     return np.ascontiguousarray(out_t.T)
+
+
+@numba.njit(**_JIT)
+def column_sizes_block(lo, hi, bits, size):  # pragma: no cover - compiled
+    """:func:`column_sizes` of columns ``lo .. hi - 1``, into ``size``."""
+    n_words = bits.shape[1]
+    for c in range(lo, hi):
+        s = 0
+        for wd in range(n_words):
+            s += _popcount(bits[c, wd])
+        size[c] = s
 
 
 @numba.njit(**_JIT)
 def column_sizes(bits):  # pragma: no cover - compiled
     """(n,) int64: set bits of every column."""
-    n, n_words = bits.shape
-    size = np.zeros(n, dtype=np.int64)
-    for c in range(n):
-        s = 0
-        for wd in range(n_words):
-            s += _popcount(bits[c, wd])
-        size[c] = s
+    size = np.zeros(bits.shape[0], dtype=np.int64)
+    column_sizes_block(0, bits.shape[0], bits, size)
     return size
 
 
 @numba.njit(**_JIT)
-def dominated_columns(bits, size, row_nnz, indptr, indices, data, rows):  # pragma: no cover - compiled
-    """Columns whose row set is inside another column's (more rows, or identical and a lower index).
-
-    Candidate dominators of column ``a`` are the columns observing ``a``'s rarest row, read from
-    the CSR row (``rows[i]`` is the matrix row of bit ``i``); each is tested word by word.
-
-    Returns
-    -------
-    (n,) bool
-    """
-    n, n_words = bits.shape
-    out = np.zeros(n, dtype=np.bool_)
-    first_empty = -1
-    any_nonempty = False
-    for c in range(n):
-        if size[c] > 0:
-            any_nonempty = True
-        elif first_empty < 0:
-            first_empty = c
-    for a in range(n):
+def dominated_block(lo, hi, bits, size, row_nnz, indptr, indices, data, rows, out):  # pragma: no cover - compiled
+    """:func:`dominated_columns` for the non-empty columns ``lo .. hi - 1``, into ``out`` (empty
+    columns are left to the caller)."""
+    n_words = bits.shape[1]
+    for a in range(lo, hi):
         if size[a] == 0:
-            out[a] = any_nonempty or a != first_empty
             continue
         best = -1
         best_cnt = np.int64(1) << 62
@@ -181,16 +192,45 @@ def dominated_columns(bits, size, row_nnz, indptr, indices, data, rows):  # prag
             if ok:
                 out[a] = True
                 break
+
+
+@numba.njit(**_JIT)
+def dominated_empty(size, out):  # pragma: no cover - compiled
+    """:func:`dominated_columns` for the empty columns: all but the first, or all when some
+    column is non-empty."""
+    first_empty = -1
+    any_nonempty = False
+    for c in range(size.shape[0]):
+        if size[c] > 0:
+            any_nonempty = True
+        elif first_empty < 0:
+            first_empty = c
+    for a in range(size.shape[0]):
+        if size[a] == 0:
+            out[a] = any_nonempty or a != first_empty
+
+
+@numba.njit(**_JIT)
+def dominated_columns(bits, size, row_nnz, indptr, indices, data, rows):  # pragma: no cover - compiled
+    """Columns whose row set is inside another column's (more rows, or identical and a lower index).
+
+    Candidate dominators of column ``a`` are the columns observing ``a``'s rarest row, read from
+    the CSR row (``rows[i]`` is the matrix row of bit ``i``); each is tested word by word.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    out = np.zeros(bits.shape[0], dtype=np.bool_)
+    dominated_empty(size, out)
+    dominated_block(0, bits.shape[0], bits, size, row_nnz, indptr, indices, data, rows, out)
     return out
 
 
 @numba.njit(**_JIT)
-def row_hashes(indptr, indices, data, rows, col_map, salt):  # pragma: no cover - compiled
-    """64-bit hash of each row's set of mapped columns (sum of per-column random salts), and
-    whether the row has any mapped column."""
-    h = np.zeros(rows.shape[0], dtype=np.uint64)
-    has = np.zeros(rows.shape[0], dtype=np.bool_)
-    for i in range(rows.shape[0]):
+def row_hashes_block(lo, hi, indptr, indices, data, rows, col_map, salt, h, has):  # pragma: no cover - compiled
+    """:func:`row_hashes` of entries ``lo .. hi - 1`` of ``rows``, into ``h`` and ``has``."""
+    for i in range(lo, hi):
         r = rows[i]
         acc = np.uint64(0)
         for p in range(indptr[r], indptr[r + 1]):
@@ -200,6 +240,15 @@ def row_hashes(indptr, indices, data, rows, col_map, salt):  # pragma: no cover 
                     acc += salt[c]
                     has[i] = True
         h[i] = acc
+
+
+@numba.njit(**_JIT)
+def row_hashes(indptr, indices, data, rows, col_map, salt):  # pragma: no cover - compiled
+    """64-bit hash of each row's set of mapped columns (sum of per-column random salts), and
+    whether the row has any mapped column."""
+    h = np.zeros(rows.shape[0], dtype=np.uint64)
+    has = np.zeros(rows.shape[0], dtype=np.bool_)
+    row_hashes_block(0, rows.shape[0], indptr, indices, data, rows, col_map, salt, h, has)
     return h, has
 
 
@@ -636,11 +685,9 @@ def shortfall_fixed(levels, nodes, k, m, fbits, w, planes, last_mask, need, acc,
 
 
 @numba.njit(**_JIT)
-def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compiled
-    """For every column x: weight of the rows in fewer than ``m`` of ``sel_bits`` rows plus x."""
-    n, n_words = bits.shape
+def selection_levels(sel_bits, m, n_words):  # pragma: no cover - compiled
+    """Per word the rows in at least ``m`` (``done``) and ``m - 1`` (``near``) of ``sel_bits``."""
     ks = sel_bits.shape[0]
-    # per word: rows with >= m - 1 and >= m selections already
     near = np.zeros(n_words, dtype=np.uint64)
     done = np.zeros(n_words, dtype=np.uint64)
     acc = np.zeros(m + 1, dtype=np.uint64)
@@ -654,8 +701,14 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
                 acc[t] |= acc[t - 1] & y
         done[wd] = acc[m]
         near[wd] = acc[m - 1]
-    out = np.zeros(n, dtype=np.float64)
-    for c in range(n):
+    return done, near
+
+
+@numba.njit(**_JIT)
+def shortfall_all_block(lo, hi, bits, done, near, w, last_mask, out):  # pragma: no cover - compiled
+    """:func:`shortfall_all` of columns ``lo .. hi - 1`` (``done``, ``near``: :func:`selection_levels`)."""
+    n_words = bits.shape[1]
+    for c in range(lo, hi):
         tot = 0.0
         for wd in range(n_words):
             x = ~(done[wd] | (near[wd] & bits[c, wd]))
@@ -663,6 +716,14 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
                 x &= last_mask
             tot += _bits_weight(x, wd, w)
         out[c] = tot
+
+
+@numba.njit(**_JIT)
+def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compiled
+    """For every column x: weight of the rows in fewer than ``m`` of ``sel_bits`` rows plus x."""
+    done, near = selection_levels(sel_bits, m, bits.shape[1])
+    out = np.zeros(bits.shape[0], dtype=np.float64)
+    shortfall_all_block(0, bits.shape[0], bits, done, near, w, last_mask, out)
     return out
 
 

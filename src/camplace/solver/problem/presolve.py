@@ -35,6 +35,7 @@ import scipy.sparse as sp
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support import bitkernels as _bk
+from camplace.solver._support import parkernels as _par
 from camplace.solver.problem.checks import kernel_data
 
 __all__ = ["Presolved", "presolve", "as_pattern", "canonical_csr", "check_weights"]
@@ -163,7 +164,7 @@ class Presolved:
         """(n', ceil(m' / 64)) uint64: column bitsets of the reduced instance (bit i = reduced row i)."""
         a, rows, col_map = self.source
         with ctrl_c_deferred():
-            return _bk.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, self.shape[1])
+            return _par.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, self.shape[1])
 
     def original_columns(self, selected: Sequence[int]) -> tuple[int, ...]:
         """Map reduced column indices to sorted original column indices.
@@ -305,9 +306,9 @@ def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray) -
     n = a.shape[1]
     with ctrl_c_deferred():
         data = kernel_data(a)
-        bits = _bk.build_bits(a.indptr, a.indices, data, rows, np.arange(n, dtype=np.int64), n)
-        size = _bk.column_sizes(bits)
-        return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, data, rows)
+        bits = _par.build_bits(a.indptr, a.indices, data, rows, np.arange(n, dtype=np.int64), n)
+        size = _par.column_sizes(bits)
+        return _par.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, data, rows)
 
 
 def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Presolved:
@@ -337,7 +338,7 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         raise CamplaceError(f"k must be between 1 and the number of candidates ({n}), got {k}")
 
     with ctrl_c_deferred():
-        live, row_nnz = _bk.live_rows(a.indptr, a.indices, kernel_data(a), w)
+        live, row_nnz = _par.live_rows(a.indptr, a.indices, kernel_data(a), w)
     live_rows = np.flatnonzero(live).astype(np.int64)
     stats: dict[str, Any] = {
         "rows_in": int(m),
@@ -378,7 +379,7 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
     salt = np.random.default_rng(0x5EED).integers(0, np.iinfo(np.int64).max, size=max(1, columns.size), dtype=np.int64)
     with ctrl_c_deferred():
         data = kernel_data(a)
-        h, has = _bk.row_hashes(a.indptr, a.indices, data, live_rows, col_map, salt.astype(np.uint64))
+        h, has = _par.row_hashes(a.indptr, a.indices, data, live_rows, col_map, salt.astype(np.uint64))
         orig_rows = live_rows[has]
         groups, n_groups = _bk.group_rows(a.indptr, a.indices, data, orig_rows, col_map, h[has])
     stats["time_merge_s"] = time.perf_counter() - t1 - stats["time_dominance_s"]
