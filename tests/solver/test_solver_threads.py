@@ -102,6 +102,11 @@ def test_block_kernels_equal_the_serial_kernels(pool_always, inst, threads: int,
     salt = np.random.default_rng(1).integers(0, 2**63 - 1, size=max(n, 1)).astype(np.uint64)
     for x, y in zip(P.row_hashes(*args, rows, col_map, salt, threads=threads), K.row_hashes(*args, rows, col_map, salt)):
         assert x.tobytes() == y.tobytes()
+    h, _ = K.row_hashes(*args, rows, col_map, salt)
+    for hh in (h, h % np.uint64(3)):  # ... and with many hash collisions (big buckets)
+        g1, n1 = P.group_rows(*args, rows, col_map, hh, threads=threads)
+        g0, n0 = K.group_rows(*args, rows, col_map, hh)
+        assert n1 == n0 and g1.tobytes() == g0.tobytes()
     mask = np.uint64((1 << (m % 64)) - 1) if m % 64 else np.uint64(2**64 - 1)
     sb = np.ascontiguousarray(bits[: min(sel, n)])
     for views in (1, 2):

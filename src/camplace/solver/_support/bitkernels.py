@@ -318,6 +318,62 @@ def group_rows(indptr, indices, data, rows, col_map, h):  # pragma: no cover - c
 
 
 @numba.njit(**_JIT)
+def group_rows_block(q0, q1, order, hs, indptr, indices, data, rows, col_map, local, rep):  # pragma: no cover - compiled
+    """:func:`group_rows`'s exact comparison for the hash-sorted positions ``q0 .. q1 - 1`` (whole
+    buckets of equal ``hs``): ``local[q]`` receives the group of ``order[q]`` within its bucket,
+    numbered as :func:`group_rows` numbers them (``rep``: (m',) int64 scratch, used at the
+    bucket's own positions)."""
+    s = q0
+    while s < q1:
+        e = s + 1
+        while e < q1 and hs[e] == hs[s]:
+            e += 1
+        ng = 0
+        for q in range(s, e):
+            i = order[q]
+            found = -1
+            for g in range(ng):
+                if _same_row(indptr, indices, data, col_map, rows[rep[s + g]], rows[i]):
+                    found = g
+                    break
+            if found < 0:
+                found = ng
+                rep[s + ng] = i
+                ng += 1
+            local[q] = found
+        s = e
+
+
+@numba.njit(**_JIT)
+def group_rows_finish(order, hs, local):  # pragma: no cover - compiled
+    """:func:`group_rows`'s groups from the per-bucket numbers of :func:`group_rows_block`:
+    buckets in hash order, then renumbered by first occurrence (the same output)."""
+    m = order.shape[0]
+    groups = np.full(m, -1, dtype=np.int64)
+    n_groups = 0
+    s = 0
+    while s < m:
+        e = s + 1
+        top = local[s]
+        while e < m and hs[e] == hs[s]:
+            top = max(top, local[e])
+            e += 1
+        for q in range(s, e):
+            groups[order[q]] = n_groups + local[q]
+        n_groups += top + 1
+        s = e
+    new = np.full(n_groups, -1, dtype=np.int64)
+    nxt = 0
+    for i in range(m):
+        g = groups[i]
+        if new[g] < 0:
+            new[g] = nxt
+            nxt += 1
+        groups[i] = new[g]
+    return groups, n_groups
+
+
+@numba.njit(**_JIT)
 def bisection_order(bits):  # pragma: no cover - compiled
     """Column order from recursive balanced bisection on the Hamming distance of the bitsets.
 

@@ -13,7 +13,7 @@ import numpy as np
 from camplace.solver._support import bitkernels as K
 from camplace.solver._support.blocks import cuts, run_blocks, threads_for
 
-__all__ = ["build_bits", "column_sizes", "dominated_columns", "live_rows", "row_hashes", "shortfall_all"]
+__all__ = ["build_bits", "column_sizes", "dominated_columns", "group_rows", "live_rows", "row_hashes", "shortfall_all"]
 
 _WORD_ROWS = 512  # row blocks of bitsets start on a multiple of 8 words (64 bytes: no shared cache line)
 
@@ -66,6 +66,24 @@ def row_hashes(indptr, indices, data, rows, col_map, salt, threads: int | None =
     run_blocks(lambda lo, hi: K.row_hashes_block(lo, hi, indptr, indices, data, rows, col_map, salt, h, has),
                cuts(rows.shape[0]), threads or threads_for(data.shape[0]))
     return h, has
+
+
+def group_rows(indptr, indices, data, rows, col_map, h, threads: int | None = None):
+    """:func:`camplace.solver._support.bitkernels.group_rows`: the hash sort on the calling thread,
+    the exact comparisons within buckets on blocks of whole buckets, the numbering serial."""
+    rows = np.asarray(rows, dtype=np.int64)
+    m = rows.shape[0]
+    order = np.argsort(h, kind="mergesort")
+    hs = h[order]
+    local = np.zeros(m, dtype=np.int64)
+    rep = np.zeros(m, dtype=np.int64)
+    if m:
+        starts = np.flatnonzero(np.r_[True, hs[1:] != hs[:-1]])
+        at = np.searchsorted(starts, np.asarray(cuts(m)[1:-1], dtype=np.int64))
+        bounds = sorted({0, m, *(int(starts[i]) if i < starts.size else m for i in at)})
+        run_blocks(lambda q0, q1: K.group_rows_block(q0, q1, order, hs, indptr, indices, data, rows, col_map, local, rep),
+                   bounds, threads or threads_for(data.shape[0]))
+    return K.group_rows_finish(order, hs, local)
 
 
 def shortfall_all(bits, sel_bits, m, w, last_mask, threads: int | None = None):

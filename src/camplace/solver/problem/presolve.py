@@ -381,7 +381,7 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True) -> Pr
         data = kernel_data(a)
         h, has = _par.row_hashes(a.indptr, a.indices, data, live_rows, col_map, salt.astype(np.uint64))
         orig_rows = live_rows[has]
-        groups, n_groups = _bk.group_rows(a.indptr, a.indices, data, orig_rows, col_map, h[has])
+        groups, n_groups = _par.group_rows(a.indptr, a.indices, data, orig_rows, col_map, h[has])
     stats["time_merge_s"] = time.perf_counter() - t1 - stats["time_dominance_s"]
     first = np.full(n_groups, -1, dtype=np.int64)
     first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)
