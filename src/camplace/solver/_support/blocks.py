@@ -15,12 +15,14 @@ was busy, while the pool's threads simply take the next block (see
 
 from __future__ import annotations
 
+import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 from camplace._cores import thread_count
 
-__all__ = ["BLOCKS", "cuts", "run_blocks", "threads_for"]
+__all__ = ["BLOCKS", "cuts", "run_blocks", "threads_for", "PoolProfile"]
 
 #: blocks per pass (fixed: results must not depend on the thread count)
 BLOCKS = 64
@@ -44,6 +46,29 @@ def threads_for(work: int) -> int:
     return thread_count() if work >= PARALLEL_MIN_WORK else 1
 
 
+class PoolProfile:
+    """CPU seconds of the pool's workers, for benchmarks (``with PoolProfile() as p: ...``).
+
+    Per :func:`run_blocks` call on a pool it adds ``p.cpu`` (every worker's CPU seconds) and
+    ``p.critical`` (the busiest worker's): on idle cores a pass takes about its critical CPU
+    time, whatever else the machine runs, so ``main thread CPU + critical`` estimates a stage's
+    time at that thread count on a quiet machine."""
+
+    active: "PoolProfile | None" = None
+
+    def __init__(self) -> None:
+        self.cpu = 0.0
+        self.critical = 0.0
+        self.calls = 0
+
+    def __enter__(self) -> "PoolProfile":
+        PoolProfile.active = self
+        return self
+
+    def __exit__(self, *exc) -> None:
+        PoolProfile.active = None
+
+
 def run_blocks(fn: Callable[[int, int], object], bounds: list[int], threads: int | None = None) -> list:
     """``fn(lo, hi)`` for every block of ``bounds`` (from :func:`cuts`), on ``threads`` threads
     (default :func:`thread_count`); returns the results in block order."""
@@ -51,5 +76,22 @@ def run_blocks(fn: Callable[[int, int], object], bounds: list[int], threads: int
     t = min(len(spans), thread_count() if threads is None else threads)
     if t <= 1:
         return [fn(lo, hi) for lo, hi in spans]
+    prof = PoolProfile.active
+    if prof is None:
+        call = lambda s: fn(*s)  # noqa: E731
+    else:
+        per: dict[int, float] = {}
+
+        def call(s):
+            c0 = time.thread_time()
+            out = fn(*s)
+            ident = threading.get_ident()
+            per[ident] = per.get(ident, 0.0) + time.thread_time() - c0
+            return out
     with ThreadPoolExecutor(max_workers=t, thread_name_prefix="camplace-block") as pool:
-        return list(pool.map(lambda s: fn(*s), spans))
+        out = list(pool.map(call, spans))
+    if prof is not None:
+        prof.cpu += sum(per.values())
+        prof.critical += max(per.values(), default=0.0)
+        prof.calls += 1
+    return out
