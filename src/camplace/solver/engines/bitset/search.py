@@ -21,14 +21,19 @@ set of columns is scored with a few word operations per 64 rows.
   binary digits for integer weights with ``views > 1``, set bits one by one otherwise) and the
   sum stops as soon as it proves the tuple cannot win, so near-complete coverage is cheap to
   evaluate.
+  The search (:func:`_roots_search`) runs best-first over the open tuples, with a depth-first
+  search of a few thousand bounds from each of the best ones (the roots) in parallel, one root
+  per task on a thread pool of :func:`camplace._cores.thread_count` threads (the serial search's
+  cache-friendly order on every core), so the reported bound falls as it goes. Every root of a
+  round starts from the round's incumbent and without a time limit the roots per round double
+  from 4 to 64 whatever the timing, so the answer (and the number of bounds) is the same at every
+  thread count; on comet-67p-bunker at 10,000 x 50,000, k = 3, it computes 3 % more bounds than
+  one serial depth-first search.
   For ``views > 1`` a tuple's bound is also at most the sum of its nodes' heaviest column
   weights divided by ``views`` (a counted row is observed ``views`` times), and the search
-  (:func:`_roots_search`) differs: it splits the node whose union most exceeds its heaviest
-  column (where the bound is loosest; on comet-67p-bunker with every surface point, 3 views,
-  k = 6: 4.8 million bounds instead of 20.5 million with the largest node), and runs best-first
-  over the open tuples, with a depth-first search of a few thousand bounds from each of the best
-  ones in parallel (the serial search's cache-friendly order on both cores), so the reported bound
-  falls as it goes.
+  splits the node whose union most exceeds its heaviest column (where the bound is loosest; on
+  comet-67p-bunker with every surface point, 3 views, k = 6: 4.8 million bounds instead of 20.5
+  million with the largest node); for ``views = 1`` it splits the largest node.
 * **Opposite pairs** (``views > 1`` and ``k < 2 views``, e.g. stereo with 3 cameras). Points that
   no candidate observes together are matched (:mod:`camplace.solver.engines.bitset.pair_cap`); at most one point
   of a pair can count, so each pair is laid out as two rows 64 ``pw`` bits apart carrying one
@@ -38,12 +43,14 @@ set of columns is scored with a few word operations per 64 rows.
   point, 10,000 x 50,000, the root bound falls from 0.706 to 0.502. Used when it matches at least
   5 % of the weight; the search is then depth-first over batches of tuples, each batch expanded in
   parallel (numba ``prange``).
-* **Incumbent.** Greedy from several starts plus 1-swap local search on the bitsets.
+* **Incumbent.** Greedy from several starts plus 1-swap local search on the bitsets (each pass over
+  the columns on fixed column blocks of the thread pool: :mod:`camplace.solver._support.parkernels`).
 * **Exactness.** When every original weight is equal, weights are the merged-row counts (exact
   integers in float64) and pruning is exact; otherwise pruning keeps a margin of
   ``1e-9 * total weight``.
-* **Time limit.** The compiled search runs in slices of bound evaluations; between slices the
-  deadline is checked. On expiry the incumbent is returned with status ``feasible`` and the bound
+* **Time limit.** The compiled search runs in rounds of roots, each root for a slice of bound
+  evaluations (``_SLICE`` for views = 1, ``_ROOT_BUDGET`` beyond); between rounds the deadline is
+  checked (with a time limit a round is sized to take about ``_BATCH_S`` seconds). On expiry the incumbent is returned with status ``feasible`` and the bound
   ``max(incumbent, bounds of the tuples still on the stack / frontier)``.
 * **Memory.** ``n' * m' / 8`` bytes of column bitsets and ``2 min(views, k)`` times that for the
   tree levels, plus the open tuples (at most ``_FRONTIER_MAX``, and the parallel stacks) in
