@@ -12,6 +12,7 @@ same objective, bound and cameras.
     python benchmarks/scaling.py                       # 10,000 x 50,000 on comet-67p-bunker
     python benchmarks/scaling.py --candidates 2000 --points 20000 --threads 1,2
     python benchmarks/scaling.py --mode multiview --min-angle 20
+    python benchmarks/scaling.py --threads 1,2 --repeat 2 --baseline /work/main/src   # + main at 1 thread
 
 Targets (issue 29, on the 2-core machine): visibility, presolve and search >= 1.8x at 2 threads,
 the whole process >= 1.7x.
@@ -46,9 +47,11 @@ STAGES = (
 )
 
 
-def run_once(args: argparse.Namespace, threads: int, cores: list[int], out: Path) -> tuple[float, dict, dict]:
-    """One whole command on ``threads`` cores: (wall seconds, timings_s, solution.json)."""
-    env = {**os.environ, "NUMBA_NUM_THREADS": str(threads)}
+def run_once(args: argparse.Namespace, threads: int, cores: list[int], out: Path,
+             src: str | None = None) -> tuple[float, dict, dict]:
+    """One whole command on ``threads`` cores (``src``: another source tree on PYTHONPATH):
+    (wall seconds, timings_s, solution.json)."""
+    env = {**os.environ, "NUMBA_NUM_THREADS": str(threads), **({"PYTHONPATH": src} if src else {})}
     cmd = [sys.executable, "-m", "camplace", "run", args.instance, "-o", str(out), "--no-cache",
            "--candidates", str(args.candidates), "--points", str(args.points), "--threads", str(threads),
            *args.extra]
@@ -69,28 +72,45 @@ def main() -> None:
     ap.add_argument("--candidates", type=int, default=10_000)
     ap.add_argument("--points", type=int, default=50_000)
     ap.add_argument("--threads", default=None, help="comma-separated thread counts (default: 1, 2, all allowed)")
-    ap.add_argument("--repeat", type=int, default=1, help="runs per thread count (median shown)")
+    ap.add_argument("--repeat", type=int, default=1, help="rounds of runs, thread counts interleaved (median shown)")
+    ap.add_argument("--baseline", default=None,
+                    help="another source tree (e.g. /work/main/src) run at the first thread count in every round, "
+                         "shown as the column 'base'")
     args, extra = ap.parse_known_args()
     args.extra = extra
     cores = sorted(os.sched_getaffinity(0))
     counts = [int(t) for t in args.threads.split(",")] if args.threads else sorted({1, 2, len(cores)} & set(range(1, len(cores) + 1)))
     print(f"camplace run {args.instance} --candidates {args.candidates} --points {args.points} {' '.join(extra)}")
     print(f"{len(cores)} allowed cores, load average {os.getloadavg()[0]:.1f} at start")
+    plan: list[tuple[object, int, str | None]] = [(t, t, None) for t in counts]
+    if args.baseline:
+        plan.append(("base", counts[0], args.baseline))
     with tempfile.TemporaryDirectory() as tmp:
         run_once(args, counts[-1], cores, Path(tmp) / "warm")  # fills numba's cache
-        rows: dict[int, dict[str, float]] = {}
-        answers, matrices = {}, {}
-        for t in counts:
-            runs = []
-            for r in range(args.repeat):
-                out = Path(tmp) / f"t{t}-{r}"
-                wall, timings, sol = run_once(args, t, cores, out)
-                runs.append({"whole": wall, **{name: float(timings.get(key, float("nan"))) for name, key in STAGES}})
-                answers.setdefault(t, (sol["status"], sol["objective"], sol["bound"], tuple(c["candidate"] for c in sol["cameras"])))
-                matrices.setdefault(t, hashlib.sha256((out / "visibility.cpm").read_bytes()).hexdigest())
+        if args.baseline:
+            run_once(args, counts[-1], cores, Path(tmp) / "warm-base", args.baseline)
+        runs: dict[object, list[dict[str, float]]] = {key: [] for key, _, _ in plan}
+        answers, matrices, base_answer = {}, {}, None
+        for r in range(args.repeat):  # thread counts interleaved: 1, 2, [base], 1, 2, ...
+            for key, t, src in plan:
+                out = Path(tmp) / f"t{key}-{r}"
+                wall, timings, sol = run_once(args, t, cores, out, src)
+                runs[key].append({"whole": wall, **{name: float(timings.get(k, float("nan"))) for name, k in STAGES}})
+                answer = (sol["status"], sol["objective"], sol["bound"], tuple(c["candidate"] for c in sol["cameras"]))
+                if src is None:
+                    answers.setdefault(t, answer)
+                    matrices.setdefault(t, hashlib.sha256((out / "visibility.cpm").read_bytes()).hexdigest())
+                else:
+                    base_answer = answer
                 shutil.rmtree(out)
-            rows[t] = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+                print(f"  round {r} {key}: whole {wall:.1f} s, load {os.getloadavg()[0]:.1f}", flush=True)
+        rows = {key: {k: statistics.median(x[k] for x in v) for k in v[0]} for key, v in runs.items()}
     print(f"load average {os.getloadavg()[0]:.1f} at end")
+    if args.baseline:
+        print(f"baseline {args.baseline} at {counts[0]} thread(s), against this tree at {counts[0]}: "
+              + ", ".join(f"{name.strip()} {rows['base'][name]:.2f}/{rows[counts[0]][name]:.2f} s" for name in
+                          ("whole", "visibility", "solve", "  presolve", "  search", "  incumbent"))
+              + f"; same answer: {'yes' if base_answer == answers[counts[0]] else 'NO ' + str(base_answer)}")
     base = counts[0]
     head = "".join(f"{f'{t} thr':>9}" for t in counts) + "".join(f"{f'x{t}':>8}{f'f{t}':>7}" for t in counts[1:])
     print(f"{'stage (s)':<14}{head}")

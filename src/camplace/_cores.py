@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import os
 import sys
+from contextlib import contextmanager
+from typing import Iterator
 
-__all__ = ["allowed_cores", "set_threads", "thread_count"]
+__all__ = ["allowed_cores", "set_threads", "thread_count", "using_threads"]
 
 _requested: int | None = None
 
@@ -61,3 +63,19 @@ def set_threads(n: int | None) -> None:
 def thread_count(requested: int | None = None) -> int:
     """Threads a stage should use: ``requested``, else :func:`set_threads`'s value, else all allowed cores."""
     return max(1, requested or _requested or allowed_cores())
+
+
+@contextmanager
+def using_threads(n: int | None) -> Iterator[int]:
+    """Within the block, :func:`set_threads` ``(n)`` (``n`` None: leave the setting as it is); the
+    previous setting comes back afterwards. Yields :func:`thread_count`. (``threads=`` of
+    :func:`camplace.run` and ``SolveOptions.threads``.)"""
+    if n is None:
+        yield thread_count()
+        return
+    before = _requested
+    set_threads(n)
+    try:
+        yield thread_count()
+    finally:
+        set_threads(before)

@@ -270,6 +270,7 @@ def run(
     matrix_format: str = "cpm",
     robust=None,
     solve_options=None,
+    threads: int | None = None,
 ) -> Solution:
     """Run the whole pipeline on an instance.
 
@@ -315,12 +316,23 @@ def run(
         command line builds them); they replace ``mode``, ``views``, ``min_angle_deg``, ``fixed``,
         ``forbidden``, ``min_distance_m``, ``required_fraction`` and ``engine``, and ``k`` /
         ``time_limit_s`` when set (otherwise the keyword or the instance's default).
+    threads : int or None
+        Threads every stage may use (Embree casting, the matrix store, the solver's kernels and
+        searches, OR-Tools' workers): 1 to the cores this process may use, as ``--threads``;
+        default: the process's setting (:func:`camplace._cores.set_threads`), else every allowed
+        core. The matrix and the exact engine's answer are the same at every count.
 
     Returns
     -------
     Solution
     """
+    from camplace._cores import check_threads, using_threads
     from camplace.instance import resolve_instance
+
+    try:
+        check_threads(threads)
+    except ValueError as e:
+        raise CamplaceError(str(e)) from None
 
     if not hasattr(instance, "frames"):
         instance = resolve_instance(str(instance), seed=seed)
@@ -331,7 +343,8 @@ def run(
         fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, required_fraction=required_fraction,
         matrix_format=matrix_format, robust=robust, solve_options=solve_options,
     )
-    return run_settings(instance, settings, outdir=outdir, reporter=reporter)
+    with using_threads(threads):
+        return run_settings(instance, settings, outdir=outdir, reporter=reporter)
 
 
 def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None = None,

@@ -15,7 +15,8 @@ Engines (all run on the :func:`presolve`-reduced instance):
 ``mip``
     SCIP through OR-Tools ``pywraplp``; the default for k > 4.
 ``cpsat``
-    OR-Tools CP-SAT with integer-scaled weights, 2 workers.
+    OR-Tools CP-SAT with integer-scaled weights, one worker per thread (``--threads`` /
+    ``SolveOptions.threads``, else every allowed core).
 
 ``auto`` is decided by :func:`~camplace.solver.choose.choose_engine` (a pure function of the
 problem's sizes, the :class:`~camplace.solver.options.SolveOptions` and the memory budget; its

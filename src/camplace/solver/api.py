@@ -155,7 +155,8 @@ def solve(
     options : SolveOptions, optional
         All of the above (``k`` to ``iterations``) in one checked object
         (:class:`~camplace.solver.options.SolveOptions`), e.g. built by the command line; then none
-        of them may be given beside it.
+        of them may be given beside it. Its ``threads`` (no keyword of its own) caps the threads
+        of this solve: ``options=SolveOptions(k=3, threads=2)``.
 
     Returns
     -------
@@ -185,7 +186,9 @@ def solve(
         mixed = sorted(name for name, value in given.items() if not _is_default(name, value))
         if mixed:
             raise CamplaceError(f"solve: give {', '.join(mixed)} inside options=SolveOptions(...), not beside it")
-    with memory_budget(options.memory_budget_bytes):
+    from camplace._cores import using_threads
+
+    with memory_budget(options.memory_budget_bytes), using_threads(options.threads):
         return _solve(matrix, weights, positions, points, options)
 
 

@@ -62,6 +62,11 @@ class SolveOptions:
         model counts, budget, zone quotas, one camera per pose); modes ``maxcover`` and
         ``setcover``. With cardinality ``"budget"`` ``k`` may be None (any number of cameras).
         Not compared or hashed.
+    threads : int or None
+        Threads the solve may use (presolve's kernels, the exact search, OR-Tools' CP-SAT workers,
+        the set-cover searches): 1 to the cores this process may use; None (default): the process's
+        setting (``--threads``, :func:`camplace._cores.set_threads`), else every allowed core. The
+        exact engine's answer is the same at every count. Not compared or recorded.
     """
 
     mode: str = "maxcover"
@@ -79,6 +84,7 @@ class SolveOptions:
     search_seed: int = 0
     iterations: int | None = None
     team: Any = field(default=None, compare=False, repr=False)
+    threads: int | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "fixed", () if self.fixed is None else tuple(self.fixed))
@@ -123,6 +129,13 @@ def _check(o: SolveOptions) -> None:
         raise CamplaceError(f"time_limit_s must be > 0 seconds, got {o.time_limit_s!r}")
     if o.memory_budget_bytes is not None and not o.memory_budget_bytes > 0:
         raise CamplaceError(f"the memory budget must be > 0 bytes, got {o.memory_budget_bytes!r}")
+    if o.threads is not None:
+        from camplace._cores import check_threads
+
+        try:
+            check_threads(o.threads)
+        except ValueError as e:
+            raise CamplaceError(str(e)) from None
     if o.min_distance_m is not None and not (float(o.min_distance_m) >= 0.0):
         raise CamplaceError(f"min_distance_m must be >= 0, got {o.min_distance_m!r}")
     if o.min_angle_deg is not None:

@@ -63,6 +63,18 @@ def _missed_weight(hit, wd, n_words, last_mask, planes, n_planes, w):  # pragma:
 
 
 @numba.njit(**_JIT)
+def live_rows_block(lo, hi, indptr, data, w, live, cnt):  # pragma: no cover - compiled
+    """:func:`live_rows` for rows ``lo .. hi - 1``, into ``live`` and ``cnt``."""
+    for r in range(lo, hi):
+        c = 0
+        for p in range(indptr[r], indptr[r + 1]):
+            if data[p] > 0:
+                c += 1
+        cnt[r] = c
+        live[r] = c > 0 and w[r] > 0
+
+
+@numba.njit(**_JIT)
 def live_rows(indptr, indices, data, w):  # pragma: no cover - compiled
     """Rows with weight > 0 and at least one entry > 0; and each row's number of entries > 0.
 
@@ -74,14 +86,33 @@ def live_rows(indptr, indices, data, w):  # pragma: no cover - compiled
     m = indptr.shape[0] - 1
     live = np.zeros(m, dtype=np.bool_)
     cnt = np.zeros(m, dtype=np.int64)
-    for r in range(m):
-        c = 0
+    live_rows_block(0, m, indptr, data, w, live, cnt)
+    return live, cnt
+
+
+@numba.njit(**_JIT)
+def build_bits_block(lo, hi, indptr, indices, data, rows, col_map, out_t):  # pragma: no cover - compiled
+    """Bits ``lo .. hi - 1`` (multiples of 64 but the last) of :func:`build_bits`, into the
+    word-major ``out_t`` ((n_words, n_cols) uint64, zeroed)."""
+    for i in range(lo, hi):
+        r = rows[i]
+        if r < 0:
+            continue
+        wd = i >> 6
+        bit = np.uint64(1) << np.uint64(i & 63)
         for p in range(indptr[r], indptr[r + 1]):
             if data[p] > 0:
-                c += 1
-        cnt[r] = c
-        live[r] = c > 0 and w[r] > 0
-    return live, cnt
+                c = col_map[indices[p]]
+                if c >= 0:
+                    out_t[wd, c] |= bit
+
+
+@numba.njit(**_JIT)
+def transpose_block(lo, hi, src, dst):  # pragma: no cover - compiled
+    """``dst[c, :] = src[:, c]`` for columns ``c`` in ``lo .. hi - 1``."""
+    for wd in range(src.shape[0]):
+        for c in range(lo, hi):
+            dst[c, wd] = src[wd, c]
 
 
 @numba.njit(**_JIT)
@@ -104,74 +135,36 @@ def build_bits(indptr, indices, data, rows, col_map, n_cols):  # pragma: no cove
     """
     n_words = (rows.shape[0] + 63) // 64
     out_t = np.zeros((n_words, n_cols), dtype=np.uint64)  # word-major while building
-    for i in range(rows.shape[0]):
-        r = rows[i]
-        if r < 0:
-            continue
-        wd = i >> 6
-        bit = np.uint64(1) << np.uint64(i & 63)
-        for p in range(indptr[r], indptr[r + 1]):
-            if data[p] > 0:
-                c = col_map[indices[p]]
-                if c >= 0:
-                    out_t[wd, c] |= bit
+    build_bits_block(0, rows.shape[0], indptr, indices, data, rows, col_map, out_t)
     return np.ascontiguousarray(out_t.T)
+
+
+@numba.njit(**_JIT)
+def column_sizes_block(lo, hi, bits, size):  # pragma: no cover - compiled
+    """:func:`column_sizes` of columns ``lo .. hi - 1``, into ``size``."""
+    n_words = bits.shape[1]
+    for c in range(lo, hi):
+        s = 0
+        for wd in range(n_words):
+            s += _popcount(bits[c, wd])
+        size[c] = s
 
 
 @numba.njit(**_JIT)
 def column_sizes(bits):  # pragma: no cover - compiled
     """(n,) int64: set bits of every column."""
-    n, n_words = bits.shape
-    size = np.zeros(n, dtype=np.int64)
-    for c in range(n):
-        s = 0
-        for wd in range(n_words):
-            s += _popcount(bits[c, wd])
-        size[c] = s
+    size = np.zeros(bits.shape[0], dtype=np.int64)
+    column_sizes_block(0, bits.shape[0], bits, size)
     return size
 
 
 @numba.njit(**_JIT)
-def dominated_columns(bits, size, row_nnz, indptr, indices, data, rows):  # pragma: no cover - compiled
-    """Columns whose row set is inside another column's (more rows, or identical and a lower index).
-
-    Candidate dominators of column ``a`` are the columns observing ``a``'s rarest row, read from
-    the CSR row (``rows[i]`` is the matrix row of bit ``i``); each is tested word by word.
-
-    Returns
-    -------
-    (n,) bool
-    """
-    n = bits.shape[0]
-    out = np.zeros(n, dtype=np.bool_)
-    any_nonempty, first_empty = empty_columns(size)
-    dominated_range(bits, size, row_nnz, indptr, indices, data, rows, 0, n, any_nonempty, first_empty, out)
-    return out
-
-
-@numba.njit(**_JIT)
-def empty_columns(size):  # pragma: no cover - compiled
-    """(whether any column is non-empty, the first empty column or -1): what
-    :func:`dominated_range` needs to drop empty columns."""
-    first_empty = -1
-    any_nonempty = False
-    for c in range(size.shape[0]):
-        if size[c] > 0:
-            any_nonempty = True
-        elif first_empty < 0:
-            first_empty = c
-    return any_nonempty, first_empty
-
-
-@numba.njit(**_JIT)
-def dominated_range(bits, size, row_nnz, indptr, indices, data, rows, a0, a1, any_nonempty, first_empty,
-                    out):  # pragma: no cover - compiled
-    """:func:`dominated_columns` for columns ``a0 <= a < a1`` only, into ``out`` (so that a caller
-    can stop between ranges at a deadline: columns never tested stay kept, which is still valid)."""
+def dominated_block(lo, hi, bits, size, row_nnz, indptr, indices, data, rows, out):  # pragma: no cover - compiled
+    """:func:`dominated_columns` for the non-empty columns ``lo .. hi - 1``, into ``out`` (empty
+    columns are left to the caller)."""
     n_words = bits.shape[1]
-    for a in range(a0, a1):
+    for a in range(lo, hi):
         if size[a] == 0:
-            out[a] = any_nonempty or a != first_empty
             continue
         best = -1
         best_cnt = np.int64(1) << 62
@@ -202,12 +195,42 @@ def dominated_range(bits, size, row_nnz, indptr, indices, data, rows, a0, a1, an
 
 
 @numba.njit(**_JIT)
-def row_hashes(indptr, indices, data, rows, col_map, salt):  # pragma: no cover - compiled
-    """64-bit hash of each row's set of mapped columns (sum of per-column random salts), and
-    whether the row has any mapped column."""
-    h = np.zeros(rows.shape[0], dtype=np.uint64)
-    has = np.zeros(rows.shape[0], dtype=np.bool_)
-    for i in range(rows.shape[0]):
+def dominated_empty(size, out):  # pragma: no cover - compiled
+    """:func:`dominated_columns` for the empty columns: all but the first, or all when some
+    column is non-empty."""
+    first_empty = -1
+    any_nonempty = False
+    for c in range(size.shape[0]):
+        if size[c] > 0:
+            any_nonempty = True
+        elif first_empty < 0:
+            first_empty = c
+    for a in range(size.shape[0]):
+        if size[a] == 0:
+            out[a] = any_nonempty or a != first_empty
+
+
+@numba.njit(**_JIT)
+def dominated_columns(bits, size, row_nnz, indptr, indices, data, rows):  # pragma: no cover - compiled
+    """Columns whose row set is inside another column's (more rows, or identical and a lower index).
+
+    Candidate dominators of column ``a`` are the columns observing ``a``'s rarest row, read from
+    the CSR row (``rows[i]`` is the matrix row of bit ``i``); each is tested word by word.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    out = np.zeros(bits.shape[0], dtype=np.bool_)
+    dominated_empty(size, out)
+    dominated_block(0, bits.shape[0], bits, size, row_nnz, indptr, indices, data, rows, out)
+    return out
+
+
+@numba.njit(**_JIT)
+def row_hashes_block(lo, hi, indptr, indices, data, rows, col_map, salt, h, has):  # pragma: no cover - compiled
+    """:func:`row_hashes` of entries ``lo .. hi - 1`` of ``rows``, into ``h`` and ``has``."""
+    for i in range(lo, hi):
         r = rows[i]
         acc = np.uint64(0)
         for p in range(indptr[r], indptr[r + 1]):
@@ -217,6 +240,15 @@ def row_hashes(indptr, indices, data, rows, col_map, salt):  # pragma: no cover 
                     acc += salt[c]
                     has[i] = True
         h[i] = acc
+
+
+@numba.njit(**_JIT)
+def row_hashes(indptr, indices, data, rows, col_map, salt):  # pragma: no cover - compiled
+    """64-bit hash of each row's set of mapped columns (sum of per-column random salts), and
+    whether the row has any mapped column."""
+    h = np.zeros(rows.shape[0], dtype=np.uint64)
+    has = np.zeros(rows.shape[0], dtype=np.bool_)
+    row_hashes_block(0, rows.shape[0], indptr, indices, data, rows, col_map, salt, h, has)
     return h, has
 
 
@@ -274,6 +306,62 @@ def group_rows(indptr, indices, data, rows, col_map, h):  # pragma: no cover - c
             groups[i] = found
         s = e
     # renumber by first occurrence
+    new = np.full(n_groups, -1, dtype=np.int64)
+    nxt = 0
+    for i in range(m):
+        g = groups[i]
+        if new[g] < 0:
+            new[g] = nxt
+            nxt += 1
+        groups[i] = new[g]
+    return groups, n_groups
+
+
+@numba.njit(**_JIT)
+def group_rows_block(q0, q1, order, hs, indptr, indices, data, rows, col_map, local, rep):  # pragma: no cover - compiled
+    """:func:`group_rows`'s exact comparison for the hash-sorted positions ``q0 .. q1 - 1`` (whole
+    buckets of equal ``hs``): ``local[q]`` receives the group of ``order[q]`` within its bucket,
+    numbered as :func:`group_rows` numbers them (``rep``: (m',) int64 scratch, used at the
+    bucket's own positions)."""
+    s = q0
+    while s < q1:
+        e = s + 1
+        while e < q1 and hs[e] == hs[s]:
+            e += 1
+        ng = 0
+        for q in range(s, e):
+            i = order[q]
+            found = -1
+            for g in range(ng):
+                if _same_row(indptr, indices, data, col_map, rows[rep[s + g]], rows[i]):
+                    found = g
+                    break
+            if found < 0:
+                found = ng
+                rep[s + ng] = i
+                ng += 1
+            local[q] = found
+        s = e
+
+
+@numba.njit(**_JIT)
+def group_rows_finish(order, hs, local):  # pragma: no cover - compiled
+    """:func:`group_rows`'s groups from the per-bucket numbers of :func:`group_rows_block`:
+    buckets in hash order, then renumbered by first occurrence (the same output)."""
+    m = order.shape[0]
+    groups = np.full(m, -1, dtype=np.int64)
+    n_groups = 0
+    s = 0
+    while s < m:
+        e = s + 1
+        top = local[s]
+        while e < m and hs[e] == hs[s]:
+            top = max(top, local[e])
+            e += 1
+        for q in range(s, e):
+            groups[order[q]] = n_groups + local[q]
+        n_groups += top + 1
+        s = e
     new = np.full(n_groups, -1, dtype=np.int64)
     nxt = 0
     for i in range(m):
@@ -653,11 +741,9 @@ def shortfall_fixed(levels, nodes, k, m, fbits, w, planes, last_mask, need, acc,
 
 
 @numba.njit(**_JIT)
-def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compiled
-    """For every column x: weight of the rows in fewer than ``m`` of ``sel_bits`` rows plus x."""
-    n, n_words = bits.shape
+def selection_levels(sel_bits, m, n_words):  # pragma: no cover - compiled
+    """Per word the rows in at least ``m`` (``done``) and ``m - 1`` (``near``) of ``sel_bits``."""
     ks = sel_bits.shape[0]
-    # per word: rows with >= m - 1 and >= m selections already
     near = np.zeros(n_words, dtype=np.uint64)
     done = np.zeros(n_words, dtype=np.uint64)
     acc = np.zeros(m + 1, dtype=np.uint64)
@@ -671,8 +757,14 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
                 acc[t] |= acc[t - 1] & y
         done[wd] = acc[m]
         near[wd] = acc[m - 1]
-    out = np.zeros(n, dtype=np.float64)
-    for c in range(n):
+    return done, near
+
+
+@numba.njit(**_JIT)
+def shortfall_all_block(lo, hi, bits, done, near, w, last_mask, out):  # pragma: no cover - compiled
+    """:func:`shortfall_all` of columns ``lo .. hi - 1`` (``done``, ``near``: :func:`selection_levels`)."""
+    n_words = bits.shape[1]
+    for c in range(lo, hi):
         tot = 0.0
         for wd in range(n_words):
             x = ~(done[wd] | (near[wd] & bits[c, wd]))
@@ -680,6 +772,14 @@ def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compil
                 x &= last_mask
             tot += _bits_weight(x, wd, w)
         out[c] = tot
+
+
+@numba.njit(**_JIT)
+def shortfall_all(bits, sel_bits, m, w, last_mask):  # pragma: no cover - compiled
+    """For every column x: weight of the rows in fewer than ``m`` of ``sel_bits`` rows plus x."""
+    done, near = selection_levels(sel_bits, m, bits.shape[1])
+    out = np.zeros(bits.shape[0], dtype=np.float64)
+    shortfall_all_block(0, bits.shape[0], bits, done, near, w, last_mask, out)
     return out
 
 

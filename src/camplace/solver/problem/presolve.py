@@ -36,6 +36,8 @@ from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support import bitkernels as _bk
 from camplace.solver._support.deadline import Deadline
+from camplace.solver._support import parkernels as _par
+from camplace.solver._support.blocks import cuts, run_blocks, threads_for
 from camplace.solver.problem.checks import kernel_data
 
 __all__ = ["Presolved", "presolve", "as_pattern", "canonical_csr", "check_weights"]
@@ -168,7 +170,7 @@ class Presolved:
         """(n', ceil(m' / 64)) uint64: column bitsets of the reduced instance (bit i = reduced row i)."""
         a, rows, col_map = self.source
         with ctrl_c_deferred():
-            return _bk.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, self.shape[1])
+            return _par.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, self.shape[1])
 
     def original_columns(self, selected: Sequence[int]) -> tuple[int, ...]:
         """Map reduced column indices to sorted original column indices.
@@ -318,17 +320,20 @@ def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray,
     n = a.shape[1]
     with ctrl_c_deferred():
         data = kernel_data(a)
-        bits = _bk.build_bits(a.indptr, a.indices, data, rows, np.arange(n, dtype=np.int64), n)
-        size = _bk.column_sizes(bits)
+        bits = _par.build_bits(a.indptr, a.indices, data, rows, np.arange(n, dtype=np.int64), n)
+        size = _par.column_sizes(bits)
         if stop is None or stop.limit is None:
-            return _bk.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, data, rows)
+            return _par.dominated_columns(bits, size, row_nnz, a.indptr, a.indices, data, rows)
+        # in ranges of columns, each on the thread pool, stopping between ranges at the deadline:
+        # columns never tested stay kept, which is still valid
         out = np.zeros(n, dtype=np.bool_)
-        any_nonempty, first_empty = _bk.empty_columns(size)
+        _bk.dominated_empty(size, out)
         for a0 in range(0, n, _DOMINANCE_BLOCK):
             if stop.expired():
                 break
-            _bk.dominated_range(bits, size, row_nnz, a.indptr, a.indices, data, rows, a0, min(n, a0 + _DOMINANCE_BLOCK),
-                                any_nonempty, first_empty, out)
+            a1 = min(n, a0 + _DOMINANCE_BLOCK)
+            run_blocks(lambda lo, hi: _bk.dominated_block(lo, hi, bits, size, row_nnz, a.indptr, a.indices, data, rows, out),
+                       [a0 + c for c in cuts(a1 - a0)], threads_for(bits.shape[1] * (a1 - a0)))
         return out
 
 
@@ -364,7 +369,7 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True,
         raise CamplaceError(f"k must be between 1 and the number of candidates ({n}), got {k}")
 
     with ctrl_c_deferred():
-        live, row_nnz = _bk.live_rows(a.indptr, a.indices, kernel_data(a), w)
+        live, row_nnz = _par.live_rows(a.indptr, a.indices, kernel_data(a), w)
     live_rows = np.flatnonzero(live).astype(np.int64)
     stats: dict[str, Any] = {
         "rows_in": int(m),
@@ -408,9 +413,9 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True,
     salt = np.random.default_rng(0x5EED).integers(0, np.iinfo(np.int64).max, size=max(1, columns.size), dtype=np.int64)
     with ctrl_c_deferred():
         data = kernel_data(a)
-        h, has = _bk.row_hashes(a.indptr, a.indices, data, live_rows, col_map, salt.astype(np.uint64))
+        h, has = _par.row_hashes(a.indptr, a.indices, data, live_rows, col_map, salt.astype(np.uint64))
         orig_rows = live_rows[has]
-        groups, n_groups = _bk.group_rows(a.indptr, a.indices, data, orig_rows, col_map, h[has])
+        groups, n_groups = _par.group_rows(a.indptr, a.indices, data, orig_rows, col_map, h[has])
     stats["time_merge_s"] = time.perf_counter() - t1 - stats["time_dominance_s"]
     first = np.full(n_groups, -1, dtype=np.int64)
     first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)

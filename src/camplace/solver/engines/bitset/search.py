@@ -21,14 +21,19 @@ set of columns is scored with a few word operations per 64 rows.
   binary digits for integer weights with ``views > 1``, set bits one by one otherwise) and the
   sum stops as soon as it proves the tuple cannot win, so near-complete coverage is cheap to
   evaluate.
+  The search (:func:`_roots_search`) runs best-first over the open tuples, with a depth-first
+  search of a few thousand bounds from each of the best ones (the roots) in parallel, one root
+  per task on a thread pool of :func:`camplace._cores.thread_count` threads (the serial search's
+  cache-friendly order on every core), so the reported bound falls as it goes. Every root of a
+  round starts from the round's incumbent and without a time limit the roots per round double
+  from 4 to 64 whatever the timing, so the answer (and the number of bounds) is the same at every
+  thread count; on comet-67p-bunker at 10,000 x 50,000, k = 3, it computes 3 % more bounds than
+  one serial depth-first search.
   For ``views > 1`` a tuple's bound is also at most the sum of its nodes' heaviest column
   weights divided by ``views`` (a counted row is observed ``views`` times), and the search
-  (:func:`_roots_search`) differs: it splits the node whose union most exceeds its heaviest
-  column (where the bound is loosest; on comet-67p-bunker with every surface point, 3 views,
-  k = 6: 4.8 million bounds instead of 20.5 million with the largest node), and runs best-first
-  over the open tuples, with a depth-first search of a few thousand bounds from each of the best
-  ones in parallel (the serial search's cache-friendly order on both cores), so the reported bound
-  falls as it goes.
+  splits the node whose union most exceeds its heaviest column (where the bound is loosest; on
+  comet-67p-bunker with every surface point, 3 views, k = 6: 4.8 million bounds instead of 20.5
+  million with the largest node); for ``views = 1`` it splits the largest node.
 * **Opposite pairs** (``views > 1`` and ``k < 2 views``, e.g. stereo with 3 cameras). Points that
   no candidate observes together are matched (:mod:`camplace.solver.engines.bitset.pair_cap`); at most one point
   of a pair can count, so each pair is laid out as two rows 64 ``pw`` bits apart carrying one
@@ -38,12 +43,14 @@ set of columns is scored with a few word operations per 64 rows.
   point, 10,000 x 50,000, the root bound falls from 0.706 to 0.502. Used when it matches at least
   5 % of the weight; the search is then depth-first over batches of tuples, each batch expanded in
   parallel (numba ``prange``).
-* **Incumbent.** Greedy from several starts plus 1-swap local search on the bitsets.
+* **Incumbent.** Greedy from several starts plus 1-swap local search on the bitsets (each pass over
+  the columns on fixed column blocks of the thread pool: :mod:`camplace.solver._support.parkernels`).
 * **Exactness.** When every original weight is equal, weights are the merged-row counts (exact
   integers in float64) and pruning is exact; otherwise pruning keeps a margin of
   ``1e-9 * total weight``.
-* **Time limit.** The compiled search runs in slices of bound evaluations; between slices the
-  deadline is checked. On expiry the incumbent is returned with status ``feasible`` and the bound
+* **Time limit.** The compiled search runs in rounds of roots, each root for a slice of bound
+  evaluations (``_SLICE`` for views = 1, ``_ROOT_BUDGET`` beyond); between rounds the deadline is
+  checked (with a time limit a round is sized to take about ``_BATCH_S`` seconds). On expiry the incumbent is returned with status ``feasible`` and the bound
   ``max(incumbent, bounds of the tuples still on the stack / frontier)``.
 * **Memory.** ``n' * m' / 8`` bytes of column bitsets and ``2 min(views, k)`` times that for the
   tree levels, plus the open tuples (at most ``_FRONTIER_MAX``, and the parallel stacks) in
@@ -64,6 +71,8 @@ from numba import prange
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
+from camplace.solver._support import parkernels as P
+from camplace.solver._support.blocks import run_blocks
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.greedy import greedy_swap
@@ -79,7 +88,7 @@ log = logging.getLogger(__name__)
 
 BITSET_MAX_K = 4  # auto uses this engine up to this k (it is exact for any k, but slow for large k)
 _FLOAT_MARGIN = 1e-9
-_SLICE = 50_000  # bound evaluations per compiled call (0.02-0.5 s): the deadline is checked between calls
+_SLICE = 20_000  # bound evaluations of the depth-first search from each root for views = 1 (_ROOT_BUDGET beyond)
 _STACK = 1 << 14
 _STARTS = 2  # greedy starts (the best columns), besides the plain greedy
 _SWAP_ROUNDS = 50
@@ -93,11 +102,13 @@ _BATCH = 1 << 16  # tuples expanded per parallel call there at most ...
 _BATCH_MIN = 256  # ... and at least
 _ROOT_CHUNK = 16  # tuples per frontier entry of the search for views > 1 on the plain layout ...
 _ROOT_BUDGET = 20_000  # ... bound evaluations of the depth-first search from each root there ...
-_ROOTS_MIN, _ROOTS_MAX = 4, 512  # ... roots per parallel call ...
+_ROOTS_MIN, _ROOTS_MAX = 4, 512  # ... roots per parallel call (with a time limit; without: doubling from
+_ROOTS_NO_LIMIT = 64  # _ROOTS_MIN up to this many, whatever the timing) ...
 _BATCH_S = 0.5  # ... which should take this long (the deadline is checked between calls)
 _FRONTIER_MAX = 5_000_000  # open tuples at most in either search (8 k + 8 bytes each); the roots search goes ...
 _DEPTH_FIRST_OPEN = 1_000_000  # ... depth-first (newest chunks) while more than this many are open
 _PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False, "parallel": True}
+_NJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 
 def bitset_bytes(m: int, n: int, levels: int, k: int = BITSET_MAX_K) -> int:
@@ -139,7 +150,7 @@ class _State:
         """``value(sel + [x])`` for every column x (x in sel gives a meaningless number)."""
         sb = self.bits[np.asarray(sel, dtype=np.int64)] if sel else np.zeros((0, self.n_words), dtype=np.uint64)
         with ctrl_c_deferred():
-            short = K.shortfall_all(self.bits, np.ascontiguousarray(sb), views or self.views, self.w, self.mask)
+            short = P.shortfall_all(self.bits, np.ascontiguousarray(sb), views or self.views, self.w, self.mask)
         return self.total - short
 
     def value(self, sel: list[int]) -> float:
@@ -201,25 +212,15 @@ def _expand_pairs(front, lo, hi, left, right, levels, views, w, planes, mask, to
     return children, value, leaf, made.sum()
 
 
-@numba.njit(**_PJIT)
-def _dfs_roots(roots, lo, hi, left, right, levels, views, w, planes, mask, total, best, margin, colmax, pw, budget,
-               cap, score):  # pragma: no cover - compiled
-    """Depth-first search (:func:`camplace.solver._support.bitkernels.tuple_search`) from every tuple of
-    ``roots`` (F, k) in parallel, each for at most ``budget`` bound evaluations from the incumbent
-    value ``best``.
-
-    Returns ``stacks`` (F, cap, k) and ``bounds`` (F, cap) (the tuples left open, -inf past each
-    stack's top), ``found`` (F,) (a better leaf's value, -inf if none), ``found_pos`` (F, k) (its
-    column positions), the number of bounds computed, and whether a stack overflowed.
-    """
-    f_count, k = roots.shape
-    stacks = np.zeros((f_count, cap, k), dtype=np.int64)
-    bounds = np.full((f_count, cap), -np.inf)
-    found = np.full(f_count, -np.inf)
-    found_pos = np.zeros((f_count, k), dtype=np.int64)
-    evals = np.zeros(f_count, dtype=np.int64)
-    overflow = np.zeros(f_count, dtype=np.bool_)
-    for f in prange(f_count):
+@numba.njit(**_NJIT)
+def _dfs_roots_block(f0, f1, roots, lo, hi, left, right, levels, views, w, planes, mask, total, best, margin, colmax, pw,
+                     budget, score, stacks, bounds, found, found_pos, evals, overflow):  # pragma: no cover - compiled
+    """Depth-first search (:func:`camplace.solver._support.bitkernels.tuple_search`) from the tuples
+    ``f0 .. f1 - 1`` of ``roots`` (F, k), each for at most ``budget`` bound evaluations from the
+    incumbent value ``best`` (the same for every root, so a root's search does not depend on the
+    others'), into the arrays of :func:`_dfs_roots` (each root writes only its own entries)."""
+    cap = stacks.shape[1]
+    for f in range(f0, f1):
         stacks[f, 0] = roots[f]
         bounds[f, 0] = np.inf  # popped: it beats the incumbent
         sp, b, ev = K.tuple_search(lo, hi, left, right, levels, views, w, planes, mask, total, margin, stacks[f],
@@ -232,7 +233,30 @@ def _dfs_roots(roots, lo, hi, left, right, levels, views, w, planes, mask, total
             bounds[f, i] = -np.inf
         if b > best:
             found[f] = b
-    return stacks, bounds, found, found_pos, evals.sum(), overflow.any()
+
+
+def _dfs_roots(roots, lo, hi, left, right, levels, views, w, planes, mask, total, best, margin, colmax, pw, budget,
+               cap, score, threads: int | None = None):
+    """Depth-first search from every tuple of ``roots`` (F, k), one root per task on a thread pool
+    of :func:`camplace._cores.thread_count` threads (:func:`_dfs_roots_block`, GIL-free): the same
+    result at every thread count.
+
+    Returns ``stacks`` (F, cap, k) and ``bounds`` (F, cap) (the tuples left open, -inf past each
+    stack's top), ``found`` (F,) (a better leaf's value, -inf if none), ``found_pos`` (F, k) (its
+    column positions), the number of bounds computed, and whether a stack overflowed.
+    """
+    f_count, k = roots.shape
+    stacks = np.zeros((f_count, cap, k), dtype=np.int64)
+    bounds = np.full((f_count, cap), -np.inf)
+    found = np.full(f_count, -np.inf)
+    found_pos = np.zeros((f_count, k), dtype=np.int64)
+    evals = np.zeros(f_count, dtype=np.int64)
+    overflow = np.zeros(f_count, dtype=np.bool_)
+    run_blocks(lambda f0, f1: _dfs_roots_block(f0, f1, roots, lo, hi, left, right, levels, views, w, planes, mask, total,
+                                               best, margin, colmax, pw, budget, score, stacks, bounds, found,
+                                               found_pos, evals, overflow),
+               list(range(f_count + 1)), threads)  # one root per task: subtrees vary in size
+    return stacks, bounds, found, found_pos, int(evals.sum()), bool(overflow.any())
 
 
 def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str, Any]):
@@ -267,7 +291,7 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
         stats["opposite_pairs"]["skipped"] = f"layout bitsets need {need / 2**30:.1f} GiB"
         return None
     with ctrl_c_deferred():
-        bits = K.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
+        bits = P.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
     return bits, lw, pw, _last_mask(rows.size)
 
 
@@ -330,10 +354,14 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
     with ctrl_c_deferred():
         lo, hi, left, right, levels = K.build_tree(np.ascontiguousarray(st.bits[perm]), min(views, k))
     cap = _dfs_stack(k, perm.size)
-    # split the node whose union most exceeds its heaviest column: where the bound is loosest
-    # (on comet-67p-bunker, every surface point, 3 views, k = 6: 4.2 times fewer bounds than the largest node)
-    union = K.union_weights(levels[0], st.w, st.planes)
-    score = union - colmax
+    budget = _ROOT_BUDGET if views > 1 else _SLICE
+    if views > 1:
+        # split the node whose union most exceeds its heaviest column: where the bound is loosest
+        # (on comet-67p-bunker, every surface point, 3 views, k = 6: 4.2 times fewer bounds than the largest node)
+        union = K.union_weights(levels[0], st.w, st.planes)
+        score = union - colmax
+    else:  # max coverage: the largest node, as the serial search
+        score = np.zeros(0)
     stats["time_setup_s"] = deadline.elapsed()
     front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([min(root, st.total)]), _DEPTH_FIRST_OPEN, _ROOT_CHUNK)
     evaluated = rounds = 0
@@ -350,18 +378,22 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
             continue
         rounds += 1
         t_round = time.perf_counter()
-        with ctrl_c_deferred(), numba.parallel_chunksize(1):  # dynamic: subtrees vary in size
+        with ctrl_c_deferred():
             stacks, bounds, found, pos, n_made, overflow = _dfs_roots(
                 roots, lo, hi, left, right, levels, views, st.w, st.planes, st.mask, st.total, st.best, st.margin, colmax,
-                0, _ROOT_BUDGET, cap, score)
+                0, budget, cap, score)
         if overflow:
             raise RuntimeError("bitset search stack overflow")  # cannot happen: depth <= k * log2(n) levels
-        # next round: at the bounds-per-second just seen, even roots that use their whole budget
+        # next round: without a time limit twice as many roots, up to _ROOTS_NO_LIMIT (a schedule
+        # that does not depend on timing or the thread count: the same answer at every count);
+        # with one, at the bounds-per-second just seen, even roots that use their whole budget
         # take about _BATCH_S seconds (at most a quarter of the time left)
-        rate = int(n_made) / max(time.perf_counter() - t_round, 1e-9)
         left_s = deadline.remaining()
-        want = _BATCH_S if left_s is None else min(_BATCH_S, 0.25 * left_s)
-        n_roots = int(min(_ROOTS_MAX, max(_ROOTS_MIN, want * rate / _ROOT_BUDGET)))
+        if left_s is None:
+            n_roots = min(_ROOTS_NO_LIMIT, 2 * n_roots)
+        else:
+            rate = int(n_made) / max(time.perf_counter() - t_round, 1e-9)
+            n_roots = int(min(_ROOTS_MAX, max(_ROOTS_MIN, min(_BATCH_S, 0.25 * left_s) * rate / budget)))
         evaluated += int(n_made)
         f = int(np.argmax(found))
         if found[f] > st.best:
@@ -443,34 +475,10 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
         root = min(st.total, float(np.sort(f)[-k:].sum()) / views)
         status, bound = _pairs_search(st, perm, layout, root, colmax, deadline, stats)
         return _finish(st, status, bound, stats, deadline, m, n)
-    if views > 1:  # best-first roots, depth-first below, in parallel (the plain layout)
-        root = min(st.total, float(np.sort(f)[-k:].sum()) / views)
-        status, bound = _roots_search(st, perm, root, colmax, deadline, stats)
-        return _finish(st, status, bound, stats, deadline, m, n)
-    with ctrl_c_deferred():
-        lo, hi, left, right, levels = K.build_tree(np.ascontiguousarray(st.bits[perm]), min(views, k))
-    stats["time_setup_s"] = deadline.elapsed()
-    stack = np.zeros((_STACK, k), dtype=np.int64)
-    stack_bound = np.zeros(_STACK, dtype=np.float64)
-    stack_bound[0] = st.total
-    sp = 1
-    best_pos = np.zeros(k, dtype=np.int64)
-    evaluated = 0
-    status = "optimal"
-    while sp > 0:
-        if deadline.expired():
-            status = "feasible"
-            break
-        with ctrl_c_deferred():
-            sp, best, ev = K.tuple_search(lo, hi, left, right, levels, views, st.w, st.planes, st.mask, st.total, st.margin,
-                                          stack, stack_bound, sp, st.best, best_pos, _SLICE, colmax, 0, np.zeros(0))
-        evaluated += ev
-        if sp < 0:
-            raise RuntimeError("bitset search stack overflow")  # cannot happen: depth <= k * log2(n) levels
-        if best > st.best:
-            st.offer(best, tuple(int(perm[p]) for p in best_pos))
-    stats["bound_evaluations"] = int(evaluated)
-    return _finish(st, status, max(st.best, float(stack_bound[:sp].max(initial=-math.inf))), stats, deadline, m, n)
+    # best-first roots, depth-first below, in parallel (the plain layout)
+    root = min(st.total, float(np.sort(f)[-k:].sum()) / views) if views > 1 else st.total
+    status, bound = _roots_search(st, perm, root, colmax, deadline, stats)
+    return _finish(st, status, bound, stats, deadline, m, n)
 
 
 def _finish(st: _State, status: str, bound: float, stats: dict[str, Any], deadline: Deadline, m: int,

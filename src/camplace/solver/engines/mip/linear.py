@@ -18,6 +18,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from camplace._cores import thread_count
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
 
@@ -164,7 +165,7 @@ def solve_model(
     *,
     time_limit_s: float | None = None,
     hint: dict[int, float] | None = None,
-    workers: int = 2,
+    workers: int | None = None,
 ) -> ModelOutcome:
     """Solve a :class:`LinearModel` with SCIP (``backend="mip"``) or CP-SAT (``"cpsat"``).
 
@@ -176,8 +177,9 @@ def solve_model(
         Wall-clock limit.
     hint : dict, optional
         Partial solution ``{variable: value}`` given to the solver as a hint.
-    workers : int
-        CP-SAT workers (SCIP is single-threaded).
+    workers : int, optional
+        CP-SAT workers (default :func:`camplace._cores.thread_count`: ``--threads`` /
+        ``SolveOptions.threads``, else the allowed cores; SCIP is single-threaded).
 
     Returns
     -------
@@ -284,8 +286,9 @@ def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, 
     return ModelOutcome(values, status, bound, stats)
 
 
-def run_cpsat(model, workers: int, deadline: Deadline):
-    """Solve a built CP-SAT model with ``workers`` threads within the deadline's remaining time.
+def run_cpsat(model, workers: int | None, deadline: Deadline):
+    """Solve a built CP-SAT model with ``workers`` threads (None: :func:`camplace._cores.thread_count`)
+    within the deadline's remaining time.
 
     Returns
     -------
@@ -298,7 +301,7 @@ def run_cpsat(model, workers: int, deadline: Deadline):
     from ortools.sat.python import cp_model
 
     solver = cp_model.CpSolver()
-    solver.parameters.num_workers = int(max(1, workers))
+    solver.parameters.num_workers = thread_count(workers)
     build_s = deadline.elapsed()
     rem = deadline.remaining()
     if rem is not None:
@@ -318,7 +321,7 @@ def _int_objective(obj: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 
 def _solve_cpsat(
-    model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None, workers: int
+    model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None, workers: int | None
 ) -> ModelOutcome:
     from ortools.sat.python import cp_model
 
@@ -358,7 +361,7 @@ def _solve_cpsat(
     solver, code, build_s = run_cpsat(cp, workers, deadline)
     stats: dict[str, Any] = {
         "backend": "CP-SAT",
-        "workers": int(max(1, workers)),
+        "workers": thread_count(workers),
         "variables": model.n_vars,
         "constraints": len(model.rows),
         "time_build_s": build_s,

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from camplace._cores import thread_count
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import greedy_incumbent
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
@@ -224,7 +225,7 @@ def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOut
     return EngineOutcome(selected=sel, status=status, bound=bound, stats=stats)
 
 
-def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: int = 2) -> EngineOutcome:
+def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: int | None = None) -> EngineOutcome:
     """Solve the presolved instance with CP-SAT (integer-scaled weights).
 
     Parameters
@@ -233,8 +234,9 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
         Presolved instance.
     time_limit_s : float, optional
         Wall-clock limit.
-    workers : int
-        CP-SAT search workers (default 2, the machine's core count).
+    workers : int, optional
+        CP-SAT search workers (default :func:`camplace._cores.thread_count`: ``--threads`` /
+        ``SolveOptions.threads``, else the cores this process may use).
 
     Returns
     -------
@@ -279,7 +281,7 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
 
     stats: dict[str, Any] = {
         "backend": "CP-SAT",
-        "workers": int(max(1, workers)),
+        "workers": thread_count(workers),
         "time_build_s": build_s,
         "time_solve_s": deadline.elapsed() - build_s,
         "weight_unit": unit,

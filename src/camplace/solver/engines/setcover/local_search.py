@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -68,6 +67,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
@@ -590,13 +590,9 @@ def _luby(i: int) -> int:
 
 
 def search_threads() -> int:
-    """Searches run side by side (:func:`run_searches`): the cores this process may use, at most
-    :data:`SEARCH_THREADS`."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(SEARCH_THREADS, cores))
+    """Searches run side by side (:func:`run_searches`): :func:`camplace._cores.thread_count` (``--threads``,
+    ``SolveOptions.threads``, else the cores this process may use), at most :data:`SEARCH_THREADS`."""
+    return max(1, min(SEARCH_THREADS, thread_count()))
 
 
 def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = None, target: float = -math.inf,
