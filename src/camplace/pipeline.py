@@ -365,7 +365,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
     timings["visibility"] = time.perf_counter() - t0
     timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 
-    res, robust_record = solve_stage(instance, cands, pts, vis.matrix, settings, reporter=reporter, timings=timings)
+    res, robust_record = solve_stage(instance, cands, pts, vis.pattern, settings, reporter=reporter, timings=timings)
     solution = make_solution(instance, settings, cands, vis, res, robust_record, timings)
     if outdir is not None:
         write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter,
@@ -398,7 +398,9 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     instance : Instance
     cands : CandidateSet
     pts : TargetPoints
-    matrix : (m, n) scipy.sparse.csr_matrix
+    matrix : (m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
+        A binary matrix as column bitsets goes to the solver as it is (no CSR is made for the
+        binary modes the bit presolve takes; the others convert it).
     settings : RunSettings
     reporter : Reporter or None
     timings : dict or None
@@ -448,8 +450,8 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     from camplace.visibility.summary import summarise
 
     t0 = time.perf_counter()
-    summary = summarise(vis.matrix, weights, res.selected, pts.frame, pts.weight, len(instance.frames))
-    degenerate = degenerate_warnings(vis.matrix, weights, k, summary.useful_columns)
+    summary = summarise(vis.pattern, weights, res.selected, pts.frame, pts.weight, len(instance.frames))
+    degenerate = degenerate_warnings(vis.pattern, weights, k, summary.useful_columns)
     degenerate += chosen_view_warnings(instance, cands, res.selected)
     timings["summary"] = time.perf_counter() - t0
     for note in degenerate:

@@ -90,3 +90,18 @@ def test_corrupt_colbits_is_one_line(problem, tmp_path: Path) -> None:
     path.write_bytes(bytes(raw))
     with pytest.raises(CamplaceError, match="corrupt"):
         load_bits(path)
+
+
+def test_summary_of_bits_equals_csr(problem) -> None:
+    from camplace.visibility.summary import summarise
+
+    inst, pts, cands = problem
+    vis = compute_visibility(inst, cands, pts)
+    w = pts.weight.copy()
+    w[::7] = 0.0
+    for sel in ([], [3], [5, 17, 120]):
+        a = summarise(vis.bits, w, sel, pts.frame, pts.weight, len(inst.frames))
+        b = summarise(vis.matrix, w, sel, pts.frame, pts.weight, len(inst.frames))
+        assert a.useful_columns == b.useful_columns
+        np.testing.assert_array_equal(a.covered, b.covered)
+        assert a.seen.tobytes() == b.seen.tobytes()

@@ -25,6 +25,8 @@ from typing import Sequence
 import numba
 import numpy as np
 import scipy.sparse as sp
+from numba import types
+from numba.extending import intrinsic
 
 from camplace._cores import thread_count
 
@@ -32,23 +34,31 @@ __all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk"]
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
-_M1 = np.uint64(0x5555555555555555)
-_M2 = np.uint64(0x3333333333333333)
-_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
-_H01 = np.uint64(0x0101010101010101)
-
-
 def bit_words(m: int) -> int:
     """uint64 words of one column's bitset over ``m`` rows: ``ceil(m / 64)``."""
     return (int(m) + 63) // 64
 
 
-@numba.njit(**_JIT)
-def _popcount(x):  # pragma: no cover - compiled
-    x = x - ((x >> np.uint64(1)) & _M1)
-    x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
-    x = (x + (x >> np.uint64(4))) & _M4
-    return (x * _H01) >> np.uint64(56)
+@intrinsic
+def _popcount(typingctx, x):  # pragma: no cover - compiled
+    """Set bits of a uint64 (the ``popcnt`` instruction)."""
+    sig = types.uint64(types.uint64)
+
+    def codegen(context, builder, signature, args):
+        return builder.ctpop(args[0])
+
+    return sig, codegen
+
+
+@intrinsic
+def _ctz(typingctx, x):  # pragma: no cover - compiled
+    """Index of the lowest set bit of a non-zero uint64 (the ``tzcnt`` instruction)."""
+    sig = types.uint64(types.uint64)
+
+    def codegen(context, builder, signature, args):
+        return builder.cttz(args[0], context.get_constant(types.boolean, True))
+
+    return sig, codegen
 
 
 @numba.njit(**_JIT)
@@ -81,7 +91,7 @@ def _column_counts(words, lo, hi, out):  # pragma: no cover - compiled
     for j in range(lo, hi):
         s = 0
         for w in range(words.shape[1]):
-            s += _popcount(words[j, w])
+            s += np.int64(_popcount(words[j, w]))
         out[j] = s
 
 
@@ -93,7 +103,7 @@ def _row_counts(words, w0, w1, counts):  # pragma: no cover - compiled
             x = words[j, w]
             base = w << 6
             while x:
-                t = _popcount((x & (~x + np.uint64(1))) - np.uint64(1))  # trailing zeros
+                t = np.int64(_ctz(x))
                 counts[base + t] += 1
                 x &= x - np.uint64(1)
 
@@ -106,7 +116,7 @@ def _fill_indices(words, w0, w1, cursor, indices):  # pragma: no cover - compile
             x = words[j, w]
             base = w << 6
             while x:
-                t = _popcount((x & (~x + np.uint64(1))) - np.uint64(1))  # trailing zeros
+                t = np.int64(_ctz(x))
                 r = base + t
                 indices[cursor[r]] = j
                 cursor[r] += 1
