@@ -6,7 +6,7 @@ coverable point (default: 1,000 candidates x 20,000 points, 100 mm focal length 
 the instance's 40 m far plane: every candidate observes part of the comet, the optimum is 94.1 %
 of the weight, 99.9 % is coverable). Then solves the same max-coverage problem twice:
 
-- camplace: ``camplace.solver.modes.solve(matrix, weights, k, mode="maxcover")`` in this process;
+- camplace: ``camplace.solver.api.solve(matrix, weights, k, mode="maxcover")`` in this process;
 - Chama: ``chama.optimize.CoverageFormulation().solve(coverage, entity=..., sensor_budget=k,
   use_entity_weight=True, mip_solver_name="glpk")`` in a subprocess (Pyomo writes an LP file and
   runs Debian's ``glpsol``). Its coverage table has a row per candidate (``Sensor``) with the
@@ -243,8 +243,8 @@ def _compare(args: argparse.Namespace, workdir: Path) -> int:
     import pandas as pd
     import scipy.sparse as sp
 
-    from camplace.solver._common import coverage_weight
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
+    from camplace.solver.problem.objectives import coverage_weight
 
     t = time.perf_counter()
     run_dir = build_matrix(workdir, args.focal_mm, args.far_m, args.candidates, args.points, args.seed)

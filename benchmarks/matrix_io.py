@@ -140,7 +140,7 @@ def naive_baseline(inst, cands, pts) -> float:
 
 def cmd_visibility(args: argparse.Namespace) -> None:
     from camplace.instance import builtin
-    from camplace.pipeline import compute_points
+    from camplace.visibility.stages import compute_points
     from camplace.sampling import CandidateSet
 
     inst = builtin("comet-67p-bunker")

@@ -2,7 +2,7 @@
 
 Not a test. Builds deterministic structured visibility matrices (points on a sphere or a bilobed
 object, cameras at random directions/distances or in a corridor, optional field of view / range
-limits; see ``camplace.solver._synthetic``) and prints, for each instance: rows/cols before and
+limits; see ``camplace.solver.problem._synthetic``) and prints, for each instance: rows/cols before and
 after presolve, exact-engine time, MIP time (with a time limit), both objectives/statuses and the
 MIP/exact time ratio.
 
@@ -42,8 +42,8 @@ if "--blas-threads" in sys.argv:  # must happen before numpy is imported
     os.environ["OPENBLAS_NUM_THREADS"] = sys.argv[sys.argv.index("--blas-threads") + 1]
 
 from camplace.solver import SolverResult, solve_maxcover  # noqa: E402
-from camplace.solver._synthetic import structured_instance  # noqa: E402
-from camplace.solver.modes import solve  # noqa: E402
+from camplace.solver.api import solve  # noqa: E402
+from camplace.solver.problem._synthetic import structured_instance  # noqa: E402
 
 # Issue 8 targets: (mode, candidates, points, time limit s, target); "multiview-angle" is multiview
 # with a 20 degree minimum triangulation angle (issue 16; comet-67p-bunker sources only)
@@ -77,7 +77,8 @@ def builtin_matrix(mode: str, n_cams: int, m_pts: int, seed: int, lit: bool = Tr
     import dataclasses
 
     from camplace.instance import builtin
-    from camplace.pipeline import compute_points, event_aims, stage_seeds
+    from camplace.event import event_aims
+    from camplace.visibility.stages import compute_points, stage_seeds
     from camplace.sampling import make_candidates
     from camplace.visibility import compute_visibility
     from camplace.visibility.cache import default_cache_dir
@@ -140,8 +141,8 @@ def run_modes(seed: int, k: int, only: list[str] | None, source: str = "sphere")
 def run_quality_engines(seed: int, k: int) -> None:
     """The two exact quality engines on the same graded comet-67p-bunker matrices (same run):
     min-Gram triple enumeration vs the quantised tree, times and their ratio."""
-    from camplace.solver.quality_exact import QUALITY_EXACT_MAX_N, solve_quality_exact
-    from camplace.solver.quality_tree import solve_quality_tree
+    from camplace.solver.engines.quality.min_gram import QUALITY_EXACT_MAX_N, solve_quality_exact
+    from camplace.solver.engines.quality.tree import solve_quality_tree
 
     for n_cams, m_pts in [(1000, 20000), (3000, 20000)]:
         matrix, weights = builtin_matrix("quality", n_cams, m_pts, seed, lit=False)  # every surface point

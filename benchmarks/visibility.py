@@ -33,7 +33,8 @@ import numpy as np
 
 def setup(n_cand: int, n_points: int):
     from camplace.instance import builtin
-    from camplace.pipeline import compute_points, event_aims, stage_seeds
+    from camplace.event import event_aims
+    from camplace.visibility.stages import compute_points, stage_seeds
     from camplace.sampling import make_candidates
 
     inst = builtin("comet-67p-bunker")

@@ -126,7 +126,7 @@ class DevTools:
         os.close(self.from_r)
 
 
-# Once the page has loaded: wait for the 3D plot (data-ready set by camplace.scene3d) and two frames
+# Once the page has loaded: wait for the 3D plot (data-ready set by camplace.plotly3d) and two frames
 # more, then describe it: its WebGL canvases, the data tag, the traces plotly drew and the element's box.
 SCENE_PROBE = """
 (async () => {

@@ -22,12 +22,14 @@ from scipy.spatial.transform import Rotation
 
 from camplace.errors import CamplaceError, InstanceError
 from camplace.instance import RobustSpec, builtin_toml, parse_instance, resolve_instance
-from camplace.pipeline import compute_points, make_run_candidates, run, stage_seeds
+from camplace.pipeline import run
+from camplace.visibility.stages import compute_points, make_run_candidates, stage_seeds
 from camplace.robust import make_spec, scenario_matrix, solve_robust, stack_scenarios
+from camplace.robust.p10 import order_p10, scenario_values, solve_p10
 from camplace.sampling import CandidateSet
 from camplace.sampling.perturb import IN_SAMPLE_STREAM, OUT_OF_SAMPLE_STREAM, perturb_poses, pose_draws
-from camplace.solver.modes import mode_value, solve
-from camplace.solver.robust_p10 import order_p10, scenario_values, solve_p10
+from camplace.solver.api import mode_value, solve
+from camplace.solver.options import SolveOptions
 from camplace.visibility import compute_visibility
 
 SIGMA = (0.1, 5.0)
@@ -163,9 +165,7 @@ def test_robust_optimal_in_sample_by_enumeration(bunker) -> None:
     S, k = 4, 2
     spec = RobustSpec(*SIGMA, scenarios=S)
     stacked = scenario_matrix(inst, cands, pts, spec, seed=0, cache=False)
-    opts = {"mode": "maxcover", "k": k, "views": None, "fixed": [], "forbidden": [], "min_distance_m": None,
-            "engine": "auto", "time_limit_s": None}
-    res = solve_robust(stacked, pts.weight, spec, opts)
+    res = solve_robust(stacked, pts.weight, spec, SolveOptions(mode="maxcover", k=k))
     nom = solve(nominal, pts.weight, k)
     means = {sel: np.mean(scenario_values(stacked, pts.weight, S, sel)) for sel in itertools.combinations(range(len(cands)), k)}
     best = max(means.values())
@@ -213,7 +213,7 @@ def test_p10_solver_matches_enumeration(mode) -> None:
 
 def test_p10_fallback_bound_is_valid() -> None:
     """Without the model (size limit 0) the bound is (S / q) x the mean bound, above the enumerated optimum."""
-    import camplace.solver.robust_p10 as p10mod
+    import camplace.robust.p10 as p10mod
 
     rng = np.random.default_rng(5)
     m, n, S, k = 10, 8, 10, 2
@@ -364,9 +364,9 @@ def test_cli_run_then_robust_solve(tmp_path) -> None:
 def test_scenarios_are_physical_installations() -> None:
     """Scenario s of candidate j is what [physical]'s perturb_camera makes from the same normal stream,
     so 'camplace validate --physical' photographs installations of the distribution optimised for."""
+    from camplace.sampling import look_at
     from camplace.validation.cameras import CameraView
     from camplace.validation.physical import PhysicalCamera, perturb_camera
-    from camplace.sampling import look_at
 
     pos = np.array([[3.0, -2.0, 1.5], [0.5, 4.0, 2.0]])
     cands = CandidateSet(pos, np.zeros((2, 3)), look_at(pos, np.zeros((2, 3))))
@@ -382,7 +382,7 @@ def test_scenarios_are_physical_installations() -> None:
 
 @pytest.mark.parametrize("mode", ["maxcover", "multiview"])
 def test_p10_swap_search_ends_in_a_swap_local_optimum(mode) -> None:
-    from camplace.solver.robust_p10 import _swap_search
+    from camplace.robust.p10 import _swap_search
 
     rng = np.random.default_rng(7)
     m, n, S, k = 15, 12, 10, 3
@@ -419,3 +419,12 @@ def test_instance_table_drives_the_run_and_the_report(tmp_path) -> None:
     assert "data:image/png;base64," in section
     for name in ("robust", "nominal"):
         assert f"{sol.robust['out_of_sample'][name]['mean']:.6f}" in section
+
+
+def test_the_solve_verb_is_registered_by_the_robust_stage_not_patched() -> None:
+    import camplace.cli
+    import camplace.robust.cli
+
+    camplace.cli.build_parser()
+    assert camplace.cli.COMMANDS["solve"] is camplace.robust.cli.cmd_solve
+    assert not hasattr(camplace.robust.cli, "wrap_solve")

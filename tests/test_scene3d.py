@@ -1,4 +1,4 @@
-"""camplace.scene3d: frusta, depths and decimation against analytic answers; the page's data and size."""
+"""camplace.plotly3d: frusta, depths and decimation against analytic answers; the page's data and size."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from camplace.errors import CamplaceError
-from camplace.scene3d import (
+from camplace.plotly3d import (
     COVERAGE_CLASSES,
     MAX_POINTS,
     MAX_TARGET_FACES,

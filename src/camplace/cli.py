@@ -15,7 +15,7 @@ from pathlib import Path
 from camplace._signals import ctrl_c_noted
 from camplace.errors import CamplaceError
 from camplace.names import EVENT_MODES, SAMPLERS
-from camplace.robust_cli import add_robust_options, print_oos, spec_from_args, wrap_solve
+from camplace.robust.cli import add_robust_options, print_oos, spec_from_args
 from camplace.solver.options import add_solver_options, options_from_args
 
 MATRIX_FORMATS = ("cpm", "npz")  # camplace.visibility.store.MATRIX_FORMATS (not imported: startup time)
@@ -111,9 +111,6 @@ def build_parser() -> argparse.ArgumentParser:
     for verb in COMPUTE_VERBS:
         if verb in sub.choices:
             _add_threads_option(sub.choices[verb])
-    if "solve" in COMMANDS and "solve" in sub.choices:
-        add_robust_options(sub.choices["solve"])
-        COMMANDS["solve"] = wrap_solve(COMMANDS["solve"])
     return parser
 
 
@@ -140,8 +137,10 @@ def _add_threads_option(p: argparse.ArgumentParser) -> None:
 
 
 # Stage packages that add verbs: each has ``register(subparsers, add_run_options) -> {verb: handler}``
-# and imports nothing heavy at module level.
-VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli", "camplace.solver.cli", "camplace.plan.cli")
+# and imports nothing heavy at module level. ``solve`` is the robust stage's verb (it solves robustly
+# when asked; camplace.robust.cli), ``setcover`` the solver's.
+VERB_MODULES: tuple[str, ...] = ("camplace.validation.cli", "camplace.report.cli", "camplace.robust.cli", "camplace.solver.cli",
+                                 "camplace.plan.cli")
 
 
 def _verb_modules():
@@ -232,7 +231,7 @@ def _cmd_visibility(args: argparse.Namespace) -> int:
     from camplace._progress import ConsoleReporter
     from camplace.instance import resolve_instance
     from camplace.outpaths import check_out_folder
-    from camplace.pipeline import compute_points, visibility_stage
+    from camplace.visibility.stages import compute_points, visibility_stage
     from camplace.runfolder import RunFolder
     from camplace.sampling import CandidateSet
     from camplace.visibility import frame_scene, write_ply

@@ -21,19 +21,20 @@ import numpy as np
 from camplace._io import remove_stale_temps, write_text_atomic
 from camplace._progress import Reporter
 from camplace.errors import CamplaceError
+from camplace.event import event_weights, light_curves_csv, peak_frame
 from camplace.names import EVENT_MODES, SAMPLERS
 from camplace.sampling import CandidateSet
-
-# moved to their own modules; still importable from here
-from camplace.event import covered_rows, event_aims, event_centres, event_weights, light_curves_csv, peak_frame  # noqa: F401
-from camplace.solution import Solution, camera_record, split_timings, team_record, versions  # noqa: F401
-from camplace.visibility.stages import (  # noqa: F401
-    check_input_memory, compute_points, make_run_candidates, stage_seeds, under_ground, visibility_stage,
+from camplace.solution import Solution, camera_record, split_timings, team_record, versions
+from camplace.visibility.stages import (
+    check_input_memory, compute_points, make_run_candidates, stage_seeds, visibility_stage,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
     from camplace.visibility.engine import VisibilityMatrix
     from camplace.visibility.points import TargetPoints
+
+__all__ = ["RunSettings", "degenerate_warnings", "resolve_settings", "run", "run_settings", "sampling_stage", "solve_stage",
+           "make_solution", "write_stage"]
 
 log = logging.getLogger(__name__)
 
@@ -111,10 +112,15 @@ class RunSettings:
 
     Attributes
     ----------
-    seed, candidates, points, sampler, k, time_limit_s, orientations : resolved values
-        ``candidates`` positions, ``points`` surface points requested, ``k`` new cameras.
-    engine, event_mode, mode, views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction
-        The solver's options (:func:`camplace.solver.modes.solve`).
+    seed, candidates, points, sampler, k, orientations : resolved values
+        ``candidates`` positions, ``points`` surface points requested, ``k`` new cameras (the
+        instance's k also for setcover, whose solver options have none).
+    solve_options : SolveOptions
+        The solver's options in one object, the one carrier of mode, k, views, min_angle_deg,
+        required_fraction, fixed, forbidden, min_distance_m, engine, time_limit_s and the memory
+        budget, passed to :func:`camplace.solver.solve` unchanged (and to the robust stage). The
+        attributes of those names read it.
+    event_mode : {"all", "peak"}
     matrix_format : {"cpm", "npz"}
     robust : RobustSpec or None
         The instance's ``[robust]`` table unless given.
@@ -123,8 +129,6 @@ class RunSettings:
     options : dict
         The ``options`` record of ``solution.json`` (:meth:`SolveOptions.record`, the run's
         settings, and ``robust``).
-    solve_options : SolveOptions or None
-        The solver's options in one object, passed to :func:`camplace.solver.modes.solve` unchanged.
     """
 
     seed: int
@@ -132,24 +136,26 @@ class RunSettings:
     points: int
     sampler: str
     k: int
-    time_limit_s: float
     orientations: int
-    engine: str = "auto"
+    solve_options: Any
     event_mode: str = "all"
-    mode: str = "maxcover"
-    views: int = 2
-    min_angle_deg: float | None = None
-    fixed: tuple[int, ...] = ()
-    forbidden: tuple[int, ...] = ()
-    min_distance_m: float | None = None
-    required_fraction: float = 1.0
     matrix_format: str = "cpm"
     robust: Any = None
     cache: bool = True
     dask_address: str | None = None
     memory_budget_gb: float | None = None
     options: dict = field(default_factory=dict, compare=False)
-    solve_options: Any = None
+
+    # the solver's options: read from solve_options (one carrier)
+    mode = property(lambda self: self.solve_options.mode)
+    views = property(lambda self: self.solve_options.views)
+    min_angle_deg = property(lambda self: self.solve_options.min_angle_deg)
+    required_fraction = property(lambda self: self.solve_options.required_fraction)
+    fixed = property(lambda self: self.solve_options.fixed)
+    forbidden = property(lambda self: self.solve_options.forbidden)
+    min_distance_m = property(lambda self: self.solve_options.min_distance_m)
+    engine = property(lambda self: self.solve_options.engine)
+    time_limit_s = property(lambda self: self.solve_options.time_limit_s)
 
     @property
     def memory_budget_bytes(self) -> int | None:
@@ -207,19 +213,20 @@ def resolve_settings(
         raise CamplaceError(f"--candidates: {n_cand} candidates cannot hold k = {k} cameras (raise --candidates or lower --k)")
     if n_points < 1:
         raise CamplaceError(f"--points: must be >= 1, got {n_points}")
-    if time_limit_s <= 0:
-        raise CamplaceError(f"--time-limit: must be > 0 seconds, got {time_limit_s}")
     if matrix_format not in ("cpm", "npz"):
         raise CamplaceError(f"--matrix-format: unknown format {matrix_format!r} (use cpm or npz)")
 
     check_input_memory(n_points, len(instance.frames), n_cand * orientations, memory_budget_gb)
     if memory_budget_gb is not None and not memory_budget_gb > 0:
         raise CamplaceError(f"--memory-budget-gb: must be > 0, got {memory_budget_gb}")
-    solve_opts = SolveOptions(
+    # the caller's SolveOptions with the run's defaults filled in (its other fields, e.g. the
+    # setcover search seed, go through unchanged), or one made from the keyword options
+    solve_opts = (solve_options or SolveOptions()).replace(
         mode=mode, k=None if mode == "setcover" else k, views=views, min_angle_deg=min_angle_deg,
         required_fraction=required_fraction, fixed=tuple(fixed), forbidden=tuple(forbidden),
         min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
-        memory_budget_bytes=None if memory_budget_gb is None else int(memory_budget_gb * 2**30),
+        memory_budget_bytes=(int(memory_budget_gb * 2**30) if memory_budget_gb is not None
+                             else None if solve_options is None else solve_options.memory_budget_bytes),
     )
     options = {**solve_opts.record(), "event_mode": event_mode, "sampler": sampler, "seed": seed, "candidates": n_cand,
                "points": n_points, "orientations": orientations}
@@ -230,11 +237,9 @@ def resolve_settings(
         check_request(robust, mode, min_angle_deg, engine)
         options["robust"] = spec_record(robust)
     return RunSettings(
-        seed=seed, candidates=n_cand, points=n_points, sampler=sampler, k=k, time_limit_s=time_limit_s,
-        orientations=orientations, engine=engine, event_mode=event_mode, mode=mode, views=views,
-        min_angle_deg=min_angle_deg, fixed=tuple(fixed), forbidden=tuple(forbidden), min_distance_m=min_distance_m,
-        required_fraction=required_fraction, matrix_format=matrix_format, robust=robust, cache=cache,
-        dask_address=dask_address, memory_budget_gb=memory_budget_gb, options=options, solve_options=solve_opts,
+        seed=seed, candidates=n_cand, points=n_points, sampler=sampler, k=k, orientations=orientations,
+        solve_options=solve_opts, event_mode=event_mode, matrix_format=matrix_format, robust=robust, cache=cache,
+        dask_address=dask_address, memory_budget_gb=memory_budget_gb, options=options,
     )
 
 
@@ -293,7 +298,7 @@ def run(
         ``all`` maximises the expected coverage over all frames (weights P(t)); ``peak`` places the
         cameras for the maximum-likelihood frame alone (the thesis's PS01).
     mode : {"maxcover", "quality", "multiview", "setcover"}
-        The formulation (see :func:`camplace.solver.modes.solve`): the observed weight, the weight
+        The formulation (see :func:`camplace.solver.api.solve`): the observed weight, the weight
         times the best quality, the weight seen by at least ``views`` cameras (optionally
         ``min_angle_deg`` apart), or the fewest cameras observing ``required_fraction`` of it.
     views, min_angle_deg, fixed, forbidden, min_distance_m, required_fraction : optional
@@ -390,7 +395,7 @@ def sampling_stage(instance, settings: RunSettings) -> tuple[CandidateSet, "Targ
 
 def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSettings, *,
                 reporter: Reporter | None = None, timings: dict[str, float] | None = None):
-    """Choose the cameras (:func:`camplace.solver.modes.solve`), and against installation error when
+    """Choose the cameras (:func:`camplace.solver.api.solve`), and against installation error when
     the run is robust (:func:`camplace.robust.robust_stage`).
 
     Parameters
@@ -412,7 +417,7 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     robust_record : dict or None
         The ``robust`` entry of ``solution.json``.
     """
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
 
     reporter = reporter or Reporter()
     timings = {} if timings is None else timings
@@ -429,8 +434,8 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     from camplace.robust import robust_stage
 
     return robust_stage(
-        instance, cands, pts, matrix, weights, res, s.robust, s.options, seed=s.seed, cache=s.cache, reporter=reporter,
-        memory_budget_bytes=s.memory_budget_bytes, timings=timings,
+        instance, cands, pts, matrix, weights, res, s.robust, s.solve_options, seed=s.seed, cache=s.cache,
+        reporter=reporter, timings=timings,
     )
 
 

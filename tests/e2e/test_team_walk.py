@@ -92,7 +92,7 @@ def test_report_names_the_models(team_run) -> None:
     assert "<td class='l'>science</td>" in html or ">science<" in html
     # the 3D view draws each chosen camera's frustum with its model's intrinsics
     from camplace.report.compare import load_run_data
-    from camplace.report.scene3d import run_scene
+    from camplace.report.run_scene import run_scene
 
     sol = json.loads((team_run["out"] / "solution.json").read_text())
     scene = run_scene(load_run_data(team_run["out"]))

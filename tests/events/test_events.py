@@ -10,7 +10,9 @@ import pytest
 from camplace.instance import builtin, load_instance
 from camplace.instance.events import VOLCANO
 from camplace.instance.procedural import volcano_height
-from camplace.pipeline import covered_rows, make_run_candidates, run, stage_seeds
+from camplace.event import covered_rows
+from camplace.pipeline import run
+from camplace.visibility.stages import make_run_candidates, stage_seeds
 from camplace.sampling import candidates_from_positions, sample_positions
 from camplace.visibility import compute_visibility
 

@@ -13,7 +13,9 @@ import scipy.sparse as sp
 import camplace.cli
 from camplace.errors import CamplaceError
 from camplace.instance import builtin
-from camplace.pipeline import compute_points, event_aims, run
+from camplace.event import event_aims
+from camplace.pipeline import run
+from camplace.visibility.stages import compute_points
 from camplace.report.campaign import CAMPAIGN_COLUMNS, Campaign, problem_fingerprint, run_campaign, score_systems
 from camplace.report.compare import load_run_data
 from camplace.report.legacy import legacy_camera_scores, legacy_target

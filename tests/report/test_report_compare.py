@@ -122,7 +122,7 @@ def test_peak_event_mode_uses_the_run_weights(tmp_path) -> None:
     import copy
 
     from camplace.instance import builtin_toml, parse_instance
-    from camplace.pipeline import event_weights
+    from camplace.event import event_weights
 
     data = copy.deepcopy(builtin_toml("comet-67p-bunker"))
     data["frames"] = [{"weight": w, "position_m": [10.0 + 2.0 * i, 1.5, 1.5]} for i, w in enumerate((1.0, 3.0))]

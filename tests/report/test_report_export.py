@@ -12,7 +12,8 @@ import trimesh
 
 import camplace.cli
 from camplace.instance import builtin
-from camplace.pipeline import Solution, run
+from camplace.pipeline import run
+from camplace.solution import Solution
 from camplace.report.export import Z_UP_TO_Y_UP, export_cameras, frustum_mesh, parse_formats, rotation_to_quaternion
 from camplace.geometry import quaternion_to_rotation
 from camplace.validation.camera_io import read_colmap

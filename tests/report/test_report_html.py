@@ -26,7 +26,7 @@ from camplace.instance import builtin_toml, parse_instance
 from camplace.pipeline import run
 from camplace.report.build import BUNDLE_SAMPLERS, BUNDLE_SYSTEMS, run_report_bundle, write_report
 from camplace.report.campaign import Campaign
-from camplace.report.scene3d import PLOT_ID, SECTION_ID
+from camplace.report.run_scene import PLOT_ID, SECTION_ID
 from camplace.validation import render_run, validate_runs
 from tests._chromium import distinct_colours, external_requests, open_in_chromium, pixels_near, png_colours, without_legend
 

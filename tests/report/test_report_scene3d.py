@@ -13,9 +13,9 @@ import scipy.sparse as sp
 
 from camplace.instance import builtin
 from camplace.pipeline import run
+from camplace.plotly3d import scene_page
 from camplace.report.compare import load_run_data
-from camplace.report.scene3d import run_scene
-from camplace.scene3d import scene_page
+from camplace.report.run_scene import run_scene
 
 
 @pytest.fixture(scope="module")
@@ -79,8 +79,8 @@ def test_event_report_holds_the_3d_view(flyby) -> None:
 
 def test_multiview_counted_rows_weigh_the_objective(tmp_path) -> None:
     """Oracle: the solver's mode_value of the chosen cameras is the weight of the rows the view marks as counted."""
-    from camplace.report.scene3d import multiview_counted
-    from camplace.solver.modes import mode_value
+    from camplace.report.run_scene import multiview_counted
+    from camplace.solver.api import mode_value
     from tests.report.test_report_html import small_instance
 
     out = tmp_path / "mv"

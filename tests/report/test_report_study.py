@@ -9,7 +9,8 @@ import pytest
 from scipy.stats import qmc
 
 from camplace.instance import builtin
-from camplace.pipeline import run, stage_seeds
+from camplace.pipeline import run
+from camplace.visibility.stages import stage_seeds
 from camplace.report.build import percentile_of
 from camplace.report.compare import load_run_data
 from camplace.report.cones import ConeGrid, cone_density

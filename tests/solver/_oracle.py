@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 from hypothesis import strategies as st
 
-from camplace.solver._common import Deadline
+from camplace.solver._support.deadline import Deadline
 
 
 def brute_force(matrix: sp.spmatrix | np.ndarray, weights: np.ndarray, k: int) -> tuple[float, list[tuple[int, ...]]]:
@@ -86,7 +86,7 @@ def small_instances(
     return sp.csr_matrix(dense), w, k
 
 
-# ---- oracles for camplace.solver.modes (independent of the solver code) -------------------------
+# ---- oracles for camplace.solver.api (independent of the solver code) -------------------------
 
 
 def mode_objective(dense: np.ndarray, w: np.ndarray, cols: tuple[int, ...], mode: str, views: int = 2,

@@ -11,13 +11,15 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import camplace.solver.angle_exact as ae
-import camplace.solver.models as models
-import camplace.solver.modes as modes
+import camplace.solver.api as modes
+import camplace.solver.engines.angle.search as ae
+import camplace.solver.engines.mip.mode_models as models
+import camplace.solver.routes as routes
 from camplace.errors import CamplaceError
 from camplace.solver import solve_maxcover
-from camplace.solver._common import memory_budget, memory_budget_bytes
-from camplace.solver.modes import solve
+from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.memory import memory_budget, memory_budget_bytes
+from camplace.solver.api import solve
 from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -240,14 +242,14 @@ def test_angle_model_estimate_counts_the_conflict_rows() -> None:
     assert n_rows == 1 + int((s[live] + 1).sum()) + bad
     assert nnz == 10 + int((3 * s[live] + 1).sum()) + 2 * bad
     model, *_ = models.build_model(q, q, w, w, np.zeros(80), 3, "multiview", 2, 30.0, pos, pts, (), free,
-                                   np.zeros((0, 2), dtype=np.int64), 0.0, 0.0, None)
+                                   np.zeros((0, 2), dtype=np.int64), 0.0, Deadline(None))
     assert model.n_vars <= n_vars and len(model.rows) <= n_rows  # points without any good pair are skipped
     assert sum(r.idx.size for r in model.rows) <= nnz
 
 
 def test_angle_model_over_budget_falls_back_without_building(monkeypatch) -> None:
     dense, w, pos, pts = _sphere_instance(120, 9, 6)
-    _forbid(monkeypatch, modes, "build_model")
+    _forbid(monkeypatch, routes, "build_model")
     _forbid(monkeypatch, ae.K, "build_bits")
     best = brute_force_mode(dense, w, 5, "multiview", min_angle_deg=30.0, pos=pos, pts=pts)
     res = solve(dense, w, 5, mode="multiview", min_angle_deg=30.0, positions=pos, points=pts,
@@ -280,7 +282,7 @@ def test_general_models_over_budget_fall_back_or_stop(monkeypatch, mode) -> None
     dense = (rng.random((50, 10)) < 0.4) * rng.uniform(0.1, 1.0, (50, 10))
     w = rng.uniform(0.0, 1.0, 50)
     pos = rng.normal(size=(10, 3)) * 3
-    _forbid(monkeypatch, modes, "build_model")
+    _forbid(monkeypatch, routes, "build_model")
     assert modes.conflict_pairs(pos, 3.0).shape[0] > 0  # the general model (with conflict rows)
     best = brute_force_mode(dense, w, 3, mode, fixed=(8,), pos=pos, dmin=3.0)
     res = solve(dense, w, 3, mode=mode, fixed=(8,), positions=pos, min_distance_m=3.0, memory_budget_bytes=_TINY)
@@ -298,7 +300,7 @@ def test_maxcover_engines_over_budget(monkeypatch) -> None:
     from ortools.linear_solver import linear_solver_pb2
     from ortools.sat.python import cp_model
 
-    import camplace.solver.bitset_exact as be
+    import camplace.solver.engines.bitset.search as be
 
     rng = np.random.default_rng(9)
     dense = (rng.random((60, 12)) < 0.3).astype(float)
@@ -506,8 +508,8 @@ def test_three_node_counter_equals_numpy(pw, seed) -> None:
     weights[-23:] = 0.0  # padding rows
     levels = np.packbits(bits.reshape(n_nodes, n_words, 64), axis=2, bitorder="little").view(np.uint64)
     levels = np.ascontiguousarray(levels.reshape(1, n_nodes, n_words))
-    from camplace.solver import _anglekernels as AK
-    from camplace.solver import _bitkernels as BK
+    from camplace.solver._support import bitkernels as BK
+    from camplace.solver.engines.angle import _kernels as AK
 
     planes = BK.weight_planes(weights)
     for a, b, c in [(0, 1, 2), (1, 3, 4), (0, 2, 4)]:
@@ -525,7 +527,7 @@ def test_three_node_counter_equals_numpy(pw, seed) -> None:
 def test_grouped_two_view_counter_with_a_repeated_node_equals_numpy(seed) -> None:
     """k = 4 with one node twice (three groups): the node's rows seen by two of its columns
     (``levels[1]``) count, so the three-distinct-nodes counter must not be taken."""
-    from camplace.solver import _bitkernels as BK
+    from camplace.solver._support import bitkernels as BK
 
     rng = np.random.default_rng(seed)
     n_words, n_nodes = 6, 4

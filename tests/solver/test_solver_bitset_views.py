@@ -12,12 +12,12 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from camplace.solver import _bitkernels as K
-from camplace.solver import bitset_exact as bitset_mod
-from camplace.solver._common import Deadline
-from camplace.solver._synthetic import structured_instance
-from camplace.solver.bitset_exact import solve_bitset
-from camplace.solver.presolve import presolve
+from camplace.solver._support import bitkernels as K
+from camplace.solver._support.deadline import Deadline
+from camplace.solver.engines.bitset import search as bitset_mod
+from camplace.solver.engines.bitset.search import solve_bitset
+from camplace.solver.problem._synthetic import structured_instance
+from camplace.solver.problem.presolve import presolve
 from tests.solver._oracle import CountingDeadline, tolerance
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

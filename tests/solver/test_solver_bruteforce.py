@@ -10,8 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.solver import coverage_weight, presolve, solve_maxcover
-from camplace.solver import bitset_exact as bitset_mod
-from camplace.solver.bitset_exact import solve_bitset
+from camplace.solver.engines.bitset import search as bitset_mod
+from camplace.solver.engines.bitset.search import solve_bitset
 from tests.solver._oracle import brute_force, small_instances, tolerance
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

@@ -10,6 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
+from camplace.robust.cli import register as register_solve  # the solve verb (robust when asked)
 from camplace.solver.cli import register
 from tests.solver._oracle import brute_force_mode, mode_objective
 
@@ -36,7 +37,7 @@ def _folder(tmp_path, rng):
 def _run(argv):
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers(dest="verb")
-    handlers = register(sub, lambda p: None)
+    handlers = {**register_solve(sub, lambda p: None), **register(sub, lambda p: None)}
     args = ap.parse_args(argv)
     return handlers[args.verb](args)
 

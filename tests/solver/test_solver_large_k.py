@@ -1,4 +1,4 @@
-"""k = 5..8 (camplace.solver.large_k behind solve): enumeration on small random and structured
+"""k = 5..8 (camplace.solver.engines.large_k.search behind solve): enumeration on small random and structured
 instances, fixed and forbidden cameras, interruption keeping a valid bound, the memory check."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from camplace.errors import CamplaceError
-from camplace.solver import bitset_exact as bitset_mod
-from camplace.solver import large_k as lk_mod
-from camplace.solver._synthetic import structured_instance
-from camplace.solver.large_k import solve_large_k, views_incumbent
-from camplace.solver.modes import solve
+from camplace.solver.api import solve
+from camplace.solver.engines.bitset import search as bitset_mod
+from camplace.solver.engines.large_k import search as lk_mod
+from camplace.solver.engines.large_k.search import solve_large_k, views_incumbent
+from camplace.solver.problem._synthetic import structured_instance
 from tests.solver._oracle import CountingDeadline, brute_force_mode
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

@@ -1,4 +1,4 @@
-"""Every mode of :func:`camplace.solver.modes.solve` equals exhaustive enumeration."""
+"""Every mode of :func:`camplace.solver.api.solve` equals exhaustive enumeration."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.errors import CamplaceError
-from camplace.solver.modes import solve
+from camplace.solver.api import solve
 from tests._floats import assert_ge, assert_le
 from tests.solver._oracle import brute_force_mode, brute_force_setcover, mode_objective, spaced, usable
 
@@ -193,7 +193,7 @@ def test_time_limit_during_model_build_keeps_a_valid_bound(mode, data) -> None:
     """When the limit passes while the MIP model is built, the greedy answer comes back with a
     bound that is still >= the enumerated optimum (fixed and forbidden cameras respected)."""
     import camplace.solver.choose as choose
-    import camplace.solver.modes as modes
+    import camplace.solver.api as modes
 
     dense, w, pos, pts, rng = data.draw(instances())
     n = dense.shape[1]
@@ -236,7 +236,7 @@ def test_stereo_exact_engine_equals_enumeration(engine, data) -> None:
 
 
 def test_stereo_time_limit_keeps_a_valid_bound() -> None:
-    from camplace.solver._synthetic import structured_instance
+    from camplace.solver.problem._synthetic import structured_instance
 
     a, w = structured_instance(3000, 200, seed=4)
     full = solve(a, w, 3, mode="multiview", views=2, engine="exact")
@@ -253,17 +253,17 @@ def test_too_large_model_is_not_built(monkeypatch) -> None:
     with a valid bound under ``auto``, and an explicitly requested engine is a one-line error;
     either way no memory goes into a model."""
     import camplace.solver.choose as choose
-    import camplace.solver.modes as modes
+    import camplace.solver.routes as routes
 
     rng = np.random.default_rng(7)
     dense = (rng.random((30, 8)) < 0.4) * rng.uniform(0.1, 1.0, (30, 8))
     w = rng.uniform(0.0, 1.0, 30)
-    monkeypatch.setattr(modes, "model_bytes", lambda *a: 1 << 60)
+    monkeypatch.setattr(routes, "model_bytes", lambda *a: 1 << 60)
 
     def never(*args, **kwargs):
         raise AssertionError("the model was built")
 
-    monkeypatch.setattr(modes, "build_model", never)
+    monkeypatch.setattr(routes, "build_model", never)
     monkeypatch.setattr(choose, "LARGE_K_MAX", 4)  # k = 5 takes the general model's path (not the large-k engine)
     for mode in ("quality", "multiview"):
         res = solve(dense, w, 5, mode=mode, views=3)  # auto with k = 5: the SCIP model
@@ -294,7 +294,7 @@ def test_setcover_fraction_cpsat_regression() -> None:
 
 
 def test_quality_engine_time_limit_keeps_a_valid_bound() -> None:
-    from camplace.solver._synthetic import structured_instance
+    from camplace.solver.problem._synthetic import structured_instance
 
     a, w = structured_instance(3000, 150, seed=2)
     rng = np.random.default_rng(2)

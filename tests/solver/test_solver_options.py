@@ -85,10 +85,11 @@ def test_command_line_builds_the_options() -> None:
 def test_record_has_the_solution_json_keys() -> None:
     rec = SolveOptions(mode="multiview", k=2, views=3, fixed=(4, 1)).record()
     assert list(rec) == ["mode", "k", "views", "min_angle_deg", "required_fraction", "fixed", "forbidden",
-                         "min_distance_m", "engine", "time_limit_s"]
+                         "min_distance_m", "engine", "time_limit_s", "search_seed"]
     assert rec["views"] == 3 and rec["fixed"] == [1, 4] and rec["required_fraction"] is None
-    rec = SolveOptions(mode="setcover", views=3).record()
-    assert rec["k"] is None and rec["views"] is None and rec["required_fraction"] == 1.0
+    assert rec["search_seed"] is None  # only setcover's local search has a seed
+    rec = SolveOptions(mode="setcover", views=3, search_seed=5).record()
+    assert rec["k"] is None and rec["views"] is None and rec["required_fraction"] == 1.0 and rec["search_seed"] == 5
 
 
 def test_index_arrays_are_accepted() -> None:

@@ -10,13 +10,13 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import camplace.solver.bitset_exact as bitset_mod
-import camplace.solver.modes as modes
+import camplace.solver.engines.bitset.search as bitset_mod
+import camplace.solver.api as modes
+from camplace.solver.api import solve
+from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
+from camplace.solver.engines.bitset.search import solve_bitset
+from camplace.solver.problem.presolve import presolve
 from camplace.solver.result import ModeOutcome
-from camplace.solver.bitset_exact import solve_bitset
-from camplace.solver.modes import solve
-from camplace.solver.pair_cap import opposite_pair_bound
-from camplace.solver.presolve import presolve
 from tests.solver._oracle import ExpiringDeadline, mode_objective, small_instances, tolerance
 
 
@@ -104,13 +104,13 @@ def test_solve_tightens_an_unproven_multiview_bound(monkeypatch) -> None:
     dense = circle(40, 12)
     w = np.full(40, 0.025)
     seen = {}
-    real = modes._cover_modes
+    real = modes.run_cover
 
-    def loose(q, w_, k, mode, views, *args):
-        seen["limit"] = args[-2]
-        return ModeOutcome((0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": k})
+    def loose(problem):
+        seen["limit"] = problem.deadline.limit
+        return ModeOutcome((0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": problem.k})
 
-    monkeypatch.setattr(modes, "_cover_modes", loose)
+    monkeypatch.setattr(modes, "run_cover", loose)
     res = solve(dense, w, 3, mode="multiview", views=2, time_limit_s=10.0)
     assert seen["limit"] == pytest.approx(9.5)  # 5 % of the time is kept for the cap ...
     solve(dense, w, 3, mode="multiview", views=2, time_limit_s=100.0)
@@ -127,7 +127,7 @@ def test_solve_tightens_an_unproven_multiview_bound(monkeypatch) -> None:
     assert res.bound == pytest.approx(1.0) and "opposite_pairs" not in res.stats
     assert seen["limit"] == pytest.approx(10.0)
 
-    monkeypatch.setattr(modes, "_cover_modes", real)
+    monkeypatch.setattr(modes, "run_cover", real)
     res = solve(dense, w, 3, mode="multiview", views=2)  # the real engine proves it without the cap
     assert res.status == "optimal" and res.objective == pytest.approx(0.5)
     assert "opposite_pairs" not in res.stats

@@ -11,9 +11,10 @@ import pytest
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
+from camplace.robust.cli import register
 from camplace.solver import solve
-from camplace.solver.checks import values_matrix
-from camplace.solver.cli import load_problem, register
+from camplace.solver.cli import load_problem
+from camplace.solver.problem.checks import values_matrix
 from camplace.visibility import store
 from tests.solver._oracle import brute_force_mode
 

@@ -13,7 +13,7 @@ from camplace.solver import coverage_weight, presolve
 from tests.solver._oracle import brute_force, small_instances, tolerance
 
 # The package exports the function ``presolve``, which shadows the submodule attribute.
-presolve_mod = importlib.import_module("camplace.solver.presolve")
+presolve_mod = importlib.import_module("camplace.solver.problem.presolve")
 
 
 def _m(rows: list[list[float]]) -> sp.csr_matrix:
@@ -139,7 +139,7 @@ def test_presolve_preserves_optimum_and_maps_back(inst) -> None:
 
 def test_row_merge_survives_hash_collisions() -> None:
     """Every row in one hash bucket: grouping must still come from exact comparison."""
-    from camplace.solver import _bitkernels as bk
+    from camplace.solver._support import bitkernels as bk
 
     rng = np.random.default_rng(11)
     base = (rng.random((6, 9)) < 0.4).astype(float)

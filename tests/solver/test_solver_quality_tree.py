@@ -9,11 +9,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import camplace.solver.choose as choose
-import camplace.solver.modes as modes
-import camplace.solver.portfolio as portfolio
-import camplace.solver.quality_tree as qt
+import camplace.solver.api as modes
+import camplace.solver.routes as routes
+import camplace.solver.engines.quality.portfolio as portfolio
+import camplace.solver.engines.quality.tree as qt
 from camplace.errors import CamplaceError
-from camplace.solver.modes import solve
+from camplace.solver.api import solve
 from tests._floats import assert_ge
 from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective
 
@@ -124,12 +125,12 @@ def test_memory_guard(monkeypatch, mode) -> None:
     rng = np.random.default_rng(11)
     dense = (rng.random((40, 10)) < 0.5) * rng.uniform(0.05, 1.0, (40, 10))
     w = rng.uniform(0.0, 1.0, 40)
-    import camplace.solver._dispatch as dispatch
+    import camplace.solver.engines.maxcover as dispatch
 
     def huge(*args, **kwargs):  # the exact engines' estimates (models are checked separately)
         return 1 << 60
 
-    for mod, name in [(modes, "bitset_bytes"), (choose, "quality_tree_bytes"),
+    for mod, name in [(routes, "bitset_bytes"), (choose, "quality_tree_bytes"),
                       (choose, "quality_exact_bytes"), (dispatch, "bitset_bytes")]:
         monkeypatch.setattr(mod, name, huge)
     monkeypatch.setattr(choose, "_QUALITY_EXPAND_MAX", -1)  # quality: the tree engine would be next
@@ -143,13 +144,13 @@ def test_memory_guard(monkeypatch, mode) -> None:
 
 
 def test_memory_budget_is_positive() -> None:
-    from camplace.solver._common import memory_budget_bytes
+    from camplace.solver._support.memory import memory_budget_bytes
 
     assert memory_budget_bytes() > 0
 
 
 def test_solve_time_limit_on_the_tree_engine(monkeypatch) -> None:
-    from camplace.solver._synthetic import structured_instance
+    from camplace.solver.problem._synthetic import structured_instance
 
     a, w = structured_instance(3000, 150, seed=3)
     rng = np.random.default_rng(3)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from camplace.solver.cli import register
-from camplace.solver.formats import read_gecco, read_orlib
+from camplace.solver.problem.formats import read_gecco, read_orlib
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO.parent / "shared" / "data"

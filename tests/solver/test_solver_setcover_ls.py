@@ -1,4 +1,4 @@
-"""The set-cover engine (:mod:`camplace.solver.setcover_ls`) against enumeration and published optima.
+"""The set-cover engine (:mod:`camplace.solver.engines.setcover.local_search`) against enumeration and published optima.
 
 Oracles: exhaustive enumeration of column subsets (small random instances, full and partial
 covers, unit / integer / fractional costs) and the proven optima of the OR-Library instances and
@@ -18,9 +18,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.errors import CamplaceError
-from camplace.solver import setcover_ls as S
-from camplace.solver.formats import read_gecco, read_orlib
-from camplace.solver.modes import solve
+from camplace.solver.api import solve
+from camplace.solver.engines.setcover import local_search as S
+from camplace.solver.problem.formats import read_gecco, read_orlib
 from tests._floats import assert_ge, assert_le
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -126,13 +126,13 @@ def test_solve_cover_equals_enumeration(engine, inst) -> None:
     finally:
         S.AUTO_MODEL_NNZ = old
     assert _covers(dense, w, need, out.selected)
-    assert out.cost == pytest.approx(float(costs[list(out.selected)].sum()), rel=1e-12, abs=1e-12)
-    assert_ge(out.cost, best)
+    assert out.objective == pytest.approx(float(costs[list(out.selected)].sum()), rel=1e-12, abs=1e-12)
+    assert_ge(out.objective, best)
     assert_le(out.bound, best)
     if engine in ("mip", "cpsat"):
         assert out.status == "optimal"
     if out.status == "optimal":
-        assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
+        assert out.objective == pytest.approx(best, rel=1e-9, abs=1e-12)
     if engine == "search-only":
         assert out.engine == "local-search"
 
@@ -152,8 +152,8 @@ def test_same_seed_and_iterations_same_answer_in_any_number_of_calls() -> None:
     assert np.array_equal(a.pw, b.pw) and np.array_equal(a.score, b.score)
     small = dense[:40, :60]  # small enough for SCIP to prove quickly after the search
     small = small[small.any(axis=1)]
-    r1 = solve(small, np.ones(small.shape[0]), mode="setcover", seed=3, iterations=3000)
-    r2 = solve(small, np.ones(small.shape[0]), mode="setcover", seed=3, iterations=3000)
+    r1 = solve(small, np.ones(small.shape[0]), mode="setcover", search_seed=3, iterations=3000)
+    r2 = solve(small, np.ones(small.shape[0]), mode="setcover", search_seed=3, iterations=3000)
     assert r1.selected == r2.selected and r1.objective == r2.objective
 
 
@@ -287,10 +287,10 @@ def test_restarts_and_side_by_side_searches_same_seed_same_answer(monkeypatch) -
     out = [S.solve_cover(a, np.ones(a.shape[1]), seed=s) for s in (5, 5)]
     ls = out[0].stats["local_search"]
     assert ls.get("resumed") and ls["searches"] == S.search_threads() and ls["restarts"] > 0
-    assert out[0].selected == out[1].selected and out[0].cost == out[1].cost
+    assert out[0].selected == out[1].selected and out[0].objective == out[1].objective
     assert out[0].stats["local_search"]["iterations"] == out[1].stats["local_search"]["iterations"]
     assert bool(np.all(np.diff(a[:, list(out[0].selected)].tocsr().indptr) > 0))
-    assert out[0].cost == len(out[0].selected) >= out[0].bound
+    assert out[0].objective == len(out[0].selected) >= out[0].bound
 
 
 def test_time_limit_is_kept_and_the_answer_is_a_cover() -> None:
@@ -302,7 +302,7 @@ def test_time_limit_is_kept_and_the_answer_is_a_cover() -> None:
     assert elapsed < 1.0 + 0.5, elapsed
     assert out.stats["local_search"].get("resumed") and out.status == "feasible"
     assert bool(np.all(np.diff(a[:, list(out.selected)].tocsr().indptr) > 0))
-    assert out.cost == len(out.selected) >= out.bound
+    assert out.objective == len(out.selected) >= out.bound
 
 
 @settings(max_examples=25, **_SETTINGS)
@@ -320,11 +320,11 @@ def test_timed_solve_with_searches_side_by_side_equals_enumeration_bounds(inst) 
     finally:
         S.AUTO_MODEL_NNZ, S.RESTART_WORK_MIN = old
     assert _covers(dense, w, need, out.selected)
-    assert out.cost == pytest.approx(float(costs[list(out.selected)].sum()), rel=1e-12, abs=1e-12)
-    assert_ge(out.cost, best)
+    assert out.objective == pytest.approx(float(costs[list(out.selected)].sum()), rel=1e-12, abs=1e-12)
+    assert_ge(out.objective, best)
     assert_le(out.bound, best)
     if out.status == "optimal":
-        assert out.cost == pytest.approx(best, rel=1e-9, abs=1e-12)
+        assert out.objective == pytest.approx(best, rel=1e-9, abs=1e-12)
 
 
 def test_side_by_side_searches_stop_together_at_the_target() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from camplace.solver import solve_maxcover
-from camplace.solver._synthetic import structured_instance
+from camplace.solver.problem._synthetic import structured_instance
 from tests.solver._oracle import brute_force, tolerance
 
 CASES = [

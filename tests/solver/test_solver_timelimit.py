@@ -9,8 +9,8 @@ import pytest
 import scipy.sparse as sp
 
 from camplace.solver import SolverResult, solve_maxcover
-from camplace.solver import bitset_exact as bitset_mod
-from camplace.solver._synthetic import structured_instance
+from camplace.solver.engines.bitset import search as bitset_mod
+from camplace.solver.problem._synthetic import structured_instance
 from camplace.solver.result import relative_gap
 from tests.solver._oracle import CountingDeadline
 

@@ -15,7 +15,7 @@ import pytest
 
 import camplace.cli
 from camplace.instance import builtin_toml, parse_instance, save_instance
-from camplace.pipeline import Solution, camera_record
+from camplace.solution import Solution, camera_record
 from camplace.sampling import make_candidates
 from camplace.validation.render import read_image, render_view, scene_for_frame
 from camplace.validation.cameras import CameraSet

@@ -14,7 +14,7 @@ import pytest
 
 import camplace.cli
 from camplace.validation.cameras import CameraView
-from camplace.validation.scene3d import cameras_scene, seen_counts
+from camplace.validation.camera_scene import cameras_scene, seen_counts
 from camplace.validation.workflow import box_mesh
 from tests._chromium import distinct_colours, external_requests, open_in_chromium, pixels_near, png_colours, without_legend
 

@@ -7,7 +7,7 @@ import pytest
 
 from camplace.cli import main
 from camplace.instance import builtin
-from camplace.pipeline import event_aims
+from camplace.event import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, make_target_points
 from camplace.visibility import store

@@ -9,7 +9,7 @@ import pytest
 
 from camplace.errors import CamplaceError
 from camplace.instance import builtin
-from camplace.pipeline import event_aims
+from camplace.event import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, make_target_points
 from camplace.visibility.distributed import compute_chunks_dask

@@ -14,7 +14,7 @@ import pytest
 import trimesh
 
 from camplace.instance import builtin
-from camplace.pipeline import event_aims
+from camplace.event import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import chunk, compute_visibility, engine, make_target_points
 from camplace.visibility.engine import assemble, compute_chunk, make_task

@@ -7,7 +7,7 @@ import pytest
 
 from camplace.instance import BUILTINS, builtin
 from camplace.instance.schema import QualitySpec
-from camplace.pipeline import event_aims
+from camplace.event import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, frame_scene, make_target_points
 from camplace.visibility.engine import EPS_REL

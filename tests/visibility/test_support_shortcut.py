@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from camplace.instance import builtin
-from camplace.pipeline import event_aims
+from camplace.event import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import make_target_points
 from camplace.visibility.engine import assemble, compute_chunk, make_task

@@ -191,7 +191,7 @@ def make_problem(
         raise CamplaceError("start reach must be >= 0")
     # the phase blocks, and later their CSC copies (heuristic), each as large as the matrix
     need = 2 * q.nnz * (q.data.itemsize + q.indices.itemsize) + 2 * (m + n_phases) * 8 + 3 * n * 8
-    from camplace.solver._common import memory_budget_bytes
+    from camplace.solver._support.memory import memory_budget_bytes
 
     budget = memory_budget_bytes()
     if need > budget:
@@ -360,7 +360,7 @@ class FlowModel:
 
     Attributes
     ----------
-    model : camplace.solver._model.LinearModel
+    model : camplace.solver.engines.mip.linear.LinearModel
     x : list of (n_p,) int64
         Variable index of each kept pose of phase p.
     kept : list of (n_p,) int64
@@ -393,7 +393,7 @@ def _reach_pairs(pa: np.ndarray, pb: np.ndarray, reach: float) -> tuple[np.ndarr
 
 def _phase_block(problem: PlanProblem, p: int, kept: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
     """Phase p's live rows restricted to the kept poses, identical rows merged."""
-    from camplace.solver.models import merge_rows
+    from camplace.solver.engines.mip.mode_models import merge_rows
 
     q = problem.matrices[p][:, kept].tocsr()
     live = (problem.weights[p] > 0) & (np.diff(q.indptr) > 0)
@@ -451,8 +451,8 @@ def build_flow_model(problem: PlanProblem, kept: list, phase_bounds: Sequence[fl
     -------
     FlowModel
     """
-    from camplace.solver._model import LinearModel
-    from camplace.solver.models import add_level_chain
+    from camplace.solver.engines.mip.linear import LinearModel
+    from camplace.solver.engines.mip.mode_models import add_level_chain
 
     k, P = problem.k, problem.n_phases
     model = LinearModel(maximize=True)

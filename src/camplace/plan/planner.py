@@ -161,7 +161,7 @@ class _Clock:
 
 def _solve_phase(problem: PlanProblem, p: int, k: int, limit: float | None) -> tuple[tuple[int, ...], float, float, str]:
     """Per-phase optimum with k agents: (poses, value, bound, status)."""
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
 
     q, w = problem.matrices[p], problem.weights[p]
     if k <= 0:
@@ -179,7 +179,7 @@ def _static(problem: PlanProblem, static: StaticReference | None, limit: float |
     """The best static system: the given one, or the solver's answer on all rows."""
     import scipy.sparse as sp
 
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
 
     if static is not None:
         return static
@@ -417,7 +417,7 @@ def _lns(problem, index, plan, value, extra_sets, U, backend, clock, max_nonzero
     Returns (plan, objective, rounds); no bound (a restricted model bounds nothing).
     """
     from camplace.plan.heuristic import agent_ascent, neighbourhood
-    from camplace.solver._model import solve_model
+    from camplace.solver.engines.mip.linear import solve_model
 
     top, rounds = LNS_FIRST_TOP, []
     while not clock.expired():
@@ -459,7 +459,7 @@ def _hint(fm, plan) -> dict[int, float] | None:
 
 def _exact(problem, kept, U, best_plan, incumbent, backend, clock, stats, timings, finish) -> PlanResult:
     """Solve the flow model; combine its answer and bound with the incumbent."""
-    from camplace.solver._model import solve_model
+    from camplace.solver.engines.mip.linear import solve_model
 
     t0 = time.perf_counter()
     fm = build_flow_model(problem, kept, U)

@@ -1,7 +1,7 @@
 """``report.html``: one self-contained page about a run, its campaigns, the samplers and validation.
 
 Everything is embedded (images as base64 ``data:`` URIs, CSS inline, the 3D view's plotly.js inline:
-:mod:`camplace.report.scene3d`), and a Content-Security-Policy forbids the page any other resource,
+:mod:`camplace.report.run_scene`), and a Content-Security-Policy forbids the page any other resource,
 so it opens offline in any browser.
 Every string that comes from a file or the user is escaped with :func:`html.escape`.
 """
@@ -666,7 +666,7 @@ def write_report(
     from camplace.report.campaign import Campaign, find_campaigns
     from camplace.report.compare import compare_with_campaigns, load_run_data
     from camplace.report.figures import require_matplotlib
-    from camplace.report.scene3d import SECTION_ID, scene3d_section
+    from camplace.report.run_scene import SECTION_ID, scene3d_section
 
     require_matplotlib()
     reporter = reporter or Reporter()

@@ -164,7 +164,7 @@ def score_systems(matrix, weights: np.ndarray, columns: np.ndarray, *, mode: str
     import scipy.sparse as sp
 
     from camplace.solver import coverage_weight
-    from camplace.solver.objectives import mode_value
+    from camplace.solver.problem.objectives import mode_value
 
     if mode == "maxcover":
         csc = sp.csc_matrix(matrix)
@@ -411,8 +411,8 @@ class Campaign:
 
 def _camera_poses(instance, sampler: str, n_cams: int, aims: np.ndarray, seed: int):
     """Positions of a run's sampler (above any ground, :func:`~camplace.visibility.stages.make_run_candidates`), each aimed at one of ``aims``."""
-    from camplace.visibility.stages import make_run_candidates
     from camplace.sampling import look_at
+    from camplace.visibility.stages import make_run_candidates
 
     pos_seed, aim_seed = campaign_seed(seed).spawn(2)
     rng = np.random.default_rng(aim_seed)
@@ -499,11 +499,11 @@ def run_campaign(
         the number of rows.
     """
     from camplace._progress import Reporter
-    from camplace.instance import resolve_instance
     from camplace.event import event_aims, event_weights
+    from camplace.instance import resolve_instance
     from camplace.names import EVENT_MODES
-    from camplace.visibility.stages import compute_points, visibility_stage
     from camplace.sampling import SAMPLERS, CandidateSet
+    from camplace.visibility.stages import compute_points, visibility_stage
 
     if not hasattr(instance, "frames"):
         instance = resolve_instance(str(instance), seed=seed)

@@ -198,7 +198,7 @@ def compare_with_campaigns(
 
     from camplace.report.campaign import scoring_of
     from camplace.solver import solve
-    from camplace.solver.objectives import mode_value
+    from camplace.solver.problem.objectives import mode_value
 
     if union not in ("auto", "always"):
         raise CamplaceError(f"--union: use auto or always, got {union!r}")

@@ -100,7 +100,7 @@ def robust_png(values: dict[str, Sequence[float]], title: str, *, xlabel: str = 
         Per system (``robust``, ``nominal``) its objective in each installation.
     title : str
     """
-    from camplace.solver.robust_p10 import order_p10
+    from camplace.robust.p10 import order_p10
 
     colours = {"robust": OPT_COLOUR, "nominal": "#1f77b4"}
     arrays = {k: np.asarray(v, dtype=np.float64) for k, v in values.items() if len(v)}

@@ -2,7 +2,7 @@
 
 Input is a visibility matrix ``A`` (m points x n candidate cameras; any value > 0 means "observes")
 and point weights. :func:`solve` chooses cameras under every formulation (``maxcover``,
-``quality``, ``multiview``, ``setcover``; see :mod:`camplace.solver.modes`); :func:`solve_maxcover`
+``quality``, ``multiview``, ``setcover``; see :mod:`camplace.solver.api`); :func:`solve_maxcover`
 is plain max coverage: exactly ``k`` distinct columns maximising the total weight of the rows
 observed by at least one of them. Both report whether the answer is proven optimal, with a valid
 bound.
@@ -11,7 +11,7 @@ Engines (all run on the :func:`presolve`-reduced instance):
 
 ``exact``
     Bound-pruned search over tuples of candidate clusters on row bitsets, for small k
-    (:mod:`camplace.solver.bitset_exact`); the default for k <= 4.
+    (:mod:`camplace.solver.engines.bitset.search`); the default for k <= 4.
 ``mip``
     SCIP through OR-Tools ``pywraplp``; the default for k > 4.
 ``cpsat``
@@ -21,22 +21,28 @@ Engines (all run on the :func:`presolve`-reduced instance):
 problem's sizes, the :class:`~camplace.solver.options.SolveOptions` and the memory budget; its
 reason is in ``stats["engine_choice"]``).
 
-Modules: :mod:`~camplace.solver.options` (SolveOptions and the command-line flags),
-:mod:`~camplace.solver.checks` (input checks), :mod:`~camplace.solver.objectives` (what each mode
-counts), :mod:`~camplace.solver.choose` (engine choice), :mod:`~camplace.solver.modes` (``solve``:
-runs the choice, falls back on memory), :mod:`~camplace.solver.portfolio` (the exact quality
-engines), :mod:`~camplace.solver.greedy`, :mod:`~camplace.solver.models` (SCIP / CP-SAT models of
-the modes, on :mod:`~camplace.solver._model`), :mod:`~camplace.solver.setcover` (the set-cover
-mode), :mod:`~camplace.solver.result` (``SolverResult``, and ``ModeOutcome`` between an engine and
-``solve``); the engines themselves in their own modules.
+Layout (modelled on :mod:`scipy.optimize`: one entry, one options object, one result type, each
+engine in its own private module):
+
+* :mod:`~camplace.solver.api`: ``solve`` and ``solve_maxcover`` (the checks, the solve's one
+  deadline, the final result); :mod:`~camplace.solver.routes` (the k-camera modes as one problem
+  object, ``CoverProblem``, and the engine table ``ROUTES`` keyed by the engine choice's route);
+  :mod:`~camplace.solver.options` (``SolveOptions`` and the command-line flags),
+  :mod:`~camplace.solver.choose` (engine choice), :mod:`~camplace.solver.result` (``SolverResult``;
+  ``EngineOutcome`` and ``ModeOutcome`` between an engine and ``solve``), :mod:`~camplace.solver.cli`.
+* ``problem/``: input checks, objectives (what each mode counts), presolve, set-cover formats.
+* ``engines/``: ``bitset/`` (the exact tuple search, the opposite-pairs bound), ``angle/``,
+  ``quality/`` (tree, min-Gram, their portfolio), ``large_k/``, ``setcover/``, ``mip/`` (the linear
+  model backend, the mode models, the max-coverage MIP / CP-SAT engines, the p10 model), and
+  ``maxcover`` (the max-coverage engines within the memory budget); compiled kernels sit beside
+  the engine that uses them.
+* ``_support/``: the deadline, the memory budget, the best-first frontier, greedy heuristics and
+  the row-bitset kernels shared by presolve and the engines.
 
 This package imports no geometry code: it only sees matrices.
 """
 
 from __future__ import annotations
-
-import sys
-import types
 
 from camplace._lazy import lazy_getattr
 from camplace.names import ENGINES, MODES
@@ -44,35 +50,19 @@ from camplace.names import ENGINES, MODES
 # Imported on first use, so that ``import camplace.solver`` (e.g. to read the names above, or for
 # the command line's parser) compiles no kernels and loads no OR-Tools.
 _LAZY = {
-    "Presolved": "camplace.solver.presolve",
-    "presolve": "camplace.solver.presolve",
+    "Presolved": "camplace.solver.problem.presolve",
+    "presolve": "camplace.solver.problem.presolve",
     "SolverResult": "camplace.solver.result",
     "SolveOptions": "camplace.solver.options",
-    "coverage_weight": "camplace.solver._common",
-    "solve": "camplace.solver.modes",
-    "mode_value": "camplace.solver.objectives",
-    "conflict_pairs": "camplace.solver.checks",
+    "coverage_weight": "camplace.solver.problem.objectives",
+    "solve": "camplace.solver.api",
+    "mode_value": "camplace.solver.problem.objectives",
+    "conflict_pairs": "camplace.solver.problem.checks",
     "choose_engine": "camplace.solver.choose",
-    "solve_maxcover": "camplace.solver.maxcover",
+    "solve_maxcover": "camplace.solver.api",
 }
 
 __getattr__ = lazy_getattr(__name__, _LAZY)
 
-
-class _Package(types.ModuleType):
-    """This package, where importing the submodule ``presolve`` does not hide the function ``presolve``.
-
-    Python binds an imported submodule as an attribute of its package; the function of the same
-    name is then found by the lazy ``__getattr__`` instead (``camplace.solver.presolve`` stays the
-    module in ``sys.modules`` for ``from camplace.solver.presolve import ...``).
-    """
-
-    def __setattr__(self, name: str, value) -> None:
-        if name == "presolve" and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
 
 __all__ = ["ENGINES", "MODES", *sorted(_LAZY)]

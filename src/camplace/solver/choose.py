@@ -2,12 +2,12 @@
 sizes, the options and the memory budget.
 
 The decision reads only numbers: the engines' memory estimates are functions of the sizes
-(:func:`~camplace.solver.quality_tree.quality_tree_bytes`,
-:func:`~camplace.solver.quality_exact.quality_exact_bytes`,
-:func:`~camplace.solver.objectives.expand_bytes`). What can only be known while solving stays a
+(:func:`~camplace.solver.engines.quality.tree.quality_tree_bytes`,
+:func:`~camplace.solver.engines.quality.min_gram.quality_exact_bytes`,
+:func:`~camplace.solver.problem.objectives.expand_bytes`). What can only be known while solving stays a
 fallback of :func:`camplace.solver.solve` (recorded in ``stats["memory_fallback"]``): the exact
 engines' memory after presolve (multiview, maxcover) and inside the angle engine, and the
-SCIP / CP-SAT model's size (:func:`camplace.solver.models.model_size`).
+SCIP / CP-SAT model's size (:func:`camplace.solver.engines.mip.mode_models.model_size`).
 
 The rules (``k`` new cameras, ``EXACT_MAX_K = 4``):
 
@@ -22,7 +22,7 @@ multiview, no fixed cameras, no minimum     ``exact`` (bitset engine)
 distance, no angle, k <= 4
 multiview with angle, no minimum distance,  ``exact`` (angle engine)
 k <= 4
-maxcover / quality, no minimum distance;    ``exact`` (:mod:`camplace.solver.large_k`: local
+maxcover / quality, no minimum distance;    ``exact`` (:mod:`camplace.solver.engines.large_k.search`: local
 multiview without fixed cameras, angle or   search and a Lagrangian bound; maxcover then
 minimum distance; 4 < k <= 8                SCIP, multiview then bitsets and SCIP)
 anything else                               ``mip`` (SCIP; maxcover without minimum distance
@@ -38,12 +38,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from camplace.errors import CamplaceError
-from camplace.solver.bitset_exact import BITSET_MAX_K as EXACT_MAX_K
-from camplace.solver.large_k import LARGE_K_MAX
-from camplace.solver.objectives import expand_bytes
+from camplace.solver._support.memory import too_big_message
+from camplace.solver.engines.bitset.search import BITSET_MAX_K as EXACT_MAX_K
+from camplace.solver.engines.large_k.search import LARGE_K_MAX
+from camplace.solver.engines.quality.min_gram import QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, quality_exact_bytes
+from camplace.solver.engines.quality.tree import quality_tree_bytes
 from camplace.solver.options import SolveOptions
-from camplace.solver.quality_exact import QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, quality_exact_bytes
-from camplace.solver.quality_tree import quality_tree_bytes
+from camplace.solver.problem.objectives import expand_bytes
 
 __all__ = ["ProblemSizes", "EngineChoice", "choose_engine", "problem_sizes", "EXACT_MAX_K", "ROUTES"]
 
@@ -144,16 +145,10 @@ def problem_sizes(resid: Any, k: int, free: int, fixed: int, conflicts: int, mod
     gram = expanded = 0.0
     if mode == "quality":
         s = np.diff(resid.indptr).astype(np.float64)
-        gram = float(np.sum(s * (s - 1) / 2))  # camplace.solver.quality_exact.min_gram_cost
+        gram = float(np.sum(s * (s - 1) / 2))  # camplace.solver.engines.quality.min_gram.min_gram_cost
         expanded = float(np.sum(s * (s + 1) / 2))
     return ProblemSizes(k=int(k), points=int(resid.shape[0]), free=int(free), nnz=int(resid.nnz), fixed=int(fixed),
                         conflicts=int(conflicts), min_gram_pairs=gram, expanded_nnz=expanded)
-
-
-def too_big_message(need: int, budget: int) -> str:
-    """The exact engine's one-line memory message."""
-    return (f"the exact engine needs about {need / 2**30:.1f} GiB for this instance but only "
-            f"{budget / 2**30:.1f} GiB may be used")
 
 
 def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: int, large_k: bool = True) -> EngineChoice:
@@ -165,9 +160,9 @@ def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: in
     options : SolveOptions
         Reads ``mode``, ``views``, ``min_angle_deg`` and ``engine`` (``problem.k`` is the k).
     budget_bytes : int
-        Memory the engine may use (:func:`camplace.solver._common.memory_budget_bytes`).
+        Memory the engine may use (:func:`camplace.solver._support.memory.memory_budget_bytes`).
     large_k : bool
-        Consider the engines for ``4 < k <= 8`` (:mod:`camplace.solver.large_k`); ``solve`` asks
+        Consider the engines for ``4 < k <= 8`` (:mod:`camplace.solver.engines.large_k.search`); ``solve`` asks
         again without them when they do not fit in memory (they measure that themselves).
 
     Returns

@@ -1,5 +1,6 @@
-"""Verbs of the solver stage: ``solve`` (re-solve a run's visibility matrix) and ``setcover``
-(public set-cover benchmark files).
+"""Verbs of the solver stage: ``setcover`` (public set-cover benchmark files), and the plain
+``solve`` (re-solve a run's visibility matrix; the verb itself is registered by
+:mod:`camplace.robust.cli`, which adds the robust options).
 
 Imports nothing heavy at module level (numpy, scipy and OR-Tools load when a verb runs).
 """
@@ -21,16 +22,13 @@ EXIT_NO_SOLUTION = 3
 SOLVE_NAME = "solve.json"  # the default -o of 'camplace solve', in the run folder
 
 
-def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
-    """Add the solver verbs to ``subparsers``; returns {verb: handler}."""
-    p = subparsers.add_parser("solve", help="choose cameras on a stored visibility matrix (any mode, side constraints)")
-    p.add_argument("source", type=Path, help="output folder of 'camplace run' (or 'visibility') or its matrix file (visibility.cpm or .npz)")
-    add_solver_options(p, k_default="the run's k")
-    p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
-                   help="row weights: all frames, or the maximum-likelihood frame alone (default: the run's, else all)")
-    p.add_argument("-o", "--out", type=Path, default=None,
-                   help=f"solution JSON to write (default: {SOLVE_NAME} in the run folder)")
 
+def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
+    """Add the solver's own verb, ``setcover``, to ``subparsers``; returns {verb: handler}.
+
+    The ``solve`` verb is registered by :mod:`camplace.robust.cli` (a later stage: it also solves
+    robustly) with :func:`add_solve_arguments` and :func:`cmd_solve` from here.
+    """
     p = subparsers.add_parser("setcover", help="solve a public set-cover benchmark file (OR-Library or GECCO 2020)")
     p.add_argument("file", type=Path, help="instance file")
     p.add_argument("--format", choices=["orlib", "gecco"], required=True, dest="fmt", help="file format")
@@ -39,13 +37,24 @@ def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], No
                         "always that model after the local search (default auto)")
     p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="time limit, seconds")
     p.add_argument("--unicost", action="store_true", help="ignore the file's column costs (every column costs 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the local search (default 0)")
+    p.add_argument("--search-seed", "--seed", type=int, default=0, dest="search_seed",
+                   help="seed of the local search (default 0; --seed is the old name)")
     p.add_argument("--iterations", type=int, default=None,
                    help="iteration budget of the local search (with it and no time limit the answer is reproducible)")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: cost, bound, status, time_s, selected, engine, uncoverable_rows, "
                         "time_to_best_s")
-    return {"solve": _cmd_solve, "setcover": _cmd_setcover}
+    return {"setcover": _cmd_setcover}
+
+
+def add_solve_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of the ``solve`` verb (a run folder or matrix, the solver's options, ``-o``)."""
+    p.add_argument("source", type=Path, help="output folder of 'camplace run' (or 'visibility') or its matrix file (visibility.cpm or .npz)")
+    add_solver_options(p, k_default="the run's k")
+    p.add_argument("--event-mode", choices=EVENT_MODES, default=None, dest="event_mode",
+                   help="row weights: all frames, or the maximum-likelihood frame alone (default: the run's, else all)")
+    p.add_argument("-o", "--out", type=Path, default=None,
+                   help=f"solution JSON to write (default: {SOLVE_NAME} in the run folder)")
 
 
 
@@ -89,7 +98,7 @@ def solve_out(args: argparse.Namespace) -> Path:
     return check_out_file(args.out, example=SOLVE_NAME)
 
 
-def _run_defaults(source: Path) -> dict[str, Any]:
+def run_defaults(source: Path) -> dict[str, Any]:
     """``k`` (new cameras) and ``event_mode`` of the run whose folder holds the matrix, if any."""
     from camplace.runfolder import SOLUTION_NAME, RunFolder
 
@@ -120,7 +129,8 @@ def _peak_weights(source: Path, weights: Any, peak: int | None) -> Any:
     return w / w.sum() if w.sum() > 0 else w
 
 
-def _cmd_solve(args: argparse.Namespace) -> int:
+def cmd_solve(args: argparse.Namespace) -> int:
+    """``camplace solve SOURCE -o OUT``: choose cameras on a stored visibility matrix."""
     import time
     from concurrent.futures import ThreadPoolExecutor
 
@@ -132,13 +142,13 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         pattern = args.mode != "quality" and args.min_angle is None
         loading = pool.submit(load_problem, args.source, pattern)
         from camplace._io import write_json_atomic
-        from camplace.solver.modes import solve
+        from camplace.solver.api import solve
 
         matrix, weights, positions, points = loading.result()
     load_s = time.perf_counter() - t0
     if (args.min_distance is not None or args.min_angle is not None) and positions is None:
         raise CamplaceError(f"--min-distance/--min-angle need candidates.csv beside {args.source}")
-    run = _run_defaults(args.source)
+    run = run_defaults(args.source)
     if args.k is None and args.mode != "setcover":
         args.k = run.get("k")
     if args.mode != "setcover" and args.k is None:
@@ -168,15 +178,15 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 def _cmd_setcover(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from camplace.solver.formats import read_cover
-    from camplace.solver.modes import solve
+    from camplace.solver.api import solve
+    from camplace.solver.problem.formats import read_cover
 
     inst = read_cover(args.file, args.fmt)
     if args.iterations is not None and args.iterations < 1:
         raise CamplaceError(f"--iterations: must be a positive number of iterations, got {args.iterations}")
     costs = np.ones(inst.matrix.shape[1]) if args.unicost else inst.costs
-    opts = SolveOptions(mode="setcover", costs=costs, engine=args.engine, time_limit_s=args.time_limit, seed=args.seed,
-                        iterations=args.iterations)
+    opts = SolveOptions(mode="setcover", costs=costs, engine=args.engine, time_limit_s=args.time_limit,
+                        search_seed=args.search_seed, iterations=args.iterations)
     res = solve(inst.matrix, np.ones(inst.matrix.shape[0]), options=opts)
     unc = int(res.stats.get("uncoverable_points", 0))
     if args.json:

@@ -32,7 +32,7 @@ class SolveOptions:
     Attributes
     ----------
     mode : {"maxcover", "quality", "multiview", "setcover"}
-        The formulation (:mod:`camplace.solver.modes`).
+        The formulation (:mod:`camplace.solver.api`).
     k : int or None
         Number of NEW cameras (every mode but ``setcover``, which must not get it).
     views : int
@@ -52,8 +52,9 @@ class SolveOptions:
         setcover: camera costs (default 1 each). Not compared or hashed.
     memory_budget_bytes : int or None
         Cap on the memory any engine or model may use (``--memory-budget-gb``).
-    seed : int
-        setcover: seed of the local search.
+    search_seed : int
+        setcover: seed of the local search (the solver's own seed; the run's ``--seed``, which
+        draws candidates and points, is another one). Recorded as ``search_seed``.
     iterations : int or None
         setcover: iteration budget of the local search.
     """
@@ -70,7 +71,7 @@ class SolveOptions:
     time_limit_s: float | None = None
     costs: Any = field(default=None, compare=False, repr=False)
     memory_budget_bytes: int | None = None
-    seed: int = 0
+    search_seed: int = 0
     iterations: int | None = None
 
     def __post_init__(self) -> None:
@@ -84,7 +85,8 @@ class SolveOptions:
 
     def record(self) -> dict[str, Any]:
         """The ``options`` record of ``solution.json`` (the solver's part): JSON-ready, ``views`` and
-        ``min_angle_deg`` None outside multiview, ``required_fraction`` None outside setcover."""
+        ``min_angle_deg`` None outside multiview, ``required_fraction`` and ``search_seed`` None
+        outside setcover."""
         return {
             "mode": self.mode,
             "k": None if self.mode == "setcover" or self.k is None else int(self.k),
@@ -96,6 +98,7 @@ class SolveOptions:
             "min_distance_m": None if self.min_distance_m is None else float(self.min_distance_m),
             "engine": self.engine,
             "time_limit_s": None if self.time_limit_s is None else float(self.time_limit_s),
+            "search_seed": int(self.search_seed) if self.mode == "setcover" else None,
         }
 
 

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["ModeOutcome", "SolverResult", "STATUSES", "jsonable", "relative_gap"]
+__all__ = ["ModeOutcome", "SolverResult", "STATUSES", "jsonable", "relative_gap", "EngineOutcome"]
 
 STATUSES = ("optimal", "feasible", "infeasible", "unknown")
 
@@ -153,3 +153,33 @@ class ModeOutcome:
     bound: float
     engine: str
     stats: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EngineOutcome:
+    """What every engine returns (the column indices are those of the matrix the engine was given:
+    the presolved instance's REDUCED indices, the free columns, or the input's, as each engine says).
+
+    Attributes
+    ----------
+    selected : tuple of int, or None
+        Column indices (empty, or None for the set-cover search, if no solution was found).
+    status : str
+        ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
+    bound : float
+        Proven bound on the optimum (upper when maximising, lower for set cover), in original
+        weight (or cost) units.
+    stats : dict
+        JSON-serialisable engine details.
+    engine : str
+        The engine that found ``selected`` (``"exact"``, ``"mip"``, ``"cpsat"``, ``"local-search"``).
+    objective : float
+        The value of ``selected`` where the engine reports it (set cover: its cost), else NaN.
+    """
+
+    selected: tuple[int, ...] | None
+    status: str
+    bound: float
+    stats: dict[str, Any] = field(default_factory=dict)
+    engine: str = "exact"
+    objective: float = math.nan

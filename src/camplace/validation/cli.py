@@ -105,7 +105,7 @@ VALIDATION_FOLDER = "validation"  # the default -o of 'camplace validate', in th
 def _validate_out(args: argparse.Namespace) -> Path:
     """``validate``'s ``-o``: as given, else the first run folder's ``validation/``; checked before any work."""
     from camplace.outpaths import check_out_folder
-    from camplace.validation.scene3d import SCENE3D_FILE
+    from camplace.validation.camera_scene import SCENE3D_FILE
     from camplace.validation.workflow import PHOTOS_FOLDER
 
     if args.out is None:

@@ -197,7 +197,7 @@ def installed_objective(instance, objective: RunObjective, installed: Sequence[S
         The same on ``rows`` (None without ``rows``).
     """
     from camplace.sampling import CandidateSet
-    from camplace.solver.objectives import mode_value
+    from camplace.solver.problem.objectives import mode_value
     from camplace.visibility import compute_visibility
 
     n_inst = len(installed)
@@ -352,8 +352,8 @@ def photo_value(seen: np.ndarray, weights: np.ndarray, mode: str, views: int) ->
 
 
 def summarise_values(values: Sequence[float]) -> dict[str, Any]:
-    """Mean, 10th percentile (:func:`camplace.solver.robust_p10.order_p10`), min, max and the values."""
-    from camplace.solver.robust_p10 import order_p10
+    """Mean, 10th percentile (:func:`camplace.robust.p10.order_p10`), min, max and the values."""
+    from camplace.robust.p10 import order_p10
 
     v = np.asarray(values, dtype=np.float64)
     return {"mean": float(v.mean()), "p10": order_p10(v), "min": float(v.min()), "max": float(v.max()), "values": [float(x) for x in v]}

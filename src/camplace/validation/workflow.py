@@ -534,7 +534,7 @@ def validate_cameras(
     the prediction is Algorithm 3 run on that render (the target on black; against a black
     background render when the photo has a background photograph).
     Writes ``validation.json``, ``overlay.{camera}.png`` figures and ``scene3d.html`` (every
-    camera of ``cameras`` around the target, :mod:`camplace.validation.scene3d`) into ``out``.
+    camera of ``cameras`` around the target, :mod:`camplace.validation.camera_scene`) into ``out``.
 
     Returns
     -------
@@ -587,7 +587,7 @@ def _target_label(spec: str) -> str:
 def _write_cameras_scene(work: Path, final: Path, cameras, target, **scene_options) -> None:
     """``work/scene3d.html`` (skipped with a warning when plotly is missing, and then a stale one
     of an earlier validation in ``final``, the folder ``work`` is moved into, is removed)."""
-    from camplace.validation.scene3d import SCENE3D_FILE, cameras_scene, write_scene3d
+    from camplace.validation.camera_scene import SCENE3D_FILE, cameras_scene, write_scene3d
 
     if write_scene3d(work, cameras_scene(cameras, target, **scene_options)) is None:
         (final / SCENE3D_FILE).unlink(missing_ok=True)

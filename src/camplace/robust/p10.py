@@ -1,0 +1,339 @@
+"""The 10th-percentile robust objective: the value a camera system reaches in 90 % of installations.
+
+Given S sampled installations (scenarios) of every candidate, stacked as the rows of one matrix
+(row ``s * m + i`` is point ``i`` in scenario ``s``, column ``j`` candidate ``j`` as installed in
+that scenario; see :func:`camplace.robust.stack_scenarios`), the per-scenario objective of a system
+``x`` is ``f_s(x)`` (maxcover: the weight of the points of block ``s`` some chosen camera observes;
+multiview: the weight of those ``views`` chosen cameras observe). The objective maximised here is
+
+    p10(x) = the largest t such that f_s(x) >= t in at least q = ceil(0.9 S) scenarios,
+
+the (S - q + 1)-th smallest ``f_s(x)`` (:func:`order_p10`). Model (SCIP through
+:mod:`camplace.solver.engines.mip.linear`): binary ``x_j`` with ``sum x = k`` (fixed cameras at 1, forbidden
+at 0, pairs closer than the minimum distance excluded), per scenario and (merged) row
+``views * y_r <= sum_{j observes r} x_j`` with ``y_r`` in [0, 1] (binary for multiview), binary
+scenario indicators ``z_s`` with ``sum z >= q`` and ``t <= sum_r w_r y_r + M (1 - z_s)``
+(``M`` the total weight of a scenario); maximise ``t``. Rows of one scenario with the same
+cameras are merged (weights summed) first.
+
+Bounds (the smallest is reported): the solver's own bound; ``(S / q) * B`` for ``B`` a proven bound
+of the mean objective (``q * p10(x)`` is at most the sum of x's q best scenarios, at most S times its
+mean); and the q-th largest of the S per-scenario optima ``f*_s`` (each scenario's own problem,
+solved by :func:`camplace.solver.api.solve` with its proven bound; x reaches ``p10(x)`` in q
+scenarios and ``f_s(x) <= f*_s`` in each, side constraints other than fixed/forbidden relaxed). Incumbent: the best of the given systems (the mean optimum, the nominal optimum), improved by
+best-improvement single swaps on the p10 objective (:func:`_swap_search`, every candidate's swap
+value in one sparse product). When the model would be too large it is not built and that incumbent
+is reported with the bounds above (``stats["model"]`` says why); when an incumbent meets a bound
+it is not needed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace.errors import CamplaceError
+from camplace.solver.engines.mip.linear import LinearModel, solve_model
+from camplace.solver.problem.objectives import selected_row_stats
+from camplace.solver.result import SolverResult, relative_gap
+
+__all__ = ["P10_MODES", "order_p10", "scenario_values", "solve_p10"]
+
+P10_MODES = ("maxcover", "multiview")
+#: Largest model (nonzeros of the merged scenario rows) that is built; SCIP slows to a crawl above.
+P10_MODEL_MAX_NNZ = 3_000_000
+QUANTILE = 0.9
+_TOL = 1e-9
+
+
+def order_p10(values: Sequence[float] | np.ndarray) -> float:
+    """The value reached in at least 90 % of the scenarios.
+
+    Parameters
+    ----------
+    values : (S,) float64
+        Per-scenario objective values.
+
+    Returns
+    -------
+    float
+        The (S - q + 1)-th smallest value, q = ceil(0.9 S) (S = 32: the 4th smallest; S = 128:
+        the 13th smallest), so that at least q scenarios reach it.
+    """
+    v = np.sort(np.asarray(values, dtype=np.float64))
+    if v.size == 0:
+        return 0.0
+    q = math.ceil(QUANTILE * v.size - 1e-9)
+    return float(v[v.size - q])
+
+
+def scenario_values(
+    stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, selected: Sequence[int], *,
+    mode: str = "maxcover", views: int = 2,
+) -> np.ndarray:
+    """Objective of a camera system in each scenario.
+
+    Parameters
+    ----------
+    stacked : (S * m, n) scipy.sparse.csr_matrix
+        Scenario-stacked observation quality (row ``s * m + i``: point i in scenario s).
+    weights : (m,) float64
+        Point weights (of one scenario).
+    scenarios : int
+        S.
+    selected : sequence of int
+        The system's columns (fixed cameras included).
+    mode : {"maxcover", "quality", "multiview"}
+    views : int
+
+    Returns
+    -------
+    (S,) float64
+    """
+    m = len(weights)
+    if stacked.shape[0] != m * scenarios:
+        raise CamplaceError(f"stacked matrix has {stacked.shape[0]} rows, expected {scenarios} x {m}")
+    if len(selected) == 0:
+        return np.zeros(scenarios)
+    count, vmax = selected_row_stats(stacked, selected)
+    if mode == "quality":
+        per_row = vmax.reshape(scenarios, m)
+    elif mode == "multiview":
+        per_row = (count >= int(views)).reshape(scenarios, m).astype(np.float64)
+    else:
+        per_row = (count > 0).reshape(scenarios, m).astype(np.float64)
+    return per_row @ np.asarray(weights, dtype=np.float64)
+
+
+def _merged_blocks(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int) -> list[tuple[sp.csr_matrix, np.ndarray]]:
+    """Per scenario: its rows of positive weight with at least one camera, identical rows merged."""
+    m = len(weights)
+    out = []
+    for s in range(scenarios):
+        block = stacked[s * m:(s + 1) * m]
+        keep = np.flatnonzero((np.diff(block.indptr) > 0) & (weights > 0))
+        block = block[keep]
+        groups: dict[bytes, int] = {}
+        first, wsum = [], []
+        for r in range(block.shape[0]):
+            key = block.indices[block.indptr[r]:block.indptr[r + 1]].tobytes()
+            g = groups.get(key)
+            if g is None:
+                groups[key] = len(first)
+                first.append(r)
+                wsum.append(float(weights[keep[r]]))
+            else:
+                wsum[g] += float(weights[keep[r]])
+        out.append((block[first], np.asarray(wsum, dtype=np.float64)))
+    return out
+
+
+def _swap_search(
+    stacked: sp.csr_matrix, w: np.ndarray, scenarios: int, start: Sequence[int], *, mode: str, views: int,
+    fixed: set[int], banned: np.ndarray, conflicts: np.ndarray | None, deadline: float | None,
+) -> tuple[tuple[int, ...], float, int]:
+    """Best-improvement swaps of one camera at a time on the p10 objective (maxcover, multiview).
+
+    For a system minus one camera, the per-scenario value with candidate j added is
+    ``base_s + G[j, s]``, ``G = P^T U`` with P the stacked pattern and U the weights of the rows one
+    more view would complete, summed per scenario: every candidate's p10 in one sparse product.
+
+    Returns
+    -------
+    (system, its p10, swaps made)
+    """
+    m, n = len(w), stacked.shape[1]
+    need = 1 if mode == "maxcover" else int(views)
+    pattern = sp.csr_matrix((np.ones(stacked.nnz, dtype=np.float64), stacked.indices, stacked.indptr), shape=stacked.shape)
+    block = np.arange(scenarios * m) // m
+    w_all = np.tile(w, scenarios)
+    q_need = math.ceil(QUANTILE * scenarios - 1e-9)
+    sel = sorted(int(j) for j in start)
+    best = order_p10(scenario_values(stacked, w, scenarios, sel, mode=mode, views=views))
+    swaps = 0
+    improved = True
+    while improved:
+        improved = False
+        for pos in [p for p, j in enumerate(sel) if j not in fixed]:
+            if deadline is not None and time.perf_counter() > deadline:
+                return tuple(sel), best, swaps
+            others = sel[:pos] + sel[pos + 1:]
+            count, _ = selected_row_stats(stacked, others) if others else (np.zeros(scenarios * m, dtype=np.int64), None)
+            base = np.bincount(block, weights=w_all * (count >= need), minlength=scenarios)
+            u = w_all * (count == need - 1)
+            U = sp.csr_matrix((u, (np.arange(scenarios * m), block)), shape=(scenarios * m, scenarios))
+            vals = (pattern.T @ U).toarray() + base[None, :]  # (n, S)
+            p10s = np.partition(vals, scenarios - q_need, axis=1)[:, scenarios - q_need]
+            ok = ~banned.copy()
+            ok[others] = False
+            if conflicts is not None and len(conflicts):
+                for a, b in conflicts:
+                    if a in others:
+                        ok[b] = False
+                    if b in others:
+                        ok[a] = False
+            p10s[~ok] = -np.inf
+            j = int(np.argmax(p10s))
+            if p10s[j] > best + _TOL * max(1.0, abs(best)):
+                sel = sorted(others + [j])
+                best = order_p10(scenario_values(stacked, w, scenarios, sel, mode=mode, views=views))
+                swaps += 1
+                improved = True
+    return tuple(sel), best, swaps
+
+
+def solve_p10(
+    stacked: sp.csr_matrix,
+    weights: np.ndarray,
+    scenarios: int,
+    k: int,
+    *,
+    mode: str = "maxcover",
+    views: int = 2,
+    fixed: Sequence[int] = (),
+    forbidden: Sequence[int] = (),
+    conflicts: np.ndarray | None = None,
+    incumbents: Sequence[Sequence[int]] = (),
+    mean_bound: float | None = None,
+    engine: str = "auto",
+    time_limit_s: float | None = None,
+) -> SolverResult:
+    """Maximise the 10th-percentile objective over the scenarios (see the module docstring).
+
+    Parameters
+    ----------
+    stacked : (S * m, n) scipy.sparse.csr_matrix
+    weights : (m,) float64
+        Point weights of one scenario.
+    scenarios : int
+        S.
+    k : int
+        New cameras.
+    mode : {"maxcover", "multiview"}
+    views : int
+    fixed, forbidden : sequence of int
+    conflicts : (p, 2) int64 or None
+        Candidate pairs that may not both be chosen (minimum distance).
+    incumbents : sequence of systems
+        Complete systems (fixed cameras included) to start from; the best is the fallback answer.
+    mean_bound : float or None
+        A proven upper bound of the mean objective over the same scenarios (gives a bound when
+        the model is not built or not solved).
+    engine : {"auto", "mip"}
+    time_limit_s : float or None
+
+    Returns
+    -------
+    SolverResult
+        ``objective`` the sampled p10 of ``selected``; ``stats["values"]`` its per-scenario values.
+    """
+    t0 = time.perf_counter()
+    if mode not in P10_MODES:
+        raise CamplaceError(f"robust objective p10: mode {mode} is not supported (use {' or '.join(P10_MODES)}, or objective mean)")
+    if engine not in ("auto", "mip"):
+        raise CamplaceError(f"robust objective p10: engine {engine} does not apply (the p10 model runs on SCIP: use --engine auto or mip)")
+    w = np.asarray(weights, dtype=np.float64)
+    n = stacked.shape[1]
+    total = float(w.sum())
+    q_need = math.ceil(QUANTILE * scenarios - 1e-9)
+    need = 1 if mode == "maxcover" else int(views)
+
+    def p10_of(sel: Sequence[int]) -> float:
+        return order_p10(scenario_values(stacked, w, scenarios, sel, mode=mode, views=views))
+
+    stats: dict[str, Any] = {"objective": "p10", "scenarios": int(scenarios), "scenarios_required": int(q_need)}
+    best_sel: tuple[int, ...] = ()
+    best = -math.inf
+    for sel in incumbents:
+        v = p10_of(sel)
+        if v > best:
+            best, best_sel = v, tuple(sorted(int(j) for j in sel))
+    bound = total
+    if mean_bound is not None and math.isfinite(mean_bound):
+        bound = min(bound, scenarios / q_need * float(mean_bound))
+    stats["bound_from_mean"] = bound
+
+    # improve the best incumbent by swaps (a fifth of the time)
+    if best_sel:
+        banned = np.zeros(n, dtype=bool)
+        banned[[int(j) for j in forbidden]] = True
+        dl = None if time_limit_s is None else t0 + time_limit_s / 5.0
+        cf = None if conflicts is None else np.asarray(conflicts, dtype=np.int64).reshape(-1, 2)
+        sel2, v2, swaps = _swap_search(stacked, w, scenarios, best_sel, mode=mode, views=views, fixed={int(j) for j in fixed},
+                                       banned=banned, conflicts=cf, deadline=dl)
+        stats["swaps"] = swaps
+        if v2 > best:
+            best, best_sel = v2, sel2
+
+    # the q-th largest per-scenario optimum (a third of the time, shared by the scenarios)
+    t_share = None if time_limit_s is None else max(0.5, time_limit_s / 3.0 / scenarios)
+    m = len(w)
+    from camplace.solver.api import solve as solve_mode
+
+    per_s = []
+    for s in range(scenarios):
+        r = solve_mode(stacked[s * m:(s + 1) * m], w, k, mode=mode, views=views, fixed=tuple(fixed),
+                       forbidden=tuple(forbidden), time_limit_s=t_share)
+        per_s.append(float(r.bound) if math.isfinite(r.bound) else total)
+    scen_bound = float(np.sort(per_s)[::-1][q_need - 1])
+    stats["bound_per_scenario"] = scen_bound
+    bound = min(bound, scen_bound)
+
+    blocks = _merged_blocks(stacked, w, scenarios)
+    nnz = int(sum(b.nnz for b, _ in blocks))
+    stats["model_nonzeros"] = nnz
+    status = "feasible"
+    if best >= bound - _TOL * max(1.0, abs(bound)):
+        stats["model"] = "not needed: an incumbent meets the bound"
+    elif nnz > P10_MODEL_MAX_NNZ:
+        stats["model"] = f"not built: {nnz} nonzeros > {P10_MODEL_MAX_NNZ} (fewer --scenarios, --points or --candidates)"
+    else:
+        model = LinearModel(maximize=True)
+        x = model.add_vars(n)
+        fixed_set = {int(j) for j in fixed}
+        for j in fixed_set:
+            model.lb[int(x[j])] = 1.0
+        for j in forbidden:
+            model.ub[int(x[int(j)])] = 0.0
+        free = [int(x[j]) for j in range(n) if j not in fixed_set]
+        model.add_row(free, np.ones(len(free)), k, k)
+        if conflicts is not None:
+            for a, b in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2):
+                model.add_row([int(x[a]), int(x[b])], [1.0, 1.0], hi=1.0)
+        t_var = int(model.add_vars(1, lb=0.0, ub=total, integer=False, obj=1.0)[0])
+        z = model.add_vars(scenarios)
+        model.add_row(z, np.ones(scenarios), lo=q_need)
+        for s, (block, bw) in enumerate(blocks):
+            y = model.add_vars(block.shape[0], integer=mode == "multiview")
+            for r in range(block.shape[0]):
+                cols = block.indices[block.indptr[r]:block.indptr[r + 1]]
+                model.add_row(np.append(y[r], x[cols]), np.append(float(need), -np.ones(cols.size)), hi=0.0)
+            # t <= sum_r w_r y_r + M (1 - z_s)
+            model.add_row(np.concatenate([y, [t_var, z[s]]]), np.concatenate([bw, [-1.0, -total]]), lo=-total)
+        hint = None
+        if best_sel:
+            chosen = set(best_sel)
+            hint = {int(x[j]): (1.0 if j in chosen else 0.0) for j in range(n)}
+        rem = None if time_limit_s is None else max(1.0, time_limit_s - (time.perf_counter() - t0))
+        out = solve_model(model, "mip", time_limit_s=rem, hint=hint)
+        stats["model"] = out.stats
+        if out.values is not None:
+            sel = tuple(int(j) for j in np.flatnonzero(out.values[x] > 0.5))
+            v = p10_of(sel)
+            if v > best:
+                best, best_sel = v, sel
+        if math.isfinite(out.bound):
+            bound = min(bound, float(out.bound))
+        stats["model_status"] = out.status
+    if not best_sel:
+        return SolverResult((), "unknown", 0.0, bound, math.inf, "mip", time.perf_counter() - t0, stats)
+    bound = max(bound, best)
+    if best >= bound - _TOL * max(1.0, abs(bound)):
+        status = "optimal"
+    gap = 0.0 if status == "optimal" else relative_gap(bound, best)
+    stats["values"] = [float(v) for v in scenario_values(stacked, w, scenarios, best_sel, mode=mode, views=views)]
+    return SolverResult(best_sel, status, float(best), float(bound), float(gap), "mip", time.perf_counter() - t0, stats)

@@ -1,0 +1,423 @@
+"""All placement formulations behind one function, :func:`solve`.
+
+Modes (``Q`` is the (m, n) points x candidates matrix, values in (0, 1], > 0 means "observes";
+``w`` the point weights; ``S`` the chosen new cameras, ``F`` the fixed existing ones):
+
+``maxcover``
+    maximise ``sum_i w_i [some camera of S u F observes i]``, ``|S| = k``.
+``quality``
+    maximise ``sum_i w_i max_{j in S u F} Q_ij`` (0 for unobserved points), ``|S| = k``.
+    Exact reformulation used by every engine: with the distinct values ``q_1 > ... > q_L`` of row
+    ``i``, ``max_j Q_ij = sum_l (q_l - q_{l+1}) [some chosen j has Q_ij >= q_l]`` (``q_{L+1}=0``),
+    i.e. max coverage of "level rows" ``(i, l)``. The exact engine gets the expanded matrix; the
+    MIP/CP-SAT models use the compact chain ``y_il <= y_i,l-1 + sum_{j: Q_ij = q_l} x_j``.
+``multiview``
+    maximise the weight of points observed by at least ``views`` cameras of ``S u F``; with
+    ``min_angle_deg`` a point also needs two of those cameras whose view rays (point -> camera)
+    make an angle >= ``min_angle_deg`` at the point (needs ``positions`` and ``points``). Model:
+    ``views * y_i <= sum_{j observes i} x_j``; with the angle, witness variables
+    ``u_ia <= x_a``, ``sum_a u_ia = 2 y_i``, ``u_ia + u_ib <= 1`` for every pair closer than the
+    angle.
+``setcover``
+    minimise the cost of ``S`` (``costs``, default 1 each; fixed cameras cost nothing) such that
+    every coverable point of positive weight is observed (or, with ``required_fraction < 1``,
+    that fraction of the coverable weight). Points no allowed camera observes are reported as
+    uncoverable in ``stats``. ``objective`` is the cost and ``bound`` a LOWER bound. Solved by
+    :mod:`camplace.solver.engines.setcover.local_search` (reductions, local search, Lagrangian bound; ``auto`` then
+    runs SCIP on small reduced instances, ``mip`` / ``cpsat`` always; engine ``local-search`` in
+    the result when no model ran); with ``min_distance_m`` conflicts, by the SCIP / CP-SAT model
+    directly. ``search_seed`` and ``iterations`` set the local search.
+
+Side constraints for every mode: ``fixed`` (kept, in ``selected``, not counted in ``k``),
+``forbidden`` (never chosen) and ``min_distance_m`` (chosen cameras, fixed included, pairwise at
+least that far apart; needs ``positions``).
+
+Engines: ``exact`` (the bound-pruned bitset engine of :mod:`camplace.solver.engines.bitset.search` for
+maxcover without minimum distance and multiview (any ``views``) without fixed cameras, minimum
+angle or minimum distance; quality runs the quantised-tree
+engine of :mod:`camplace.solver.engines.quality.tree` and, for k = 2 or 3 new cameras on up to 3,000
+candidates, hands over to the min-Gram triple engine of :mod:`camplace.solver.engines.quality.min_gram` if the
+tree has not finished within its share of the time (see :func:`camplace.solver.engines.quality.portfolio.quality_engines`); when neither
+fits in memory, the bitset engine on the level rows while that expansion stays small), ``mip``
+(SCIP) and ``cpsat``.
+``auto`` picks ``exact`` where it applies and ``k <= 4`` (``4 < k <= 8``: :mod:`camplace.solver.engines.large_k.search`),
+otherwise ``mip``: the decision is :func:`camplace.solver.choose.choose_engine` (pure; its reason
+goes to ``stats["engine_choice"]``). Each exact engine
+first checks that its working memory fits in :func:`camplace.solver._support.memory.memory_budget_bytes`;
+if not, ``auto`` falls back to the general model (``stats["memory_fallback"]`` says why) and an
+explicit ``exact`` is a one-line error.
+
+For ``multiview`` with fewer cameras (new and fixed) than ``2 * views``, an answer the engine could
+not prove gets its bound tightened by :func:`camplace.solver.engines.bitset.pair_cap.opposite_pair_bound` (pairs of
+points no allowed camera observes together, of which at most one can count); the engines then run
+with 95 % of the time limit (all but 2 s at most), the bound with the rest
+(``stats["opposite_pairs"]``). The bitset engine uses the same pairs inside its search.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import numbers
+import time
+from dataclasses import replace
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace.errors import CamplaceError
+from camplace.names import MODES
+from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.greedy import NearCandidates, greedy
+from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes
+from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
+from camplace.solver.engines.mip.mode_models import check_setcover_memory
+from camplace.solver.engines.setcover.mode import setcover
+from camplace.solver.options import SolveOptions
+from camplace.solver.problem.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
+from camplace.solver.problem.objectives import cheap_bound, mode_value
+from camplace.solver.problem.presolve import check_weights
+from camplace.solver.result import ModeOutcome, SolverResult, jsonable, relative_gap
+from camplace.solver.routes import CoverProblem, fixed_base, run_cover
+
+__all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
+
+log = logging.getLogger(__name__)
+
+_OPT_TOL = 1e-9
+_CAP_SHARE = 0.05  # multiview: share of the time limit kept for the opposite-pairs bound ...
+_CAP_MAX_S = 2.0  # ... at most this many seconds (a matching stopped early is still a valid bound)
+_CONFLICT_PAIR_BYTES = 200  # a conflicting pair: its array row, the greedy's adjacency sets, temporaries
+
+
+def solve(
+    matrix: Any,
+    weights: Any,
+    k: int | None = None,
+    *,
+    mode: str = "maxcover",
+    views: int = 2,
+    min_angle_deg: float | None = None,
+    positions: Any = None,
+    points: Any = None,
+    costs: Any = None,
+    required_fraction: float = 1.0,
+    fixed: Sequence[int] = (),
+    forbidden: Sequence[int] = (),
+    min_distance_m: float | None = None,
+    engine: str = "auto",
+    time_limit_s: float | None = None,
+    memory_budget_bytes: int | None = None,
+    search_seed: int = 0,
+    iterations: int | None = None,
+    options: SolveOptions | None = None,
+) -> SolverResult:
+    """Choose cameras under one of the formulations (see the module docstring).
+
+    Parameters
+    ----------
+    matrix : (m, n) scipy.sparse matrix or array_like
+        Observation quality in (0, 1] (> 0 means "observes").
+    weights : (m,) array_like of float64
+        Non-negative point weights.
+    k : int, optional
+        Number of NEW cameras (required for every mode but ``setcover``, which must not get it).
+    mode : {"maxcover", "quality", "multiview", "setcover"}
+    views : int
+        multiview: cameras needed per point (default 2).
+    min_angle_deg : float, optional
+        multiview: minimum angle at the point between two of its views (needs positions, points).
+    positions : (n, 3) array_like, optional
+        Camera positions (for ``min_distance_m`` and ``min_angle_deg``).
+    points : (m, 3) array_like, optional
+        Point positions (for ``min_angle_deg``).
+    costs : (n,) array_like, optional
+        setcover: non-negative camera costs (default 1).
+    required_fraction : float
+        setcover: fraction of the coverable weight to observe, in (0, 1] (default 1: every
+        coverable point of positive weight).
+    fixed, forbidden : sequence of int
+        Cameras always kept / never chosen.
+    min_distance_m : float, optional
+        Minimum distance between any two chosen cameras (fixed included).
+    engine : {"auto", "exact", "mip", "cpsat"}
+    time_limit_s : float, optional
+        Wall-clock limit; on expiry the best solution found is returned with its gap.
+    memory_budget_bytes : int, optional
+        Cap on the memory any engine or model may use (``--memory-budget-gb``); engines also stay
+        within :data:`~camplace.solver._support.memory.MEMORY_FRACTION` of the memory available.
+    search_seed : int
+        setcover: seed of the local search (:mod:`camplace.solver.engines.setcover.local_search`).
+    iterations : int, optional
+        setcover: iteration budget of the local search; with it and no time limit the answer is
+        fully deterministic (with a time limit it depends on the machine's speed).
+    options : SolveOptions, optional
+        All of the above (``k`` to ``iterations``) in one checked object
+        (:class:`~camplace.solver.options.SolveOptions`), e.g. built by the command line; then none
+        of them may be given beside it.
+
+    Returns
+    -------
+    SolverResult
+        ``selected`` holds fixed and new cameras (sorted original indices); ``objective`` is
+        recomputed on the original data; for setcover it is the cost of the new cameras and
+        ``bound`` a lower bound. ``stats`` has ``mode``, ``fixed``, ``new`` and, for setcover,
+        ``uncoverable_points`` / ``uncoverable_weight`` / ``covered_fraction``.
+
+    Raises
+    ------
+    CamplaceError
+        On malformed input or an impossible request (one line).
+    """
+    if options is None:
+        options = SolveOptions(
+            mode=mode, k=k, views=views, min_angle_deg=min_angle_deg, required_fraction=required_fraction,
+            fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, engine=engine,
+            time_limit_s=time_limit_s, costs=costs, memory_budget_bytes=memory_budget_bytes, search_seed=search_seed,
+            iterations=iterations,
+        )
+    else:
+        given = dict(k=k, mode=mode, views=views, min_angle_deg=min_angle_deg, costs=costs,
+                     required_fraction=required_fraction, fixed=fixed, forbidden=forbidden,
+                     min_distance_m=min_distance_m, engine=engine, time_limit_s=time_limit_s,
+                     memory_budget_bytes=memory_budget_bytes, search_seed=search_seed, iterations=iterations)
+        mixed = sorted(name for name, value in given.items() if not _is_default(name, value))
+        if mixed:
+            raise CamplaceError(f"solve: give {', '.join(mixed)} inside options=SolveOptions(...), not beside it")
+    with memory_budget(options.memory_budget_bytes):
+        return _solve(matrix, weights, positions, points, options)
+
+
+_DEFAULTS = SolveOptions()
+
+
+def _is_default(name: str, value: Any) -> bool:
+    """True when keyword option ``name`` of :func:`solve` was left at its default."""
+    if name == "costs":
+        return value is None
+    if name in ("fixed", "forbidden"):
+        return value is None or len(value) == 0
+    return value is getattr(_DEFAULTS, name) or (type(value) is type(getattr(_DEFAULTS, name))
+                                                  and value == getattr(_DEFAULTS, name))
+
+
+def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions) -> SolverResult:
+    """:func:`solve` within the memory budget (``o`` is already checked)."""
+    deadline = Deadline(o.time_limit_s)  # the solve's one deadline, passed down to the engines
+    t0 = deadline.start
+    k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
+    min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
+    q = values_matrix(matrix)
+    if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
+        # these engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
+        need, budget = 4 * int(q.nnz), memory_budget_bytes()
+        if need > budget:
+            raise CamplaceError(f"{OverBudget(need, budget, 'the float32 values of the matrix').message}; "
+                                "pass the float32 matrix (load_visibility without pattern=True)")
+        q = float_values(q)
+    m, n = q.shape
+    if n == 0:
+        raise CamplaceError("the visibility matrix has no candidate columns")
+    w = check_weights(weights, m)
+    fixed_t = index_set(o.fixed, n, "fixed")
+    forbidden_t = index_set(o.forbidden, n, "forbidden")
+    both = sorted(set(fixed_t) & set(forbidden_t))
+    if both:
+        raise CamplaceError(f"candidates {both} are both fixed and forbidden")
+    pos = None
+    if positions is not None:
+        pos = coords(positions, n, "positions", "camera positions")
+    conflicts = np.zeros((0, 2), dtype=np.int64)
+    too_many: OverBudget | None = None  # conflicting pairs that would not fit in memory
+    if min_distance_m is not None:
+        if pos is None:
+            raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
+        n_pairs = conflict_count(pos, float(min_distance_m))
+        need, budget = n_pairs * _CONFLICT_PAIR_BYTES, memory_budget_bytes()
+        if need > budget:
+            too_many = OverBudget(need, budget, f"min_distance_m={float(min_distance_m):g} ({n_pairs} candidate pairs "
+                                                "closer than that)")
+            if engine != "auto" or mode == "setcover":
+                raise CamplaceError(f"{too_many.message}; lower min_distance_m or use fewer candidates")
+        else:
+            conflicts = conflict_pairs(pos, float(min_distance_m))
+    pts = None
+    if min_angle_deg is not None:
+        if pos is None or points is None:
+            raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions (points (m, 3))")
+        pts = coords(points, m, "points", "point positions")
+    if mode == "multiview":
+        views = int(views)
+    if too_many is not None:
+        assert pos is not None and min_distance_m is not None
+        return _spaced_fallback(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, forbidden_t,
+                                float(min_distance_m), engine, too_many, deadline)
+
+    fixed_set = set(fixed_t)
+    banned = set(forbidden_t)
+    for a, b in conflicts.tolist():
+        if a in fixed_set and b in fixed_set:
+            raise CamplaceError(f"fixed cameras {a} and {b} are closer than min_distance_m={min_distance_m}")
+        if a in fixed_set:
+            banned.add(b)
+        elif b in fixed_set:
+            banned.add(a)
+    free = np.ones(n, dtype=bool)
+    free[list(fixed_set | banned)] = False
+    free_cols = np.flatnonzero(free)
+    keep_conf = free[conflicts[:, 0]] & free[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
+    conflicts = conflicts[keep_conf]
+
+    if mode == "setcover":
+        if conflicts.size:  # the model runs directly (otherwise the local search checks its own memory)
+            check_setcover_memory(q, w, free_cols, conflicts, engine)
+        ctx = setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, deadline,
+                       o.search_seed, o.iterations)
+    else:
+        if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
+            raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
+        k = int(k)
+        if k < (0 if fixed_t else 1):
+            raise CamplaceError(f"k must be at least {0 if fixed_t else 1}, got {k}")
+        if k > free_cols.size:
+            raise CamplaceError(
+                f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
+                "(lower k, or forbid/fix fewer cameras)"
+            )
+        # multiview with fewer cameras than 2 x views: opposite points cap the bound when the search
+        # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
+        cap = mode == "multiview" and k + len(fixed_t) < 2 * views
+        inner = deadline
+        if cap and time_limit_s is not None:
+            inner = deadline.shortened(min(_CAP_SHARE * time_limit_s, _CAP_MAX_S))
+        ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, o,
+                                     inner, stats={"k": k}))
+        searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
+        if cap and ctx.selected is not None and ctx.status != "optimal" and not searched:
+            ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
+                                     deadline.left())
+
+    selected, status, objective, bound, name, stats = (ctx.selected, ctx.status, ctx.objective, ctx.bound, ctx.engine,
+                                                        ctx.stats)
+    minimize = mode == "setcover"
+    if status == "optimal":
+        bound, gap = objective, 0.0
+    elif selected is None:
+        gap = math.inf
+    elif minimize:
+        bound = min(bound, objective)
+        gap = max(0.0, (objective - bound) / max(abs(objective), 1e-12))
+    else:
+        bound = max(bound, objective)
+        gap = relative_gap(bound, objective)
+    scale = 1.0 if minimize else float(w.sum())
+    if selected is not None and status == "feasible" and abs(bound - objective) <= _OPT_TOL * max(abs(bound), scale):
+        status, bound, gap = "optimal", objective, 0.0
+    sel = tuple(sorted(int(j) for j in (selected or ())))
+    stats.update({"mode": mode, "engine_requested": engine, "fixed": list(fixed_t), "forbidden": list(forbidden_t),
+                  "new": [j for j in sel if j not in fixed_set], "conflict_pairs": int(conflicts.shape[0]),
+                  "rows_in": int(m), "cols_in": int(n)})
+    elapsed = time.perf_counter() - t0
+    log.info("%s engine=%s: %s objective %.9g bound %.9g gap %.3g in %.3f s", mode, name, status, objective, bound, gap, elapsed)
+    return SolverResult(
+        selected=sel, status=status, objective=float(objective), bound=float(bound), gap=float(gap),
+        engine=name, time_s=elapsed, stats=jsonable(stats),
+    )
+
+
+def _opposite_pair_cap(
+    ctx: ModeOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
+    cameras: int, allowed: np.ndarray, time_limit_s: float | None,
+) -> ModeOutcome:
+    """Tighten an unproven multiview bound with :func:`~camplace.solver.engines.bitset.pair_cap.opposite_pair_bound`."""
+    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, time_limit_s=time_limit_s)
+    cap_stats["bound_before"] = float(ctx.bound)
+    ctx.stats["opposite_pairs"] = cap_stats
+    return replace(ctx, bound=cap) if cap < ctx.bound else ctx
+
+
+def _spaced_fallback(
+    q: sp.csr_matrix, w: np.ndarray, k: Any, mode: str, views: int, min_angle_deg: float | None, pos: np.ndarray,
+    points: np.ndarray | None, fixed: Sequence[int], forbidden: Sequence[int], dmin: float, engine: str,
+    exc: OverBudget, deadline: Deadline,
+) -> SolverResult:
+    """Too many conflicting pairs to list: the greedy answer (spacing checked with a k-d tree) and the
+    cheap bound, which ignores the spacing and so stays valid."""
+    m, n = q.shape
+    if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral) or int(k) < 0:
+        raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
+    k = int(k)
+    fixed_t = index_set(fixed, n, "fixed")
+    banned = set(index_set(forbidden, n, "forbidden"))
+    near = NearCandidates(pos, dmin)
+    for f in fixed_t:
+        for b in near[f]:
+            if b in fixed_t:
+                raise CamplaceError(f"fixed cameras {f} and {b} are closer than min_distance_m={dmin}")
+            banned.add(b)
+    free = np.ones(n, dtype=bool)
+    free[list(set(fixed_t) | banned)] = False
+    free_cols = np.flatnonzero(free)
+    if k > free_cols.size:
+        raise CamplaceError(f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
+                            "(lower k, or forbid/fix fewer cameras)")
+    pts = points
+    qf = q[:, free_cols].tocsr()
+    base, gw = fixed_base(q, w, fixed_t, mode)
+    msg = f"{exc.message}; returning the greedy answer with a bound that ignores the spacing"
+    log.warning("%s", msg)
+    local = greedy(qf.tocsc(), gw, mode, views, base, k, np.ones(free_cols.size, dtype=bool),
+                    NearCandidates(pos[free_cols], dmin)) if k else ()
+    sel = None if local is None else tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in local}))
+    bound = cheap_bound(q, qf, w, base, k, mode, views)
+    objective = mode_value(q, w, sel, mode=mode, views=views, min_angle_deg=min_angle_deg, positions=pos,
+                           points=pts) if sel else 0.0
+    status = "feasible" if sel is not None else "unknown"
+    gap = relative_gap(max(bound, objective), objective) if sel is not None else math.inf
+    stats = {"memory_fallback": msg, "mode": mode, "engine_requested": engine, "fixed": list(fixed_t),
+             "forbidden": list(index_set(forbidden, n, "forbidden")), "new": [j for j in (sel or ()) if j not in fixed_t],
+             "rows_in": int(m), "cols_in": int(n), "k": k}
+    return SolverResult(selected=tuple(sel or ()), status=status, objective=float(objective),
+                        bound=float(max(bound, objective)), gap=float(gap), engine="mip",
+                        time_s=deadline.elapsed(), stats=jsonable(stats))
+
+
+def solve_maxcover(
+    matrix: Any,
+    weights: Any,
+    k: int,
+    *,
+    engine: str = "auto",
+    time_limit_s: float | None = None,
+) -> SolverResult:
+    """Choose exactly ``k`` columns maximising the weight of the covered rows.
+
+    Parameters
+    ----------
+    matrix : (m, n) scipy.sparse matrix or array_like
+        Visibility / observation quality; any value > 0 means "the candidate observes the point".
+    weights : (m,) array_like of float64
+        Non-negative point weights.
+    k : int
+        Number of cameras to choose, ``1 <= k <= n``.
+    engine : {"auto", "exact", "mip", "cpsat"}
+        ``auto`` is :func:`camplace.solver.choose.choose_engine`'s choice: ``exact`` for
+        ``k <= 4``, the large-k engines for ``4 < k <= 8`` and ``mip`` otherwise (and wherever
+        an exact engine would not fit in memory).
+    time_limit_s : float, optional
+        Wall-clock limit for the whole solve (presolve included). When it expires the best
+        solution found is returned with status ``"feasible"`` and a valid bound.
+
+    Returns
+    -------
+    SolverResult
+        ``selected`` are sorted original column indices; ``objective`` is recomputed in float64 on
+        the original matrix.
+
+    Raises
+    ------
+    CamplaceError
+        For ``k < 1``, ``k > n``, an unknown engine, a non-positive time limit, or malformed input.
+    """
+    return solve(matrix, weights, k, mode="maxcover", engine=engine, time_limit_s=time_limit_s)

@@ -1,0 +1,1 @@
+"""The engines, one folder each with its compiled kernels beside it."""

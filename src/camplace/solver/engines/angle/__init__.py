@@ -1,0 +1,1 @@
+"""The exact multiview engine with a minimum triangulation angle."""

@@ -1,0 +1,612 @@
+"""Exact bound-pruned engine for multi-view coverage with a triangulation angle.
+
+A point counts when at least ``views`` chosen cameras (new and fixed) observe it and two of them
+see it under an angle of at least ``min_angle_deg`` (the angle at the point between the rays
+point -> camera; :func:`camplace.solver.problem.objectives.mode_value` is the definition).
+
+The search is that of :mod:`camplace.solver.engines.bitset.search` (tuples of nodes of a bisection tree
+over the columns, in parallel batches, here best-first), with the angle added to the bound:
+
+* **Blocks.** The countable rows are ordered spatially (recursive bisection of the points along
+  their widest axis), so every 64-row word is a block of nearby points with a small bounding
+  sphere.
+* **Cones.** For every tree node and block, a cone (8 bytes) holds the directions from any point
+  of the block to any camera of the node (:mod:`camplace.solver.engines.angle._kernels`). Two nodes whose cones
+  are closer than the angle can form no valid pair on that block, so the rows only they observe
+  twice cannot count there. A tuple's bound is the weight of the rows where some pair of its
+  nodes (or a node and a fixed camera, or two fixed cameras) observes the row and may make the
+  angle; a node repeated in the tuple provides pairs only if its own cone is at least the angle
+  wide. Leaves (single cameras) decide doubtful blocks row by row, so a tuple of leaves gets its
+  exact value.
+* **Bound steps.** A child tuple gets the count bound first (rows ``views`` of its cameras may
+  observe, angles ignored: :func:`~camplace.solver.engines.angle._kernels.count_shortfall`), which prunes
+  most losers without reading a cone; a survivor whose nodes all hold camera pairs making the
+  angle at every point (directions from the centre of a sphere around the points, apart by the
+  angle plus both parallaxes: :func:`~camplace.solver.engines.angle._kernels.angle_free`) keeps that bound,
+  exact for single cameras (a tuple of single cameras is always decided exactly at once). The cone
+  refinement is lazy: a tuple of clusters gets it when it is taken from the open set to be split
+  (most tuples never reach the top of the best-first order and never pay for it); one it prunes is
+  not split, one it pushes below the best open bound goes back to the open set refined, and the
+  others' children are capped by the refined bound. It runs only on the levels (log2 of the
+  largest node) where it has been removing a good share of the tuples' margins over the
+  incumbent (:meth:`_Tree._learn`): about a third where the angle binds, a few per cent where
+  it hardly does, which is when its cost (about five count bounds) is not worth it.
+* **Caps.** A counted row is observed by ``views`` chosen cameras, so the value is at most the
+  chosen columns' weights over ``views``. With fewer cameras than ``2 * views`` the
+  opposite-pairs layout of :mod:`camplace.solver.engines.bitset.pair_cap` applies unchanged (the angle only
+  removes credit): at most one point of a matched pair counts.
+* **Fixed cameras** are part of every tuple (their pairs among themselves are precomputed exactly,
+  and rows they already make count are a constant); forbidden cameras are left out.
+* **Incumbent.** Greedy from the heaviest columns plus 1-swap local search, with exact angles.
+* **Time limit.** On expiry the incumbent comes back with the largest bound still open.
+* **Memory.** :func:`angle_bytes` (column bitsets, the tree's level bitsets, 8 bytes of cone per
+  node and block, the open tuples) is checked against the budget before anything is allocated;
+  :class:`~camplace.solver._support.memory.OverBudget` is raised when it does not fit.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+from camplace._signals import ctrl_c_deferred
+from camplace.solver._support import bitkernels as K
+from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.frontier import Frontier, best_first
+from camplace.solver._support.memory import OverBudget
+from camplace.solver.engines.angle import _kernels as AK
+from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bytes
+from camplace.solver.result import EngineOutcome
+
+__all__ = ["angle_bytes", "greedy_angle", "solve_angle"]
+
+log = logging.getLogger(__name__)
+
+_FLOAT_MARGIN = 1e-9
+_PAIRS_MIN_SHARE = 0.05  # opposite-pairs layout when it matches at least this share of the weight
+_PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
+_INCUMBENT_SHARE = 0.1  # greedy + swaps stop after this share of the time limit
+_STARTS = 3  # greedy starts (the heaviest columns)
+_SWAP_ROUNDS = 20
+_CHUNK = 4096  # tuples per stack entry
+_BATCH = 1 << 14  # tuples expanded per parallel call, at most ...
+_BATCH_MIN = 256  # ... and at least
+_BATCH_S = 0.5  # seconds a batch should take (the deadline is checked between batches)
+_PAR_CHUNK = 16  # tuples a thread takes at a time
+_FRONTIER_MAX = 12_000_000  # open tuples at most (fewer when the memory budget is tight) ...
+_FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not run
+_REFINE_MIN_CUT = 0.3  # cone refinement of a tuple level stays on while it removes this share of the margins ...
+_REFINE_TRIALS = 2000  # ... judged after this many tries ...
+_REFINE_SAMPLE = 32  # ... and tried on 1 in this many tuples of a level where it is off
+_DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
+
+
+def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_tuples: int = _FRONTIER_MIN) -> int:
+    """Working memory of :func:`solve_angle` for ``rows`` countable rows and ``n_cols`` columns.
+
+    The opposite-pairs layout can hold up to twice as many bit rows as countable rows; counted
+    here: the column bitsets and their ordered copy, ``min(views, k)`` level bitsets and an 8-byte
+    cone per tree node and 64-row block (and a float64 working copy per thread), the points of the
+    layout, the pair matching's row bitsets and ``open_tuples`` open tuples of the search (which
+    stops there, with a valid bound).
+    """
+    words = (2 * int(rows) + 127) // 64 + 2
+    nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
+    levels = max(1, min(int(views), int(k)))
+    bits = words * 8 * (2 * int(n_cols) + levels * nodes)
+    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS) + 32 * (int(n_cols) + int(n_fixed))
+    points = words * 64 * 24 * 2
+    match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
+    frontier = (int(open_tuples) + (k + 1) * _BATCH) * _tuple_bytes(k)
+    return int(bits + cones + points + match + frontier + 64 * rows)
+
+
+def _tuple_bytes(k: int) -> int:
+    """Bytes per open tuple of ``k`` nodes (nodes, the refined flag and bound, and a copy while
+    chunks are formed)."""
+    return 2 * (8 * (k + 1) + 8)
+
+
+def _spatial_order(xyz: np.ndarray) -> np.ndarray:
+    """Order of points whose consecutive 64-point chunks are compact: recursive bisection along
+    the widest axis, splitting at a multiple of 64."""
+    out: list[np.ndarray] = []
+    stack = [np.arange(xyz.shape[0], dtype=np.int64)]
+    while stack:
+        idx = stack.pop()
+        if idx.size <= 64:
+            out.append(idx)
+            continue
+        p = xyz[idx]
+        axis = int(np.argmax(p.max(axis=0) - p.min(axis=0)))
+        s = 64 * ((idx.size + 127) // 128)
+        o = np.argsort(p[:, axis], kind="stable")
+        stack.append(idx[o[s:]])
+        stack.append(idx[o[:s]])
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+
+
+def _chunk_order(key: np.ndarray) -> np.ndarray:
+    """Permutation of positions that reorders 64-position chunks by increasing mean ``key``."""
+    n = key.size
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    n_chunks = (n + 63) // 64
+    pad = np.full(n_chunks * 64, np.nan)
+    pad[:n] = key
+    mean = np.nanmean(pad.reshape(n_chunks, 64), axis=1)
+    pos = np.arange(n_chunks * 64).reshape(n_chunks, 64)[np.argsort(mean, kind="stable")].ravel()
+    return pos[pos < n]
+
+
+class _Layout:
+    """Bit rows of the search: matrix row of each bit (-1: padding), weights, pair words ``pw``."""
+
+    def __init__(self, rows: np.ndarray, weights: np.ndarray, pw: int) -> None:
+        self.rows, self.weights, self.pw = rows, weights, pw
+
+
+def _plain_layout(search: np.ndarray, wu: np.ndarray, pts: np.ndarray, seen: np.ndarray) -> _Layout:
+    rows = search[_spatial_order(pts[search])]
+    rows = rows[_chunk_order(seen[rows].astype(np.float64))]  # rarely observed blocks first: early stops
+    return _Layout(rows, wu[rows].astype(np.float64), 0)
+
+
+def _pairs_layout(match, wu_unit: float | None, seen: np.ndarray, pts: np.ndarray) -> _Layout:
+    """The opposite-pairs layout with spatially coherent words, rarely observed words first."""
+    n_pairs = match.pairs.shape[0]
+    first, second, amount = match.pairs[:, 0], match.pairs[:, 1], match.amount
+    o = _spatial_order(pts[first])  # compact first rows (the partners follow loosely)
+    first, second, amount = first[o], second[o], amount[o]
+    o = _chunk_order((seen[first] + seen[second]).astype(np.float64))
+    first, second, amount = first[o], second[o], amount[o]
+    left = match.rows[match.residual > 0]
+    lw = match.residual[match.residual > 0]
+    o = _spatial_order(pts[left])
+    left, lw = left[o], lw[o]
+    o = _chunk_order(seen[left].astype(np.float64))
+    left, lw = left[o], lw[o]
+    pw = (n_pairs + 63) // 64
+    rows = np.full(128 * pw + left.size, -1, dtype=np.int64)
+    w = np.zeros(rows.size)
+    rows[:n_pairs] = first
+    rows[64 * pw : 64 * pw + n_pairs] = second
+    w[:n_pairs] = amount
+    rows[128 * pw :] = left
+    w[128 * pw :] = lw
+    if wu_unit is not None:
+        w = np.round(w)
+    return _Layout(rows, w, pw)
+
+
+def _sphere_directions(p: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions (c, 3) from the centre of a sphere around the points ``p`` (q, 3) to the
+    cameras ``cams`` (c, 3), and each camera's parallax over it, ``asin(radius / distance)``
+    radians (``pi / 2`` inside it): a camera's direction from any point of the sphere is within
+    its parallax of its direction from the centre."""
+    c = 0.5 * (p.min(axis=0) + p.max(axis=0)) if p.shape[0] else np.zeros(3)
+    rad = (float(np.linalg.norm(p - c, axis=1).max()) if p.shape[0] else 0.0) * (1.0 + 1e-9) + 1e-12
+    d = cams - c
+    dist = np.linalg.norm(d, axis=1)
+    inside = dist <= rad * (1.0 + 1e-9)
+    dirs = np.where(inside[:, None], 0.0, d / np.where(inside, 1.0, dist)[:, None])
+    par = np.where(inside, 0.5 * math.pi, np.arcsin(np.minimum(1.0, rad / np.where(inside, 1.0, dist))) + 1e-9)
+    return np.ascontiguousarray(dirs), np.ascontiguousarray(par)
+
+
+def _blocks(rows: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points of the bit rows (64 W, 3) and each block's bounding sphere: centres (W, 3), radii (W,)
+    (-1 for a block without points)."""
+    n_words = (rows.size + 63) // 64
+    lp = np.zeros((n_words * 64, 3))
+    valid = np.zeros(n_words * 64, dtype=bool)
+    valid[: rows.size] = rows >= 0
+    lp[: rows.size][rows >= 0] = pts[rows[rows >= 0]]
+    v = valid.reshape(n_words, 64)
+    p = lp.reshape(n_words, 64, 3)
+    cnt = v.sum(axis=1)
+    lo = np.where(v[:, :, None], p, np.inf).min(axis=1)
+    hi = np.where(v[:, :, None], p, -np.inf).max(axis=1)
+    centers = np.where(cnt[:, None] > 0, 0.5 * (lo + hi), 0.0)
+    d = np.linalg.norm(p - centers[:, None, :], axis=2)
+    radius = np.where(cnt > 0, np.where(v, d, 0.0).max(axis=1) * (1.0 + 1e-9) + 1e-12, -1.0)
+    return lp, centers, radius
+
+
+class _Incumbent:
+    """Greedy + 1-swap with exact angles on the original matrix (weights zero off the search rows)."""
+
+    def __init__(self, q: sp.csr_matrix, wu: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int,
+                 theta_deg: float, fixed: np.ndarray, free: np.ndarray, margin: float, deadline: Deadline,
+                 stop_s: float | None) -> None:
+        self.q, self.wu, self.pos, self.pts = q, wu, pos, pts
+        self.views, self.theta_deg, self.fixed, self.margin = views, theta_deg, fixed, margin
+        self.allowed = np.zeros(q.shape[1], dtype=bool)
+        self.allowed[free] = True
+        self.deadline, self.stop_s = deadline, stop_s
+        self.best = -math.inf
+        self.best_set: tuple[int, ...] = ()
+        self.calls = 0
+
+    def expired(self) -> bool:
+        return self.stop_s is not None and self.deadline.elapsed() >= self.stop_s
+
+    def _state(self, sel: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        a = self.q
+        s = np.asarray(sorted(set(sel) | set(self.fixed.tolist())), dtype=np.int64)
+        with ctrl_c_deferred():
+            return AK.row_status(a.indptr, a.indices, a.data, s, self.pos, self.pts, self.views, self.theta_deg)
+
+    def value(self, sel: list[int]) -> float:
+        _, ok = self._state(sel)
+        return float(self.wu[ok].sum())
+
+    def gain(self, sel: list[int]) -> np.ndarray:
+        a = self.q
+        count, ok = self._state(sel)
+        s = np.asarray(sorted(set(sel) | set(self.fixed.tolist())), dtype=np.int64)
+        self.calls += 1
+        with ctrl_c_deferred():
+            g = AK.gains(a.indptr, a.indices, a.data, self.wu, s, self.pos, self.pts, self.views, self.theta_deg,
+                         count, ok, 4)
+        g[~self.allowed] = -np.inf
+        return g
+
+    def offer(self, sel: list[int]) -> None:
+        v = self.value(sel)
+        if v > self.best:
+            self.best, self.best_set = v, tuple(sorted(sel))
+
+    def run(self, k: int, colw: np.ndarray) -> None:
+        order = np.argsort(-np.where(self.allowed, colw, -np.inf), kind="stable")[: int(self.allowed.sum())]
+        for s0 in order[:_STARTS]:
+            if self.expired() and self.best_set:
+                break
+            sel = [int(s0)]
+            while len(sel) < k:
+                g = self.gain(sel)
+                g[sel] = -np.inf
+                # no gain yet (a first camera alone makes no pair): the heaviest remaining column
+                j = int(np.argmax(g)) if np.max(g) > 0 else next(int(c) for c in order if int(c) not in sel)
+                sel.append(j)
+            for _ in range(_SWAP_ROUNDS):
+                if self.expired():
+                    break
+                improved = False
+                for p in range(k):
+                    others = sel[:p] + sel[p + 1 :]
+                    g = self.gain(others)
+                    cur = g[sel[p]]
+                    g[sel] = -np.inf
+                    j = int(np.argmax(g))
+                    if g[j] > cur + self.margin:
+                        sel[p] = j
+                        improved = True
+                if not improved:
+                    break
+            self.offer(sel)
+
+
+class _Tree:
+    """Everything the compiled search reads: the bisection tree over the useful free columns with
+    its level bitsets and cones, the fixed cameras, the layout's weights and points.
+
+    Parameters
+    ----------
+    q : (m, n) csr_matrix
+    pos : (n, 3), pts : (m, 3) float64
+    layout : _Layout
+    free, fixed : int64 arrays of column indices
+    colw : (n,) float64
+        Each column's weight on the search rows (layout units).
+    k, views : int
+    theta_deg : float
+    integer : bool
+        Integer layout weights (popcount sums).
+    lap : callable
+        Records the time of each setup step.
+    """
+
+    def __init__(self, q: sp.csr_matrix, pos: np.ndarray, pts: np.ndarray, layout: _Layout, free: np.ndarray,
+                 fixed: np.ndarray, colw: np.ndarray, k: int, views: int, theta_deg: float, integer: bool,
+                 lap: Any) -> None:
+        n = q.shape[1]
+        rows, lw = layout.rows, layout.weights
+        self.k, self.views, self.pw, self.lw, self.theta_deg = k, views, layout.pw, lw, theta_deg
+        self.total = float(lw.sum())
+        useful = free[colw[free] > 0]  # columns observing a search row, padded to k
+        if useful.size < k:
+            useful = np.concatenate([useful, free[colw[free] <= 0][: k - useful.size]])
+        cols = np.sort(useful)
+        col_map = np.full(n, -1, dtype=np.int64)
+        col_map[cols] = np.arange(cols.size)
+        with ctrl_c_deferred():
+            bits = K.build_bits(q.indptr, q.indices, q.data, rows, col_map, cols.size)
+            lap("bits")
+            perm = K.bisection_order(bits)
+            lap("order")
+            self.lo, self.hi, self.left, self.right, self.levels = K.build_tree(np.ascontiguousarray(bits[perm]),
+                                                                                min(views, k))
+        del bits
+        lap("tree")
+        n_words = self.levels.shape[2]
+        self.cols_ord = cols[perm]
+        self.pts, centers, radius = _blocks(rows, pts)
+        self.blocks = (centers, radius)
+        self.cones = np.empty((self.lo.shape[0], n_words, 4), dtype=np.int16)
+        slot = np.empty(cols.size, dtype=np.int64)
+        leaves = np.flatnonzero(self.left < 0)
+        slot[self.lo[leaves]] = leaves
+        fmap = np.full(n, -1, dtype=np.int64)
+        fmap[fixed] = np.arange(fixed.size)
+        self.campos = np.ascontiguousarray(pos[self.cols_ord])
+        self.fpos = np.ascontiguousarray(pos[fixed]).reshape(-1, 3)
+        with ctrl_c_deferred():
+            AK.node_cones(self.campos, slot, self.left, self.right, centers, radius, self.cones)
+            lap("cones")
+            self.fbits = K.build_bits(q.indptr, q.indices, q.data, rows, fmap, fixed.size)
+            self.fcones = np.empty((fixed.size, n_words, 4), dtype=np.int16)
+            none = np.full(fixed.size, -1, dtype=np.int64)
+            AK.node_cones(self.fpos, np.arange(fixed.size, dtype=np.int64), none, none, centers, radius, self.fcones)
+            self.fpair = AK.fixed_pairs(self.fbits, self.fpos, self.pts, theta_deg)
+            # one sphere around every point: node pairs the angle cannot split (AK.angle_free)
+            self.dirs, self.par = _sphere_directions(self.pts[: rows.size][rows >= 0],
+                                                     np.concatenate([self.campos, self.fpos]))
+        self.planes = K.weight_planes(lw) if integer else np.zeros((0, n_words), np.uint64)
+        self.mask = _last_mask(rows.size)
+        f = colw[self.cols_ord]
+        self.colmax = np.empty(self.lo.shape[0])
+        for v in range(self.lo.shape[0] - 1, -1, -1):
+            self.colmax[v] = f[self.lo[v]] if self.left[v] < 0 else max(self.colmax[self.left[v]],
+                                                                         self.colmax[self.right[v]])
+        self.fixed_colsum = float(colw[fixed].sum())
+        self.root = min(self.total, (float(np.sort(f)[-k:].sum()) + self.fixed_colsum) / views)
+        self.tables = AK.angle_tables(math.radians(theta_deg))
+        self.refine = np.ones(64, dtype=np.bool_)
+        self.tries = np.zeros(64, dtype=np.int64)
+        self.wins = np.zeros(64, dtype=np.int64)
+        self.cuts = np.zeros(64)
+        self.cos_t = math.cos(math.radians(theta_deg))
+
+    def expand(self, tup: np.ndarray, tup_bound: np.ndarray, best: float, margin: float, rest: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, int, int, int]:
+        """Children of the tuples ``tup`` (F, k + 1: nodes, then 1 if the bound holds the angle)
+        whose bounds are ``tup_bound`` (F,) and the children's bounds (at most their parent's,
+        refined first where due; :func:`_anglekernels.expand`):
+        children, values, leaf flags, and the numbers of bounds, exact evaluations, prunes by the
+        count bound, angle-free tuples, prunes after the cone refinement and tuples sent back
+        unsplit (refined below the best open bound)."""
+        possible, always, self_ok = self.tables
+        with ctrl_c_deferred(), numba.parallel_chunksize(_PAR_CHUNK):  # dynamic: evaluations vary in cost
+            children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, n_back, refined, cut = AK.expand(
+                tup, tup_bound, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
+                self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
+                margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
+                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE, rest)
+        self._learn(refined, cut)
+        return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle), int(n_back)
+
+    def _learn(self, refined: np.ndarray, cut: np.ndarray) -> None:
+        """Cone refinement per level of the tuples' largest node (log2 of its columns): kept on
+        while, over the tuples it tried there, it removed on average at least _REFINE_MIN_CUT of
+        their margin over the incumbent (a prune removes all of it), judged after _REFINE_TRIALS
+        tries; 1 in _REFINE_SAMPLE tuples of a level where it is off goes on being tried. It
+        costs about five count bounds: where the angle hardly binds (cameras seeing one side,
+        far apart) it trims a few per cent of the margin and is switched off; where it binds it
+        removes a third or more."""
+        r = refined.ravel().astype(np.int64)
+        on = r != 0
+        lvl = np.abs(r[on]) - 1
+        self.tries += np.bincount(lvl, minlength=64)[:64]
+        self.cuts += np.bincount(lvl, weights=cut.ravel()[on], minlength=64)[:64]
+        self.wins += np.bincount(-r[r < 0] - 1, minlength=64)[:64]
+        self.refine = (self.tries < _REFINE_TRIALS) | (self.cuts >= _REFINE_MIN_CUT * self.tries)
+
+    def columns(self, nodes: np.ndarray) -> tuple[int, ...]:
+        """Original columns of a tuple of leaves, sorted."""
+        return tuple(sorted(int(self.cols_ord[self.lo[x]]) for x in nodes))
+
+
+def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
+                 pts: np.ndarray, fixed: np.ndarray, free: np.ndarray, *,
+                 time_limit_s: float | None = None) -> tuple[int, ...]:
+    """Greedy plus 1-swap choice of ``k`` new cameras with exact angles (the angle engine's
+    incumbent alone), in O(m + n) memory besides the matrix: the fallback when nothing else fits.
+
+    Parameters are those of :func:`solve_angle`; the swaps stop at ``time_limit_s``.
+
+    Returns
+    -------
+    tuple of int
+        The new cameras (original column indices, sorted).
+    """
+    deadline = Deadline(time_limit_s)
+    fixed = np.asarray(fixed, dtype=np.int64)
+    free = np.asarray(free, dtype=np.int64)
+    wu = np.where(w > 0, w, 0.0)
+    with ctrl_c_deferred():
+        colw = AK.column_weights(q.indptr, q.indices, q.data, np.arange(q.shape[0], dtype=np.int64), wu, q.shape[1])
+    inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline, deadline.limit)
+    inc.run(k, colw)
+    return inc.best_set
+
+
+def solve_angle(
+    q: sp.csr_matrix,
+    w: np.ndarray,
+    k: int,
+    views: int,
+    min_angle_deg: float,
+    pos: np.ndarray,
+    pts: np.ndarray,
+    fixed: np.ndarray,
+    free: np.ndarray,
+    *,
+    time_limit_s: float | None = None,
+    budget_bytes: int,
+) -> EngineOutcome:
+    """Best ``k`` new cameras for multi-view coverage with a minimum triangulation angle.
+
+    Parameters
+    ----------
+    q : (m, n) scipy.sparse.csr_matrix
+        Canonical visibility (> 0 observes).
+    w : (m,) float64
+        Point weights.
+    k : int
+        New cameras (>= 1).
+    views : int
+        Cameras a point needs (>= 2).
+    min_angle_deg : float
+        Minimum angle at the point between two of its views, degrees.
+    pos : (n, 3) float64
+        Camera positions.
+    pts : (m, 3) float64
+        Point positions.
+    fixed : (r,) int64
+        Cameras always used.
+    free : (f,) int64
+        Cameras that may be chosen (neither fixed nor forbidden), ``f >= k``.
+    time_limit_s : float, optional
+        On expiry the best set found comes back with status ``"feasible"`` and a valid bound.
+    budget_bytes : int
+        Memory the engine may use.
+
+    Returns
+    -------
+    EngineOutcome
+        ``selected``: the new cameras (original column indices, sorted; empty if none was found);
+        ``bound``: an upper bound on the objective, fixed cameras included, in weight units.
+
+    Raises
+    ------
+    OverBudget
+        When :func:`angle_bytes` exceeds ``budget_bytes`` (raised before any large allocation).
+    """
+    deadline = Deadline(time_limit_s)
+    m, n = q.shape
+    fixed = np.asarray(fixed, dtype=np.int64)
+    free = np.asarray(free, dtype=np.int64)
+    theta_deg = float(min_angle_deg)
+    stats: dict[str, Any] = {"views": views, "min_angle_deg": theta_deg, "times_s": {}}
+    last = [0.0]
+
+    def lap(what: str) -> None:
+        now = deadline.elapsed()
+        stats["times_s"][what] = now - last[0]
+        last[0] = now
+    # rows the fixed cameras already make count: a constant
+    with ctrl_c_deferred():
+        _, ok_fixed = AK.row_status(q.indptr, q.indices, q.data, fixed, pos, pts, views, theta_deg)
+        allowed = np.zeros(n, dtype=bool)
+        allowed[fixed] = True
+        allowed[free] = True
+        seen, _ = K.selected_row_stats(q.indptr, q.indices, q.data, allowed)
+        only_free = np.zeros(n, dtype=bool)
+        only_free[free] = True
+        seen_free, _ = K.selected_row_stats(q.indptr, q.indices, q.data, only_free)
+    const = float(w[ok_fixed].sum())
+    lap("rows")
+    search = np.flatnonzero((w > 0) & ~ok_fixed & (seen >= views) & (seen_free > 0))
+    need = angle_bytes(search.size, free.size, fixed.size, k, views, _FRONTIER_MIN)
+    if need > budget_bytes:
+        raise OverBudget(need, budget_bytes, "the angle engine")
+    # as many open tuples as the budget allows (the search stops there with a valid bound)
+    cap = int(max(_FRONTIER_MIN, min(_FRONTIER_MAX, _FRONTIER_MIN + (budget_bytes - need) // _tuple_bytes(k))))
+    need = angle_bytes(search.size, free.size, fixed.size, k, views, cap)
+    stats.update({"rows": int(search.size), "memory_estimate_bytes": need, "open_tuples_max": cap})
+    pos_w = w[w > 0]
+    unit = float(pos_w[0]) if pos_w.size and np.all(pos_w == pos_w[0]) else None
+    wu = np.zeros(m)
+    wu[search] = w[search] / unit if unit is not None else w[search]
+    scale = unit if unit is not None else 1.0
+    margin = 0.0 if unit is not None else _FLOAT_MARGIN * float(wu.sum())
+    if search.size == 0 or k + fixed.size < views:
+        return EngineOutcome(tuple(int(j) for j in free[:k]), "optimal", const, dict(stats, trivial=True))
+
+    with ctrl_c_deferred():
+        colw = AK.column_weights(q.indptr, q.indices, q.data, search, wu[search], n)
+    inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, deadline,
+                     None if deadline.limit is None else _INCUMBENT_SHARE * deadline.limit)
+    lap("column_weights")
+    inc.run(k, colw)
+    stats["initial_incumbent"] = const + inc.best * scale
+    lap("incumbent")
+
+    # bit rows: spatial blocks, with the opposite-pairs layout when it pays
+    layout = None
+    if k + fixed.size < 2 * views:
+        limit = None if deadline.limit is None else _PAIRS_TIME_SHARE * deadline.limit
+        wm = np.zeros(m)
+        wm[search] = wu[search]
+        match = match_opposite(q, wm, views, columns=np.flatnonzero(allowed), time_limit_s=limit)
+        share = match.matched / match.countable if match.countable > 0 else 0.0
+        stats["opposite_pairs"] = dict(match.stats, matched_share=share)
+        if share >= _PAIRS_MIN_SHARE:
+            layout = _pairs_layout(match, unit, seen, pts)
+        del match
+    if layout is None:
+        layout = _plain_layout(search, wu, pts, seen)
+    lap("layout")
+    tree = _Tree(q, pos, pts, layout, free, fixed, colw, k, views, theta_deg, unit is not None, lap)
+    stats.update({"bit_rows": int(layout.rows.size), "words": int(tree.levels.shape[2]), "pair_words": int(layout.pw),
+                  "cols": int(tree.cols_ord.size), "time_setup_s": deadline.elapsed()})
+
+    # the incumbent (in layout units: its value on the search rows), then best-first search
+    best = inc.best
+    best_set = inc.best_set
+    front = Frontier(np.zeros((1, k + 1), dtype=np.int64), np.array([tree.root]), int(_DEPTH_FIRST_SHARE * cap), _CHUNK)
+    cpu_search = time.process_time()
+    evaluated = exact_evals = cheap_prunes = angle_free = angle_prunes = requeued = 0
+
+    def expand(tup: np.ndarray, tup_bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        nonlocal evaluated, exact_evals, cheap_prunes, angle_free, angle_prunes, requeued
+        children, value, leaf, n_made, n_exact, n_cheap, n_free, n_angle, n_back = tree.expand(
+            tup, tup_bound, best, margin, front.top())
+        evaluated += n_made
+        exact_evals += n_exact
+        cheap_prunes += n_cheap
+        angle_free += n_free
+        angle_prunes += n_angle
+        requeued += n_back
+        return children, value, leaf
+
+    def offer(value: float, nodes: np.ndarray) -> None:
+        nonlocal best, best_set
+        if value > best:
+            best, best_set = value, tree.columns(nodes[:k])
+            log.debug("angle: incumbent %.9g %s", const + best * scale, best_set)
+
+    status, open_bound, batches, t_expand = best_first(
+        front, expand, offer, lambda: best + margin, deadline, stats, max_open=cap, batch=min(_BATCH, _BATCH_MIN),
+        batch_min=_BATCH_MIN, batch_max=_BATCH, batch_s=_BATCH_S)
+    log.debug("angle: %d bounds (%d pruned without the angle, %d angle-free), open %d, %.1f s",
+              evaluated, cheap_prunes, angle_free, front.n_open, deadline.elapsed())
+    bound = max(best, open_bound)
+    if bound <= best + margin:
+        status, bound = "optimal", best
+    stats.update({"search": "opposite pairs" if layout.pw > 0 else "blocks", "bound_evaluations": int(evaluated),
+                  "exact_evaluations": int(exact_evals), "pruned_without_angle": int(cheap_prunes),
+                  "angle_free": int(angle_free), "refined": int(tree.tries.sum()),
+                  "pruned_by_angle": int(angle_prunes), "requeued": int(requeued), "batches": batches,
+                  "refine_levels": {int(v): [int(tree.tries[v]), int(tree.wins[v]), round(float(tree.cuts[v]), 1), bool(tree.refine[v])]
+                                    for v in np.flatnonzero(tree.tries)},
+                  "peak_open": int(front.peak),
+                  "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
+                  "time_search_s": deadline.elapsed() - stats["time_setup_s"],
+                  "cpu_search_s": time.process_time() - cpu_search, "time_expand_s": t_expand})
+    log.info("angle: k=%d views=%d angle %.3g deg on %d rows x %d columns, %s value %.9g bound %.9g, %d bound "
+             "evaluations, %.3f s", k, views, theta_deg, layout.rows.size, tree.cols_ord.size, status, const + best * scale,
+             const + bound * scale, evaluated, deadline.elapsed())
+    return EngineOutcome(best_set, status, const + bound * scale, stats)
+
+
+def _last_mask(m: int) -> np.uint64:
+    rem = m % 64
+    return np.uint64((1 << rem) - 1) if rem else np.uint64(0xFFFFFFFFFFFFFFFF)

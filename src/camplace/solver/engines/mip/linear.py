@@ -1,0 +1,386 @@
+"""A small 0/1 linear model and its two OR-Tools backends (SCIP via ``pywraplp``, CP-SAT).
+
+Used by :mod:`camplace.solver.api` for every model the bound-pruned exact engine cannot solve
+(multi-view coverage, set cover, minimum-distance constraints, ...). Variables are binary or
+continuous in ``[lb, ub]``; constraints are ``lo <= sum coef * var <= hi``. CP-SAT needs integer
+data: every variable becomes an integer variable in ``[lb, ub]`` (all models here only use 0/1
+variables), every constraint must have integer coefficients (a constraint may carry an
+integer-scaled variant for CP-SAT, see :class:`Row`), and a non-integral objective is scaled to
+integers with the rounding error added to the reported bound (so the bound stays valid).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
+
+__all__ = ["Row", "LinearModel", "ModelOutcome", "solve_model", "model_bytes"]
+
+log = logging.getLogger(__name__)
+
+_CPSAT_TOTAL = 2.0**50  # total of the integer CP-SAT objective coefficients (non-integral objective)
+_OPT_TOL = 1e-9  # relative gap under which a result counts as optimal
+
+
+# Peak bytes per variable, per constraint and per nonzero of a model: this module's Python rows,
+# the protocol buffer and the solver's own copy. Measured with OR-Tools 9.15 (peak RSS of 3 s
+# solves of 10^5..10^6 rows / variables): SCIP about 2.7 kB a variable, 1.7 kB a row, 150 B a
+# nonzero; CP-SAT (2 workers) 0.9 kB, 1.1 kB and 60 B.
+_MODEL_BYTES = {"mip": (2800, 1700, 150), "cpsat": (900, 1100, 70)}
+_MODEL_SEARCH_FACTOR = 1.5  # longer searches (LP, tree, cuts) grow beyond the measured peaks
+_MODEL_BASE_BYTES = 100 << 20
+
+
+def model_bytes(backend: str, n_vars: int, n_rows: int, nnz: int) -> int:
+    """Estimated peak memory of building and solving a model of this size.
+
+    Parameters
+    ----------
+    backend : {"mip", "cpsat"}
+    n_vars, n_rows, nnz : int
+        Variables, constraints and constraint nonzeros.
+
+    Returns
+    -------
+    int
+        Bytes.
+    """
+    per_var, per_row, per_nnz = _MODEL_BYTES["cpsat" if backend == "cpsat" else "mip"]
+    raw = per_var * float(n_vars) + per_row * float(n_rows) + per_nnz * float(nnz)
+    return int(_MODEL_SEARCH_FACTOR * raw) + _MODEL_BASE_BYTES
+
+
+@dataclass(frozen=True)
+class Row:
+    """One linear constraint ``lo <= coef @ x[idx] <= hi``.
+
+    Attributes
+    ----------
+    idx : (r,) int64
+        Variable indices.
+    coef : (r,) float64
+        Coefficients (used by SCIP, and by CP-SAT when integral).
+    lo, hi : float
+        Bounds (``-inf`` / ``inf`` for none).
+    int_variant : tuple or None
+        ``(coef_int (r,) int64, lo_int, hi_int)`` used by CP-SAT instead (for rows with
+        non-integral coefficients).
+    """
+
+    idx: np.ndarray
+    coef: np.ndarray
+    lo: float
+    hi: float
+    int_variant: tuple[np.ndarray, float, float] | None = None
+
+
+@dataclass
+class LinearModel:
+    """A mixed 0/1 linear model (built incrementally, then solved once).
+
+    Attributes
+    ----------
+    maximize : bool
+        Objective sense.
+    lb, ub : list of float
+        Variable bounds.
+    integer : list of bool
+        Integrality of each variable (CP-SAT treats every variable as integer).
+    obj : list of float
+        Objective coefficients.
+    rows : list of Row
+        Constraints.
+    """
+
+    maximize: bool
+    lb: list[float] = field(default_factory=list)
+    ub: list[float] = field(default_factory=list)
+    integer: list[bool] = field(default_factory=list)
+    obj: list[float] = field(default_factory=list)
+    rows: list[Row] = field(default_factory=list)
+
+    def add_vars(self, count: int, *, lb: float = 0.0, ub: float = 1.0, integer: bool = True, obj: Any = 0.0) -> np.ndarray:
+        """Add ``count`` variables; returns their (count,) int64 indices."""
+        start = len(self.lb)
+        objs = np.broadcast_to(np.asarray(obj, dtype=np.float64), (count,))
+        self.lb.extend([float(lb)] * count)
+        self.ub.extend([float(ub)] * count)
+        self.integer.extend([bool(integer)] * count)
+        self.obj.extend(objs.tolist())
+        return np.arange(start, start + count, dtype=np.int64)
+
+    def add_row(
+        self,
+        idx: Sequence[int] | np.ndarray,
+        coef: Sequence[float] | np.ndarray,
+        lo: float = -math.inf,
+        hi: float = math.inf,
+        int_variant: tuple[np.ndarray, float, float] | None = None,
+    ) -> None:
+        """Add the constraint ``lo <= sum coef * x[idx] <= hi``."""
+        self.rows.append(
+            Row(np.asarray(idx, dtype=np.int64), np.asarray(coef, dtype=np.float64), float(lo), float(hi), int_variant)
+        )
+
+    @property
+    def n_vars(self) -> int:
+        """Number of variables."""
+        return len(self.lb)
+
+
+@dataclass(frozen=True)
+class ModelOutcome:
+    """Result of :func:`solve_model`.
+
+    Attributes
+    ----------
+    values : (n_vars,) float64 or None
+        Best solution found (None if none).
+    status : str
+        ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
+    bound : float
+        Solver's proven bound on the objective (upper when maximising, lower when minimising),
+        in the model's objective units; +-inf when unknown.
+    stats : dict
+        JSON-serialisable details.
+    """
+
+    values: np.ndarray | None
+    status: str
+    bound: float
+    stats: dict[str, Any]
+
+
+def solve_model(
+    model: LinearModel,
+    backend: str,
+    *,
+    time_limit_s: float | None = None,
+    hint: dict[int, float] | None = None,
+    workers: int = 2,
+) -> ModelOutcome:
+    """Solve a :class:`LinearModel` with SCIP (``backend="mip"``) or CP-SAT (``"cpsat"``).
+
+    Parameters
+    ----------
+    model : LinearModel
+    backend : {"mip", "cpsat"}
+    time_limit_s : float, optional
+        Wall-clock limit.
+    hint : dict, optional
+        Partial solution ``{variable: value}`` given to the solver as a hint.
+    workers : int
+        CP-SAT workers (SCIP is single-threaded).
+
+    Returns
+    -------
+    ModelOutcome
+    """
+    if backend == "mip":
+        return _solve_scip(model, time_limit_s, hint)
+    if backend == "cpsat":
+        return _solve_cpsat(model, time_limit_s, hint, workers)
+    raise CamplaceError(f"unknown model backend {backend!r} (use mip or cpsat)")
+
+
+def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_values: Sequence[float] = (), *,
+             no_scip: str = "use engine='cpsat'"):
+    """Solve an ``MPModelProto`` with SCIP: one thread, the hint, the relative gap ``_OPT_TOL`` and
+    what is left of ``deadline`` (the one SCIP set-up of the package: the mode models and the
+    max-coverage MIP engine both run here).
+
+    Parameters
+    ----------
+    proto : ortools.linear_solver.linear_solver_pb2.MPModelProto
+    deadline : Deadline
+        The build time counts from its start.
+    hint_vars, hint_values : sequence
+        Variable indices and their hinted values.
+    no_scip : str
+        What to do instead when OR-Tools has no SCIP (the end of the one-line error).
+
+    Returns
+    -------
+    solver : pywraplp.Solver
+    variables : list of pywraplp.Variable
+    code : int
+        ``solver.Solve``'s result status.
+    build_s : float
+        Seconds from the deadline's start until the solve began.
+    """
+    from ortools.linear_solver import pywraplp
+
+    solver = pywraplp.Solver.CreateSolver("SCIP")
+    if solver is None:
+        raise CamplaceError(f"OR-Tools was built without SCIP; {no_scip}")
+    err = solver.LoadModelFromProto(proto)
+    if err:
+        raise RuntimeError(f"SCIP model load failed: {err}")
+    solver.SetNumThreads(1)
+    variables = solver.variables()
+    if len(hint_vars):
+        solver.SetHint([variables[i] for i in hint_vars], [float(v) for v in hint_values])
+    build_s = deadline.elapsed()
+    rem = deadline.remaining()
+    if rem is not None:
+        solver.SetTimeLimit(max(1, int(rem * 1000)))
+    params = pywraplp.MPSolverParameters()
+    params.SetDoubleParam(pywraplp.MPSolverParameters.RELATIVE_MIP_GAP, _OPT_TOL)
+    code = solver.Solve(params)
+    return solver, variables, code, build_s
+
+
+def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None) -> ModelOutcome:
+    from ortools.linear_solver import linear_solver_pb2, pywraplp
+
+    deadline = Deadline(time_limit_s)
+    proto = linear_solver_pb2.MPModelProto()
+    proto.maximize = bool(model.maximize)
+    for lb, ub, integ, c in zip(model.lb, model.ub, model.integer, model.obj):
+        v = proto.variable.add()
+        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = lb, ub, integ, c
+    nnz = 0
+    for row in model.rows:
+        ct = proto.constraint.add()
+        ct.lower_bound = row.lo
+        ct.upper_bound = row.hi
+        ct.var_index.extend(row.idx.tolist())
+        ct.coefficient.extend(row.coef.tolist())
+        nnz += row.idx.size
+    keys = sorted(hint) if hint else []
+    solver, variables, code, build_s = run_scip(proto, deadline, keys, [float(hint[i]) for i in keys] if hint else [],
+                                                no_scip="use engine='cpsat'")
+    stats: dict[str, Any] = {
+        "backend": "SCIP",
+        "variables": model.n_vars,
+        "constraints": len(model.rows),
+        "nonzeros": int(nnz),
+        "time_build_s": build_s,
+        "time_solve_s": deadline.elapsed() - build_s,
+        "solver_status": int(code),
+    }
+    values = None
+    if code in (pywraplp.Solver.OPTIMAL, pywraplp.Solver.FEASIBLE):
+        values = np.array([v.solution_value() for v in variables], dtype=np.float64)
+        bound = float(solver.Objective().BestBound())
+        stats["nodes"] = int(solver.nodes())
+    else:
+        bound = math.inf if model.maximize else -math.inf
+    if code == pywraplp.Solver.OPTIMAL:
+        status = "optimal"
+    elif code == pywraplp.Solver.FEASIBLE:
+        status = "feasible"
+    elif code == pywraplp.Solver.INFEASIBLE:
+        status = "infeasible"
+    else:
+        status = "unknown"
+    return ModelOutcome(values, status, bound, stats)
+
+
+def run_cpsat(model, workers: int, deadline: Deadline):
+    """Solve a built CP-SAT model with ``workers`` threads within the deadline's remaining time.
+
+    Returns
+    -------
+    solver : ortools CpSolver
+    code : int
+        CP-SAT status code.
+    build_s : float
+        Seconds spent before the solve started (model building).
+    """
+    from ortools.sat.python import cp_model
+
+    solver = cp_model.CpSolver()
+    solver.parameters.num_workers = int(max(1, workers))
+    build_s = deadline.elapsed()
+    rem = deadline.remaining()
+    if rem is not None:
+        solver.parameters.max_time_in_seconds = max(0.01, rem)
+    return solver, solver.solve(model), build_s
+
+
+def _int_objective(obj: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Integer objective ``cint`` with ``obj ~= cint * unit`` and total rounding error ``err``."""
+    if obj.size == 0 or (np.all(obj == np.rint(obj)) and float(np.abs(obj).sum()) < 2.0**53):
+        return obj.astype(np.int64), 1.0, 0.0
+    s = _CPSAT_TOTAL / float(np.abs(obj).sum())
+    cint = np.rint(obj * s).astype(np.int64)
+    unit = 1.0 / s
+    err = float(np.abs(obj * s - cint).sum()) * unit
+    return cint, unit, err
+
+
+def _solve_cpsat(
+    model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None, workers: int
+) -> ModelOutcome:
+    from ortools.sat.python import cp_model
+
+    deadline = Deadline(time_limit_s)
+    cp = cp_model.CpModel()
+    xs = []
+    for i, (lb, ub) in enumerate(zip(model.lb, model.ub)):
+        lo_i, hi_i = math.ceil(lb - 1e-9), math.floor(ub + 1e-9)
+        xs.append(cp.new_bool_var(f"v{i}") if (lo_i, hi_i) == (0, 1) else cp.new_int_var(lo_i, hi_i, f"v{i}"))
+    for row in model.rows:
+        if row.int_variant is not None:
+            coef, lo, hi = row.int_variant
+            coef = np.asarray(coef, dtype=np.int64)
+        else:
+            if not np.all(row.coef == np.rint(row.coef)):
+                raise RuntimeError("CP-SAT row with non-integral coefficients and no integer variant")
+            coef, lo, hi = row.coef.astype(np.int64), row.lo, row.hi
+        expr = cp_model.LinearExpr.weighted_sum([xs[i] for i in row.idx.tolist()], coef.tolist())
+        if math.isfinite(lo) and math.isfinite(hi) and lo == hi:
+            cp.add(expr == int(round(lo)))
+            continue
+        if math.isfinite(lo):
+            cp.add(expr >= int(math.ceil(lo - 1e-9)))
+        if math.isfinite(hi):
+            cp.add(expr <= int(math.floor(hi + 1e-9)))
+    obj = np.asarray(model.obj, dtype=np.float64)
+    cint, unit, err = _int_objective(obj)
+    nz = np.flatnonzero(cint)
+    expr = cp_model.LinearExpr.weighted_sum([xs[i] for i in nz.tolist()], cint[nz].tolist())
+    if model.maximize:
+        cp.maximize(expr)
+    else:
+        cp.minimize(expr)
+    if hint:
+        for i, v in hint.items():
+            cp.add_hint(xs[i], int(round(v)))
+    solver, code, build_s = run_cpsat(cp, workers, deadline)
+    stats: dict[str, Any] = {
+        "backend": "CP-SAT",
+        "workers": int(max(1, workers)),
+        "variables": model.n_vars,
+        "constraints": len(model.rows),
+        "time_build_s": build_s,
+        "time_solve_s": deadline.elapsed() - build_s,
+        "objective_unit": unit,
+        "rounding_error": err,
+        "solver_status": solver.status_name(code),
+    }
+    values = None
+    if code in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        values = np.array([solver.value(v) for v in xs], dtype=np.float64)
+        ib = float(solver.best_objective_bound)
+        bound = ib * unit + err if model.maximize else ib * unit - err
+        stats["branches"] = int(solver.num_branches)
+    else:
+        bound = math.inf if model.maximize else -math.inf
+    if code == cp_model.OPTIMAL:
+        status = "optimal" if err == 0.0 else "feasible"  # the caller re-checks the gap
+    elif code == cp_model.FEASIBLE:
+        status = "feasible"
+    elif code == cp_model.INFEASIBLE:
+        status = "infeasible"
+    else:
+        status = "unknown"
+    return ModelOutcome(values, status, bound, stats)

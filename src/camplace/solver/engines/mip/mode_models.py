@@ -1,0 +1,279 @@
+"""The SCIP / CP-SAT models of the modes, built on :class:`camplace.solver.engines.mip.linear.LinearModel`.
+
+:func:`model_size` states a k-camera model's size before :func:`build_model` builds it (the caller
+compares :func:`~camplace.solver.engines.mip.linear.model_bytes` of it with the memory budget);
+:func:`setcover_model` is the minimum-cost cover with minimum-distance conflicts
+(:func:`check_setcover_memory` first). The generic 0/1 model and its two OR-Tools backends stay in
+:mod:`camplace.solver.engines.mip.linear`, which :mod:`camplace.plan` uses as well.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace._signals import ctrl_c_deferred
+from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver.engines.angle._kernels import count_bad_pairs
+from camplace.solver.engines.mip.linear import LinearModel, model_bytes
+from camplace.solver.problem.objectives import angle_ok_pairs, selected_row_stats
+from camplace.solver.problem.presolve import as_pattern
+
+__all__ = ["BuildTimeout", "add_level_chain", "merge_rows", "model_size", "build_model", "check_setcover_memory", "setcover_model"]
+
+_MODEL_BYTES_PER_ROW_MIN = 1000  # no model row costs less (see camplace.solver.engines.mip.linear.model_bytes)
+
+
+class BuildTimeout(Exception):
+    """The time limit passed while the general model was being built."""
+
+
+def merge_rows(a: sp.csr_matrix, w: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Merge rows with identical indices AND values, summing their weights."""
+    seen: dict[bytes, int] = {}
+    first: list[int] = []
+    wsum: list[float] = []
+    for i in range(a.shape[0]):
+        s, e = a.indptr[i], a.indptr[i + 1]
+        key = a.indices[s:e].astype(np.int32).tobytes() + b"|" + a.data[s:e].tobytes()
+        g = seen.get(key)
+        if g is None:
+            seen[key] = len(first)
+            first.append(i)
+            wsum.append(float(w[i]))
+        else:
+            wsum[g] += float(w[i])
+    return a[first].tocsr() if first else a[:0], np.asarray(wsum, dtype=np.float64)
+
+
+def model_size(
+    q: sp.csr_matrix, resid: sp.csr_matrix, resid_w: np.ndarray, w: np.ndarray, mode: str, views: int,
+    min_angle_deg: float | None, pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, conflicts: np.ndarray, budget: int,
+) -> tuple[int, int, int]:
+    """Variables, rows and nonzeros of the model :func:`build_model` would build (upper bounds),
+    computed without building it. With the angle, the pairs of observers closer than the angle (one
+    row each) are counted per point, stopping once the model could not fit in ``budget`` anyway.
+    """
+    nf = free_cols.size
+    n_conf = int(conflicts.shape[0])
+    n_vars, n_rows, nnz = nf, 1 + n_conf, nf + 2 * n_conf
+    if mode in ("maxcover", "quality"):
+        cnt = np.diff(resid.indptr)
+        live = (resid_w > 0) & (cnt > 0)
+        entries = int(cnt[live].sum())
+        rows = int(live.sum()) if mode == "maxcover" else entries  # quality: a row per distinct level
+        return n_vars + rows, n_rows + rows, nnz + entries + (rows if mode == "maxcover" else 2 * rows)
+    allowed = np.zeros(q.shape[1], dtype=bool)
+    allowed[free_cols] = True
+    allowed[list(fixed_t)] = True
+    nobs, _ = selected_row_stats(q, np.flatnonzero(allowed))
+    live = np.flatnonzero((w > 0) & (nobs >= views))
+    s = nobs[live].astype(np.int64)
+    n_vars += len(fixed_t)
+    if pts is None:
+        return n_vars + live.size, n_rows + live.size, nnz + int(s.sum()) + live.size
+    assert pos is not None
+    limit = budget // _MODEL_BYTES_PER_ROW_MIN
+    data = q.data.view(np.uint8) if q.data.dtype.kind == "b" else q.data
+    with ctrl_c_deferred():
+        bad = int(count_bad_pairs(q.indptr, q.indices, data, live.astype(np.int64), allowed, pos, pts,
+                                  float(min_angle_deg or 0.0), limit))
+    extra = int(views > 2)
+    return (n_vars + int((s + 1).sum()), n_rows + int((s + 1 + extra).sum()) + bad,
+            nnz + int((3 * s + 1 + extra * (s + 1)).sum()) + 2 * bad)
+
+
+def add_level_chain(model: LinearModel, x: np.ndarray, cols: np.ndarray, vals: np.ndarray, weight: float,
+                    wmax: float) -> tuple[np.ndarray, np.ndarray]:
+    """The quality chain of one point: with its distinct values ``q_1 > ... > q_L``, variables
+    ``y_l <= y_(l-1) + sum_(j: Q_ij = q_l) x_j`` of objective ``weight (q_l - q_(l+1)) / wmax``.
+
+    Parameters
+    ----------
+    model : LinearModel
+    x : (n,) int64
+        The camera variables.
+    cols : (s,) int
+        Columns observing the point.
+    vals : (s,) float
+        Their qualities.
+    weight, wmax : float
+        The point's weight and the objective's scale.
+
+    Returns
+    -------
+    ys : (L,) int64
+        The level variables.
+    coef : (L,) float64
+        Their objective coefficients.
+    """
+    levels = np.unique(vals)[::-1]
+    nxt = np.append(levels[1:], 0.0)
+    coef = weight * (levels - nxt) / wmax
+    ys = model.add_vars(levels.size, integer=False, obj=coef)
+    for li, lv in enumerate(levels):
+        at = cols[vals == lv]
+        idx = np.append(x[at], ys[li])
+        row = np.append(np.ones(at.size), -1.0)
+        if li > 0:
+            idx, row = np.append(idx, ys[li - 1]), np.append(row, 1.0)
+        model.add_row(idx, row, lo=0.0)
+    return ys, coef
+
+
+def build_model(
+    q: sp.csr_matrix, resid: sp.csr_matrix, resid_w: np.ndarray, w: np.ndarray, base: np.ndarray, k: int,
+    mode: str, views: int,
+    min_angle_deg: float | None, pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, conflicts: np.ndarray, fixed_value: float, deadline: Deadline,
+) -> tuple[LinearModel, np.ndarray, float, float]:
+    """The SCIP / CP-SAT model of a k-camera mode: (model, x variables, objective scale, constant).
+
+    Raises :class:`BuildTimeout` when the time limit passes while rows are being added.
+    """
+
+    def check(r: int) -> None:
+        if (r & 255) == 0 and deadline.expired():
+            raise BuildTimeout
+
+    model = LinearModel(maximize=True)
+    nf = free_cols.size
+    x = model.add_vars(nf)
+    model.add_row(x, np.ones(nf), float(k), float(k))
+    for a, b in np.searchsorted(free_cols, conflicts).tolist() if conflicts.size else []:
+        model.add_row([x[a], x[b]], [1.0, 1.0], hi=1.0)
+    wmax = float(resid_w.max()) if resid_w.size and resid_w.max() > 0 else 1.0
+    const = 0.0
+    if mode == "maxcover":
+        live = (resid_w > 0) & (np.diff(resid.indptr) > 0)
+        pr, pw = merge_rows(as_pattern(resid[live]), resid_w[live])
+        y = model.add_vars(pr.shape[0], integer=False, obj=pw / wmax)
+        for r in range(pr.shape[0]):
+            check(r)
+            cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+            model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
+        const = fixed_value
+    elif mode == "quality":
+        live = (resid_w > 0) & (np.diff(resid.indptr) > 0)
+        pr, pw = merge_rows(resid[live].tocsr(), resid_w[live])
+        for r in range(pr.shape[0]):
+            check(r)
+            s, e = pr.indptr[r], pr.indptr[r + 1]
+            add_level_chain(model, x, pr.indices[s:e], pr.data[s:e], pw[r], wmax)
+        const = float(w @ base)
+    else:
+        fx = np.array(fixed_t, dtype=np.int64)
+        allc = np.concatenate([free_cols, fx])  # model columns: free ones then fixed
+        xf = model.add_vars(fx.size, lb=1.0, ub=1.0)
+        xall = np.concatenate([x, xf])
+        qa = q[:, allc].tocsr()
+        nobs = np.diff(qa.indptr)
+        live = (w > 0) & (nobs >= views)
+        if pts is None:
+            pr, pw = merge_rows(as_pattern(qa[live]), w[live])
+            y = model.add_vars(pr.shape[0], obj=pw / wmax)
+            for r in range(pr.shape[0]):
+                check(r)
+                cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+                model.add_row(np.append(xall[cols], y[r]), np.append(np.ones(cols.size), -float(views)), lo=0.0)
+        else:
+            assert pos is not None
+            for r, i in enumerate(np.flatnonzero(live)):
+                check(r)
+                cols = qa.indices[qa.indptr[i] : qa.indptr[i + 1]]
+                good = angle_ok_pairs(pts[i], pos[allc[cols]], float(min_angle_deg or 0.0))
+                if not np.any(np.triu(good, 1)):
+                    continue
+                yi = int(model.add_vars(1, obj=w[i] / wmax)[0])
+                if views > 2:
+                    model.add_row(np.append(xall[cols], yi), np.append(np.ones(cols.size), -float(views)), lo=0.0)
+                u = model.add_vars(cols.size)
+                for t, c in enumerate(cols):
+                    model.add_row([u[t], xall[c]], [1.0, -1.0], hi=0.0)
+                model.add_row(np.append(u, yi), np.append(np.ones(cols.size), -2.0), 0.0, 0.0)
+                bad_a, bad_b = np.nonzero(np.triu(~good, 1))
+                for a, b in zip(bad_a.tolist(), bad_b.tolist()):
+                    model.add_row([u[a], u[b]], [1.0, 1.0], hi=1.0)
+
+    return model, x, wmax, const
+
+
+def check_setcover_memory(q: sp.csr_matrix, w: np.ndarray, free_cols: np.ndarray, conflicts: np.ndarray,
+                           engine: str) -> None:
+    """One-line error before building a set-cover model that would not fit in memory (there is no
+    cheaper engine to fall back to)."""
+    backend = "cpsat" if engine == "cpsat" else "mip"
+    cnt, _ = selected_row_stats(q, free_cols)
+    rows = int(np.count_nonzero((w > 0) & (cnt > 0)))
+    entries = int(cnt.sum())
+    n_conf = int(conflicts.shape[0])
+    need = model_bytes(backend, free_cols.size + rows, rows + 1 + n_conf, entries + rows + 2 * n_conf)
+    budget = memory_budget_bytes()
+    if need > budget:
+        exc = OverBudget(need, budget, f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} set-cover model")
+        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
+
+
+def setcover_model(
+    sub: sp.csr_matrix, sw: np.ndarray, costs_free: np.ndarray, free_cols: np.ndarray, conflicts: np.ndarray,
+    frac: float, need: float, coverable_w: float,
+) -> tuple[LinearModel, np.ndarray, int]:
+    """The SCIP / CP-SAT model of a minimum-cost cover with minimum-distance conflicts.
+
+    Parameters
+    ----------
+    sub : (r, nf) csr_matrix
+        0/1 pattern of the rows still to cover over the free columns.
+    sw : (r,) float64
+        Their weights.
+    costs_free : (nf,) float64
+        Costs of the free columns.
+    free_cols : (nf,) int64
+        Original indices of the free columns (sorted).
+    conflicts : (p, 2) int64
+        Pairs of original columns that may not both be chosen.
+    frac : float
+        Required fraction (1: every row; below 1 a weighted cover of at least ``need``).
+    need : float
+        Weight the new cameras must cover (``frac < 1``).
+    coverable_w : float
+        Coverable weight (scales the fractional requirement).
+
+    Returns
+    -------
+    model : LinearModel
+    x : (nf,) int64
+        The camera variables.
+    rows_after : int
+        Cover rows after merging identical ones.
+    """
+    model = LinearModel(maximize=False)
+    nf = free_cols.size
+    x = model.add_vars(nf, obj=costs_free)
+    for a, b in np.searchsorted(free_cols, conflicts).tolist() if conflicts.size else []:
+        model.add_row([x[a], x[b]], [1.0, 1.0], hi=1.0)
+    if frac >= 1.0:
+        pr, _ = merge_rows(sub, sw)
+        for r in range(pr.shape[0]):
+            cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+            model.add_row(x[cols], np.ones(cols.size), lo=1.0)
+    else:
+        pr, pw = merge_rows(sub, sw)
+        y = model.add_vars(pr.shape[0])
+        for r in range(pr.shape[0]):
+            cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+            model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
+        scale_f = 1.0 / max(coverable_w, 1e-300)
+        s_int = 2.0**30 / max(float(pw.sum()), 1e-300)
+        # CP-SAT needs integers: rounding the weights UP keeps every truly feasible cover feasible
+        # (sum ceil(w s) >= sum w s >= need s), so CP-SAT's optimum is never worse than the true
+        # one; :func:`camplace.solver.engines.setcover.mode.setcover` checks the answer against the exact requirement
+        cint = np.ceil(pw * s_int).astype(np.int64)
+        model.add_row(y, pw * scale_f, lo=need * scale_f,
+                      int_variant=(cint, float(math.ceil(need * s_int)), math.inf))
+    return model, x, int(pr.shape[0])

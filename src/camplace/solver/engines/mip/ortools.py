@@ -1,0 +1,299 @@
+"""Max coverage with OR-Tools: a SCIP MIP (``pywraplp``) and CP-SAT.
+
+Both engines work on the presolved instance (merged rows, dominance-reduced columns)::
+
+    maximise  sum_i c_i y_i
+    s.t.      y_i <= sum_{j covers i} x_j      for every row i
+              sum_j x_j = k
+              x_j in {0, 1},  y_i in [0, 1] (MIP) or {0, 1} (CP-SAT)
+
+Objective coefficients: the integer merged-row counts when all original weights are equal (exact;
+``c_i * unit`` is the weight). Otherwise the MIP uses ``weights / max(weights)``; CP-SAT uses
+integral weights as they are, and otherwise ``round(weights * s)`` with ``s`` chosen so the total
+is 2**50; the rounding error ``E`` is recorded in ``stats`` (``weight_scale``, ``rounding_error``)
+and added to the mapped-back bound, so the bound stays valid. A CP-SAT result then counts as
+optimal only if that bound is within a relative 1e-9 of the objective.
+
+Both engines get the greedy + swap solution as a hint and report the solver's best bound.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+
+from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.greedy import greedy_incumbent
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat, run_scip
+from camplace.solver.problem.presolve import Presolved
+from camplace.solver.result import EngineOutcome
+
+__all__ = ["solve_mip", "solve_cpsat", "maxcover_model_bytes"]
+
+log = logging.getLogger(__name__)
+
+_OPT_TOL = 1e-9  # relative gap under which a result counts as optimal
+
+
+def _trivial(pre: Presolved) -> EngineOutcome | None:
+    """Outcome for instances with nothing to decide (no rows, or no more columns than k)."""
+    m, n = pre.shape
+    if m == 0 or n <= pre.k:
+        value = float(pre.weights.sum()) if n <= pre.k else 0.0
+        sel = tuple(range(min(pre.k, n)))
+        return EngineOutcome(selected=sel, status="optimal", bound=value, stats={"trivial": True})
+    return None
+
+
+def _objective_coefficients(pre: Presolved) -> tuple[np.ndarray, float]:
+    """Objective coefficients and the factor mapping them back to weights.
+
+    Returns
+    -------
+    coef : (m',) float64
+    scale : float
+        ``weights ~= coef * scale``.
+    """
+    if pre.weight_unit is not None:
+        return pre.counts.astype(np.float64), float(pre.weight_unit)
+    wmax = float(pre.weights.max())
+    return pre.weights / wmax, wmax
+
+
+def _integer_weights(pre: Presolved) -> tuple[np.ndarray, float, float]:
+    """Integer CP-SAT objective coefficients.
+
+    Returns
+    -------
+    cint : (m',) int64
+        Coefficients; ``weights ~= cint * unit``.
+    unit : float
+        Weight of one coefficient unit.
+    err : float
+        ``sum_i |weights_i - cint_i * unit|`` (0.0 when exact): any set's true weight is within
+        ``err`` of its scaled weight, so ``bound * unit + err`` is a valid bound.
+    """
+    if pre.weight_unit is not None:
+        return pre.counts.astype(np.int64), float(pre.weight_unit), 0.0
+    return _int_objective(np.asarray(pre.weights, dtype=np.float64))
+
+
+def maxcover_model_bytes(pre: Presolved, backend: str) -> int:
+    """Estimated peak memory of the max-coverage model of ``pre`` (``backend`` "mip" or "cpsat"),
+    from the sizes alone (the reduced matrix is not built): n + m variables, m + 1 rows and at most
+    the source rows' entries plus m + n nonzeros."""
+    m, n = pre.shape
+    a, rows, _ = pre.source
+    nnz = int(np.diff(a.indptr)[rows].sum()) if rows.size else 0
+    return model_bytes(backend, n + m, m + 1, nnz + m + n)
+
+
+def _check_memory(pre: Presolved, backend: str) -> None:
+    """Raise :class:`OverBudget` before building a model that would not fit in memory."""
+    need, budget = maxcover_model_bytes(pre, backend), memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, "the SCIP model" if backend == "mip" else "the CP-SAT model")
+
+
+def _value(pre: Presolved, sel: tuple[int, ...]) -> float:
+    """Weight covered by reduced columns ``sel`` on the reduced instance."""
+    if not sel:
+        return 0.0
+    sub = pre.matrix[:, list(sel)]
+    covered = np.diff(sub.tocsr().indptr) > 0
+    return float(pre.weights[covered].sum())
+
+
+def _pick_k(values: np.ndarray, k: int) -> tuple[int, ...]:
+    """The ``k`` columns with the largest (relaxed) values, sorted."""
+    order = np.argsort(-values, kind="stable")[:k]
+    return tuple(sorted(int(j) for j in order))
+
+
+def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOutcome:
+    """Solve the presolved instance with SCIP through ``ortools.linear_solver.pywraplp``.
+
+    Parameters
+    ----------
+    pre : Presolved
+        Presolved instance.
+    time_limit_s : float, optional
+        Wall-clock limit for SCIP.
+
+    Returns
+    -------
+    EngineOutcome
+        Reduced column indices, status, SCIP's best bound (original weight units) and stats.
+
+    Raises
+    ------
+    OverBudget
+        When :func:`maxcover_model_bytes` exceeds the memory budget (before anything is built).
+    """
+    from ortools.linear_solver import linear_solver_pb2, pywraplp
+
+    triv = _trivial(pre)
+    if triv is not None:
+        return triv
+    _check_memory(pre, "mip")
+    deadline = Deadline(time_limit_s)
+    m, n = pre.shape
+    k = pre.k
+    coef, scale = _objective_coefficients(pre)
+    hint = greedy_incumbent(pre.matrix, pre.weights, k)
+
+    proto = linear_solver_pb2.MPModelProto()
+    proto.maximize = True
+    for j in range(n):
+        v = proto.variable.add()
+        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = 0.0, 1.0, True, 0.0
+    for i in range(m):
+        v = proto.variable.add()
+        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = 0.0, 1.0, False, float(coef[i])
+    csr = pre.matrix.tocsr()
+    indptr, indices = csr.indptr, csr.indices
+    for i in range(m):
+        ct = proto.constraint.add()
+        ct.lower_bound = 0.0
+        ct.upper_bound = math.inf
+        cols = indices[indptr[i] : indptr[i + 1]].tolist()
+        ct.var_index.extend(cols)
+        ct.coefficient.extend([1.0] * len(cols))
+        ct.var_index.append(n + i)
+        ct.coefficient.append(-1.0)
+    card = proto.constraint.add()
+    card.lower_bound = card.upper_bound = float(k)
+    card.var_index.extend(range(n))
+    card.coefficient.extend([1.0] * n)
+
+    solver, variables, code, build_s = run_scip(proto, deadline, range(n), [1.0 if j in hint else 0.0 for j in range(n)],
+                                                no_scip="use engine='cpsat' or 'exact'")
+
+    stats: dict[str, Any] = {
+        "backend": "SCIP",
+        "time_build_s": build_s,
+        "time_solve_s": deadline.elapsed() - build_s,
+        "objective_scale": scale,
+        "variables": int(n + m),
+        "constraints": int(m + 1),
+        "nonzeros": int(pre.matrix.nnz + m + n),
+        "hint_value": _value(pre, hint),
+    }
+    has_solution = code in (pywraplp.Solver.OPTIMAL, pywraplp.Solver.FEASIBLE)
+    if has_solution:
+        xs = np.array([variables[j].solution_value() for j in range(n)])
+        sel = _pick_k(xs, k)
+        raw_bound = float(solver.Objective().BestBound()) * scale
+        stats["nodes"] = int(solver.nodes())
+    else:
+        sel = hint
+        raw_bound = float(pre.weights.sum())
+    stats["solver_bound"] = raw_bound
+    stats["solver_status"] = int(code)
+    value = _value(pre, sel)
+    if value < stats["hint_value"]:
+        sel, value = hint, stats["hint_value"]
+    bound = max(raw_bound, value)
+    if code == pywraplp.Solver.OPTIMAL:
+        status = "optimal"
+        bound = value
+    elif code == pywraplp.Solver.INFEASIBLE:
+        status = "infeasible"
+    else:
+        status = "feasible"
+    log.info("mip: %s value %.9g bound %.9g (%dx%d) in %.3f s", status, value, bound, m, n, deadline.elapsed())
+    return EngineOutcome(selected=sel, status=status, bound=bound, stats=stats)
+
+
+def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: int = 2) -> EngineOutcome:
+    """Solve the presolved instance with CP-SAT (integer-scaled weights).
+
+    Parameters
+    ----------
+    pre : Presolved
+        Presolved instance.
+    time_limit_s : float, optional
+        Wall-clock limit.
+    workers : int
+        CP-SAT search workers (default 2, the machine's core count).
+
+    Returns
+    -------
+    EngineOutcome
+        Reduced column indices, status, bound (original weight units, including the rounding
+        error of the integer weights) and stats.
+
+    Raises
+    ------
+    OverBudget
+        When :func:`maxcover_model_bytes` exceeds the memory budget (before anything is built).
+    """
+    from ortools.sat.python import cp_model
+
+    triv = _trivial(pre)
+    if triv is not None:
+        return triv
+    _check_memory(pre, "cpsat")
+    deadline = Deadline(time_limit_s)
+    m, n = pre.shape
+    k = pre.k
+    cint, unit, err = _integer_weights(pre)
+    hint = greedy_incumbent(pre.matrix, pre.weights, k)
+
+    model = cp_model.CpModel()
+    x = [model.new_bool_var(f"x{j}") for j in range(n)]
+    y = [model.new_bool_var(f"y{i}") for i in range(m)]
+    csr = pre.matrix.tocsr()
+    indptr, indices = csr.indptr, csr.indices
+    for i in range(m):
+        lits = [x[j] for j in indices[indptr[i] : indptr[i + 1]].tolist()]
+        lits.append(~y[i])
+        model.add_bool_or(lits)
+    model.add(sum(x) == k)
+    model.maximize(cp_model.LinearExpr.weighted_sum(y, cint.tolist()))
+    for j in range(n):
+        model.add_hint(x[j], j in hint)
+
+    solver, code, build_s = run_cpsat(model, workers, deadline)
+
+    stats: dict[str, Any] = {
+        "backend": "CP-SAT",
+        "workers": int(max(1, workers)),
+        "time_build_s": build_s,
+        "time_solve_s": deadline.elapsed() - build_s,
+        "weight_unit": unit,
+        "weight_scale": 1.0 / unit,
+        "weights_integer_exact": err == 0.0,
+        "rounding_error": err,
+        "hint_value": _value(pre, hint),
+        "solver_status": solver.status_name(code),
+    }
+    if code in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        xs = np.array([solver.boolean_value(v) for v in x], dtype=np.float64)
+        sel = _pick_k(xs, k)
+        int_bound = float(solver.best_objective_bound)
+        stats["branches"] = int(solver.num_branches)
+    else:
+        sel = hint
+        int_bound = math.inf
+    raw_bound = int_bound * unit + err if math.isfinite(int_bound) else float(pre.weights.sum())
+    stats["solver_bound"] = raw_bound
+    value = _value(pre, sel)
+    if value < stats["hint_value"]:
+        sel, value = hint, stats["hint_value"]
+    bound = max(min(raw_bound, float(pre.weights.sum())), value)
+    if code == cp_model.INFEASIBLE:
+        status = "infeasible"
+    elif code in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        tight = bound - value <= _OPT_TOL * max(abs(bound), 1e-12)
+        status = "optimal" if (code == cp_model.OPTIMAL and err == 0.0) or tight else "feasible"
+        if status == "optimal":
+            bound = value
+    else:
+        status = "feasible"
+    log.info("cpsat: %s value %.9g bound %.9g (%dx%d) in %.3f s", status, value, bound, m, n, deadline.elapsed())
+    return EngineOutcome(selected=sel, status=status, bound=bound, stats=stats)

@@ -1,0 +1,58 @@
+"""The exact quality engines as a portfolio (:func:`quality_engines`): the quantised tree of
+:mod:`camplace.solver.engines.quality.tree`, then, if it has not finished within its share of the time,
+the min-Gram triple engine of :mod:`camplace.solver.engines.quality.min_gram`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace.solver._support.deadline import Deadline
+from camplace.solver.engines.quality.min_gram import solve_quality_exact
+from camplace.solver.engines.quality.tree import solve_quality_tree
+from camplace.solver.result import ModeOutcome
+
+__all__ = ["quality_engines"]
+
+_OPT_TOL = 1e-9
+# the tree engine's share of the time when the min-Gram engine could follow
+_TREE_FIRST_S = 30.0  # without a time limit
+_TREE_FIRST_SHARE = 0.25
+_TREE_FIRST_MIN_S = 2.0
+
+
+def quality_engines(
+    resid: sp.csr_matrix, resid_w: np.ndarray, k: int, tree_ok: bool, gram_ok: bool, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, value: Any, const: float, deadline: Deadline, stats: dict[str, Any],
+) -> ModeOutcome:
+    """The exact quality engines as a portfolio: the quantised tree first (fast on the spatially
+    coherent qualities of real scenes); if it has not proven the optimum within its share of the
+    time and the min-Gram triple engine applies (k = 2, 3, small n), that one gets the rest (it does
+    not depend on coherence). The better camera set wins; the smaller bound holds for both."""
+    runs: list[tuple[str, Any]] = []
+    if tree_ok:
+        limit = deadline.left()
+        if gram_ok:
+            limit = _TREE_FIRST_S if limit is None else min(limit, max(_TREE_FIRST_MIN_S, _TREE_FIRST_SHARE * limit))
+        runs.append(("tree", solve_quality_tree(resid, resid_w, k, time_limit_s=limit)))
+    if gram_ok and (not runs or runs[0][1].status != "optimal"):
+        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, time_limit_s=deadline.left())))
+    best = None
+    for name, out in runs:
+        sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
+        v = value(sel)
+        if best is None or v > best[1] or (out.status == "optimal" and best[2] != "optimal" and v >= best[1]):
+            best = (sel, v, out.status)
+    assert best is not None
+    sel, objective, status = best
+    bound = min(float(out.bound) for _, out in runs) + const
+    if any(out.status == "optimal" for _, out in runs) or bound <= objective + _OPT_TOL * max(1.0, abs(objective)):
+        status, bound = "optimal", objective
+    stats["quality_engines"] = [name for name, _ in runs]
+    stats["engine_stats"] = dict(runs[0][1].stats)
+    if len(runs) > 1:
+        stats["engine_stats"]["min_gram"] = dict(runs[1][1].stats)
+    return ModeOutcome(sel, status, objective, bound, "exact", stats)

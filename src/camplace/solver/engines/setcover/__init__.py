@@ -1,0 +1,1 @@
+"""The set-cover mode: local search with a Lagrangian bound, then SCIP."""

@@ -1,0 +1,982 @@
+"""Set cover by reductions, row-weighting local search and a Lagrangian bound (SCIP / CP-SAT after).
+
+``minimise sum_j c_j x_j`` such that every row is covered (or, for a partial cover, the covered
+row weight reaches ``need``), on a 0/1 matrix. Four steps:
+
+1. **Reductions** (:func:`reduce_cover`), each keeping some optimal cover: columns of cost 0 are
+   taken; a row only one column covers forces that column; a row whose columns include all the
+   columns of another row is dropped (covering the other covers it; full covers only); a column
+   whose rows lie inside a column at most as dear is dropped; a column dearer than covering each
+   of its rows by its cheapest other column is dropped; identical rows of a partial cover are
+   merged. Repeated until nothing changes. Subset tests run on bitsets (compiled), candidates
+   taken from an item's rarest element.
+2. **Local search** (:class:`LocalSearch`): greedy (best gain per cost) plus redundancy removal,
+   then row-weighting local search after RWLS (Gao, Weise and Li 2015): every row has a penalty
+   weight, raised while it is uncovered, and a column's score is the
+   penalty it would cover (outside the solution) or leave uncovered (inside). Whenever the
+   solution covers everything it is recorded and its least useful column removed, so the search
+   always looks for a cover one column cheaper than the best. With equal costs (full covers) a
+   move is RWLS's (:func:`_sckernels.search_rwls`): remove the column of least loss (not the one
+   just added), add the column of largest gain covering a random uncovered row that configuration
+   checking allows (a removed column waits until a column sharing a row with it is added), the
+   penalties raised on the rows the removed column leaves uncovered (close to
+   fontanf/setcoveringsolver's row weighting 1, :data:`RWLS_PENALTY_MODE`), each by its own step,
+   larger for rows few columns cover (:data:`RWLS_ROW_STEP`, also their starting penalty and the
+   greedy's row weights); ``rwls=False`` gives
+   the best joint swap of its row weighting 2 instead (add one of the columns covering a random
+   uncovered row and remove one column, chosen together, candidates tried by decreasing gain with
+   an exact cut-off). With costs, RWLS moves with gain / cost ratios, penalties raised on every
+   uncovered row. Tabu: the column just added is not removed next, the one just removed not
+   added back; ties go to the column unchanged for longest. Scores are incremental: a move only touches the rows
+   whose coverage changes between 0, 1 and 2 (the only coverer of a row is kept as the sum of
+   its coverers' indices). The search stops at an iteration budget, a time limit, the bound, or
+   on patience, counted in work units (score updates), not seconds: a seed and an iteration
+   budget (or no time limit) give the same answer on any machine; a time limit (checked between
+   compiled chunks) makes it depend on speed. The long search (after the model, or instead of it)
+   restarts from its best cover less a random fifth of its columns, completed greedily, penalties
+   back at their start, whenever the work since its last improvement or restart reaches a Luby
+   sequence of units (:data:`RESTART_WORK_PER_NNZ`), and runs beside a second search with its own
+   random stream started from the same cover, one thread each (:func:`run_searches`,
+   :data:`SEARCH_THREADS`, the cores the process may use): the time a search needs to find the
+   next cover varies by orders of magnitude between runs, so several independent tries do better
+   than one long one.
+3. **Lower bound** (:func:`lagrangian_bound`): subgradient optimisation of the Lagrangian
+   relaxation of the covering rows (Beasley 1990), rounded up for integral costs; it also stops
+   the local search once the two meet (the cover is then optimal).
+4. **Exact model**: SCIP (``mip``) or CP-SAT (``cpsat``) on the reduced instance, started from
+   the local search cover (a hint: SCIP takes it as its incumbent and cuts off everything not
+   cheaper; CP-SAT also gets the row ``cost <= its cost``). The cheaper cover and the larger bound
+   are kept; without a proof, the search resumes. ``auto`` runs SCIP only when the reduced
+   instance is small (:data:`AUTO_MODEL_NNZ`) and, with equal costs, the gap is at most two columns
+   (the LP bound of a unicost cover is flat: SCIP closes no wider gap); otherwise the search answer
+   comes back with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
+   Its memory is estimated first (:func:`cover_model_bytes`); a model that would not fit is skipped
+   with a warning (``stats["memory_fallback"]``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace._signals import ctrl_c_deferred
+from camplace.errors import CamplaceError
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver.engines.setcover import _kernels as K
+from camplace.solver.result import EngineOutcome
+
+__all__ = ["CoverReduction", "reduce_cover", "LocalSearch", "local_search", "lagrangian_bound", "solve_cover",
+           "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work", "restart_unit_work",
+           "run_searches", "search_threads"]
+
+log = logging.getLogger(__name__)
+
+AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros ...
+AUTO_MODEL_GAP_COLUMNS = 2  # ... and, with equal costs, a gap to the Lagrangian bound of this many columns
+BITSET_MAX_BYTES = 1 << 30  # a subset reduction is skipped when its bitsets would need more
+_REDUCE_ROUNDS = 20
+_CHUNK_S = 0.02  # target seconds per compiled local-search call (the clock is read in between)
+_LAG_PATIENCE = 10
+_LAG_MAX_ITERS = 3000
+_LS_SHARE_BEFORE_MODEL = 0.5  # with a time limit: the first search's share of the time left at most
+_LAG_SHARE = 0.15  # share of the time left for the Lagrangian bound
+_MODEL_SHARE = 0.75  # share of the time left for SCIP / CP-SAT (the search resumes after it)
+MAX_CANDIDATES = 16  # columns tried per move (by decreasing gain) in the best-swap search
+# unit costs, full cover: RWLS moves (:func:`_sckernels.search_rwls`); penalties raised on the rows the
+# removed column leaves uncovered (1; 2 also after the removals from a cover, as in
+# fontanf/setcoveringsolver's row weighting 1) or on every uncovered row after the move (0, RWLS)
+RWLS_PENALTY_MODE = 1
+# configuration checking of the RWLS moves: 0 none (only the column just removed is tabu), 1 freed by
+# additions, 2 freed by additions and removals
+RWLS_CC_MODE = 1
+# penalty step of a row with equal costs and a full cover (RWLS moves and joint swaps):
+# max(1, floor(RWLS_ROW_STEP / columns covering it)), also its starting penalty (rows few columns
+# cover weigh more; integers keep the incremental sums exact); 0: every step 1
+RWLS_ROW_STEP = 10_000
+# restarts of the long search (solve_cover's second phase): from the best cover less this share of
+# its columns, after RESTART_WORK_PER_NNZ work units a nonzero (between the limits) times the Luby sequence
+RESTART_DROP = 0.2
+RESTART_WORK_PER_NNZ = 10_000
+RESTART_WORK_MIN = 50_000_000
+RESTART_WORK_MAX = 2_000_000_000
+# searches side by side in solve_cover's second phase (one thread each, at most the cores available)
+SEARCH_THREADS = 2
+# patience of the search, in work units (score updates; about 1e8 to 1e9 a second): 2,000 per
+# nonzero of the reduced matrix, between these limits; a tenth of it for the first search (the one
+# before SCIP / CP-SAT may run)
+PATIENCE_PER_NNZ = 2000
+PATIENCE_WORK_MIN = 1_000_000
+PATIENCE_WORK = 500_000_000
+
+
+def patience_work(nnz: int, before_model: bool = False) -> int:
+    """Work without improvement after which the search stops (see :data:`PATIENCE_PER_NNZ`)."""
+    p = int(min(max(PATIENCE_PER_NNZ * nnz, PATIENCE_WORK_MIN), PATIENCE_WORK))
+    return p // 10 if before_model else p
+
+
+def restart_unit_work(nnz: int) -> int:
+    """Work unit of the restart schedule (see :data:`RESTART_WORK_PER_NNZ`)."""
+    return int(min(max(RESTART_WORK_PER_NNZ * nnz, RESTART_WORK_MIN), RESTART_WORK_MAX))
+
+
+# ----------------------------------------------------------------------------------------------
+# reductions
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class CoverReduction:
+    """A reduced set-cover instance and the way back to the input.
+
+    Attributes
+    ----------
+    cptr, crow : (n' + 1,) int64, (nnz,) int32
+        Rows of every reduced column (column-major lists).
+    rptr, rcol : (m' + 1,) int64, (nnz,) int32
+        Columns of every reduced row.
+    cost : (n',) float64
+        Column costs (all > 0).
+    roww : (m',) float64
+        Row weights (partial cover; zeros for a full cover).
+    need : float
+        Row weight the cover must reach (partial), or -1.0 for "every row".
+    columns : (n',) int64
+        Input column of every reduced column.
+    forced : (f,) int64
+        Input columns every returned cover contains (cost 0, or the only cover of a row).
+    forced_cost : float
+        Their total cost.
+    shape_in : tuple of int
+        ``(m, n)`` of the input.
+    stats : dict
+        Sizes and timings.
+    """
+
+    cptr: np.ndarray
+    crow: np.ndarray
+    rptr: np.ndarray
+    rcol: np.ndarray
+    cost: np.ndarray
+    roww: np.ndarray
+    need: float
+    columns: np.ndarray
+    forced: np.ndarray
+    forced_cost: float
+    shape_in: tuple[int, int]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(m', n')``."""
+        return (int(self.rptr.shape[0] - 1), int(self.cptr.shape[0] - 1))
+
+    @property
+    def nnz(self) -> int:
+        """Nonzeros of the reduced matrix."""
+        return int(self.crow.shape[0])
+
+    @property
+    def partial(self) -> bool:
+        """True for a partial cover."""
+        return self.need >= 0
+
+    def csr(self) -> sp.csr_matrix:
+        """(m', n') 0/1 CSR matrix of the reduced instance."""
+        return sp.csr_matrix((np.ones(self.rcol.size), self.rcol, self.rptr), shape=self.shape)
+
+    def input_columns(self, selected: Any) -> tuple[int, ...]:
+        """Input columns of a reduced cover, with the forced ones, sorted."""
+        cols = {int(self.columns[int(j)]) for j in selected} | {int(j) for j in self.forced}
+        return tuple(sorted(cols))
+
+
+def cover_bytes(m: int, n: int, nnz: int) -> int:
+    """Working memory of the reductions and the local search for an (m, n) matrix with ``nnz``
+    nonzeros: during the first reduction round a row-major and a column-major copy (12 bytes a
+    nonzero each), their int32 indices and the next, smaller, copy (about 44 bytes a nonzero in
+    all), plus per-row and per-column state and a fixed 16 MiB for temporaries (the bitsets of
+    the subset tests are checked separately, :data:`BITSET_MAX_BYTES`)."""
+    return 48 * int(nnz) + 128 * (int(m) + int(n)) + (16 << 20)
+
+
+def _lists(a: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Row and column lists (int64 pointers, int32 indices) of a canonical 0/1 CSR matrix."""
+    c = a.tocsc()
+    c.sort_indices()
+    return (c.indptr.astype(np.int64), c.indices.astype(np.int32), a.indptr.astype(np.int64),
+            a.indices.astype(np.int32))
+
+
+def _restrict(a: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray, n: int) -> sp.csr_matrix:
+    """0/1 CSR of ``a[rows][:, cols]`` (entries > 0 only; column order kept), compiled."""
+    from camplace.solver._support import bitkernels as _bk
+
+    col_map = np.full(n, -1, dtype=np.int64)
+    col_map[cols] = np.arange(cols.size, dtype=np.int64)
+    data = a.data if a.data.dtype.kind != "b" else a.data.view(np.uint8)
+    ptr, idx = _bk.extract_rows(a.indptr, a.indices, data, rows.astype(np.int64), col_map)
+    return sp.csr_matrix((np.ones(idx.size), idx, ptr), shape=(rows.size, cols.size))
+
+
+def _shrink(sub: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray, rkeep: np.ndarray,
+            ckeep: np.ndarray) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
+    """Keep the rows ``rkeep`` and columns ``ckeep`` of the current matrix and of its index maps."""
+    out = _restrict(sub, np.flatnonzero(rkeep), np.flatnonzero(ckeep), sub.shape[1])
+    return rows[rkeep], cols[ckeep], out
+
+
+def _bitset_ok(items: int, bits: int, stats: dict[str, Any], what: str) -> bool:
+    need = items * ((bits + 63) // 64) * 8
+    if need > min(BITSET_MAX_BYTES, memory_budget_bytes() // 2):
+        stats.setdefault("skipped", []).append(f"{what}: bitsets would need {need / 2**20:.0f} MiB")
+        return False
+    return True
+
+
+def reduce_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None = None,
+                 need: float | None = None) -> CoverReduction:
+    """Reduce a set-cover instance without losing its optimum (see the module docstring).
+
+    Parameters
+    ----------
+    pattern : (m, n) scipy.sparse.csr_matrix
+        1 where column ``j`` covers row ``i`` (canonical: sorted, no duplicates, no zeros). Every
+        row must be covered by some column.
+    costs : (n,) float64
+        Column costs, finite and >= 0.
+    weights : (m,) float64, optional
+        Row weights (> 0) of a partial cover.
+    need : float, optional
+        Row weight a partial cover must reach; None for a full cover.
+
+    Returns
+    -------
+    CoverReduction
+    """
+    t0 = time.perf_counter()
+    a = sp.csr_matrix(pattern)
+    m, n = a.shape
+    cost = np.asarray(costs, dtype=np.float64)
+    partial = need is not None
+    w = np.zeros(m) if weights is None else np.asarray(weights, dtype=np.float64)
+    stats: dict[str, Any] = {"rows_in": int(m), "cols_in": int(n), "nnz_in": int(a.nnz), "rounds": 0,
+                             "forced": 0, "rows_dominated": 0, "cols_dominated": 0, "cols_cheaper_cover": 0}
+    col_nnz = np.bincount(a.indices[a.data > 0], minlength=n)
+    forced = (cost <= 0) & (col_nnz > 0)
+    covered = np.zeros(m, dtype=bool)
+    if forced.any():
+        covered = np.diff(a[:, np.flatnonzero(forced)].tocsr().indptr) > 0
+    left = -1.0
+    if partial:
+        left = float(need) - float(w[covered].sum())
+    rows = np.flatnonzero(~covered)
+    cols = np.flatnonzero((col_nnz > 0) & ~forced)
+    equal_costs = cols.size == 0 or bool(np.all(cost[cols] == cost[cols[0]]))
+    with ctrl_c_deferred():
+        sub = _restrict(a, rows, cols, n)
+        for rnd in range(_REDUCE_ROUNDS):
+            stats["rounds"] = rnd + 1
+            if rows.size == 0 or cols.size == 0 or (partial and left <= 0):
+                break
+            mr, nr = sub.shape
+            cptr, crow, rptr, rcol = _lists(sub)
+            csize = np.diff(cptr).astype(np.int64)
+            rkeep = np.ones(mr, dtype=bool)
+            ckeep = csize > 0
+            if not partial:
+                rlen = np.diff(rptr)
+                single = rlen == 1
+                if single.any():  # the only column of a row is in every cover
+                    fc = np.unique(rcol[rptr[:-1][single]])
+                    forced[cols[fc]] = True
+                    stats["forced"] += int(fc.size)
+                    hit = np.zeros(mr, dtype=bool)
+                    for j in fc.tolist():
+                        hit[crow[cptr[j] : cptr[j + 1]]] = True
+                    ckeep[fc] = False
+                    rows, cols, sub = _shrink(sub, rows, cols, ~hit, ckeep)
+                    continue
+                if _bitset_ok(mr, nr, stats, "row dominance"):
+                    rbits = K.bitsets(rptr, rcol, mr, nr)
+                    drop = K.subset_marks(rbits, rlen.astype(np.int64), rptr, rcol, cptr, crow, np.zeros(mr), True)
+                    del rbits
+                    stats["rows_dominated"] += int(drop.sum())
+                    rkeep &= ~drop
+            if _bitset_ok(nr, mr, stats, "column dominance"):
+                cbits = K.bitsets(cptr, crow, nr, mr)
+                dom = K.subset_marks(cbits, csize, cptr, crow, rptr, rcol, cost[cols], False)
+                del cbits
+            else:
+                dom = np.zeros(nr, dtype=bool)
+            if not equal_costs:
+                dear = K.cheaper_cover_marks(cptr, crow, rptr, rcol, cost[cols], ~dom)
+                stats["cols_cheaper_cover"] += int(dear.sum())
+                dom |= dear
+            stats["cols_dominated"] += int(dom.sum())
+            ckeep &= ~dom
+            if rkeep.all() and ckeep.all():
+                break
+            rows, cols, sub = _shrink(sub, rows, cols, rkeep, ckeep)
+        ckeep = np.diff(sub.tocsc().indptr) > 0
+        if not ckeep.all():
+            rows, cols, sub = _shrink(sub, rows, cols, np.ones(sub.shape[0], dtype=bool), ckeep)
+        roww = w[rows] if partial else np.zeros(rows.size)
+        if partial and sub.shape[0] > 1:
+            sub, roww = _merge_identical_rows(sub, roww)
+        if sub.shape[0] and np.any(np.diff(sub.indptr) == 0):
+            raise CamplaceError("setcover reduction: a row lost every column (internal error)")
+        cptr, crow, rptr, rcol = _lists(sub)
+    fc = np.flatnonzero(forced)
+    stats.update({"rows_after": int(sub.shape[0]), "cols_after": int(sub.shape[1]), "nnz_after": int(sub.nnz),
+                  "forced_cols": int(fc.size), "time_s": time.perf_counter() - t0})
+    log.info("setcover reduction: %dx%d (%d nnz) -> %dx%d (%d nnz), %d forced, in %.2f s", m, n, a.nnz,
+             sub.shape[0], sub.shape[1], sub.nnz, fc.size, stats["time_s"])
+    return CoverReduction(cptr=cptr, crow=crow, rptr=rptr, rcol=rcol, cost=cost[cols].copy(),
+                          roww=roww.astype(np.float64), need=max(left, 0.0) if partial else -1.0,
+                          columns=cols.astype(np.int64), forced=fc, forced_cost=float(cost[fc].sum()),
+                          shape_in=(int(m), int(n)), stats=stats)
+
+
+def _merge_identical_rows(sub: sp.csr_matrix, roww: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Merge rows with the same columns, summing their weights (first occurrence kept)."""
+    from camplace.solver._support import bitkernels as _bk
+
+    mr, nr = sub.shape
+    salt = np.random.default_rng(0x5EED).integers(0, np.iinfo(np.int64).max, size=max(1, nr), dtype=np.int64)
+    ones = np.ones(sub.nnz)
+    rows = np.arange(mr, dtype=np.int64)
+    ident = np.arange(nr, dtype=np.int64)
+    h, has = _bk.row_hashes(sub.indptr, sub.indices, ones, rows, ident, salt.astype(np.uint64))
+    groups, n_groups = _bk.group_rows(sub.indptr, sub.indices, ones, rows[has], ident, h[has])
+    if n_groups == mr:
+        return sub, roww
+    first = np.full(n_groups, -1, dtype=np.int64)
+    first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)
+    wsum = np.bincount(groups, weights=roww[has], minlength=n_groups)
+    return sub[rows[has][first]].tocsr(), wsum
+
+
+# ----------------------------------------------------------------------------------------------
+# local search
+# ----------------------------------------------------------------------------------------------
+
+
+def _splitmix(seed: int) -> np.uint64:
+    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    z ^= z >> 31
+    return np.uint64(z or 1)
+
+
+class LocalSearch:
+    """Row-weighting local search on a :class:`CoverReduction` (state in plain arrays).
+
+    Parameters
+    ----------
+    red : CoverReduction
+    seed : int
+        Seed of the search's own random generator (same seed and iterations: same answer).
+    start : sequence of int, optional
+        Reduced columns of a cover to start from instead of the greedy one.
+    max_cand, joint
+        Candidates per move and use of the joint swap (equal costs, ``rwls`` False).
+    rwls : bool, optional
+        RWLS moves (:func:`_sckernels.search_rwls`); default: when every reduced column costs the
+        same and every row must be covered (never for partial covers).
+    stream : int
+        Random stream of the seed (0: the seed's own; others: independent streams of the same seed,
+        for searches run side by side).
+    """
+
+    def __init__(self, red: CoverReduction, seed: int = 0, start: Any = None,
+                 max_cand: int = MAX_CANDIDATES, joint: bool = True, rwls: bool | None = None,
+                 stream: int = 0) -> None:
+        self.max_cand = int(max_cand)
+        self.joint = bool(joint)
+        m, n = red.shape
+        unit = bool(n == 0 or np.all(red.cost == red.cost[0]))
+        self.rwls = (unit and not red.partial) if rwls is None else bool(rwls) and not red.partial
+        self.red = red
+        self.pinc = np.ones(m)
+        if unit and not red.partial and RWLS_ROW_STEP > 0:
+            self.pinc = np.maximum(1.0, np.floor(RWLS_ROW_STEP / np.maximum(np.diff(red.rptr), 1)))
+        self.cc_mode = int(RWLS_CC_MODE)
+        self.restart_work: int | None = None
+        self.stamp = np.zeros(n, dtype=np.int64)
+        self.best = np.zeros(n, dtype=np.int8)
+        self.ist = np.zeros(K.N_IST, dtype=np.int64)
+        self.fst = np.zeros(K.N_FST, dtype=np.float64)
+        self.rng = np.array([_splitmix(seed) if stream == 0 else _splitmix(int(_splitmix(seed)) + int(stream))],
+                            dtype=np.uint64)
+        self.need = red.need * (1.0 - 1e-12) if red.partial else -1.0
+        self._start(start)
+        self.best[:] = self.x
+        self.fst[K.BEST_COST] = self.fst[K.COST]
+        self.ist[K.BEST_WORK] = self.ist[K.EPOCH_WORK] = self.ist[K.WORK]
+        self.best_time = time.perf_counter()  # clock (perf_counter) when the best cover was found, to a chunk
+        self.greedy_cost = float(self.fst[K.COST])
+
+    def _start(self, start: Any) -> None:
+        """Fresh state (every row uncovered, penalties at their start, configuration checking
+        cleared), then the greedy cover completed from the columns ``start`` (None: none)."""
+        red = self.red
+        m, n = red.shape
+        # configuration checking of RWLS: last event of every row, removal event of every column, counter
+        self.rchg = np.zeros(m, dtype=np.int64)
+        self.cblk = np.zeros(n, dtype=np.int64)
+        self.clk = np.zeros(1, dtype=np.int64)
+        self.x = np.zeros(n, dtype=np.int8)
+        self.cov = np.zeros(m, dtype=np.int32)
+        self.csum = np.zeros(m, dtype=np.int64)
+        if red.partial:
+            pos = red.roww[red.roww > 0]
+            self.pw = red.roww / (float(pos.mean()) if pos.size else 1.0)
+        else:
+            self.pw = self.pinc.copy()
+        col_of = np.repeat(np.arange(n), np.diff(red.cptr))
+        self.score = np.bincount(col_of, weights=self.pw[red.crow], minlength=n).astype(np.float64)
+        self.sel = np.zeros(n, dtype=np.int32)
+        self.selpos = np.full(n, -1, dtype=np.int32)
+        self.unc = np.arange(m, dtype=np.int32)
+        self.uncpos = np.arange(m, dtype=np.int32)
+        self.ist[K.NSEL] = 0
+        self.ist[K.NUNC] = m
+        self.ist[K.LADD] = self.ist[K.LREM] = -1
+        self.fst[K.COST] = self.fst[K.COVW] = 0.0
+        with ctrl_c_deferred():
+            if start is not None:
+                move = self._args()
+                move = move[:6] + move[7:]  # add_col takes no 'need'
+                for j in start:
+                    if not self.x[int(j)]:
+                        K.add_col(int(j), *move)
+            K.greedy(*self._args())
+        if not self.feasible():
+            raise CamplaceError("setcover local search: the start is not a cover (internal error)")
+
+    def restart(self) -> None:
+        """Start again from the best cover less a random share (:data:`RESTART_DROP`) of its columns,
+        completed greedily, with every penalty back at its start (the best cover is kept; the
+        random draws come from the search's own generator: deterministic)."""
+        cols = np.flatnonzero(self.best)
+        r = np.random.default_rng(int(K._rand(self.rng)))
+        keep = cols[r.random(cols.size) >= RESTART_DROP]
+        self._start(keep)
+        self.ist[K.EPOCH_WORK] = self.ist[K.WORK]
+        self.ist[K.RESTARTS] += 1
+
+    def _args(self) -> tuple:
+        r = self.red
+        return (r.cptr, r.crow, r.rptr, r.rcol, r.cost, r.roww, self.need, self.x, self.cov, self.csum, self.pw,
+                self.score, self.stamp, self.sel, self.selpos, self.unc, self.uncpos, self.ist, self.fst)
+
+    def feasible(self) -> bool:
+        """True when the current solution is a cover."""
+        if self.red.partial:
+            return float(self.red.roww[self.cov > 0].sum()) >= self.need
+        return int(self.ist[K.NUNC]) == 0
+
+    @property
+    def iterations(self) -> int:
+        """Iterations run so far."""
+        return int(self.ist[K.IT])
+
+    @property
+    def best_cost(self) -> float:
+        """Cost of the best cover (reduced instance, forced columns excluded)."""
+        return float(self.fst[K.BEST_COST])
+
+    @property
+    def best_iteration(self) -> int:
+        """Iteration at which the best cover was found."""
+        return int(self.ist[K.BEST_IT])
+
+    def run(self, *, max_iterations: int | None = None, time_limit_s: float | None = None, target: float = -math.inf,
+            patience: int | None = None, stop: threading.Event | None = None,
+            reached: threading.Event | None = None) -> str:
+        """Search until an iteration budget, a time limit, the target cost or a stall.
+
+        Parameters
+        ----------
+        max_iterations : int, optional
+            Stop once this many iterations have run in total (deterministic).
+        time_limit_s : float, optional
+            Stop after this many seconds (checked between compiled chunks).
+        target : float
+            Stop once the best cost is at most this (a lower bound: the cover is then optimal).
+        patience : int, optional
+            Stop once the work since the best cover (score updates, a count that does not depend
+            on the machine) exceeds ``patience`` plus the work it took to find it: the search goes
+            on while improvements keep coming (deterministic).
+        stop : threading.Event, optional
+            Stop once it is set (checked between compiled chunks).
+        reached : threading.Event, optional
+            Set when the target is reached.
+
+        With :attr:`restart_work` set, the search restarts (:meth:`restart`) whenever the work since
+        its last improvement or restart reaches ``restart_work`` times the next term of the Luby
+        sequence (1, 1, 2, 1, 1, 2, 4, ...): short runs often, long ones now and then, which suits
+        searches whose time to the best cover varies by orders of magnitude from run to run.
+
+        Returns
+        -------
+        str
+            Why it stopped: ``"target"``, ``"iterations"``, ``"patience"``, ``"time"``, ``"stuck"``
+            (every row covered, the required weight not reached) or ``"stopped"``.
+        """
+        t0 = time.perf_counter()
+        chunk = 64
+        stop_it = np.iinfo(np.int64).max if max_iterations is None else int(max_iterations)
+        pat = np.iinfo(np.int64).max // 4 if patience is None else int(patience)
+        args = self._args()
+        improved = int(self.ist[K.IMPROVED])
+        while True:
+            if time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+                return "time"
+            if stop is not None and stop.is_set():
+                return "stopped"
+            rst = np.iinfo(np.int64).max // 4 if self.restart_work is None else \
+                int(self.restart_work) * _luby(int(self.ist[K.RESTARTS]) + 1)
+            c0 = time.perf_counter()
+            with ctrl_c_deferred():
+                if self.rwls:
+                    code = K.search_rwls(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target),
+                                         stop_it, pat, self.rchg, self.cblk, self.clk, self.cc_mode,
+                                         RWLS_PENALTY_MODE, self.pinc, rst)
+                else:
+                    code = K.search(*args[:17], self.best, self.ist, self.fst, self.rng, chunk, float(target),
+                                    stop_it, pat, self.max_cand, self.joint, self.pinc, rst)
+            dt = time.perf_counter() - c0
+            if self.ist[K.IMPROVED] != improved:
+                improved = int(self.ist[K.IMPROVED])
+                self.best_time = c0 + dt
+            if code == 5:
+                self.restart()
+                args = self._args()
+                continue
+            if code == 1 and reached is not None:
+                reached.set()
+            if code:
+                return {1: "target", 2: "iterations", 3: "stuck", 4: "patience"}[code]
+            if dt < _CHUNK_S / 2:
+                chunk = min(chunk * 2, 1 << 22)
+            elif dt > _CHUNK_S * 2:
+                chunk = max(1, chunk // 2)
+
+    def best_cover(self) -> np.ndarray:
+        """Reduced columns of the best cover after removing redundant columns (dearest first)."""
+        fresh = LocalSearch(self.red, start=np.flatnonzero(self.best))
+        return np.flatnonzero(fresh.x).astype(np.int64)
+
+
+def _luby(i: int) -> int:
+    """The ``i``-th term (from 1) of the Luby sequence 1, 1, 2, 1, 1, 2, 4, 1, 1, 2, 1, 1, 2, 4, 8, ..."""
+    while True:
+        k = i.bit_length()
+        if i == (1 << k) - 1:
+            return 1 << (k - 1)
+        i -= (1 << (k - 1)) - 1
+
+
+def search_threads() -> int:
+    """Searches run side by side (:func:`run_searches`): the cores this process may use, at most
+    :data:`SEARCH_THREADS`."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(SEARCH_THREADS, cores))
+
+
+def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = None, target: float = -math.inf,
+                 patience: int | None = None) -> list[str]:
+    """Run several searches side by side, one thread each (the compiled kernels release the GIL).
+
+    With a time limit, the first to reach ``target`` stops the others (the answer then depends on
+    the machine's speed, as any timed search does); without one, each runs to its own end, so the
+    outcome of every search is that of running it alone (deterministic).
+
+    Returns
+    -------
+    list of str
+        Why each stopped (:meth:`LocalSearch.run`).
+    """
+    if len(searches) == 1:
+        return [searches[0].run(time_limit_s=time_limit_s, target=target, patience=patience)]
+    ev = threading.Event()  # also stops the threads when the main one is interrupted (Ctrl-C)
+    with ThreadPoolExecutor(max_workers=len(searches), thread_name_prefix="setcover-search") as ex:
+        futs = [ex.submit(s.run, time_limit_s=time_limit_s, target=target, patience=patience, stop=ev,
+                          reached=ev if time_limit_s is not None else None) for s in searches]
+        try:
+            return [f.result() for f in futs]
+        finally:
+            ev.set()
+
+
+def local_search(red: CoverReduction, *, seed: int = 0, max_iterations: int | None = None,
+                 time_limit_s: float | None = None, target: float = -math.inf,
+                 patience: int | None = None) -> tuple[np.ndarray, float, dict[str, Any]]:
+    """Greedy plus row-weighting local search (see :class:`LocalSearch`).
+
+    Returns
+    -------
+    selected : (s,) int64
+        Reduced columns of the best cover found (no redundant column).
+    cost : float
+        Its cost (forced columns excluded).
+    stats : dict
+    """
+    t0 = time.perf_counter()
+    ls = LocalSearch(red, seed=seed)
+    why = ls.run(max_iterations=max_iterations, time_limit_s=time_limit_s, target=target, patience=patience)
+    sel = ls.best_cover()
+    cost = float(red.cost[sel].sum())
+    return sel, cost, {"greedy_cost": ls.greedy_cost, "cost": cost, "iterations": ls.iterations,
+                       "best_iteration": ls.best_iteration, "stopped_by": why, "seed": int(seed),
+                       "time_s": time.perf_counter() - t0}
+
+
+# ----------------------------------------------------------------------------------------------
+# lower bound
+# ----------------------------------------------------------------------------------------------
+
+
+def _integral(values: np.ndarray) -> bool:
+    return bool(np.all(values == np.rint(values)))
+
+
+def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int = _LAG_MAX_ITERS,
+                     time_limit_s: float | None = None) -> tuple[float, dict[str, Any]]:
+    """Lower bound on the reduced instance's optimum (forced columns excluded).
+
+    Parameters
+    ----------
+    red : CoverReduction
+    upper : float
+        Cost of a known cover (the step size aims at it).
+    max_iterations : int
+    time_limit_s : float, optional
+
+    Returns
+    -------
+    bound : float
+        ``L(u)`` minus a floating-point margin, rounded up when the costs are integers.
+    stats : dict
+    """
+    t0 = time.perf_counter()
+    m, n = red.shape
+    if m == 0:
+        return 0.0, {"iterations": 0, "time_s": 0.0}
+    # start: every row gets its cheapest cost per covered row
+    col_of = np.repeat(np.arange(n), np.diff(red.cptr))
+    per = (red.cost / np.maximum(np.diff(red.cptr), 1))[col_of]
+    u = np.full(m, np.inf)
+    np.minimum.at(u, red.crow, per)
+    u[~np.isfinite(u)] = 0.0
+    best_u = u.copy()
+    lst = np.array([2.0, -1e300, 0.0, 0.0])
+    done = 0
+    chunk = 4
+    converged = False
+    while done < max_iterations:
+        if time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+            break
+        c0 = time.perf_counter()
+        with ctrl_c_deferred():
+            r = K.lagrangian(red.cptr, red.crow, red.rptr, red.cost, red.roww, red.need if red.partial else -1.0, u,
+                             best_u, lst, min(chunk, max_iterations - done), float(upper), _LAG_PATIENCE)
+        if r < 0:
+            converged = True
+            break
+        done += r
+        if time.perf_counter() - c0 < _CHUNK_S:
+            chunk *= 2
+        if lst[K.LBEST] >= upper - 1e-9 * abs(upper):
+            break
+    value = float(lst[K.LBEST])
+    bound = value - 1e-9 * (float(lst[K.LMAG]) + 1.0)
+    if _integral(red.cost):
+        bound = float(math.ceil(bound))
+    bound = max(bound, 0.0)
+    return bound, {"lagrangian": value, "bound": bound, "iterations": int(done), "converged": converged,
+                   "time_s": time.perf_counter() - t0}
+
+
+# ----------------------------------------------------------------------------------------------
+# SCIP / CP-SAT on the reduced instance
+# ----------------------------------------------------------------------------------------------
+
+
+def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: str,
+                 time_limit_s: float | None) -> tuple[np.ndarray | None, str, float, dict[str, Any]]:
+    """Solve the reduced instance with SCIP or CP-SAT, the cover ``hint`` as a start and
+    ``cost <= upper`` as a cutoff. Returns (reduced columns or None, status, lower bound, stats)."""
+    from camplace.solver.engines.mip.linear import LinearModel, solve_model
+
+    m, n = red.shape
+    model = LinearModel(maximize=False)
+    x = model.add_vars(n, obj=red.cost)
+    rptr, rcol = red.rptr, red.rcol
+    integral = _integral(red.cost)
+    if not red.partial:
+        for i in range(m):
+            cols = rcol[rptr[i] : rptr[i + 1]]
+            model.add_row(x[cols], np.ones(cols.size), lo=1.0)
+    else:
+        y = model.add_vars(m)
+        for i in range(m):
+            cols = rcol[rptr[i] : rptr[i + 1]]
+            model.add_row(np.append(x[cols], y[i]), np.append(np.ones(cols.size), -1.0), lo=0.0)
+        total = float(red.roww.sum())
+        scale_f = 1.0 / max(total, 1e-300)
+        s_int = 2.0**30 / max(total, 1e-300)
+        # CP-SAT needs integers: weights rounded UP keep every true cover feasible; the answer is
+        # re-checked against the exact requirement
+        cint = np.ceil(red.roww * s_int).astype(np.int64)
+        model.add_row(y, red.roww * scale_f, lo=red.need * scale_f,
+                      int_variant=(cint, float(math.ceil(red.need * s_int)), math.inf))
+    if integral and backend == "cpsat":  # cutoff row: nothing dearer than the local-search cover
+        # (SCIP takes the hint as its incumbent and cuts off on it; an explicit dense objective row
+        # makes its root LP far slower and its time limit unreliable)
+        model.add_row(x, red.cost, hi=float(upper), int_variant=(red.cost.astype(np.int64), -math.inf, float(upper)))
+    start = {int(x[j]): (1.0 if j in set(hint.tolist()) else 0.0) for j in range(n)}
+    out = solve_model(model, backend, time_limit_s=time_limit_s, hint=start)
+    stats = dict(out.stats)
+    stats["status"] = out.status
+    bound = out.bound
+    if math.isfinite(bound) and integral:
+        bound = float(math.ceil(bound - 1e-6))
+    if out.values is None:
+        return None, out.status, bound, stats
+    sel = np.flatnonzero(out.values[x] > 0.5).astype(np.int64)
+    return sel, out.status, bound, stats
+
+
+def cover_model_bytes(red: CoverReduction, backend: str) -> int:
+    """Estimated peak memory of the SCIP / CP-SAT model of a reduced instance
+    (:func:`camplace.solver.engines.mip.linear.model_bytes`)."""
+    from camplace.solver.engines.mip.linear import model_bytes
+
+    m, n = red.shape
+    if red.partial:  # a y variable per row, y_i in each covering row, the weight row
+        return model_bytes(backend, n + m, m + 1, red.nnz + 2 * m)
+    return model_bytes(backend, n, m + 1, red.nnz + n)
+
+
+def _is_cover(red: CoverReduction, sel: np.ndarray) -> bool:
+    m, n = red.shape
+    if m == 0:
+        return True
+    hit = np.zeros(m, dtype=bool)
+    for j in sel.tolist():
+        hit[red.crow[red.cptr[j] : red.cptr[j + 1]]] = True
+    if red.partial:
+        return float(red.roww[hit].sum()) >= red.need * (1.0 - 1e-12)
+    return bool(hit.all())
+
+
+# ----------------------------------------------------------------------------------------------
+# the whole pipeline
+# ----------------------------------------------------------------------------------------------
+
+
+def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) -> tuple[str | None, str]:
+    """The model to run after the first search (or None) and, if none, why.
+
+    ``mip`` / ``cpsat``: always. ``auto``: SCIP when the reduced instance has at most
+    :data:`AUTO_MODEL_NNZ` nonzeros and, with equal costs, the gap to the Lagrangian bound is at
+    most :data:`AUTO_MODEL_GAP_COLUMNS` columns: the LP bound of a unicost cover is flat (the
+    Lagrangian one a little below it), so SCIP closes no wider gap, and the time is better spent
+    searching.
+    """
+    if engine in ("mip", "cpsat"):
+        return engine, ""
+    if red.nnz > AUTO_MODEL_NNZ:
+        return None, f"reduced instance has {red.nnz} nonzeros (auto runs SCIP up to {AUTO_MODEL_NNZ})"
+    gap = upper - lower
+    if red.cost.size and np.all(red.cost == red.cost[0]) and gap > AUTO_MODEL_GAP_COLUMNS * red.cost[0] * (1 + 1e-9):
+        return None, f"equal costs and a gap of {gap / red.cost[0]:g} columns (SCIP would not close it)"
+    return "mip", ""
+
+
+def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None = None,
+                need: float | None = None, *, engine: str = "auto", time_limit_s: float | None = None,
+                seed: int = 0, max_iterations: int | None = None) -> EngineOutcome:
+    """Reductions, local search, Lagrangian bound and (if it applies) SCIP / CP-SAT.
+
+    Parameters
+    ----------
+    pattern : (m, n) scipy.sparse.csr_matrix
+        Canonical 0/1 matrix; every row is covered by some column.
+    costs : (n,) float64
+        Costs >= 0.
+    weights : (m,) float64, optional
+        Row weights > 0 (partial cover).
+    need : float, optional
+        Weight a partial cover must reach; None: cover every row.
+    engine : {"auto", "mip", "cpsat"}
+        ``auto``: SCIP after the first search when :func:`_model_choice` says it can close the
+        gap; ``mip`` / ``cpsat``: always (unless the bound already proves the cover optimal).
+    time_limit_s : float, optional
+        Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it; the first
+        search stops on a short patience (:func:`patience_work`) or after half of what is left;
+        the model gets three quarters of what is then left; if there is still no proof, the
+        search goes on until the time limit. Without a time limit the second search stops on the
+        full patience: once the work since its best cover exceeds :func:`patience_work` plus the
+        work it took to find it.
+    seed : int
+        Seed of the local search.
+    max_iterations : int, optional
+        Iteration budget of the local search, which then does not stop on patience. With it and
+        no time limit the answer is fully deterministic (so is it without either: patience counts
+        work, not time); with a time limit it depends on the machine's speed.
+
+    Returns
+    -------
+    EngineOutcome
+        ``selected``: input columns of the cover (None: no cover found); ``objective``: its cost;
+        ``bound``: a lower bound on the optimal cost; ``engine``: ``"local-search"`` when no model
+        ran, else the model's backend (``"mip"``, ``"cpsat"``).
+    """
+    t0 = time.perf_counter()
+
+    def left() -> float | None:
+        return None if time_limit_s is None else max(1e-3, float(time_limit_s) - (time.perf_counter() - t0))
+
+    m, n = pattern.shape
+    need_bytes = cover_bytes(m, n, int(pattern.nnz))
+    budget = memory_budget_bytes()
+    if need_bytes > budget:
+        exc = OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)")
+        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
+    c = np.asarray(costs, dtype=np.float64)
+    red = reduce_cover(pattern, c, weights, need)
+    stats: dict[str, Any] = {"reduction": dict(red.stats)}
+    mr, nr = red.shape
+    if mr == 0 or (red.partial and red.need <= 0):
+        sel = _prune_input(pattern, c, weights, need, red.input_columns(()))
+        cost = float(c[list(sel)].sum())
+        stats["time_s"] = time.perf_counter() - t0
+        return EngineOutcome(sel, "optimal", cost, stats, engine="local-search", objective=cost)
+    ls = LocalSearch(red, seed=seed)
+    rem = left()
+    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost,
+                                               time_limit_s=None if rem is None else _LAG_SHARE * rem)
+    # first search: short patience, at most half the time left (the whole budget with an iteration budget)
+    rem = left()
+    why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else _LS_SHARE_BEFORE_MODEL * rem,
+                 target=lb, patience=None if max_iterations is not None else patience_work(red.nnz, before_model=True))
+    sel_r = ls.best_cover()
+    cost_r = float(red.cost[sel_r].sum())
+    found_s = ls.best_time - t0  # when the cover kept so far was found
+    ls_stats = {"greedy_cost": ls.greedy_cost + red.forced_cost, "cost": cost_r + red.forced_cost,
+                "iterations": ls.iterations, "best_iteration": ls.best_iteration, "work": int(ls.ist[K.WORK]),
+                "stopped_by": why, "seed": int(seed)}
+    stats["local_search"] = ls_stats
+    bound_r = min(lb, cost_r)
+    name = "local-search"
+    proven = cost_r <= lb + 1e-9 * max(1.0, abs(cost_r))
+    backend, why_not = _model_choice(engine, red, cost_r, lb)
+    if not proven and backend is not None and cover_model_bytes(red, backend) > memory_budget_bytes():
+        msg = (f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} model of the reduced {mr} x {nr} instance "
+               f"({red.nnz} nonzeros) would need about {cover_model_bytes(red, backend) / 2**30:.1f} GiB but only "
+               f"{memory_budget_bytes() / 2**30:.1f} GiB may be used; kept the local-search cover and its bound")
+        log.warning("setcover: %s", msg)
+        stats["memory_fallback"] = msg
+        backend = None
+    if not proven and backend is None and why_not:
+        stats["model_skipped"] = why_not
+    if not proven and backend is not None:
+        name = backend
+        rem = left()
+        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend,
+                                                     None if rem is None else _MODEL_SHARE * rem)
+        stats["model"] = mstats
+        if msel is not None and _is_cover(red, msel):
+            mcost = float(red.cost[msel].sum())
+            if mcost < cost_r - 1e-9 * max(1.0, abs(cost_r)):
+                sel_r, cost_r = msel, mcost
+                found_s = time.perf_counter() - t0
+        elif msel is not None:
+            log.warning("setcover: the %s answer does not cover the required weight (integer rounding); kept the "
+                        "local-search cover", backend)
+        if mstatus == "optimal":
+            bound_r = cost_r
+        elif math.isfinite(mbound):
+            bound_r = max(bound_r, min(mbound, cost_r))
+        proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
+    rem = left()
+    if not proven and why in ("patience", "time") and (rem is None or rem > 0.02 * float(time_limit_s)):
+        # the search goes on from where it was, with restarts, beside a second one started from its
+        # best cover (own random stream), one thread each: until the time limit when there is one,
+        # else each with the full patience counted from now
+        ls.ist[K.BEST_WORK] = max(int(ls.ist[K.BEST_WORK]), int(ls.ist[K.WORK]) // 2)
+        searches = [ls] + [LocalSearch(red, seed=seed, stream=k, start=np.flatnonzero(ls.best))
+                           for k in range(1, search_threads())]
+        for s in searches:
+            s.restart_work = restart_unit_work(red.nnz)
+        whys = run_searches(searches, time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
+                            patience=None if rem is not None else patience_work(red.nnz))
+        costs2 = [s.best_cost for s in searches]
+        k_best = int(np.argmin(costs2))  # ties: the first
+        sel2 = searches[k_best].best_cover()
+        cost2 = float(red.cost[sel2].sum())
+        if cost2 < cost_r - 1e-9 * max(1.0, abs(cost_r)):
+            sel_r, cost_r = sel2, cost2
+            found_s = searches[k_best].best_time - t0
+            proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
+        ls_stats.update({"cost": cost2 + red.forced_cost, "iterations": sum(s.iterations for s in searches),
+                         "best_iteration": searches[k_best].best_iteration,
+                         "work": int(sum(int(s.ist[K.WORK]) for s in searches)), "stopped_by": whys[k_best],
+                         "resumed": True, "searches": len(searches),
+                         "restarts": int(sum(int(s.ist[K.RESTARTS]) for s in searches)), "best_search": k_best})
+    sel = _prune_input(pattern, c, weights, need, red.input_columns(sel_r))
+    cost = float(c[list(sel)].sum())
+    bound = min(bound_r + red.forced_cost, cost)
+    status = "optimal" if proven else "feasible"
+    if status == "optimal":
+        bound = cost
+    stats["time_s"] = time.perf_counter() - t0
+    stats["time_to_best_s"] = max(0.0, found_s)
+    log.info("setcover: %s cost %.9g bound %.9g (%s) in %.2f s", status, cost, bound, name, stats["time_s"])
+    return EngineOutcome(sel, status, bound, stats, engine=name, objective=cost)
+
+
+def _prune_input(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None, need: float | None,
+                 selected: tuple[int, ...]) -> tuple[int, ...]:
+    """Drop columns of a cover of the input that are not needed, dearest first (cost 0 ones
+    included): the cost never rises and no camera is kept for nothing."""
+    m = pattern.shape[0]
+    sel = list(selected)
+    if not sel:
+        return ()
+    a = pattern.tocsc()
+    cov = np.zeros(m, dtype=np.int64)
+    for j in sel:
+        cov[a.indices[a.indptr[j] : a.indptr[j + 1]]] += 1
+    w = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
+    got = float(w[cov > 0].sum())
+    floor = None if need is None else float(need) * (1.0 - 1e-12)
+    for j in sorted(sel, key=lambda j: (-costs[j], -j)):
+        rows = a.indices[a.indptr[j] : a.indptr[j + 1]]
+        alone = rows[cov[rows] == 1]
+        if floor is None:
+            ok = alone.size == 0
+        else:
+            ok = got - float(w[alone].sum()) >= floor
+        if ok:
+            cov[rows] -= 1
+            got -= float(w[alone].sum())
+            sel.remove(j)
+    return tuple(sorted(sel))

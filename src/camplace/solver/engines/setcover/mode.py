@@ -1,0 +1,108 @@
+"""The ``setcover`` mode of :func:`camplace.solver.solve`: the cameras' costs, the credit of the
+fixed cameras, the coverable rows, then :func:`camplace.solver.engines.setcover.local_search.solve_cover` (or, with
+minimum-distance conflicts, the model of :func:`camplace.solver.engines.mip.mode_models.setcover_model`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
+from camplace.solver.engines.mip.linear import solve_model
+from camplace.solver.engines.mip.mode_models import setcover_model
+from camplace.solver.engines.setcover.local_search import solve_cover
+from camplace.solver.problem.objectives import coverage_weight
+from camplace.solver.problem.presolve import as_pattern
+from camplace.solver.result import ModeOutcome
+
+__all__ = ["setcover"]
+
+log = logging.getLogger(__name__)
+
+
+def setcover(
+    q: sp.csr_matrix, w: np.ndarray, costs: Any, required_fraction: float, fixed_t: tuple[int, ...],
+    free_cols: np.ndarray, conflicts: np.ndarray, engine: str, deadline: Deadline,
+    seed: int = 0, iterations: int | None = None,
+) -> ModeOutcome:
+    """Minimum-cost cover: the cost of the new cameras and a LOWER bound.
+
+    Without minimum-distance conflicts: :func:`camplace.solver.engines.setcover.local_search.solve_cover`
+    (reductions, local search, Lagrangian bound, then SCIP / CP-SAT with the local-search cover as
+    hint and cutoff where it applies). With conflicts: the SCIP / CP-SAT model directly.
+    """
+    m, n = q.shape
+    if engine == "exact":
+        raise CamplaceError("the exact engine does not solve setcover; use engine auto, mip or cpsat")
+    name = "mip" if engine == "auto" else engine
+    c = np.ones(n) if costs is None else np.asarray(costs, dtype=np.float64)
+    if c.shape != (n,) or not np.all(np.isfinite(c)) or np.any(c < 0):
+        raise CamplaceError(f"costs must be ({n},) finite values >= 0, got shape {c.shape}")
+    frac = float(required_fraction)
+    pat = as_pattern(q)
+    allowed = np.zeros(n, dtype=bool)
+    allowed[free_cols] = True
+    allowed[list(fixed_t)] = True
+    if allowed.all():  # no column copy of a large matrix when every camera may be used
+        obs_allowed = np.diff(pat.indptr) > 0
+    else:
+        obs_allowed = np.diff(pat[:, np.flatnonzero(allowed)].tocsr().indptr) > 0
+    pos_w = w > 0
+    unc = pos_w & ~obs_allowed
+    coverable_w = float(w[pos_w & obs_allowed].sum())
+    stats: dict[str, Any] = {
+        "uncoverable_points": int(unc.sum()),
+        "uncoverable_weight": float(w[unc].sum()),
+        "coverable_weight": coverable_w,
+        "required_fraction": frac,
+    }
+    covered_f = (np.diff(pat[:, list(fixed_t)].tocsr().indptr) > 0) if fixed_t else np.zeros(m, dtype=bool)
+    credit = float(w[covered_f & pos_w].sum())
+    need = frac * coverable_w - credit
+    rows = pos_w & obs_allowed & ~covered_f
+    sub = (pat if free_cols.size == n else pat[:, free_cols].tocsr())[rows]
+    sw = w[rows]
+
+    def finish(sel_free: Sequence[int], status: str, bound: float,
+               used: str = name) -> ModeOutcome:
+        sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in sel_free}))
+        cov = coverage_weight(pat, w, sel) if sel else 0.0
+        stats["covered_fraction"] = cov / coverable_w if coverable_w > 0 else 1.0
+        stats["covered_weight"] = cov
+        cost = float(sum(c[j] for j in sel if j not in set(fixed_t)))
+        return ModeOutcome(sel, status, cost, bound, used, stats)
+
+    if sub.shape[0] == 0 or need <= 1e-12 * max(coverable_w, 1e-300):
+        return finish((), "optimal", 0.0)
+    if conflicts.size == 0:
+        out = solve_cover(sub, c[free_cols], sw if frac < 1.0 else None, need if frac < 1.0 else None, engine=engine,
+                          time_limit_s=deadline.left(), seed=seed, max_iterations=iterations)
+        stats["setcover"] = out.stats
+        if out.selected is None:
+            return ModeOutcome(None, "unknown", math.nan, out.bound, out.engine, stats)
+        return finish(out.selected, out.status, out.bound, out.engine)
+    model, x, rows_after = setcover_model(sub, sw, c[free_cols], free_cols, conflicts, frac, need, coverable_w)
+    out = solve_model(model, name, time_limit_s=deadline.left())
+    stats["engine_stats"] = dict(out.stats)
+    stats["rows_after"] = rows_after
+    if out.values is None:
+        st = "infeasible" if out.status == "infeasible" else "unknown"
+        finish((), st, -math.inf)  # the coverage entries of stats
+        return ModeOutcome(None, st, math.nan, out.bound, name, stats)
+    sel_free = [int(j) for j in np.flatnonzero(out.values[x] > 0.5)]
+    bound = out.bound
+    if np.all(c == np.rint(c)) and math.isfinite(bound):
+        bound = math.ceil(bound - 1e-6)  # integral costs: the optimum is an integer
+    status = out.status
+    if frac < 1.0:
+        got = float(sw[np.diff(sub[:, sel_free].tocsr().indptr) > 0].sum()) if sel_free else 0.0
+        if got < need - 1e-9 * max(coverable_w, 1e-300):
+            log.warning("setcover: the %s answer misses the required weight by %.3g (integer rounding)", name, need - got)
+            status = "unknown"
+    return finish(sel_free, status, bound)
