@@ -1,4 +1,4 @@
-"""The presolve of :mod:`camplace.solver.presolve`, read from column bitsets instead of CSR.
+"""The presolve of :mod:`camplace.solver.problem.presolve`, read from column bitsets instead of CSR.
 
 A binary visibility matrix arrives as :class:`camplace.visibility.bits.BitMatrix` (one bit a
 cell, ``words`` (n, ceil(m / 64)) uint64). The same three reductions are made, with the same
@@ -37,7 +37,7 @@ from numba.extending import intrinsic
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
-from camplace.solver.presolve import Presolved, check_weights
+from camplace.solver.problem.presolve import Presolved, check_weights
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight"]
 
@@ -288,14 +288,14 @@ class BitPresolved(Presolved):
 
 def covered_weight(bits, weights: np.ndarray, selected) -> float:
     """``sum_i w_i [some selected column observes i]`` of a BitMatrix (the maxcover objective,
-    summed as :func:`camplace.solver.objectives.mode_value` sums it)."""
+    summed as :func:`camplace.solver.problem.objectives.mode_value` sums it)."""
     w = np.asarray(weights, dtype=np.float64)
     covered = bits.union(list(selected)) if len(selected) else np.zeros(bits.shape[0], dtype=bool)
     return float(np.sum(w[covered], dtype=np.float64))
 
 
 def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers: int | None = None) -> BitPresolved:
-    """:func:`camplace.solver.presolve.presolve` of a matrix held as column bitsets.
+    """:func:`camplace.solver.problem.presolve.presolve` of a matrix held as column bitsets.
 
     Parameters
     ----------
@@ -310,7 +310,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     Returns
     -------
     BitPresolved
-        The same reduced instance as :func:`~camplace.solver.presolve.presolve` of the matrix's
+        The same reduced instance as :func:`~camplace.solver.problem.presolve.presolve` of the matrix's
         CSR (same weights, counts, columns, row groups and bitsets).
     """
     t0 = time.perf_counter()
