@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from camplace._cores import allowed_cores
 from camplace.instance import builtin
-from camplace.pipeline import event_aims
+from camplace.event import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, make_target_points
 from camplace.visibility.bits import BitMatrix, bits_from_csr, pack_rows
