@@ -105,3 +105,46 @@ def test_summary_of_bits_equals_csr(problem) -> None:
         assert a.useful_columns == b.useful_columns
         np.testing.assert_array_equal(a.covered, b.covered)
         assert a.seen.tobytes() == b.seen.tobytes()
+
+
+def test_release_pages_only_touches_scratch_files(tmp_path: Path) -> None:
+    from camplace.visibility.scratch import Scratch, release_pages
+    from camplace.visibility.store import populated_empty
+
+    anon = populated_empty(4 << 20, np.uint8)  # an anonymous private mapping: must keep its data
+    anon[:] = 7
+    release_pages(anon, 0, anon.nbytes)
+    assert int(anon.min()) == 7
+    with Scratch(tmp_path) as s:
+        a = s.array("x", (64, 4096))
+        a[:] = 3
+        release_pages(a, 0, a.nbytes)  # dropped from memory, kept in the file
+        assert int(a.min()) == 3 and s.path is not None and s.path.parent == tmp_path
+        folder = s.path
+    assert not folder.exists()
+
+
+def test_out_of_core_equals_in_memory(problem, tmp_path: Path) -> None:
+    from camplace.solver.problem.presolve_bits import presolve_bits
+    from camplace.visibility.scratch import Scratch
+
+    inst, pts, cands = problem
+    ref = compute_visibility(inst, cands, pts, chunk_size=32)
+    with Scratch(tmp_path) as s:
+        # a budget below the in-memory estimate but above the out-of-core one
+        from camplace.visibility.engine import estimate_matrix_bytes
+
+        m, n = ref.bits.shape
+        budget = (estimate_matrix_bytes(m, n, 1.0, "bits") + estimate_matrix_bytes(m, n, 1.0, "bits-disk")) // 2
+        got = compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, scratch=s)
+        assert s.path is not None and (s.path / "colbits.u64").exists()
+        np.testing.assert_array_equal(np.asarray(got.bits.words), ref.bits.words)
+        assert got.stats == ref.stats
+        w = pts.weight
+        a, b = presolve_bits(got.bits, w, 3), presolve_bits(ref.bits, w, 3)
+        np.testing.assert_array_equal(a.bits, b.bits)
+        np.testing.assert_array_equal(a.columns, b.columns)
+        path = save_visibility(tmp_path / "ooc.cpm", got.bits)
+        np.testing.assert_array_equal(load_bits(path).words, ref.bits.words)
+    with pytest.raises(Exception, match="memory budget"):
+        compute_visibility(inst, cands, pts, memory_budget_bytes=budget)  # no scratch: an error before the work

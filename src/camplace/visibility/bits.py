@@ -176,6 +176,14 @@ class BitMatrix:
         self.words = words
         self.shape = (int(m), int(words.shape[0]))
 
+    def release_columns(self, lo: int, hi: int) -> None:
+        """Drop columns ``lo:hi`` from this process's memory when the bitsets are a scratch file's
+        mapping (out of core, :mod:`camplace.visibility.scratch`); a no-op in memory."""
+        from camplace.visibility.scratch import release_pages
+
+        row = self.words.shape[1] * 8
+        release_pages(self.words, int(lo) * row, int(hi) * row)
+
     @property
     def nbytes(self) -> int:
         """Bytes of ``words``."""
@@ -187,7 +195,7 @@ class BitMatrix:
         out = np.zeros(self.shape[1], dtype=np.int64)
         n = self.shape[1]
         parts = max(1, min(64, n))
-        _run(lambda lo, hi: _column_counts(self.words, lo, hi, out),
+        _run(lambda lo, hi: (_column_counts(self.words, lo, hi, out), self.release_columns(lo, hi)),
              [(n * p // parts, n * (p + 1) // parts) for p in range(parts)], thread_count())
         return out
 
@@ -200,7 +208,8 @@ class BitMatrix:
         """(m,) int64: candidates observing each row."""
         m = self.shape[0]
         counts = np.zeros(bit_words(m) * 64, dtype=np.int64)
-        _run(lambda a, b: _row_counts(self.words, a, b, counts), _word_ranges(self.words.shape[1], 64),
+        _run(lambda a, b: (_row_counts(self.words, a, b, counts), self.release_columns(0, self.shape[1])),
+             _word_ranges(self.words.shape[1], 64),
              thread_count(workers))
         return counts[:m]
 

@@ -141,6 +141,9 @@ def compute_chunks_dask(
 
                 block, counts = got
                 words[s:end[s]] = block
+                from camplace.visibility.scratch import release_pages
+
+                release_pages(words, s * words.shape[1] * 8, end[s] * words.shape[1] * 8)  # out of core: to disk
                 got = ChunkResult(s, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)
             results[s] = got
             if progress is not None:

@@ -334,8 +334,19 @@ def scatter_part(words: np.ndarray, part: ChunkResult) -> ChunkResult:
 
 def compute_chunk_bits(task: VisibilityTask, scenes, start: int, stop: int, words: np.ndarray) -> ChunkResult:
     """:func:`compute_chunk` of candidates ``start:stop`` scattered straight into ``words`` (only
-    these columns are written: chunks run on threads side by side). Returns the counts."""
-    return scatter_part(words, compute_chunk(task, scenes, start, stop))
+    these columns are written: chunks run on threads side by side). Returns the counts. When
+    ``words`` is a scratch file's mapping, the chunk's pages are then dropped from memory."""
+    out = scatter_part(words, compute_chunk(task, scenes, start, stop))
+    release_columns(words, start, stop)
+    return out
+
+
+def release_columns(words: np.ndarray, start: int, stop: int) -> None:
+    """Drop columns ``start:stop`` of file-backed column bitsets from this process's memory."""
+    from camplace.visibility.scratch import release_pages
+
+    row = words.shape[1] * 8
+    release_pages(words, start * row, stop * row)
 
 
 def drop_small_views_bits(instance, candidates, points: TargetPoints, bits, counts: dict) -> dict:
@@ -364,6 +375,8 @@ def drop_small_views_bits(instance, candidates, points: TargetPoints, bits, coun
         for c0 in range(0, len(cols), 1024):  # blocks of columns: a bounded copy
             sel = cols[c0:c0 + 1024]
             bits.words[sel] &= keep[None, :]
+            for j in sel:
+                release_columns(bits.words, int(j), int(j) + 1)
     bits.__dict__.pop("column_counts", None)
     n_drop = int(before.sum() - bits.column_counts.sum())
     if n_drop:
@@ -474,10 +487,14 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     chunk) and the float32 CSR (8 bytes a pair plus row pointers) coexist at the peak: about 10
     bytes a pair. ``bits`` (binary): each chunk is scattered into the column bitsets as it
     finishes and dropped, so the peak is the bitsets, ``n_cols * ceil(n_rows / 64) * 8`` bytes,
-    whatever the density. Both add the per-thread work arrays (:data:`THREAD_BYTES`) and the
+    whatever the density; ``bits-disk`` (out of core, :mod:`camplace.visibility.scratch`): the
+    bitsets are in a scratch file and only the pages of the chunks in flight are resident. All add
+    the per-thread work arrays (:data:`THREAD_BYTES`) and the
     process's base (:data:`BASE_BYTES`).
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
+    if layout == "bits-disk":  # the bitsets live in the scratch file: a block of columns at a time
+        return int(16 * n_rows + 8 * n_cols * 8 + fixed)
     if layout == "bits":
         return int(8 * n_cols * ((n_rows + 63) // 64) + 16 * n_rows + fixed)
     nnz = density * n_rows * n_cols
@@ -496,6 +513,7 @@ def compute_visibility(
     dask_address: str | None = None,
     cache_dir: str | Path | None = None,
     layout: str = "auto",
+    scratch=None,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -523,6 +541,9 @@ def compute_visibility(
         one bit a cell, each chunk scattered into them as it finishes: no float CSR is made), a
         graded one as float32 CSR; ``csr``: float32 CSR always (``bits`` is refused for a graded
         instance).
+    scratch : camplace.visibility.scratch.Scratch or None
+        Where column bitsets that do not fit ``memory_budget_bytes`` go (out of core: a file, read
+        and written block by block); None: such a matrix is an error before the work.
 
     Returns
     -------
@@ -578,7 +599,7 @@ def compute_visibility(
 
     def check_pilot(first: ChunkResult, pilot_cols: int) -> None:
         density = len(first.lcols) / max(1, len(points) * pilot_cols)
-        need = estimate_matrix_bytes(len(points), n_cand, density, "bits" if use_bits else "csr")
+        need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout)
         if need > budget:
             raise CamplaceError(
                 f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
@@ -587,20 +608,33 @@ def compute_visibility(
             )
 
     parts: list[ChunkResult] = []
+    pilot_layout = "bits" if use_bits else "csr"
     words = None
     if use_bits:
         from camplace.visibility.bits import bit_words
 
         need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits")  # one bit a cell: known before the work
-        if need > budget:
+        shape = (n_cand, bit_words(len(points)))
+        if need > budget and scratch is not None:
+            disk = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits-disk")
+            if disk > budget:
+                raise CamplaceError(
+                    f"visibility: even out of core the run needs about {disk / 2**30:.1f} GiB ({len(points):_} rows), over "
+                    f"the memory budget of {budget / 2**30:.1f} GiB (lower --points or raise --memory-budget-gb)")
+            words = scratch.array("colbits.u64", shape)
+            pilot_layout = "bits-disk"
+            log.info("visibility: column bitsets %.1f MiB out of core in %s (estimated peak %.2f GiB, budget %.2f GiB)",
+                     8 * shape[0] * shape[1] / 2**20, scratch.path, disk / 2**30, budget / 2**30)
+        elif need > budget:
             raise CamplaceError(
                 f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
                 f"candidates, one bit a cell), over the memory budget of {budget / 2**30:.1f} GiB (lower --points or "
                 f"--candidates, or raise --memory-budget-gb)"
             )
-        log.info("visibility: column bitsets %.1f MiB, estimated peak %.2f GiB", 8 * n_cand * bit_words(len(points)) / 2**20,
-                 need / 2**30)
-        words = np.zeros((n_cand, bit_words(len(points))), dtype=np.uint64)
+        else:
+            log.info("visibility: column bitsets %.1f MiB, estimated peak %.2f GiB", 8 * shape[0] * shape[1] / 2**20,
+                     need / 2**30)
+            words = np.zeros(shape, dtype=np.uint64)
     if dask_address is not None:
         if task.cam_model is not None:  # chunks end at the model boundaries
             ranges = [(a + s, a + e) for _, a, b in task.model_ranges() for s, e in chunk_plan(b - a, chunk_size, 1)]
@@ -612,6 +646,7 @@ def compute_visibility(
             check_pilot(parts[0], b0 - a0)
             if words is not None:
                 parts[0] = scatter_part(words, parts[0])
+                release_columns(words, a0, b0)
             if progress is not None:
                 progress(b0 - a0)
         rest = ranges[1:]
@@ -635,6 +670,7 @@ def compute_visibility(
                     check_pilot(parts[0], b - a)
                     if words is not None:
                         parts[0] = scatter_part(words, parts[0])
+                        release_columns(words, a, b)
                 if progress is not None:
                     progress(b - a)
         finally:  # on an error or Ctrl-C, chunks not started are dropped

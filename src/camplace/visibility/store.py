@@ -63,6 +63,7 @@ import scipy.sparse as sp
 
 from camplace._cores import thread_count
 from camplace.errors import CamplaceError
+from camplace.visibility.scratch import release_pages
 
 HEAD_MAGIC = b"CAMPLMX1"
 TAIL_MAGIC = b"CAMPLEND"
@@ -445,8 +446,11 @@ def _write_file(path: Path, footer: dict, sections: list[tuple[str, np.ndarray, 
             raw = np.ascontiguousarray(arr).reshape(-1).view(np.uint8)
             blocks = []
             encoded = _pipelined(lambda b, s=shuffle: (b.size, *_encode_block(b, codec, level, s)), _blocks(raw, shuffle), workers)
+            done = 0
             for raw_size, stored, crc in encoded:
                 fh.write(stored)
+                release_pages(raw, done, done + int(raw_size))  # out-of-core bitsets: back to disk
+                done += int(raw_size)
                 n_stored = len(stored) if not isinstance(stored, memoryview) else stored.nbytes
                 blocks.append([offset, n_stored, int(raw_size), crc])
                 offset += n_stored

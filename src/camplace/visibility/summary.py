@@ -158,10 +158,12 @@ def _summarise_bits(bits, weights, selected, frame, frame_weight, n_frames) -> M
     threads = thread_count() if m * n >= 8 * PARALLEL_MIN_NNZ else 1
     if threads > 1:
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            list(pool.map(lambda r: _touch_live(bits.words, live, r[0], r[1], col_live), ranges))
+            list(pool.map(lambda r: (_touch_live(bits.words, live, r[0], r[1], col_live), bits.release_columns(*r)),
+                          ranges))
     else:
         for lo, hi in ranges:
             _touch_live(bits.words, live, lo, hi, col_live)
+            bits.release_columns(lo, hi)
     covered = np.zeros(m, dtype=np.bool_)
     seen = np.zeros((max(1, len(sel)), n_frames), dtype=np.float64)
     blocks = max(1, min(BLOCKS, m))

@@ -321,11 +321,13 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     if k < 1 or k > n:
         raise CamplaceError(f"k must be between 1 and the number of candidates ({n}), got {k}")
     workers = thread_count(workers)
+    # out of core (a scratch file's mapping): each block's pages are dropped after it is read
+    release = getattr(bits, "release_columns", None) or (lambda lo, hi: None)
 
     # 1. live rows
     partial = np.zeros((_BLOCKS, nw), dtype=np.uint64)
     cb = _blocks(n)
-    _run(lambda lo, hi: _or_columns(words, lo, hi, partial[cb.index((lo, hi))]), cb, workers)
+    _run(lambda lo, hi: (_or_columns(words, lo, hi, partial[cb.index((lo, hi))]), release(lo, hi)), cb, workers)
     any_obs = np.bitwise_or.reduce(partial, axis=0) if n else np.zeros(nw, dtype=np.uint64)
     live = any_obs & _pack(w > 0, nw)
     live_mask = np.unpackbits(live.view(np.uint8), bitorder="little", count=m).astype(bool)
@@ -337,13 +339,13 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     # 2. dominance
     t1 = time.perf_counter()
     size = np.zeros(n, dtype=np.int64)
-    _run(lambda lo, hi: _live_sizes(words, live, lo, hi, size), cb, workers)
+    _run(lambda lo, hi: (_live_sizes(words, live, lo, hi, size), release(lo, hi)), cb, workers)
     dominated = np.zeros(n, dtype=bool)
     if dominance and n > k and live_rows.size > 0:
         row_nnz = np.zeros(nw * 64, dtype=np.int64)  # over all columns, as the CSR presolve counts
-        _run(lambda a, b: _row_counts(words, a, b, row_nnz), _blocks(nw), workers)
+        _run(lambda a, b: (_row_counts(words, a, b, row_nnz), release(0, n)), _blocks(nw), workers)
         rarest = np.zeros(n, dtype=np.int64)
-        _run(lambda lo, hi: _rarest(words, live, row_nnz, lo, hi, rarest), cb, workers)
+        _run(lambda lo, hi: (_rarest(words, live, row_nnz, lo, hi, rarest), release(lo, hi)), cb, workers)
         empty = rarest < 0
         if empty.any():  # an empty column: dominated unless it is the first one and no column observes
             first_empty = int(np.flatnonzero(empty)[0])
@@ -361,7 +363,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
         gb = _blocks(ng)
         cand = [np.empty(n, dtype=np.int64) for _ in gb]
         _run(lambda g0, g1: _dominated_groups(words, live, size, order.astype(np.int64), starts, grows, g0, g1,
-                                              dominated, cand[gb.index((g0, g1))]), gb, workers)
+                                              dominated, cand[gb.index((g0, g1))]) or release(0, n), gb, workers)
         stats["dominance_method"] = "column bitsets"
     keep = ~dominated
     restored = 0
@@ -383,7 +385,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     nc = columns.size
     rb = np.zeros((live_rows.size, (nc + 63) // 64), dtype=np.uint64)
     rbk = _blocks(live_rows.size)
-    _run(lambda lo, hi: _row_bits(words, columns, live_rows, lo, hi, rb), rbk, workers)
+    _run(lambda lo, hi: (_row_bits(words, columns, live_rows, lo, hi, rb), release(0, n)), rbk, workers)
     h = np.zeros(live_rows.size, dtype=np.uint64)
     has = np.zeros(live_rows.size, dtype=bool)
     _run(lambda lo, hi: _hash_rows(rb, lo, hi, h, has), rbk, workers)
@@ -400,7 +402,8 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     row_groups = np.full(m, -1, dtype=np.int64)
     row_groups[orig_rows] = groups
     red = np.zeros((nc, (int(n_groups) + 63) // 64), dtype=np.uint64)
-    _run(lambda lo, hi: _gather(words, columns, reps, lo, hi, red), _blocks(nc), workers)
+    _run(lambda lo, hi: (_gather(words, columns, reps, lo, hi, red), release(int(columns[lo]), int(columns[hi - 1]) + 1)),
+         _blocks(nc), workers)
     stats["time_merge_s"] = time.perf_counter() - t2
 
     pos = w[w > 0]
