@@ -284,8 +284,10 @@ def visibility_stage(
     cache: bool = True,
     dask_address: str | None = None,
     memory_budget_gb: float | None = None,
+    scratch=None,
 ) -> VisibilityMatrix:
-    """Compute (or fetch from the cache) the visibility matrix, with a progress bar."""
+    """Compute (or fetch from the cache) the visibility matrix, with a progress bar (``scratch``: a
+    :class:`~camplace.visibility.scratch.Scratch` for column bitsets over the budget)."""
     from camplace.visibility.cache import default_cache_dir
     from camplace.visibility import compute_visibility
 
@@ -299,6 +301,6 @@ def visibility_stage(
     with reporter.stage("visibility", total=len(cands)) as advance:
         return compute_visibility(
             instance, cands, pts, progress=advance, memory_budget_bytes=budget, dask_address=dask_address,
-            cache_dir=default_cache_dir() if cache else None, layout=layout,
+            cache_dir=default_cache_dir() if cache else None, layout=layout, scratch=scratch,
         )
 
