@@ -76,3 +76,16 @@ def test_solve_on_bits_equals_csr_and_enumeration(k: int) -> None:
     # a case the bit route does not take goes through the CSR conversion
     fixed = solve(bits_from_csr(a), w, k=k, fixed=[0])
     assert fixed.selected == solve(a, w, k=k, fixed=[0]).selected
+
+
+def test_quality_of_bits_is_maxcover_and_equals_the_csr_quality_route() -> None:
+    from camplace.solver.api import solve
+
+    rng = np.random.default_rng(11)
+    a = sp.csr_matrix((rng.random((120, 12)) < 0.25).astype(np.float32))
+    w = rng.random(120)
+    ref = solve(a, w, k=3, mode="quality")
+    got = solve(bits_from_csr(a), w, k=3, mode="quality")
+    assert got.status == ref.status == "optimal"
+    assert got.objective == pytest.approx(ref.objective, rel=1e-12, abs=1e-12)
+    assert got.stats["mode"] == "quality" and "binary_matrix" in got.stats

@@ -14,6 +14,7 @@ to a bool CSR pattern (5 bytes an observed pair) and goes on as before.
 from __future__ import annotations
 
 import numbers
+from dataclasses import replace
 from typing import Any
 
 from camplace.errors import CamplaceError
@@ -30,8 +31,12 @@ __all__ = ["bits_applies", "bits_outcome"]
 
 
 def bits_applies(o: SolveOptions) -> bool:
-    """True when the options are plain max coverage (no fixed, forbidden, distance or angle)."""
-    return (o.mode == "maxcover" and not o.fixed and not o.forbidden and o.min_distance_m is None
+    """True when the options are plain max coverage (no fixed, forbidden, distance or angle).
+
+    ``quality`` on a binary matrix is plain max coverage too: every value is 1, so
+    ``max_{j in S} Q_ij`` is 1 exactly when some chosen camera observes row i, and the two
+    objectives are the same number."""
+    return (o.mode in ("maxcover", "quality") and not o.fixed and not o.forbidden and o.min_distance_m is None
             and o.min_angle_deg is None)
 
 
@@ -66,12 +71,16 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
         raise CamplaceError(f"cannot choose k={k} new cameras from {n} allowed candidates "
                             "(lower k, or forbid/fix fewer cameras)")
     budget = memory_budget_bytes()
+    asked = o.mode
+    o = replace(o, mode="maxcover")  # quality of a binary matrix: the same objective (see bits_applies)
     choice = choose_engine(problem_sizes(bits, k, n, 0, 0, "maxcover"), o, budget)
     if choice.route != "maxcover":
         return None
     stats: dict[str, Any] = {"k": k, "engine_choice": {"engine": choice.engine, "route": choice.route,
                                                        "reason": choice.reason}}
     stats.update(choice.stats)
+    if asked != "maxcover":
+        stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
     pre = presolve_bits(bits, w, k)
     name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline.left(), stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
