@@ -481,22 +481,26 @@ THREAD_BYTES = 100 * 2**20
 
 
 def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr") -> int:
-    """Peak bytes to build the matrix, of this density, in ``layout``.
+    """Peak bytes of a run with a matrix of this size and density in ``layout``.
 
     ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
     chunk) and the float32 CSR (8 bytes a pair plus row pointers) coexist at the peak: about 10
     bytes a pair. ``bits`` (binary): each chunk is scattered into the column bitsets as it
-    finishes and dropped, so the peak is the bitsets, ``n_cols * ceil(n_rows / 64) * 8`` bytes,
-    whatever the density; ``bits-disk`` (out of core, :mod:`camplace.visibility.scratch`): the
-    bitsets are in a scratch file and only the pages of the chunks in flight are resident. All add
-    the per-thread work arrays (:data:`THREAD_BYTES`) and the
-    process's base (:data:`BASE_BYTES`).
+    finishes and dropped, so the matrix is ``B = n_cols * ceil(n_rows / 64) * 8`` bytes whatever
+    the density; the presolve's working bitsets (the live rows over the kept columns, then the
+    reduced columns, :func:`camplace.solver.problem.presolve_bits.presolve_bits`) are at most one
+    more ``B``: ``2 B``. ``bits-disk`` (out of core, :mod:`camplace.visibility.scratch`): the
+    bitsets are in a scratch file and only the pages of the chunks in flight are resident; the
+    presolve's reduced instance must still fit in memory, and the presolve checks it against the
+    budget itself once it knows its size. All add the per-thread work arrays
+    (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
-    if layout == "bits-disk":  # the bitsets live in the scratch file: a block of columns at a time
-        return int(16 * n_rows + 8 * n_cols * 8 + fixed)
+    words = 8 * n_cols * ((n_rows + 63) // 64)
+    if layout == "bits-disk":
+        return int(16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
-        return int(8 * n_cols * ((n_rows + 63) // 64) + 16 * n_rows + fixed)
+        return int(2 * words + 16 * n_rows + fixed)
     nnz = density * n_rows * n_cols
     return int(10 * nnz + 16 * (n_rows + 1) + fixed)
 

@@ -37,6 +37,7 @@ from numba.extending import intrinsic
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.problem.presolve import Presolved, check_weights
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight"]
@@ -383,6 +384,11 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     # 3. merge identical rows over the kept columns
     t2 = time.perf_counter()
     nc = columns.size
+    need = live_rows.size * ((nc + 63) // 64) * 8  # the row bitsets; the reduced columns are at most as big
+    budget = memory_budget_bytes()
+    if need > budget:
+        raise CamplaceError(f"{OverBudget(need, budget, 'the presolve (live rows x kept columns as bitsets)').message}; "
+                            "lower --points or --candidates, or raise --memory-budget-gb")
     rb = np.zeros((live_rows.size, (nc + 63) // 64), dtype=np.uint64)
     rbk = _blocks(live_rows.size)
     _run(lambda lo, hi: (_row_bits(words, columns, live_rows, lo, hi, rb), release(0, n)), rbk, workers)
