@@ -473,11 +473,13 @@ def available_memory_bytes() -> int:
         return 8 << 30
 
 
-#: resident bytes of the process before the matrix: interpreter, numpy / scipy / numba / Embree,
-#: the compiled kernels and the scenes (measured on comet-67p-bunker: 0.25-0.3 GB)
-BASE_BYTES = 300 * 2**20
-#: per-thread chunk work arrays and result slabs (culling, segments, Embree batches)
-THREAD_BYTES = 100 * 2**20
+#: resident bytes of the process besides the matrix and the threads' work arrays: interpreter,
+#: numpy / scipy / numba / Embree, the compiled kernels, the scenes, the points and candidates
+#: (calibrated with benchmarks/scale.py on comet-67p-bunker, 2 threads: 380-410 MiB in all at
+#: 2,000 x 10,000 and 10,000 x 50,000 besides the bitsets)
+BASE_BYTES = 280 * 2**20
+#: per-thread chunk work arrays and result slabs (culling, segments, Embree batches; kept for reuse)
+THREAD_BYTES = 60 * 2**20
 
 
 def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr") -> int:
