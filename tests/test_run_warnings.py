@@ -59,3 +59,24 @@ def test_quality_mode_on_graded_quality_is_quiet(tmp_path: Path) -> None:
     binary = parse_instance({**data, "quality": {"mode": "binary"}}, "test", tmp_path)
     assert mode_warnings(graded, "quality") == []
     assert [len(mode_warnings(binary, m)) for m in ("quality", "maxcover", "multiview", "setcover")] == [1, 0, 0, 0]
+
+
+def test_solve_mode_quality_on_a_binary_run_says_it_equals_maxcover(tmp_path):
+    """Found: ``camplace solve --mode quality`` on a binary run silently gave the maxcover answer."""
+    import json
+    import subprocess
+    import sys
+
+    def cp(*args):
+        return subprocess.run([sys.executable, "-m", "camplace", *args], cwd=tmp_path, capture_output=True, text=True,
+                              timeout=300)
+
+    assert cp("run", "comet-67p-bunker", "-o", "run", "--candidates", "60", "--points", "600").returncode == 0
+    q = cp("solve", "run", "--mode", "quality", "-o", "q.json")
+    m = cp("solve", "run", "--mode", "maxcover", "-o", "m.json")
+    assert q.returncode == 0 and m.returncode == 0, q.stderr + m.stderr
+    assert "warning: --mode quality on a matrix whose every observed pair has quality 1" in q.stderr
+    assert "warning" not in m.stderr
+    qj, mj = json.loads((tmp_path / "q.json").read_text()), json.loads((tmp_path / "m.json").read_text())
+    assert len(qj["warnings"]) == 1 and mj["warnings"] == []
+    assert qj["objective"] == pytest.approx(mj["objective"], rel=1e-12)

@@ -195,10 +195,7 @@ RECORD_RUNS: tuple[tuple[str, ...], ...] = (
 )
 
 
-def record(out: Path = SIGNATURES) -> int:
-    """Run :data:`RECORD_RUNS` in this process and write every camplace kernel's signatures."""
-    from numba.core.registry import CPUDispatcher
-
+def _run_all() -> None:
     from camplace.cli import main
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -206,6 +203,19 @@ def record(out: Path = SIGNATURES) -> int:
             code = main([a.format(tmp=tmp) for a in argv] + ["--no-cache"])
             if code != 0:
                 raise SystemExit(f"camplace {' '.join(argv)} exited {code}")
+
+
+def record(out: Path = SIGNATURES) -> int:
+    """Run :data:`RECORD_RUNS` and write the signatures camplace's kernels were called with from Python.
+
+    A first process runs them to fill numba's cache; this process then runs them again, loading
+    every kernel from the cache, so only the kernels Python calls hold signatures (a kernel called
+    from another compiles with its caller), and the list does not depend on what was cached before.
+    """
+    from numba.core.registry import CPUDispatcher
+
+    subprocess.run([sys.executable, __file__, "_warm"], check=True, stdout=subprocess.DEVNULL)
+    _run_all()
     lines = set()
     for name, module in list(sys.modules.items()):
         if not name.startswith(PACKAGE + "."):
@@ -233,4 +243,6 @@ if __name__ == "__main__":
         raise SystemExit(_worker(Path(sys.argv[2]), Path(sys.argv[3])))
     if sys.argv[1:] == ["record"]:
         raise SystemExit(record())
+    if sys.argv[1:] == ["_warm"]:
+        raise SystemExit(_run_all())
     raise SystemExit("usage: python tools/jit_cache.py build BUILD_LIB | record")

@@ -1,8 +1,6 @@
-"""The ``camplace`` command line.
+"""The ``camplace`` command line: argparse, then one call into the API per verb.
 
-Exit codes: 0 success; 1 the run finished but no feasible camera system was found; 2 bad input
-(a one-line ``error: ...`` on stderr, no traceback); 3 an input could not be read or an output
-could not be written (disk full, permissions); 130 interrupted (Ctrl-C).
+Exit codes (the same on every verb) are defined once, in :mod:`camplace.errors`.
 """
 
 from __future__ import annotations
@@ -13,18 +11,13 @@ import sys
 from pathlib import Path
 
 from camplace._signals import ctrl_c_noted
-from camplace.errors import CamplaceError
+from camplace.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_IO, EXIT_NO_SOLUTION, EXIT_OK, CamplaceError
 from camplace.names import EVENT_MODES, SAMPLERS
 from camplace.robust.cli import add_robust_options, print_oos, spec_from_args
 from camplace.solver.options import add_solver_options, options_from_args
 
 MATRIX_FORMATS = ("cpm", "npz")  # camplace.visibility.store.MATRIX_FORMATS (not imported: startup time)
 
-EXIT_OK = 0
-EXIT_NO_SOLUTION = 1
-EXIT_BAD_INPUT = 2
-EXIT_IO = 3
-EXIT_INTERRUPTED = 130
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,6 +1,25 @@
-"""Errors that camplace reports to users as one clean line (CLI exit code 2)."""
+"""Errors that camplace reports to users as one clean line, and the exit codes of every verb.
+
+The exit codes have this one home; every verb of the command line returns them with the same
+meaning:
+
+====  ==========================================================================================
+0     success
+1     the command finished, but no feasible camera system (or plan) exists for what was asked
+2     bad input: one ``error: ...`` line naming the file or option and the fix; nothing written
+3     an input could not be read or an output written (disk full, permissions): one line, no
+      partial file
+130   interrupted (Ctrl-C): no partial output
+====  ==========================================================================================
+"""
 
 from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_NO_SOLUTION = 1
+EXIT_BAD_INPUT = 2
+EXIT_IO = 3
+EXIT_INTERRUPTED = 130
 
 
 class CamplaceError(Exception):

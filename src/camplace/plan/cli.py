@@ -10,10 +10,8 @@ import math
 from pathlib import Path
 from typing import Callable
 
-from camplace.errors import CamplaceError, plural
+from camplace.errors import CamplaceError, EXIT_OK, EXIT_NO_SOLUTION, plural
 
-EXIT_OK = 0
-EXIT_NO_SOLUTION = 1
 
 PLAN_MODES = ("maxcover", "quality", "multiview")  # camplace.plan.model.PLAN_MODES (no numpy import here)
 PLAN_ENGINES = ("auto", "mip", "cpsat")

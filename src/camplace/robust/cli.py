@@ -13,11 +13,9 @@ import argparse
 from pathlib import Path
 from typing import Callable
 
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, EXIT_OK, EXIT_NO_SOLUTION
 from camplace.names import ROBUST_OBJECTIVES
 
-EXIT_OK = 0
-EXIT_NO_SOLUTION = 1
 
 
 def add_robust_options(p: argparse.ArgumentParser) -> None:

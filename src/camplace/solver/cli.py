@@ -10,15 +10,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, EXIT_OK, EXIT_NO_SOLUTION
 from camplace.names import EVENT_MODES, SETCOVER_ENGINES
 from camplace.solver.options import SolveOptions, add_solver_options, options_from_args
 
-EXIT_OK = 0
-EXIT_NO_SOLUTION = 3
 SOLVE_NAME = "solve.json"  # the default -o of 'camplace solve', in the run folder
 
 
@@ -173,6 +172,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     out["timings_s"] = {**(out.get("timings_s") or {}), "load": load_s, "solve": res.time_s}
     # how the answer was asked for (the same record as solution.json's "options")
     out["options"] = {**opts.record(), "event_mode": args.event_mode, "source": str(args.source)}
+    out["warnings"] = binary_quality_warnings(args.mode, matrix)
     write_json_atomic(args.out, out)
     total = float(weights.sum())
     what = "cost" if args.mode == "setcover" else "objective"
@@ -180,8 +180,30 @@ def cmd_solve(args: argparse.Namespace) -> int:
     print(f"{res.status}: {args.mode} {what} {res.objective:.6g}{frac}, bound {res.bound:.6g}, gap {100 * res.gap:.3f}%, "
           f"engine {res.engine}, {res.time_s:.2f} s")
     print(f"  cameras: {', '.join(str(j) for j in res.selected)}")
+    for note in out["warnings"]:
+        print(f"warning: {note}", file=sys.stderr)
     print(f"wrote {args.out}")
     return EXIT_OK if res.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
+
+
+def binary_quality_warnings(mode: str, matrix) -> list[str]:
+    """A warning when ``--mode quality`` meets a matrix whose every observed pair has quality 1.
+
+    The objective is then the observed weight, exactly as ``--mode maxcover`` (the run's instance had
+    ``[quality] mode = "binary"``); the solver's numbers are left as they are.
+
+    Parameters
+    ----------
+    mode : str
+    matrix : (m, n) scipy.sparse matrix
+    """
+    import numpy as np
+
+    if mode != "quality" or matrix.nnz == 0 or not np.all(matrix.data == 1):
+        return []
+    return ["--mode quality on a matrix whose every observed pair has quality 1 (the run's [quality] mode is "
+            '"binary"): the objective is the observed weight, exactly as --mode maxcover (run with [quality] '
+            'mode = "graded" to weigh resolution and incidence)']
 
 
 def _cmd_setcover(args: argparse.Namespace) -> int:

@@ -9,9 +9,8 @@ import argparse
 from pathlib import Path
 from typing import Callable
 
-from camplace.errors import CamplaceError
+from camplace.errors import CamplaceError, EXIT_OK
 
-EXIT_OK = 0
 
 
 def register(subparsers, add_run_options: Callable[[argparse.ArgumentParser], None]) -> dict[str, Callable[[argparse.Namespace], int]]:
