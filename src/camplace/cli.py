@@ -65,7 +65,11 @@ def _add_compute_options(p: argparse.ArgumentParser) -> None:
     """Where and how the visibility matrix is computed (run and visibility)."""
     p.add_argument("--no-cache", action="store_true", help="do not reuse or store cached visibility matrices")
     p.add_argument("--dask", default=None, metavar="ADDRESS", help="compute visibility on a Dask cluster: a scheduler address or local:N")
-    p.add_argument("--memory-budget-gb", type=float, default=None, help="stop if the matrix would need more (default: half the RAM)")
+    p.add_argument("--memory-budget-gb", type=float, default=None,
+                   help="memory budget (default: half the RAM): a binary matrix over it goes out of core (to --scratch), "
+                        "any other stops with an error")
+    p.add_argument("--scratch", default=None, metavar="DIR",
+                   help="folder for out-of-core files (default: beside the output folder); removed when the run ends")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -186,6 +190,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         cache=not args.no_cache,
         dask_address=args.dask,
         memory_budget_gb=args.memory_budget_gb,
+        scratch=args.scratch,
         event_mode=args.event_mode,
         solve_options=options_from_args(args, k=None if args.mode == "setcover" else args.k),
         matrix_format=args.matrix_format,
@@ -233,16 +238,20 @@ def _cmd_visibility(args: argparse.Namespace) -> int:
     instance = resolve_instance(args.instance, seed=args.seed)
     cands = CandidateSet.load(args.candidates)
     pts = compute_points(instance, args.points, args.seed)
-    vis = visibility_stage(
-        instance, cands, pts, reporter=ConsoleReporter(), cache=not args.no_cache, dask_address=args.dask,
-        memory_budget_gb=args.memory_budget_gb,
-    )
-    folder = RunFolder(args.out)
-    folder.path.mkdir(parents=True, exist_ok=True)
-    write_ply(folder.file("scene.ply"), frame_scene(instance, 0).triangles)
-    path = folder.save_visibility(vis, args.matrix_format)
-    folder.save_points(vis.points)
-    print(f"{vis.matrix.shape[0]} points x {vis.matrix.shape[1]} candidates, {vis.matrix.nnz} observed pairs")
+    from camplace.visibility.scratch import Scratch
+
+    with Scratch(args.scratch if args.scratch is not None else Path(args.out).resolve().parent) as scratch:
+        vis = visibility_stage(
+            instance, cands, pts, reporter=ConsoleReporter(), cache=not args.no_cache, dask_address=args.dask,
+            memory_budget_gb=args.memory_budget_gb, scratch=scratch,
+        )
+        folder = RunFolder(args.out)
+        folder.path.mkdir(parents=True, exist_ok=True)
+        write_ply(folder.file("scene.ply"), frame_scene(instance, 0).triangles)
+        path = folder.save_visibility(vis, args.matrix_format)
+        folder.save_points(vis.points)
+    shape = vis.pattern.shape
+    print(f"{shape[0]} points x {shape[1]} candidates, {vis.pattern.nnz} observed pairs")
     print(f"wrote {path}, points.csv, scene.ply")
     return EXIT_OK
 

@@ -124,8 +124,10 @@ class RunSettings:
     matrix_format : {"cpm", "npz"}
     robust : RobustSpec or None
         The instance's ``[robust]`` table unless given.
-    cache, dask_address, memory_budget_gb
-        Where and within what memory the visibility matrix is computed.
+    cache, dask_address, memory_budget_gb, scratch
+        Where and within what memory the visibility matrix is computed (``scratch``: the folder
+        of the out-of-core files, default beside the output folder; see
+        :mod:`camplace.visibility.scratch`).
     options : dict
         The ``options`` record of ``solution.json`` (:meth:`SolveOptions.record`, the run's
         settings, and ``robust``).
@@ -144,6 +146,7 @@ class RunSettings:
     cache: bool = True
     dask_address: str | None = None
     memory_budget_gb: float | None = None
+    scratch: str | None = None
     options: dict = field(default_factory=dict, compare=False)
 
     # the solver's options: read from solve_options (one carrier)
@@ -166,7 +169,7 @@ def resolve_settings(
     instance, *, seed: int | None = None, candidates: int | None = None, points: int | None = None,
     sampler: str | None = None, k: int | None = None, time_limit_s: float | None = None, engine: str = "auto",
     orientations: int | None = None, cache: bool = True, dask_address: str | None = None,
-    memory_budget_gb: float | None = None, event_mode: str = "all", mode: str = "maxcover", views: int = 2,
+    memory_budget_gb: float | None = None, scratch: str | Path | None = None, event_mode: str = "all", mode: str = "maxcover", views: int = 2,
     min_angle_deg: float | None = None, fixed: Sequence[int] = (), forbidden: Sequence[int] = (),
     min_distance_m: float | None = None, required_fraction: float = 1.0, matrix_format: str = "cpm", robust=None,
     solve_options=None,
@@ -239,7 +242,8 @@ def resolve_settings(
     return RunSettings(
         seed=seed, candidates=n_cand, points=n_points, sampler=sampler, k=k, orientations=orientations,
         solve_options=solve_opts, event_mode=event_mode, matrix_format=matrix_format, robust=robust, cache=cache,
-        dask_address=dask_address, memory_budget_gb=memory_budget_gb, options=options,
+        dask_address=dask_address, memory_budget_gb=memory_budget_gb,
+        scratch=None if scratch is None else str(scratch), options=options,
     )
 
 
@@ -259,6 +263,7 @@ def run(
     cache: bool = True,
     dask_address: str | None = None,
     memory_budget_gb: float | None = None,
+    scratch: str | Path | None = None,
     event_mode: str = "all",
     mode: str = "maxcover",
     views: int = 2,
@@ -295,6 +300,10 @@ def run(
     memory_budget_gb : float or None
         Stop before computing a visibility matrix estimated to need more memory (default: half the RAM);
         also caps the solver's engines and models (which otherwise use 60 % of the memory available).
+        A binary matrix whose column bitsets do not fit it is kept out of core instead, in ``scratch``.
+    scratch : path or None
+        Folder for the out-of-core files (default: beside ``outdir``, else the system's temporary
+        folder); a temporary folder made in it is removed when the run ends, however it ends.
     event_mode : {"all", "peak"}
         ``all`` maximises the expected coverage over all frames (weights P(t)); ``peak`` places the
         cameras for the maximum-likelihood frame alone (the thesis's PS01).
@@ -339,8 +348,8 @@ def run(
     settings = resolve_settings(
         instance, seed=seed, candidates=candidates, points=points, sampler=sampler, k=k, time_limit_s=time_limit_s,
         engine=engine, orientations=orientations, cache=cache, dask_address=dask_address,
-        memory_budget_gb=memory_budget_gb, event_mode=event_mode, mode=mode, views=views, min_angle_deg=min_angle_deg,
-        fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, required_fraction=required_fraction,
+        memory_budget_gb=memory_budget_gb, scratch=scratch, event_mode=event_mode, mode=mode, views=views,
+        min_angle_deg=min_angle_deg, fixed=fixed, forbidden=forbidden, min_distance_m=min_distance_m, required_fraction=required_fraction,
         matrix_format=matrix_format, robust=robust, solve_options=solve_options,
     )
     with using_threads(threads):
@@ -377,17 +386,24 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
-                           dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb)
-    timings["visibility"] = time.perf_counter() - t0
-    timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
+    from camplace.visibility.scratch import Scratch
 
-    res, robust_record = solve_stage(instance, cands, pts, vis.matrix, settings, reporter=reporter, timings=timings)
-    solution = make_solution(instance, settings, cands, vis, res, robust_record, timings)
-    if outdir is not None:
-        write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter,
-                    first_stage_at=first_stage_at)
+    parent = settings.scratch if settings.scratch is not None else (Path(outdir).resolve().parent if outdir is not None
+                                                                    else None)
+    with Scratch(parent) as scratch:  # out-of-core files, removed however the run ends
+        t0 = time.perf_counter()
+        vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
+                               dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
+                               scratch=scratch)
+        timings["visibility"] = time.perf_counter() - t0
+        timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
+
+        res, robust_record = solve_stage(instance, cands, pts, vis.pattern, settings, reporter=reporter,
+                                         timings=timings)
+        solution = make_solution(instance, settings, cands, vis, res, robust_record, timings)
+        if outdir is not None:
+            write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter,
+                        first_stage_at=first_stage_at)
     return solution
 
 
@@ -416,7 +432,9 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     instance : Instance
     cands : CandidateSet
     pts : TargetPoints
-    matrix : (m, n) scipy.sparse.csr_matrix
+    matrix : (m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
+        A binary matrix as column bitsets goes to the solver as it is (no CSR is made for the
+        binary modes the bit presolve takes; the others convert it).
     settings : RunSettings
     reporter : Reporter or None
     timings : dict or None
@@ -471,8 +489,8 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     from camplace.visibility.summary import summarise
 
     t0 = time.perf_counter()
-    summary = summarise(vis.matrix, weights, res.selected, pts.frame, pts.weight, len(instance.frames))
-    degenerate = degenerate_warnings(vis.matrix, weights, k, summary.useful_columns)
+    summary = summarise(vis.pattern, weights, res.selected, pts.frame, pts.weight, len(instance.frames))
+    degenerate = degenerate_warnings(vis.pattern, weights, k, summary.useful_columns)
     degenerate += chosen_view_warnings(instance, cands, res.selected)
     timings["summary"] = time.perf_counter() - t0
     for note in degenerate:

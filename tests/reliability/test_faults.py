@@ -163,3 +163,81 @@ def test_byte_identical_in_process_and_on_dask(reference: Path, tmp_path: Path) 
     assert main(["run", "comet-67p-bunker", "-o", str(out), *ARGS, "--no-cache", "--dask", "local:2"]) == 0
     verify_outputs(out)
     outputs_equal(out, reference)
+
+
+def _out_of_core_budget_gb() -> float:
+    """A memory budget between the in-memory and the out-of-core estimates of ARGS' matrix: the
+    run must keep its column bitsets in the scratch folder."""
+    from camplace.visibility.engine import estimate_matrix_bytes
+
+    m, n = 1500, 120
+    lo, hi = estimate_matrix_bytes(m, n, 1.0, "bits-disk"), estimate_matrix_bytes(m, n, 1.0, "bits")
+    return (lo + hi) / 2 / 2**30
+
+
+def test_out_of_core_run_equals_in_memory_and_removes_its_scratch(reference: Path, tmp_path: Path) -> None:
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    out = tmp_path / "ooc"
+    proc = cli_proc(["-v", "run", "comet-67p-bunker", "-o", str(out), *ARGS, "--no-cache", "--memory-budget-gb",
+                     repr(_out_of_core_budget_gb()), "--scratch", str(scratch)], tmp_path / "cache")
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err[-2000:]
+    assert "out of core" in err
+    verify_outputs(out)
+    outputs_equal(out, reference)
+    assert list(scratch.iterdir()) == []  # the temporary folder is gone
+
+
+def test_full_scratch_folder_is_one_line_exit_2(tmp_path: Path, monkeypatch, capsys) -> None:
+    import camplace.visibility.scratch as scr
+
+    def full(fd, offset, length):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    scratch = tmp_path / "scratch"
+    out = tmp_path / "out"
+    monkeypatch.setattr(scr.os, "posix_fallocate", full)
+    code = main(["run", "comet-67p-bunker", "-o", str(out), *ARGS, "--no-cache", "--memory-budget-gb",
+                 repr(_out_of_core_budget_gb()), "--scratch", str(scratch)])
+    monkeypatch.undo()
+    COUNTS["faults injected"] += 1
+    err = capsys.readouterr().err
+    errors = [ln for ln in err.splitlines() if ln.startswith("error")]
+    assert code == 2 and len(errors) == 1 and "scratch" in errors[0] and "No space left" in errors[0], err
+    assert "Traceback" not in err and not (out / "solution.json").exists()
+    assert list(scratch.iterdir()) == []
+
+
+def test_unwritable_scratch_folder_is_one_line_exit_2(tmp_path: Path, capsys) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    out = tmp_path / "out"
+    code = main(["run", "comet-67p-bunker", "-o", str(out), *ARGS, "--no-cache", "--memory-budget-gb",
+                 repr(_out_of_core_budget_gb()), "--scratch", str(blocker / "scratch")])
+    COUNTS["faults injected"] += 1
+    err = capsys.readouterr().err
+    errors = [ln for ln in err.splitlines() if ln.startswith("error")]
+    assert code == 2 and len(errors) == 1 and "scratch" in errors[0], err
+    assert not (out / "solution.json").exists() and blocker.read_text() == "not a folder"
+
+
+def test_interrupted_out_of_core_run_removes_its_scratch(tmp_path: Path) -> None:
+    from camplace.visibility.engine import BASE_BYTES, THREAD_BYTES
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    words = 2000 * ((20000 + 63) // 64) * 8  # the bitsets: in memory they would pass this budget (1 thread)
+    budget = (BASE_BYTES + THREAD_BYTES + words // 2) / 2**30
+    proc = cli_proc(["run", "comet-67p-bunker", "-o", str(tmp_path / "out"), "--candidates", "2000", "--points", "20000",
+                     "--no-cache", "--memory-budget-gb", repr(budget), "--threads", "1", "--scratch", str(scratch)],
+                    tmp_path / "cache")
+    t0 = time.time()
+    while not any(scratch.iterdir()) and time.time() - t0 < 60 and proc.poll() is None:
+        time.sleep(0.05)
+    assert any(scratch.iterdir()), proc.communicate()[1][-2000:]
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    COUNTS["faults injected"] += 1
+    assert proc.returncode != 0 and "Traceback" not in err, err[-2000:]
+    assert list(scratch.iterdir()) == []

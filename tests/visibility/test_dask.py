@@ -105,3 +105,40 @@ def test_team_columns_on_a_cluster_are_identical() -> None:
     local = compute_visibility(inst, cands, pts, chunk_size=16).matrix
     m = compute_visibility(inst, cands, pts, chunk_size=16, dask_address="local:2").matrix
     assert same(m, local) and local.nnz > 0
+
+
+@pytest.mark.slow
+def test_bits_from_a_cluster_equal_the_threaded_bits_with_a_worker_killed(problem, cluster) -> None:
+    """Issue 32: workers hand back bit-packed column blocks; a killed worker's chunks are recomputed."""
+    from camplace.visibility.bits import bit_words
+
+    inst, pts, cands, local = problem
+    ref = compute_visibility(inst, cands, pts, chunk_size=16)
+    assert ref.bits is not None
+    task, _ = make_task(inst, cands, pts)
+    words = np.zeros((len(cands), bit_words(len(pts))), dtype=np.uint64)
+    victim = sorted(cluster.scheduler_info()["workers"])[0]
+    pid = cluster.run(os.getpid, workers=[victim])[victim]
+    killed = []
+
+    def kill_once(_n: int) -> None:
+        if not killed:
+            killed.append(pid)
+            os.kill(pid, signal.SIGKILL)
+
+    parts = compute_chunks_dask(task, list(range(0, len(cands), 8)), 8, client=cluster, progress=kill_once,
+                                words=words)
+    assert killed and all(len(p.lcols) == 0 for p in parts)  # no pair lists came back
+    np.testing.assert_array_equal(words, ref.bits.words)
+    assert sum(p.counts["observed"] for p in parts) == ref.stats["observed"]
+    cluster.wait_for_workers(2, timeout=60)
+
+
+@pytest.mark.slow
+def test_dask_run_gives_the_same_bits(problem) -> None:
+    inst, pts, cands, local = problem
+    ref = compute_visibility(inst, cands, pts, chunk_size=16)
+    got = compute_visibility(inst, cands, pts, chunk_size=16, dask_address="local:2")
+    assert got.bits is not None and got._matrix is None
+    np.testing.assert_array_equal(got.bits.words, ref.bits.words)
+    assert got.stats == ref.stats

@@ -211,6 +211,14 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     t0 = deadline.start
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
     min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
+    if getattr(matrix, "format", None) == "bits":  # a binary matrix as column bitsets
+        from camplace.solver.bits_route import bits_applies, bits_outcome
+
+        got = bits_outcome(matrix, weights, o, deadline) if bits_applies(o) else None
+        if got is not None:
+            ctx, w = got
+            return _result(ctx, o, w, (), (), np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        matrix = matrix.tocsr(np.bool_)  # the other routes read CSR (the bool pattern: 5 bytes a pair)
     q = values_matrix(matrix)
     if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
         # these engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
@@ -314,6 +322,16 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
             ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
                                      deadline.left())
 
+    return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
+
+
+def _result(ctx: ModeOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...],
+            conflicts: np.ndarray, shape: tuple[int, int], t0: float) -> SolverResult:
+    """The :class:`SolverResult` of a mode's outcome: the status, bound and gap made consistent,
+    and the run's figures added to the stats."""
+    mode, engine = o.mode, o.engine
+    m, n = shape
+    fixed_set = set(fixed_t)
     selected, status, objective, bound, name, stats = (ctx.selected, ctx.status, ctx.objective, ctx.bound, ctx.engine,
                                                         ctx.stats)
     minimize = mode == "setcover"

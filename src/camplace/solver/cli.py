@@ -64,7 +64,8 @@ def load_problem(source: Path, pattern: bool = True) -> tuple[Any, Any, Any, Any
     Read through :class:`camplace.RunFolder` (which loads no Embree): the matrix is
     ``visibility.cpm`` or ``visibility.npz``, with ``pattern`` a binary one read as its bool
     pattern (:attr:`RunFolder.pattern`: no float copy; for the modes whose engines read only
-    the pattern); ``points.csv`` (index,x,y,z,...,weight) must sit beside it; ``candidates.csv``
+    the pattern), or, stored as column bitsets (``colbits``), as those bits
+    (:class:`camplace.visibility.bits.BitMatrix`, which :func:`camplace.solver.api.solve` takes); ``points.csv`` (index,x,y,z,...,weight) must sit beside it; ``candidates.csv``
     (index,x,y,z,...) is optional (positions are then None).
     """
     import numpy as np
@@ -72,7 +73,15 @@ def load_problem(source: Path, pattern: bool = True) -> tuple[Any, Any, Any, Any
     from camplace.runfolder import CANDIDATES_NAME, POINTS_NAME, RunFolder
 
     run = RunFolder(source)
-    matrix = run.pattern if pattern else run.matrix
+    matrix = None
+    if pattern:  # a binary matrix stored as column bitsets is read as they are (one bit a cell)
+        from camplace.visibility.store import describe, load_bits
+
+        path = run.matrix_path
+        if path.suffix == ".cpm" and describe(path).get("structure") == "colbits":
+            matrix = load_bits(path)
+    if matrix is None:
+        matrix = run.pattern if pattern else run.matrix
     cols = run.point_columns(["x", "y", "z", "weight"])
     weights = cols["weight"]
     points = np.column_stack([cols["x"], cols["y"], cols["z"]])

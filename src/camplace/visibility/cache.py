@@ -67,16 +67,19 @@ def entry_path(cache_dir: Path, key: str) -> Path:
     return Path(cache_dir) / "visibility" / f"{key}.cpm"
 
 
-def load(cache_dir: Path, key: str, shape: tuple[int, int]) -> tuple[sp.csr_matrix, dict] | None:
-    """The cached matrix and stats, or None on a miss or an unreadable entry (then removed)."""
-    from camplace.visibility.store import load_visibility, read_meta
+def load(cache_dir: Path, key: str, shape: tuple[int, int], bits: bool = False) -> tuple[sp.csr_matrix, dict] | None:
+    """The cached matrix and stats, or None on a miss or an unreadable entry (then removed).
+
+    With ``bits`` the matrix comes back as column bitsets
+    (:class:`~camplace.visibility.bits.BitMatrix`, binary instances)."""
+    from camplace.visibility.store import load_bits, load_visibility, read_meta
 
     path = entry_path(cache_dir, key)
     if not path.exists():
         return None
     try:
         stats = read_meta(path).get("stats", {})
-        matrix = load_visibility(path)
+        matrix = load_bits(path) if bits else load_visibility(path)
         if matrix.shape != shape:
             raise CamplaceError(f"shape {matrix.shape}, expected {shape}")
     except CamplaceError as exc:  # any unreadable entry is a miss

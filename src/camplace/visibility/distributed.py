@@ -39,6 +39,21 @@ def run_chunk(task, start: int, stop: int):
     return compute_chunk(task, scenes, start, stop)
 
 
+def run_chunk_bits(task, start: int, stop: int):
+    """Worker entry point for a binary matrix: candidates ``start:stop`` of ``task`` as column
+    bitsets ((stop - start, ceil(m / 64)) uint64, see :mod:`camplace.visibility.bits`) and the
+    chunk's counts. One bit a cell goes back to the client, never a pair list or floats."""
+    import numpy as np
+
+    from camplace.visibility.bits import bit_words, scatter_chunk
+
+    part = run_chunk(task, start, stop)
+    block = np.zeros((stop - start, bit_words(len(task.positions))), dtype=np.uint64)
+    if len(part.rowids):
+        scatter_chunk(part.rowids, part.offsets, part.lcols, 0, block)
+    return block, part.counts
+
+
 def connect(address: str):
     """A Dask client for ``address``: a scheduler address (``tcp://host:8786``) or ``local:N``.
 
@@ -75,6 +90,7 @@ def compute_chunks_dask(
     client=None,
     progress: Callable[[int], None] | None = None,
     stops: list[int] | None = None,
+    words=None,
 ) -> list:
     """Compute the chunks starting at ``starts`` on a Dask cluster; results in the order of ``starts``.
 
@@ -92,6 +108,10 @@ def compute_chunks_dask(
     stops : list of int or None
         The end of each chunk (default ``start + chunk_size``, at most the candidate count): a
         team's chunks end at its model boundaries.
+    words : (n, ceil(m / 64)) uint64 array or None
+        A binary matrix's column bitsets: the workers hand back bit-packed column blocks, copied
+        into ``words`` as they arrive (and released on the cluster); the results are then the
+        chunks' counts with empty pair arrays.
     """
     if not starts:
         return []
@@ -105,13 +125,27 @@ def compute_chunks_dask(
         remote_task = client.scatter(task, broadcast=True, hash=False)
         futures = {}
         end = {s: (stops[i] if stops is not None else min(s + chunk_size, n)) for i, s in enumerate(starts)}
+        entry = run_chunk if words is None else run_chunk_bits
         for s in starts:
-            fut = client.submit(run_chunk, remote_task, s, end[s], pure=False, retries=5)
+            fut = client.submit(entry, remote_task, s, end[s], pure=False, retries=5)
             futures[fut] = s
         results = {}
         for fut in distributed.as_completed(list(futures)):
-            s = futures[fut]
-            results[s] = fut.result()
+            s = futures.pop(fut)
+            got = fut.result()
+            fut.release()
+            if words is not None:
+                import numpy as np
+
+                from camplace.visibility.chunk import ChunkResult
+
+                block, counts = got
+                words[s:end[s]] = block
+                from camplace.visibility.scratch import release_pages
+
+                release_pages(words, s * words.shape[1] * 8, end[s] * words.shape[1] * 8)  # out of core: to disk
+                got = ChunkResult(s, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)
+            results[s] = got
             if progress is not None:
                 progress(end[s] - s)
         return [results[s] for s in starts]

@@ -38,7 +38,6 @@ import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -69,14 +68,17 @@ log = logging.getLogger(__name__)
 EPS_REL = 1e-4
 
 
-@dataclass(frozen=True, eq=False)
 class VisibilityMatrix:
     """Observation quality of every (point, candidate) pair.
 
     Attributes
     ----------
     matrix : (m, n) scipy.sparse.csr_matrix of float32
-        Value > 0 means observed; the value is the observation quality in (0, 1].
+        Value > 0 means observed; the value is the observation quality in (0, 1]. For a binary
+        matrix held as :attr:`bits`, made on first use (8 bytes an observed pair).
+    bits : camplace.visibility.bits.BitMatrix or None
+        A binary matrix as column bitsets (one bit a cell; see :mod:`camplace.visibility.bits`),
+        what the solver reads for the binary modes; None for a graded matrix.
     points : TargetPoints
         The m rows.
     stats : dict
@@ -88,15 +90,31 @@ class VisibilityMatrix:
         Seconds spent in the cache: ``cache.load`` and / or ``cache.store``.
     """
 
-    matrix: sp.csr_matrix
-    points: TargetPoints
-    stats: dict = field(default_factory=dict)
-    store_path: Path | None = None
-    timings_s: dict = field(default_factory=dict)
+    def __init__(self, matrix: sp.csr_matrix | None = None, points: TargetPoints | None = None, stats: dict | None = None,
+                 store_path: Path | None = None, timings_s: dict | None = None, bits=None):
+        if matrix is None and bits is None:
+            raise ValueError("VisibilityMatrix needs a matrix or bits")
+        self._matrix = matrix
+        self.bits = bits
+        self.points = points
+        self.stats = {} if stats is None else stats
+        self.store_path = store_path
+        self.timings_s = {} if timings_s is None else timings_s
+
+    @property
+    def matrix(self) -> sp.csr_matrix:
+        if self._matrix is None:
+            self._matrix = self.bits.tocsr()
+        return self._matrix
+
+    @property
+    def pattern(self):
+        """What the solver reads: :attr:`bits` when held, else :attr:`matrix`."""
+        return self.bits if self.bits is not None else self._matrix
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.matrix.shape
+        return self.pattern.shape
 
     def save(self, outdir: str | Path, matrix_format: str = "cpm") -> Path:
         """Write the matrix (:meth:`save_matrix`) and ``points.csv`` atomically. Returns the matrix file."""
@@ -107,12 +125,14 @@ class VisibilityMatrix:
     def save_matrix(self, outdir: str | Path, matrix_format: str = "cpm") -> Path:
         """Write ``visibility.cpm`` (or ``visibility.npz`` for ``scipy.sparse.load_npz`` with
         ``matrix_format="npz"``; see :mod:`camplace.visibility.store`) atomically: a hard link to
-        the cache entry when there is one. Returns the file."""
+        the cache entry when there is one. Returns the file. A binary matrix held as bits is
+        written as bits (the ``colbits`` structure) without a CSR copy."""
         from camplace.visibility.store import save_matrix
 
         # the same meta as the cache entry (the pair counts), so a written file equals a linked one
         counts = {k: self.stats[k] for k in COUNT_KEYS if k in self.stats}
-        return save_matrix(Path(outdir), self.matrix, fmt=matrix_format, link_from=self.store_path,
+        source = self.bits if (self.bits is not None and matrix_format == "cpm") else self.matrix
+        return save_matrix(Path(outdir), source, fmt=matrix_format, link_from=self.store_path,
                            meta={"stats": counts} if counts else None)
 
 
@@ -301,6 +321,70 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
     return matrix, total
 
 
+def scatter_part(words: np.ndarray, part: ChunkResult) -> ChunkResult:
+    """Set a chunk's observed pairs in the column bitsets ``words`` ((n, ceil(m / 64)) uint64) and
+    return the chunk's counts with empty pair arrays (the chunk's own arrays can then be freed)."""
+    from camplace.visibility.bits import scatter_chunk
+
+    if len(part.rowids):
+        scatter_chunk(part.rowids, part.offsets, part.lcols, int(part.col0), words)
+    return ChunkResult(part.col0, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8),
+                       {**part.counts})
+
+
+def compute_chunk_bits(task: VisibilityTask, scenes, start: int, stop: int, words: np.ndarray) -> ChunkResult:
+    """:func:`compute_chunk` of candidates ``start:stop`` scattered straight into ``words`` (only
+    these columns are written: chunks run on threads side by side). Returns the counts. When
+    ``words`` is a scratch file's mapping, the chunk's pages are then dropped from memory."""
+    out = scatter_part(words, compute_chunk(task, scenes, start, stop))
+    release_columns(words, start, stop)
+    return out
+
+
+def release_columns(words: np.ndarray, start: int, stop: int) -> None:
+    """Drop columns ``start:stop`` of file-backed column bitsets from this process's memory."""
+    from camplace.visibility.scratch import release_pages
+
+    row = words.shape[1] * 8
+    release_pages(words, start * row, stop * row)
+
+
+def drop_small_views_bits(instance, candidates, points: TargetPoints, bits, counts: dict) -> dict:
+    """:func:`drop_small_views` on a :class:`~camplace.visibility.bits.BitMatrix`, in place.
+
+    Returns
+    -------
+    dict
+        ``counts`` with ``observed`` lowered by the pairs dropped.
+    """
+    from camplace.visibility.bits import pack_rows
+    from camplace.visibility.footprint import small_views
+
+    frames = [int(f) for f in np.unique(points.frame)]
+    small = small_views(instance, candidates.positions, candidates.rotations, frames,
+                        models=getattr(candidates, "model", None))  # (n, n_frames)
+    if small is None or not small.any():
+        return counts
+    before = bits.column_counts.copy()
+    surface = ~points.is_emitter
+    for f in frames:
+        cols = np.flatnonzero(small[:, f])
+        if not len(cols):
+            continue
+        keep = ~pack_rows(surface & (points.frame == f))
+        for c0 in range(0, len(cols), 1024):  # blocks of columns: a bounded copy
+            sel = cols[c0:c0 + 1024]
+            bits.words[sel] &= keep[None, :]
+            for j in sel:
+                release_columns(bits.words, int(j), int(j) + 1)
+    bits.__dict__.pop("column_counts", None)
+    n_drop = int(before.sum() - bits.column_counts.sum())
+    if n_drop:
+        log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
+                 n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
+    return {**counts, "observed": int(counts["observed"]) - n_drop}
+
+
 _DROP_BLOCK_PAIRS = 1 << 22  # pairs examined at once by drop_small_views
 
 
@@ -389,15 +473,38 @@ def available_memory_bytes() -> int:
         return 8 << 30
 
 
-def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float) -> int:
-    """Peak bytes to build a float32 CSR matrix of this density.
+#: resident bytes of the process besides the matrix and the threads' work arrays: interpreter,
+#: numpy / scipy / numba / Embree, the compiled kernels, the scenes, the points and candidates
+#: (calibrated with benchmarks/scale.py on comet-67p-bunker, 2 threads: 380-410 MiB in all at
+#: 2,000 x 10,000 and 10,000 x 50,000 besides the bitsets)
+BASE_BYTES = 280 * 2**20
+#: per-thread chunk work arrays and result slabs (culling, segments, Embree batches; kept for reuse)
+THREAD_BYTES = 60 * 2**20
 
-    Chunk results (1 byte a pair, plus 12 bytes a nonempty row of a chunk) and the CSR (8 bytes
-    a pair plus row pointers) coexist at the peak: about 10 bytes per pair, plus the per-thread
-    work arrays and result slab (about 100 MB a thread).
+
+def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr") -> int:
+    """Peak bytes of a run with a matrix of this size and density in ``layout``.
+
+    ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
+    chunk) and the float32 CSR (8 bytes a pair plus row pointers) coexist at the peak: about 10
+    bytes a pair. ``bits`` (binary): each chunk is scattered into the column bitsets as it
+    finishes and dropped, so the matrix is ``B = n_cols * ceil(n_rows / 64) * 8`` bytes whatever
+    the density; the presolve's working bitsets (the live rows over the kept columns, then the
+    reduced columns, :func:`camplace.solver.problem.presolve_bits.presolve_bits`) are at most one
+    more ``B``: ``2 B``. ``bits-disk`` (out of core, :mod:`camplace.visibility.scratch`): the
+    bitsets are in a scratch file and only the pages of the chunks in flight are resident; the
+    presolve's reduced instance must still fit in memory, and the presolve checks it against the
+    budget itself once it knows its size. All add the per-thread work arrays
+    (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
     """
+    fixed = BASE_BYTES + THREAD_BYTES * thread_count()
+    words = 8 * n_cols * ((n_rows + 63) // 64)
+    if layout == "bits-disk":
+        return int(16 * n_rows + 64 * n_cols + fixed)
+    if layout == "bits":
+        return int(2 * words + 16 * n_rows + fixed)
     nnz = density * n_rows * n_cols
-    return int(10 * nnz + 16 * (n_rows + 1) + 100 * 2**20 * thread_count())
+    return int(10 * nnz + 16 * (n_rows + 1) + fixed)
 
 
 def compute_visibility(
@@ -411,6 +518,8 @@ def compute_visibility(
     memory_budget_bytes: int | None = None,
     dask_address: str | None = None,
     cache_dir: str | Path | None = None,
+    layout: str = "auto",
+    scratch=None,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -433,11 +542,25 @@ def compute_visibility(
     cache_dir : path or None
         Reuse / store the matrix in this cache folder (see :mod:`camplace.visibility.cache`);
         None disables the cache.
+    layout : {"auto", "bits", "csr"}
+        ``auto``: a binary instance's matrix as column bitsets (:attr:`VisibilityMatrix.bits`,
+        one bit a cell, each chunk scattered into them as it finishes: no float CSR is made), a
+        graded one as float32 CSR; ``csr``: float32 CSR always (``bits`` is refused for a graded
+        instance).
+    scratch : camplace.visibility.scratch.Scratch or None
+        Where column bitsets that do not fit ``memory_budget_bytes`` go (out of core: a file, read
+        and written block by block); None: such a matrix is an error before the work.
 
     Returns
     -------
     VisibilityMatrix
     """
+    if layout not in ("auto", "bits", "csr"):
+        raise CamplaceError(f"visibility layout: unknown {layout!r} (use auto, bits or csr)")
+    graded = instance.quality.mode == "graded"
+    if layout == "bits" and graded:
+        raise CamplaceError("visibility layout bits: the instance's [quality] mode is graded (its values need csr)")
+    use_bits = layout == "bits" or (layout == "auto" and not graded)
     n_cand = len(candidates)
     model = getattr(candidates, "model", None)
     if getattr(instance, "team", None) is not None and model is not None and len(model) and np.any(np.diff(model) < 0):
@@ -446,9 +569,15 @@ def compute_visibility(
         grouped = type(candidates)(candidates.positions[order], candidates.aims[order], candidates.rotations[order],
                                    sampler=candidates.sampler, seed=candidates.seed, model=np.asarray(model)[order])
         vis = compute_visibility(instance, grouped, points, chunk_size=chunk_size, workers=workers, progress=progress,
-                                 memory_budget_bytes=memory_budget_bytes, dask_address=dask_address, cache_dir=cache_dir)
+                                 memory_budget_bytes=memory_budget_bytes, dask_address=dask_address, cache_dir=cache_dir,
+                                 layout=layout)
         back = np.empty_like(order)
         back[order] = np.arange(len(order))
+        if vis.bits is not None:
+            from camplace.visibility.bits import BitMatrix
+
+            return VisibilityMatrix(bits=BitMatrix(vis.bits.words[back], len(points)), points=points, stats=vis.stats,
+                                    timings_s=vis.timings_s)
         matrix = vis.matrix[:, back].tocsr()
         matrix.sort_indices()
         return VisibilityMatrix(matrix=matrix, points=points, stats=vis.stats, timings_s=vis.timings_s)
@@ -460,12 +589,13 @@ def compute_visibility(
     if cache_dir is not None:
         key = cache.task_key(task)
         t0 = time.perf_counter()
-        hit = cache.load(Path(cache_dir), key, (len(points), n_cand))
+        hit = cache.load(Path(cache_dir), key, (len(points), n_cand), bits=use_bits)
         timings["cache.load"] = time.perf_counter() - t0
         if hit is not None:
             if progress is not None:
                 progress(n_cand)
-            return VisibilityMatrix(matrix=hit[0], points=points, stats={**hit[1], "cache": "hit"},
+            held = {"bits": hit[0]} if use_bits else {"matrix": hit[0]}
+            return VisibilityMatrix(**held, points=points, stats={**hit[1], "cache": "hit"},
                                     store_path=cache.entry_path(Path(cache_dir), key), timings_s=timings)
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
     starts = list(range(0, n_cand, chunk_size))
@@ -475,7 +605,7 @@ def compute_visibility(
 
     def check_pilot(first: ChunkResult, pilot_cols: int) -> None:
         density = len(first.lcols) / max(1, len(points) * pilot_cols)
-        need = estimate_matrix_bytes(len(points), n_cand, density)
+        need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout)
         if need > budget:
             raise CamplaceError(
                 f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
@@ -484,6 +614,33 @@ def compute_visibility(
             )
 
     parts: list[ChunkResult] = []
+    pilot_layout = "bits" if use_bits else "csr"
+    words = None
+    if use_bits:
+        from camplace.visibility.bits import bit_words
+
+        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits")  # one bit a cell: known before the work
+        shape = (n_cand, bit_words(len(points)))
+        if need > budget and scratch is not None:
+            disk = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits-disk")
+            if disk > budget:
+                raise CamplaceError(
+                    f"visibility: even out of core the run needs about {disk / 2**30:.1f} GiB ({len(points):_} rows), over "
+                    f"the memory budget of {budget / 2**30:.1f} GiB (lower --points or raise --memory-budget-gb)")
+            words = scratch.array("colbits.u64", shape)
+            pilot_layout = "bits-disk"
+            log.info("visibility: column bitsets %.1f MiB out of core in %s (estimated peak %.2f GiB, budget %.2f GiB)",
+                     8 * shape[0] * shape[1] / 2**20, scratch.path, disk / 2**30, budget / 2**30)
+        elif need > budget:
+            raise CamplaceError(
+                f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
+                f"candidates, one bit a cell), over the memory budget of {budget / 2**30:.1f} GiB (lower --points or "
+                f"--candidates, or raise --memory-budget-gb)"
+            )
+        else:
+            log.info("visibility: column bitsets %.1f MiB, estimated peak %.2f GiB", 8 * shape[0] * shape[1] / 2**20,
+                     need / 2**30)
+            words = np.zeros(shape, dtype=np.uint64)
     if dask_address is not None:
         if task.cam_model is not None:  # chunks end at the model boundaries
             ranges = [(a + s, a + e) for _, a, b in task.model_ranges() for s, e in chunk_plan(b - a, chunk_size, 1)]
@@ -493,38 +650,63 @@ def compute_visibility(
             a0, b0 = ranges[0]
             parts.append(compute_chunk(task, scenes, a0, b0))
             check_pilot(parts[0], b0 - a0)
+            if words is not None:
+                parts[0] = scatter_part(words, parts[0])
+                release_columns(words, a0, b0)
             if progress is not None:
                 progress(b0 - a0)
         rest = ranges[1:]
         parts += compute_chunks_dask(task, [a for a, _ in rest], chunk_size, dask_address, progress=progress,
-                                     stops=[b for _, b in rest] if task.cam_model is not None else None)
+                                     stops=[b for _, b in rest] if task.cam_model is not None else None,
+                                     words=words)
     else:
         workers = thread_count(workers)
 
         plan = chunk_plan(n_cand, chunk_size, workers) if task.cam_model is None else team_chunk_plan(task, chunk_size, workers)
         pool = ThreadPoolExecutor(max_workers=workers)
         try:
-            futures = [pool.submit(compute_chunk, task, scenes, a, b) for a, b in plan]
+            if words is None:
+                futures = [pool.submit(compute_chunk, task, scenes, a, b) for a, b in plan]
+            else:  # the pilot keeps its pairs for the check; the others are scattered on their threads
+                futures = [pool.submit(compute_chunk, task, scenes, *plan[0])] if plan else []
+                futures += [pool.submit(compute_chunk_bits, task, scenes, a, b, words) for a, b in plan[1:]]
             for i, ((a, b), fut) in enumerate(zip(plan, futures)):
                 parts.append(fut.result())
                 if i == 0:
                     check_pilot(parts[0], b - a)
+                    if words is not None:
+                        parts[0] = scatter_part(words, parts[0])
+                        release_columns(words, a, b)
                 if progress is not None:
                     progress(b - a)
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
-    matrix, total = assemble(task, parts)
-    if task.min_target_px > 0:
-        matrix, total = drop_small_views(instance, candidates, points, matrix, total)
+    bits = None
+    if words is not None:
+        from camplace.visibility.bits import BitMatrix
+
+        total = dict.fromkeys(COUNT_KEYS, 0)
+        for part in parts:
+            for k in COUNT_KEYS:
+                total[k] += part.counts[k]
+        parts.clear()
+        matrix, bits = None, BitMatrix(words, len(points))
+        if task.min_target_px > 0:
+            total = drop_small_views_bits(instance, candidates, points, bits, total)
+    else:
+        matrix, total = assemble(task, parts)
+        parts.clear()
+        if task.min_target_px > 0:
+            matrix, total = drop_small_views(instance, candidates, points, matrix, total)
     store_path = None
     if key is not None:
         t0 = time.perf_counter()
-        store_path = cache.store(Path(cache_dir), key, matrix, total)
+        store_path = cache.store(Path(cache_dir), key, bits if bits is not None else matrix, total)
         timings["cache.store"] = time.perf_counter() - t0
         total = {**total, "cache": "miss"}
     log.info(
         "visibility: %d pairs, %d in range, %d in frustum, %d facing, %d observed",
         total["pairs"], total["in_range"], total["in_frustum"], total["facing"], total["observed"],
     )
-    return VisibilityMatrix(matrix=matrix, points=points, stats=total, store_path=store_path,
+    return VisibilityMatrix(matrix=matrix, bits=bits, points=points, stats=total, store_path=store_path,
                             timings_s=timings)

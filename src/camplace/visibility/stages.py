@@ -8,6 +8,8 @@ only when a function needs it (ground tests, the matrix).
 
 from __future__ import annotations
 
+import os
+
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -282,8 +284,10 @@ def visibility_stage(
     cache: bool = True,
     dask_address: str | None = None,
     memory_budget_gb: float | None = None,
+    scratch=None,
 ) -> VisibilityMatrix:
-    """Compute (or fetch from the cache) the visibility matrix, with a progress bar."""
+    """Compute (or fetch from the cache) the visibility matrix, with a progress bar (``scratch``: a
+    :class:`~camplace.visibility.scratch.Scratch` for column bitsets over the budget)."""
     from camplace.visibility.cache import default_cache_dir
     from camplace.visibility import compute_visibility
 
@@ -291,9 +295,12 @@ def visibility_stage(
     if memory_budget_gb is not None and not memory_budget_gb > 0:
         raise CamplaceError(f"--memory-budget-gb: must be > 0, got {memory_budget_gb}")
     budget = None if memory_budget_gb is None else int(memory_budget_gb * 2**30)
+    # CAMPLACE_VISIBILITY_LAYOUT=csr keeps a binary matrix as float32 CSR (the layout before column
+    # bitsets: benchmarks/scale.py measures it as the baseline)
+    layout = os.environ.get("CAMPLACE_VISIBILITY_LAYOUT", "auto")
     with reporter.stage("visibility", total=len(cands)) as advance:
         return compute_visibility(
             instance, cands, pts, progress=advance, memory_budget_bytes=budget, dask_address=dask_address,
-            cache_dir=default_cache_dir() if cache else None,
+            cache_dir=default_cache_dir() if cache else None, layout=layout, scratch=scratch,
         )
 

@@ -31,6 +31,12 @@ Structure (the sparsity pattern):
   ``i * ceil(n / 8)``, column j in bit ``j % 8`` (least significant first) of byte ``j // 8``
   (``np.packbits(dense, axis=1, bitorder="little")``). Chosen when it is no larger than the CSR
   arrays (above about 1 / (8 * index bytes) density).
+- ``colbits`` (binary matrices held as column bitsets, :mod:`camplace.visibility.bits`): section
+  ``colbits``, uint64, n * ceil(m / 64) words: column j's bitset at ``j * ceil(m / 64)``, row i in
+  bit ``i % 64`` (least significant first) of word ``i // 64``; bits past row m - 1 are zero.
+  Values are always ``ones``. Written for a binary run's matrix whatever its density (it is what
+  the solver reads; :func:`load_bits` returns it without a CSR copy, :func:`load_visibility`
+  converts it to CSR). Files of the other structures stay readable by both.
 - ``csr``: section ``counts`` (entries per row, the narrowest unsigned type that holds the
   largest) and ``indices`` (column of every entry, row by row, ascending within a row, the
   narrowest unsigned type that holds n - 1).
@@ -57,6 +63,7 @@ import scipy.sparse as sp
 
 from camplace._cores import thread_count
 from camplace.errors import CamplaceError
+from camplace.visibility.scratch import release_pages
 
 HEAD_MAGIC = b"CAMPLMX1"
 TAIL_MAGIC = b"CAMPLEND"
@@ -78,6 +85,7 @@ __all__ = [
     "canonical_csr",
     "convert_matrix",
     "as_pattern_if_binary",
+    "load_bits",
     "load_visibility",
     "matrix_path",
     "read_meta",
@@ -253,9 +261,35 @@ def _layout(matrix: sp.csr_matrix, workers: int) -> tuple[str, str, list[tuple[s
     return structure, values, sections
 
 
+def _is_bits(matrix) -> bool:
+    return getattr(matrix, "format", None) == "bits"
+
+
+def _colbits(footer: dict, arrays: dict[str, np.ndarray]):
+    """The :class:`~camplace.visibility.bits.BitMatrix` of a ``colbits`` file, checked."""
+    from camplace.visibility.bits import BitMatrix, bit_words
+
+    m, n = footer["shape"]
+    words = arrays["colbits"]
+    nw = bit_words(m)
+    if words.size != n * nw:
+        raise _Corrupt(f"colbits section holds {words.size} words, expected {n * nw}")
+    words = words.reshape(n, nw)
+    if m % 64 and n and np.any(words[:, -1] >> np.uint64(m % 64)):
+        raise _Corrupt(f"bits set beyond row {m - 1}")
+    bits = BitMatrix(words, m)
+    if bits.nnz != footer["nnz"]:
+        raise _Corrupt(f"{bits.nnz} entries, the footer says {footer['nnz']}")
+    return bits
+
+
 def _from_layout(footer: dict, arrays: dict[str, np.ndarray], workers: int, pattern: bool = False) -> sp.csr_matrix:
     m, n = footer["shape"]
     nnz = footer["nnz"]
+    if footer["structure"] == "colbits":
+        if footer["values"] != "ones":
+            raise _Corrupt(f"colbits with values {footer['values']!r}")
+        return _colbits(footer, arrays).tocsr(np.bool_ if pattern else np.float32, workers)
     idt = index_dtype((m, n), nnz)
     with ThreadPoolExecutor(max_workers=1) as side:
         # the all-ones values are allocated (page faults, 4 bytes a pair, or 1 for a pattern) beside
@@ -412,8 +446,11 @@ def _write_file(path: Path, footer: dict, sections: list[tuple[str, np.ndarray, 
             raw = np.ascontiguousarray(arr).reshape(-1).view(np.uint8)
             blocks = []
             encoded = _pipelined(lambda b, s=shuffle: (b.size, *_encode_block(b, codec, level, s)), _blocks(raw, shuffle), workers)
+            done = 0
             for raw_size, stored, crc in encoded:
                 fh.write(stored)
+                release_pages(raw, done, done + int(raw_size))  # out-of-core bitsets: back to disk
+                done += int(raw_size)
                 n_stored = len(stored) if not isinstance(stored, memoryview) else stored.nbytes
                 blocks.append([offset, n_stored, int(raw_size), crc])
                 offset += n_stored
@@ -499,8 +536,10 @@ def save_visibility(path: str | Path, matrix, *, codec: str = "zstd", level: int
     ----------
     path : path
         The file to write.
-    matrix : (m, n) sparse or dense
+    matrix : (m, n) sparse or dense, or camplace.visibility.bits.BitMatrix
         Written as canonical CSR float32 (see :func:`canonical_csr`); values round-trip exactly.
+        A :class:`~camplace.visibility.bits.BitMatrix` is written as its column bitsets
+        (structure ``colbits``) without a CSR copy.
     codec : {"zstd", "none"}
     level : int
         zstd level (1 is fast; higher is smaller and slower to write, as fast to read).
@@ -519,8 +558,11 @@ def save_visibility(path: str | Path, matrix, *, codec: str = "zstd", level: int
         raise CamplaceError(f"matrix codec: unknown {codec!r} (use one of {', '.join(CODECS)})")
     path = Path(path)
     workers = _workers(workers)
-    matrix = canonical_csr(matrix)
-    structure, values, sections = _layout(matrix, workers)
+    if _is_bits(matrix):
+        structure, values, sections = "colbits", "ones", [("colbits", matrix.words, 0)]
+    else:
+        matrix = canonical_csr(matrix)
+        structure, values, sections = _layout(matrix, workers)
     footer = {
         "format": "camplace-matrix", "version": FORMAT_VERSION, "shape": list(matrix.shape), "nnz": int(matrix.nnz),
         "structure": structure, "values": values, "codec": codec, "level": level if codec == "zstd" else None,
@@ -645,6 +687,45 @@ def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None,
         raise CamplaceError(f"{path}: cannot read the visibility matrix ({exc.strerror or exc}); {_FIX}") from None
 
 
+def load_bits(path_or_outdir: str | Path, *, workers: int | None = None):
+    """A binary visibility matrix as column bitsets (:class:`~camplace.visibility.bits.BitMatrix`).
+
+    A ``colbits`` file is read as it is (one bit a cell); a file of another structure, or a
+    ``.npz``, is read as CSR and packed.
+
+    Raises
+    ------
+    CamplaceError
+        One line naming the file when it is missing, corrupt, or holds a graded matrix (values
+        other than 1).
+    """
+    from camplace.visibility.bits import bits_from_csr
+
+    path = matrix_path(path_or_outdir)
+    try:
+        if _is_store(path):
+            buf, footer = _open(path)
+            try:
+                if footer["structure"] == "colbits":
+                    w = _workers(workers)
+                    arrays = {name: _read_section(buf, desc, footer["codec"], footer["_data_end"], w)
+                              for name, desc in footer["sections"].items()}
+                    return _colbits(footer, arrays)
+            finally:
+                if isinstance(buf, mmap.mmap):
+                    buf.close()
+    except _Corrupt as exc:
+        raise _corrupt_error(path, exc) from None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise _corrupt_error(path, exc) from None
+    except OSError as exc:
+        raise CamplaceError(f"{path}: cannot read the visibility matrix ({exc.strerror or exc}); {_FIX}") from None
+    matrix = load_visibility(path, workers=workers, pattern=True)
+    if matrix.dtype != np.bool_:
+        raise CamplaceError(f"{path}: a graded matrix (values other than 1) has no bit layout; read it with load_visibility")
+    return bits_from_csr(matrix, workers)
+
+
 def as_pattern_if_binary(matrix: sp.csr_matrix) -> sp.csr_matrix:
     """A canonical CSR matrix whose every value is 1 with bool data (its pattern, sharing the index
     arrays); any other matrix unchanged."""
@@ -734,7 +815,7 @@ def save_matrix(outdir: str | Path, matrix, *, fmt: str = "cpm", link_from: str 
     outdir = Path(outdir)
     if fmt == "npz":
         dst = outdir / NPZ_NAME
-        m = canonical_csr(matrix)
+        m = canonical_csr(matrix.tocsr() if _is_bits(matrix) else matrix)
         write_with_atomic(dst, lambda p: sp.save_npz(p, m, compressed=True))
     else:
         dst = outdir / MATRIX_NAME

@@ -72,8 +72,10 @@ def summarise(matrix, weights: np.ndarray, selected: Sequence[int], frame: np.nd
 
     Parameters
     ----------
-    matrix : (m, n) scipy.sparse.csr_matrix
+    matrix : (m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
         Any values; an entry counts as observed (stored zeros do not occur in camplace's matrices).
+        Column bitsets are read word by word (the useful columns) and the selected columns alone
+        are unpacked, without a CSR copy.
     weights : (m,) float64
         The solver's row weights: columns count as useful when they observe a row of positive weight.
     selected : sequence of int
@@ -88,6 +90,8 @@ def summarise(matrix, weights: np.ndarray, selected: Sequence[int], frame: np.nd
     -------
     MatrixSummary
     """
+    if getattr(matrix, "format", None) == "bits":
+        return _summarise_bits(matrix, weights, selected, frame, frame_weight, n_frames)
     m, n = matrix.shape
     sel = np.asarray(list(selected), dtype=np.int64)
     slot = np.full(n, -1, dtype=np.int64)
@@ -117,3 +121,58 @@ def summarise(matrix, weights: np.ndarray, selected: Sequence[int], frame: np.nd
         total += seen[b]
     return MatrixSummary(useful_columns=int(np.count_nonzero(col_live.any(axis=0))), covered=covered,
                          seen=total[:len(sel)])
+
+
+@numba.njit(**_JIT)
+def _touch_live(words, live, lo, hi, out):  # pragma: no cover - compiled
+    """Columns ``lo:hi`` whose bitset meets the ``live`` row bitset."""
+    for j in range(lo, hi):
+        for w in range(words.shape[1]):
+            if words[j, w] & live[w]:
+                out[j] = True
+                break
+
+
+@numba.njit(**_JIT)
+def _seen_blocks(rows, frame, weight, cuts, out):  # pragma: no cover - compiled
+    for b in range(cuts.shape[0] - 1):
+        for r in range(cuts[b], cuts[b + 1]):
+            if rows[r]:
+                out[b, frame[r]] += weight[r]
+
+
+def _summarise_bits(bits, weights, selected, frame, frame_weight, n_frames) -> MatrixSummary:
+    """:func:`summarise` of a :class:`~camplace.visibility.bits.BitMatrix` (same figures: each
+    selected column's frame sums are added in row order)."""
+    from camplace.visibility.bits import pack_rows
+
+    m, n = bits.shape
+    sel = [int(j) for j in selected]
+    frame = np.zeros(m, dtype=np.int64) if frame is None else np.asarray(frame, dtype=np.int64)
+    fw = np.asarray(weights if frame_weight is None else frame_weight, dtype=np.float64)
+    n_frames = max(1, int(n_frames))
+    live = pack_rows(np.asarray(weights) > 0)
+    col_live = np.zeros(n, dtype=np.bool_)
+    parts = max(1, min(64, n))
+    ranges = [(n * p // parts, n * (p + 1) // parts) for p in range(parts)]
+    threads = thread_count() if m * n >= 8 * PARALLEL_MIN_NNZ else 1
+    if threads > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            list(pool.map(lambda r: (_touch_live(bits.words, live, r[0], r[1], col_live), bits.release_columns(*r)),
+                          ranges))
+    else:
+        for lo, hi in ranges:
+            _touch_live(bits.words, live, lo, hi, col_live)
+            bits.release_columns(lo, hi)
+    covered = np.zeros(m, dtype=np.bool_)
+    seen = np.zeros((max(1, len(sel)), n_frames), dtype=np.float64)
+    blocks = max(1, min(BLOCKS, m))
+    cuts = np.array([m * b // blocks for b in range(blocks + 1)], dtype=np.int64)
+    for s, j in enumerate(sel):
+        rows = bits.column(j)
+        covered |= rows
+        part = np.zeros((blocks, n_frames), dtype=np.float64)
+        _seen_blocks(rows, frame, fw, cuts, part)
+        for b in range(blocks):  # the CSR pass's order: rows within a block, then blocks in order
+            seen[s] += part[b]
+    return MatrixSummary(useful_columns=int(np.count_nonzero(col_live)), covered=covered, seen=seen[:len(sel)])

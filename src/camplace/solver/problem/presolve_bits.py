@@ -1,0 +1,423 @@
+"""The presolve of :mod:`camplace.solver.problem.presolve`, read from column bitsets instead of CSR.
+
+A binary visibility matrix arrives as :class:`camplace.visibility.bits.BitMatrix` (one bit a
+cell, ``words`` (n, ceil(m / 64)) uint64). The same three reductions are made, with the same
+results (the reduced instance is unique: the live rows, the dominated columns and the partition of
+rows into identical patterns do not depend on how they are found; groups are numbered by first
+occurrence):
+
+1. live rows: weight > 0 and some column observes them (an OR of all columns, in column blocks);
+2. dominated columns: the candidate dominators of column ``a`` are the columns observing ``a``'s
+   rarest live row (found by one scan of that row's bit over all columns, shared by the columns
+   with the same rarest row), each tested word by word against the live-row mask;
+3. identical rows over the kept columns are merged: each live row's bitset over the kept columns is
+   built (a transposition, ``m_live * ceil(n' / 64) * 8`` bytes), hashed, and grouped with exact
+   word comparison.
+
+The reduced column bitsets (:attr:`Presolved.bits`) are gathered from the source words of each
+group's first row. No CSR is made unless an engine asks for :attr:`Presolved.matrix` (the
+OR-Tools models, the greedy fallback). The kernels are GIL-free and run on a thread pool over
+fixed blocks, so the result is the same at every thread count.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+from numba import types
+from numba.extending import intrinsic
+
+from camplace._cores import thread_count
+from camplace._signals import ctrl_c_deferred
+from camplace.errors import CamplaceError
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver.problem.presolve import Presolved, check_weights
+
+__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight"]
+
+log = logging.getLogger(__name__)
+
+_JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
+_BLOCKS = 64  # fixed work blocks (not the thread count: the same results at every count)
+
+
+@intrinsic
+def _popc(typingctx, x):  # pragma: no cover - compiled
+    sig = types.uint64(types.uint64)
+
+    def codegen(context, builder, signature, args):
+        return builder.ctpop(args[0])
+
+    return sig, codegen
+
+
+@intrinsic
+def _ctz(typingctx, x):  # pragma: no cover - compiled
+    sig = types.uint64(types.uint64)
+
+    def codegen(context, builder, signature, args):
+        return builder.cttz(args[0], context.get_constant(types.boolean, True))
+
+    return sig, codegen
+
+
+@numba.njit(**_JIT)
+def _or_columns(words, lo, hi, out):  # pragma: no cover - compiled
+    """``out |=`` the OR of columns ``lo:hi``."""
+    for j in range(lo, hi):
+        for w in range(words.shape[1]):
+            out[w] |= words[j, w]
+
+
+@numba.njit(**_JIT)
+def _live_sizes(words, live, lo, hi, size):  # pragma: no cover - compiled
+    """Live rows of columns ``lo:hi``."""
+    for j in range(lo, hi):
+        s = np.int64(0)
+        for w in range(words.shape[1]):
+            s += np.int64(_popc(words[j, w] & live[w]))
+        size[j] = s
+
+
+@numba.njit(**_JIT)
+def _row_counts(words, w0, w1, counts):  # pragma: no cover - compiled
+    """Columns observing each row of words ``w0:w1`` (all rows)."""
+    for j in range(words.shape[0]):
+        for w in range(w0, w1):
+            x = words[j, w]
+            base = np.int64(w) << 6
+            while x:
+                counts[base + np.int64(_ctz(x))] += 1
+                x &= x - np.uint64(1)
+
+
+@numba.njit(**_JIT)
+def _rarest(words, live, row_nnz, lo, hi, out):  # pragma: no cover - compiled
+    """Each column's live row observed by the fewest columns (the first on ties; -1: none)."""
+    for j in range(lo, hi):
+        best = np.int64(-1)
+        best_cnt = np.int64(1) << 62
+        for w in range(words.shape[1]):
+            x = words[j, w] & live[w]
+            base = np.int64(w) << 6
+            while x:
+                i = base + np.int64(_ctz(x))
+                if row_nnz[i] < best_cnt:
+                    best_cnt = row_nnz[i]
+                    best = i
+                x &= x - np.uint64(1)
+        out[j] = best
+
+
+@numba.njit(**_JIT)
+def _dominated_groups(words, live, size, order, starts, rows, g0, g1, out, cand):  # pragma: no cover - compiled
+    """Columns ``order[starts[g]:starts[g + 1]]`` for groups ``g0:g1`` (one rarest row ``rows[g]``
+    each): dominated when a column observing that row holds them (more rows, or identical and a
+    lower index). ``cand`` is an (n,) int64 work array."""
+    n = words.shape[0]
+    for g in range(g0, g1):
+        r = rows[g]
+        wd = r >> 6
+        bit = np.uint64(1) << np.uint64(r & 63)
+        nc = 0
+        for b in range(n):
+            if words[b, wd] & bit:
+                cand[nc] = b
+                nc += 1
+        for q in range(starts[g], starts[g + 1]):
+            a = order[q]
+            for t in range(nc):
+                b = cand[t]
+                if b == a or size[b] < size[a] or (size[b] == size[a] and b > a):
+                    continue
+                ok = True
+                for w in range(words.shape[1]):
+                    if words[a, w] & live[w] & ~words[b, w]:
+                        ok = False
+                        break
+                if ok:
+                    out[a] = True
+                    break
+
+
+@numba.njit(**_JIT)
+def _row_bits(words, columns, rows, lo, hi, out):  # pragma: no cover - compiled
+    """Row bitsets ``out[i]`` (bit c = kept column ``columns[c]``) of rows ``rows[lo:hi]``."""
+    for i in range(lo, hi):
+        r = rows[i]
+        wd = r >> 6
+        sh = np.uint64(r & 63)
+        for c in range(columns.shape[0]):
+            if (words[columns[c], wd] >> sh) & np.uint64(1):
+                out[i, c >> 6] |= np.uint64(1) << np.uint64(c & 63)
+
+
+@numba.njit(**_JIT)
+def _hash_rows(rb, lo, hi, h, has):  # pragma: no cover - compiled
+    for i in range(lo, hi):
+        acc = np.uint64(0x9E3779B97F4A7C15)
+        any_bit = False
+        for w in range(rb.shape[1]):
+            x = rb[i, w]
+            if x:
+                any_bit = True
+            acc = (acc ^ x) * np.uint64(0x100000001B3) + np.uint64(w)
+        h[i] = acc
+        has[i] = any_bit
+
+
+@numba.njit(**_JIT)
+def _group_rows(rb, idx, h):  # pragma: no cover - compiled
+    """Groups of identical rows ``rb[idx]`` (hash buckets, then exact comparison), numbered by
+    first occurrence in ``idx`` order."""
+    m = idx.shape[0]
+    order = np.argsort(h, kind="mergesort")
+    groups = np.full(m, -1, dtype=np.int64)
+    rep = np.empty(m, dtype=np.int64)
+    n_groups = 0
+    s = 0
+    while s < m:
+        e = s + 1
+        while e < m and h[order[e]] == h[order[s]]:
+            e += 1
+        g0 = n_groups
+        for q in range(s, e):
+            i = order[q]
+            found = -1
+            for g in range(g0, n_groups):
+                same = True
+                a, b = idx[rep[g]], idx[i]
+                for w in range(rb.shape[1]):
+                    if rb[a, w] != rb[b, w]:
+                        same = False
+                        break
+                if same:
+                    found = g
+                    break
+            if found < 0:
+                found = n_groups
+                rep[found] = i
+                n_groups += 1
+            groups[i] = found
+        s = e
+    new = np.full(n_groups, -1, dtype=np.int64)
+    nxt = 0
+    for i in range(m):
+        g = groups[i]
+        if new[g] < 0:
+            new[g] = nxt
+            nxt += 1
+        groups[i] = new[g]
+    return groups, n_groups
+
+
+@numba.njit(**_JIT)
+def _gather(words, columns, reps, lo, hi, out):  # pragma: no cover - compiled
+    """Reduced column bitsets of kept columns ``lo:hi``: bit g = source row ``reps[g]``."""
+    for c in range(lo, hi):
+        j = columns[c]
+        for g in range(reps.shape[0]):
+            r = reps[g]
+            if (words[j, r >> 6] >> np.uint64(r & 63)) & np.uint64(1):
+                out[c, g >> 6] |= np.uint64(1) << np.uint64(g & 63)
+
+
+def _blocks(n: int) -> list[tuple[int, int]]:
+    parts = max(1, min(_BLOCKS, n))
+    return [(n * p // parts, n * (p + 1) // parts) for p in range(parts)]
+
+
+def _run(fn, ranges, workers: int) -> None:
+    ranges = [r for r in ranges if r[1] > r[0]]
+    with ctrl_c_deferred():
+        if workers > 1 and len(ranges) > 1:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                list(pool.map(lambda r: fn(*r), ranges))
+        else:
+            for r in ranges:
+                fn(*r)
+
+
+def _pack(mask: np.ndarray, n_words: int) -> np.ndarray:
+    out = np.zeros(n_words * 8, dtype=np.uint8)
+    packed = np.packbits(np.asarray(mask, dtype=bool), bitorder="little")
+    out[:packed.size] = packed
+    return out.view(np.uint64)
+
+
+def presolve_bits_bytes(m: int, n: int) -> int:
+    """Peak working bytes of :func:`presolve_bits` on an (m, n) matrix besides its bitsets: the
+    live rows' bitsets over the columns and the reduced column bitsets (each at most
+    ``m * n / 8``), and about 40 bytes a row and a column."""
+    return int(2 * m * ((n + 63) // 64) * 8 + 40 * (m + n))
+
+
+class BitPresolved(Presolved):
+    """A :class:`Presolved` made from column bitsets: :attr:`bits` is built by the presolve;
+    :attr:`matrix` and :attr:`source` (the reduced CSR pattern, rows and columns in reduced
+    order) are made from the bits on first use."""
+
+    @property
+    def source(self):  # type: ignore[override]
+        got = self.__dict__.get("_source")
+        if got is None:
+            m, n = self.shape
+            got = (self.matrix, np.arange(m, dtype=np.int64), np.arange(n, dtype=np.int64))
+            self.__dict__["_source"] = got
+        return got
+
+    @source.setter
+    def source(self, value) -> None:
+        if value is not None:
+            self.__dict__["_source"] = value
+
+    @functools.cached_property
+    def matrix(self) -> sp.csr_matrix:
+        """(m', n') scipy.sparse.csr_matrix of float64: 0/1 pattern of the reduced instance."""
+        from camplace.visibility.bits import BitMatrix
+
+        csr = BitMatrix(self.bits, self.shape[0]).tocsr(np.float64)
+        return csr
+
+
+def covered_weight(bits, weights: np.ndarray, selected) -> float:
+    """``sum_i w_i [some selected column observes i]`` of a BitMatrix (the maxcover objective,
+    summed as :func:`camplace.solver.problem.objectives.mode_value` sums it)."""
+    w = np.asarray(weights, dtype=np.float64)
+    covered = bits.union(list(selected)) if len(selected) else np.zeros(bits.shape[0], dtype=bool)
+    return float(np.sum(w[covered], dtype=np.float64))
+
+
+def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers: int | None = None) -> BitPresolved:
+    """:func:`camplace.solver.problem.presolve.presolve` of a matrix held as column bitsets.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n); ``bits.words`` (n, ceil(m / 64)) uint64.
+    weights : (m,) array_like of float64
+    k : int
+    dominance : bool
+    workers : int or None
+        Threads (default: :func:`camplace._cores.thread_count`).
+
+    Returns
+    -------
+    BitPresolved
+        The same reduced instance as :func:`~camplace.solver.problem.presolve.presolve` of the matrix's
+        CSR (same weights, counts, columns, row groups and bitsets).
+    """
+    t0 = time.perf_counter()
+    words = bits.words
+    m, n = bits.shape
+    nw = words.shape[1]
+    w = check_weights(weights, m)
+    if k < 1 or k > n:
+        raise CamplaceError(f"k must be between 1 and the number of candidates ({n}), got {k}")
+    workers = thread_count(workers)
+    # out of core (a scratch file's mapping): each block's pages are dropped after it is read
+    release = getattr(bits, "release_columns", None) or (lambda lo, hi: None)
+
+    # 1. live rows
+    partial = np.zeros((_BLOCKS, nw), dtype=np.uint64)
+    cb = _blocks(n)
+    _run(lambda lo, hi: (_or_columns(words, lo, hi, partial[cb.index((lo, hi))]), release(lo, hi)), cb, workers)
+    any_obs = np.bitwise_or.reduce(partial, axis=0) if n else np.zeros(nw, dtype=np.uint64)
+    live = any_obs & _pack(w > 0, nw)
+    live_mask = np.unpackbits(live.view(np.uint8), bitorder="little", count=m).astype(bool)
+    live_rows = np.flatnonzero(live_mask).astype(np.int64)
+    stats: dict[str, Any] = {"rows_in": int(m), "cols_in": int(n), "nnz_in": int(bits.nnz),
+                             "rows_live": int(live_rows.size), "time_live_s": time.perf_counter() - t0,
+                             "layout": "column bitsets"}
+
+    # 2. dominance
+    t1 = time.perf_counter()
+    size = np.zeros(n, dtype=np.int64)
+    _run(lambda lo, hi: (_live_sizes(words, live, lo, hi, size), release(lo, hi)), cb, workers)
+    dominated = np.zeros(n, dtype=bool)
+    if dominance and n > k and live_rows.size > 0:
+        row_nnz = np.zeros(nw * 64, dtype=np.int64)  # over all columns, as the CSR presolve counts
+        _run(lambda a, b: (_row_counts(words, a, b, row_nnz), release(0, n)), _blocks(nw), workers)
+        rarest = np.zeros(n, dtype=np.int64)
+        _run(lambda lo, hi: (_rarest(words, live, row_nnz, lo, hi, rarest), release(lo, hi)), cb, workers)
+        empty = rarest < 0
+        if empty.any():  # an empty column: dominated unless it is the first one and no column observes
+            first_empty = int(np.flatnonzero(empty)[0])
+            any_nonempty = bool((~empty).any())
+            dominated[empty] = True
+            if not any_nonempty:
+                dominated[first_empty] = False
+        nz = np.flatnonzero(~empty)
+        order = nz[np.argsort(rarest[nz], kind="stable")]
+        rows_sorted = rarest[order]
+        cut = np.flatnonzero(np.diff(rows_sorted)) + 1
+        starts = np.concatenate([[0], cut, [order.size]]).astype(np.int64)
+        grows = rows_sorted[starts[:-1]] if order.size else np.zeros(0, dtype=np.int64)
+        ng = grows.size
+        gb = _blocks(ng)
+        cand = [np.empty(n, dtype=np.int64) for _ in gb]
+        _run(lambda g0, g1: _dominated_groups(words, live, size, order.astype(np.int64), starts, grows, g0, g1,
+                                              dominated, cand[gb.index((g0, g1))]) or release(0, n), gb, workers)
+        stats["dominance_method"] = "column bitsets"
+    keep = ~dominated
+    restored = 0
+    if int(keep.sum()) < k:
+        cover = np.array([float(np.sum(w[live_mask & bits.column(j)])) for j in range(n)]) if live_rows.size \
+            else np.zeros(n)
+        cand_cols = np.flatnonzero(dominated)
+        order2 = cand_cols[np.lexsort((cand_cols, -cover[cand_cols]))]
+        need = k - int(keep.sum())
+        keep[order2[:need]] = True
+        restored = need
+    columns = np.flatnonzero(keep).astype(np.int64)
+    stats["time_dominance_s"] = time.perf_counter() - t1
+    stats["cols_dominated"] = int(dominated.sum())
+    stats["cols_restored"] = int(restored)
+
+    # 3. merge identical rows over the kept columns
+    t2 = time.perf_counter()
+    nc = columns.size
+    need = live_rows.size * ((nc + 63) // 64) * 8  # the row bitsets; the reduced columns are at most as big
+    budget = memory_budget_bytes()
+    if need > budget:
+        raise CamplaceError(f"{OverBudget(need, budget, 'the presolve (live rows x kept columns as bitsets)').message}; "
+                            "lower --points or --candidates, or raise --memory-budget-gb")
+    rb = np.zeros((live_rows.size, (nc + 63) // 64), dtype=np.uint64)
+    rbk = _blocks(live_rows.size)
+    _run(lambda lo, hi: (_row_bits(words, columns, live_rows, lo, hi, rb), release(0, n)), rbk, workers)
+    h = np.zeros(live_rows.size, dtype=np.uint64)
+    has = np.zeros(live_rows.size, dtype=bool)
+    _run(lambda lo, hi: _hash_rows(rb, lo, hi, h, has), rbk, workers)
+    idx = np.flatnonzero(has).astype(np.int64)
+    with ctrl_c_deferred():
+        groups, n_groups = _group_rows(rb, idx, h[idx])
+    del rb
+    orig_rows = live_rows[idx]
+    first = np.full(n_groups, -1, dtype=np.int64)
+    first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)
+    reps = orig_rows[first]
+    wsum = np.bincount(groups, weights=w[orig_rows], minlength=n_groups).astype(np.float64)
+    counts = np.bincount(groups, minlength=n_groups).astype(np.int64)
+    row_groups = np.full(m, -1, dtype=np.int64)
+    row_groups[orig_rows] = groups
+    red = np.zeros((nc, (int(n_groups) + 63) // 64), dtype=np.uint64)
+    _run(lambda lo, hi: (_gather(words, columns, reps, lo, hi, red), release(int(columns[lo]), int(columns[hi - 1]) + 1)),
+         _blocks(nc), workers)
+    stats["time_merge_s"] = time.perf_counter() - t2
+
+    pos = w[w > 0]
+    unit = float(pos[0]) if pos.size and np.all(pos == pos[0]) else None
+    stats.update({"rows_after": int(n_groups), "cols_after": int(nc), "time_s": time.perf_counter() - t0})
+    log.info("presolve (bits): rows %d -> %d, cols %d -> %d (%d dominated, %d restored) in %.3f s",
+             m, n_groups, n, nc, stats["cols_dominated"], restored, stats["time_s"])
+    out = BitPresolved(weights=wsum, counts=counts, columns=columns, row_groups=row_groups, k=int(k),
+                       shape_in=(int(m), int(n)), weight_unit=unit, source=None, stats=stats)
+    out.__dict__["bits"] = red
+    return out

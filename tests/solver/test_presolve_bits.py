@@ -1,0 +1,91 @@
+"""The bit presolve gives the CSR presolve's reduced instance (an oracle), at 1 and 2 threads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from camplace.solver.problem.presolve import presolve
+from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits
+from camplace.visibility.bits import bits_from_csr
+
+
+def _cases():
+    rng = np.random.default_rng(7)
+    for m, n, dens, k in [(1, 3, 0.5, 1), (70, 9, 0.3, 2), (130, 40, 0.2, 3), (300, 64, 0.05, 3), (200, 65, 0.6, 4),
+                          (64, 12, 0.0, 2), (90, 30, 0.9, 3)]:
+        a = (rng.random((m, n)) < dens).astype(np.float32)
+        a[: m // 3] = a[m // 3: 2 * (m // 3)]  # identical rows to merge
+        if n > 4:
+            a[:, 1] = a[:, 0] * (rng.random(m) < 0.5)  # a dominated column
+            a[:, 3] = a[:, 2]  # identical columns
+            a[:, 4] = 0.0  # an empty column
+        w = rng.random(m)
+        w[::5] = 0.0
+        if m % 2:
+            w[:] = 2.5  # one unit weight
+        yield sp.csr_matrix(a), w, k
+    col = (rng.random((40, 1)) < 0.5).astype(np.float32)
+    nested = np.hstack([col * (rng.random((40, 1)) < 0.7) for _ in range(5)] + [col])
+    yield sp.csr_matrix(nested), rng.random(40), 4  # dominated columns restored to reach k
+
+
+@pytest.mark.parametrize("dominance", [True, False])
+def test_presolve_bits_equals_csr(dominance: bool) -> None:
+    for a, w, k in _cases():
+        ref = presolve(a, w, k, dominance=dominance)
+        bits = bits_from_csr(a)
+        for workers in (1, 2):
+            got = presolve_bits(bits, w, k, dominance=dominance, workers=workers)
+            np.testing.assert_array_equal(got.columns, ref.columns)
+            np.testing.assert_array_equal(got.row_groups, ref.row_groups)
+            np.testing.assert_array_equal(got.counts, ref.counts)
+            assert got.weights.tobytes() == ref.weights.tobytes()
+            assert got.weight_unit == ref.weight_unit
+            np.testing.assert_array_equal(got.bits, ref.bits)
+            assert (got.matrix != ref.matrix).nnz == 0
+
+
+def test_covered_weight_is_mode_value() -> None:
+    from camplace.solver.problem.objectives import mode_value
+
+    for a, w, k in _cases():
+        bits = bits_from_csr(a)
+        for sel in ([0], list(range(min(3, a.shape[1])))):
+            assert covered_weight(bits, w, sel) == mode_value(a, w, sel, mode="maxcover")
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_solve_on_bits_equals_csr_and_enumeration(k: int) -> None:
+    from itertools import combinations
+
+    from camplace.solver.api import solve
+    from camplace.solver.problem.objectives import mode_value
+
+    rng = np.random.default_rng(k)
+    a = sp.csr_matrix((rng.random((150, 14)) < 0.2).astype(np.float32))
+    w = rng.random(150)
+    ref = solve(a, w, k=k)
+    got = solve(bits_from_csr(a), w, k=k)
+    best = max(mode_value(a, w, list(c), mode="maxcover") for c in combinations(range(14), k))
+    assert got.status == "optimal" and got.objective == ref.objective
+    assert got.objective == pytest.approx(best, rel=1e-12)
+    assert got.selected == ref.selected
+    assert got.stats["presolve"]["layout"] == "column bitsets"
+    # a case the bit route does not take goes through the CSR conversion
+    fixed = solve(bits_from_csr(a), w, k=k, fixed=[0])
+    assert fixed.selected == solve(a, w, k=k, fixed=[0]).selected
+
+
+def test_quality_of_bits_is_maxcover_and_equals_the_csr_quality_route() -> None:
+    from camplace.solver.api import solve
+
+    rng = np.random.default_rng(11)
+    a = sp.csr_matrix((rng.random((120, 12)) < 0.25).astype(np.float32))
+    w = rng.random(120)
+    ref = solve(a, w, k=3, mode="quality")
+    got = solve(bits_from_csr(a), w, k=3, mode="quality")
+    assert got.status == ref.status == "optimal"
+    assert got.objective == pytest.approx(ref.objective, rel=1e-12, abs=1e-12)
+    assert got.stats["mode"] == "quality" and "binary_matrix" in got.stats
