@@ -31,13 +31,13 @@ __all__ = ["bits_applies", "bits_outcome"]
 
 
 def bits_applies(o: SolveOptions) -> bool:
-    """True when the options are plain max coverage (no fixed, forbidden, distance or angle).
+    """True when the options are plain max coverage (no fixed, forbidden, distance, angle or team).
 
     ``quality`` on a binary matrix is plain max coverage too: every value is 1, so
     ``max_{j in S} Q_ij`` is 1 exactly when some chosen camera observes row i, and the two
     objectives are the same number."""
     return (o.mode in ("maxcover", "quality") and not o.fixed and not o.forbidden and o.min_distance_m is None
-            and o.min_angle_deg is None)
+            and o.min_angle_deg is None and getattr(o, "team", None) is None)
 
 
 def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
