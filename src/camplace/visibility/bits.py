@@ -25,9 +25,8 @@ from typing import Sequence
 import numba
 import numpy as np
 import scipy.sparse as sp
-from numba import types
-from numba.extending import intrinsic
 
+from camplace._bitops import ctz as _ctz, popcount as _popcount
 from camplace._cores import thread_count
 
 __all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk"]
@@ -37,28 +36,6 @@ _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": Fal
 def bit_words(m: int) -> int:
     """uint64 words of one column's bitset over ``m`` rows: ``ceil(m / 64)``."""
     return (int(m) + 63) // 64
-
-
-@intrinsic
-def _popcount(typingctx, x):  # pragma: no cover - compiled
-    """Set bits of a uint64 (the ``popcnt`` instruction)."""
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.ctpop(args[0])
-
-    return sig, codegen
-
-
-@intrinsic
-def _ctz(typingctx, x):  # pragma: no cover - compiled
-    """Index of the lowest set bit of a non-zero uint64 (the ``tzcnt`` instruction)."""
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.cttz(args[0], context.get_constant(types.boolean, True))
-
-    return sig, codegen
 
 
 @numba.njit(**_JIT)

@@ -8,32 +8,9 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba import types
-from numba.extending import intrinsic
+from camplace._bitops import ctz as _ctz, popcount as _popcount
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
-
-
-@intrinsic
-def _popcount(typingctx, x):  # pragma: no cover - compiled
-    """Number of set bits of a uint64 (the ``popcnt`` instruction)."""
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.ctpop(args[0])
-
-    return sig, codegen
-
-
-@intrinsic
-def _ctz(typingctx, x):  # pragma: no cover - compiled
-    """Index of the lowest set bit of a non-zero uint64 (the ``tzcnt`` instruction)."""
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.cttz(args[0], context.get_constant(types.boolean, True))
-
-    return sig, codegen
 
 
 @numba.njit(**_JIT)
@@ -737,7 +714,6 @@ def shortfall_fixed(levels, nodes, k, m, fbits, w, planes, last_mask, need, acc,
         if total >= need:
             return total
     return total
-
 
 
 @numba.njit(**_JIT)

@@ -31,9 +31,8 @@ from typing import Any
 import numba
 import numpy as np
 import scipy.sparse as sp
-from numba import types
-from numba.extending import intrinsic
 
+from camplace._bitops import ctz as _ctz, popcount as _popc
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
@@ -46,26 +45,6 @@ log = logging.getLogger(__name__)
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _BLOCKS = 64  # fixed work blocks (not the thread count: the same results at every count)
-
-
-@intrinsic
-def _popc(typingctx, x):  # pragma: no cover - compiled
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.ctpop(args[0])
-
-    return sig, codegen
-
-
-@intrinsic
-def _ctz(typingctx, x):  # pragma: no cover - compiled
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.cttz(args[0], context.get_constant(types.boolean, True))
-
-    return sig, codegen
 
 
 @numba.njit(**_JIT)
