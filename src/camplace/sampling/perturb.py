@@ -34,8 +34,6 @@ from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.special import ndtri
-from scipy.stats import qmc
 
 from camplace.sampling.candidates import CandidateSet
 
@@ -80,6 +78,9 @@ def pose_draws(seed: int, candidates: Sequence[int], scenarios: int, stream: int
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(stream), j)))
         if design == "sobol":
             m = max(0, math.ceil(math.log2(max(1, int(scenarios)))))
+            from scipy.special import ndtri
+            from scipy.stats import qmc  # here: 0.3 s of imports a plain run does not need
+
             u = qmc.Sobol(d=6, scramble=True, seed=rng).random_base2(m)[: int(scenarios)]
             # scrambles of one base sequence share its leading digits point by point: shuffled per
             # candidate, so that the cameras of one scenario are paired at random (independent)
