@@ -38,7 +38,7 @@ _CAMERAS_PER_BLOCK = 256  # cameras projected at once (bounds the (c, v, 3) work
 
 
 def convex_hull(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The convex hull of some points (trimesh / qhull).
+    """The convex hull of some points (qhull through scipy), its faces wound outwards.
 
     Parameters
     ----------
@@ -49,18 +49,25 @@ def convex_hull(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     (vertices (h, 3) float64, faces (f, 3) int64 wound outwards), or None when the points are flat
     or too few to enclose a volume.
     """
-    import trimesh
+    from scipy.spatial import ConvexHull, QhullError
 
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    if len(v) < 4:
+    if len(v) < 4 or not np.all(np.isfinite(v)):
         return None
     try:
-        hull = trimesh.convex.convex_hull(v)
-    except Exception:  # qhull refuses flat or degenerate input
+        hull = ConvexHull(v)
+    except (QhullError, ValueError):  # qhull refuses flat or degenerate input
         return None
-    if len(hull.faces) < 4 or not hull.is_volume:
+    if len(hull.simplices) < 4 or not hull.volume > 0.0:
         return None
-    return np.asarray(hull.vertices, dtype=np.float64), np.asarray(hull.faces, dtype=np.int64)
+    faces = np.asarray(hull.simplices, dtype=np.int64).copy()
+    a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
+    inward = np.einsum("ij,ij->i", np.cross(b - a, c - a), hull.equations[:, :3]) < 0.0  # qhull: outward normals
+    faces[inward] = faces[inward][:, ::-1]
+    used = np.unique(faces)  # the hull's own vertices, renumbered in input order
+    remap = np.full(len(v), -1, dtype=np.int64)
+    remap[used] = np.arange(used.size, dtype=np.int64)
+    return v[used].copy(), remap[faces]
 
 
 def hull_footprint_px(vertices: np.ndarray, positions: np.ndarray, rotations: np.ndarray, K: np.ndarray,

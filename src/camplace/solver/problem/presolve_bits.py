@@ -11,11 +11,11 @@ occurrence):
    rarest live row (found by one scan of that row's bit over all columns, shared by the columns
    with the same rarest row), each tested word by word against the live-row mask;
 3. identical rows over the kept columns are merged: each live row's bitset over the kept columns is
-   built (a transposition, ``m_live * ceil(n' / 64) * 8`` bytes), hashed, and grouped with exact
-   word comparison.
+   built (a transposition, 64 x 64 bits at a time, ``m_live * ceil(n' / 64) * 8`` bytes), hashed,
+   and grouped with exact word comparison.
 
-The reduced column bitsets (:attr:`Presolved.bits`) are gathered from the source words of each
-group's first row. No CSR is made unless an engine asks for :attr:`Presolved.matrix` (the
+The reduced column bitsets (:attr:`Presolved.bits`) are the transposition of the groups' first
+rows. No CSR is made unless an engine asks for :attr:`Presolved.matrix` (the
 OR-Tools models, the greedy fallback). The kernels are GIL-free and run on a thread pool over
 fixed blocks, so the result is the same at every thread count.
 """
@@ -32,7 +32,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from camplace._bitops import ctz as _ctz, popcount as _popc
+from camplace._bitops import ctz as _ctz, popcount as _popc, transpose64 as _transpose64
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
@@ -127,15 +127,27 @@ def _dominated_groups(words, live, size, order, starts, rows, g0, g1, out, cand)
 
 
 @numba.njit(**_JIT)
-def _row_bits(words, columns, rows, lo, hi, out):  # pragma: no cover - compiled
-    """Row bitsets ``out[i]`` (bit c = kept column ``columns[c]``) of rows ``rows[lo:hi]``."""
-    for i in range(lo, hi):
-        r = rows[i]
-        wd = r >> 6
-        sh = np.uint64(r & 63)
-        for c in range(columns.shape[0]):
-            if (words[columns[c], wd] >> sh) & np.uint64(1):
-                out[i, c >> 6] |= np.uint64(1) << np.uint64(c & 63)
+def _row_bits(words, columns, pos, w0, w1, out):  # pragma: no cover - compiled
+    """Row bitsets ``out[pos[r]]`` (bit c = kept column ``columns[c]``) of the rows r of words
+    ``w0:w1`` (``pos[r] = -1``: a row not kept), by 64 x 64 bit transposes."""
+    nc = columns.shape[0]
+    m = pos.shape[0]
+    a = np.empty(64, dtype=np.uint64)
+    for wd in range(w0, w1):
+        base = wd * 64
+        rows_here = min(64, m - base)
+        for cb in range((nc + 63) // 64):
+            c0 = cb * 64
+            cnt = min(64, nc - c0)
+            for t in range(cnt):
+                a[t] = words[columns[c0 + t], wd]
+            for t in range(cnt, 64):
+                a[t] = 0
+            _transpose64(a)  # a[r] bit t: column c0 + t observes row base + r
+            for r in range(rows_here):
+                i = pos[base + r]
+                if i >= 0:
+                    out[i, cb] = a[r]
 
 
 @numba.njit(**_JIT)
@@ -198,14 +210,25 @@ def _group_rows(rb, idx, h):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _gather(words, columns, reps, lo, hi, out):  # pragma: no cover - compiled
-    """Reduced column bitsets of kept columns ``lo:hi``: bit g = source row ``reps[g]``."""
-    for c in range(lo, hi):
-        j = columns[c]
-        for g in range(reps.shape[0]):
-            r = reps[g]
-            if (words[j, r >> 6] >> np.uint64(r & 63)) & np.uint64(1):
-                out[c, g >> 6] |= np.uint64(1) << np.uint64(g & 63)
+def _gather(rb, sel, nc, cw0, cw1, out):  # pragma: no cover - compiled
+    """Reduced column bitsets ``out`` (nc, ceil(G / 64)) of the kept columns of column words
+    ``cw0:cw1``: bit g of column c = row bitset ``rb[sel[g]]`` has bit c (a transposition of the
+    groups' first rows, 64 x 64 bits at a time)."""
+    n_groups = sel.shape[0]
+    a = np.empty(64, dtype=np.uint64)
+    for cw in range(cw0, cw1):
+        c0 = cw * 64
+        cols_here = min(64, nc - c0)
+        for gb in range((n_groups + 63) // 64):
+            g0 = gb * 64
+            cnt = min(64, n_groups - g0)
+            for t in range(cnt):
+                a[t] = rb[sel[g0 + t], cw]
+            for t in range(cnt, 64):
+                a[t] = 0
+            _transpose64(a)  # a[s] bit t: column c0 + s observes group g0 + t
+            for q in range(cols_here):
+                out[c0 + q, gb] = a[q]
 
 
 def _blocks(n: int) -> list[tuple[int, int]]:
@@ -370,25 +393,27 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
                             "lower --points or --candidates, or raise --memory-budget-gb")
     rb = np.zeros((live_rows.size, (nc + 63) // 64), dtype=np.uint64)
     rbk = _blocks(live_rows.size)
-    _run(lambda lo, hi: (_row_bits(words, columns, live_rows, lo, hi, rb), release(0, n)), rbk, workers)
+    pos = np.full(m, -1, dtype=np.int64)
+    pos[live_rows] = np.arange(live_rows.size, dtype=np.int64)
+    _run(lambda w0, w1: (_row_bits(words, columns, pos, w0, w1, rb), release(0, n)), _blocks(nw), workers)
+    del pos
     h = np.zeros(live_rows.size, dtype=np.uint64)
     has = np.zeros(live_rows.size, dtype=bool)
     _run(lambda lo, hi: _hash_rows(rb, lo, hi, h, has), rbk, workers)
     idx = np.flatnonzero(has).astype(np.int64)
     with ctrl_c_deferred():
         groups, n_groups = _group_rows(rb, idx, h[idx])
-    del rb
     orig_rows = live_rows[idx]
     first = np.full(n_groups, -1, dtype=np.int64)
     first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)
-    reps = orig_rows[first]
     wsum = np.bincount(groups, weights=w[orig_rows], minlength=n_groups).astype(np.float64)
     counts = np.bincount(groups, minlength=n_groups).astype(np.int64)
     row_groups = np.full(m, -1, dtype=np.int64)
     row_groups[orig_rows] = groups
     red = np.zeros((nc, (int(n_groups) + 63) // 64), dtype=np.uint64)
-    _run(lambda lo, hi: (_gather(words, columns, reps, lo, hi, red), release(int(columns[lo]), int(columns[hi - 1]) + 1)),
-         _blocks(nc), workers)
+    sel = idx[first]  # each group's first row, as a row of rb
+    _run(lambda cw0, cw1: _gather(rb, sel, nc, cw0, cw1, red), _blocks(rb.shape[1]), workers)
+    del rb
     stats["time_merge_s"] = time.perf_counter() - t2
 
     pos = w[w > 0]
