@@ -124,6 +124,7 @@ def test_two_threads_run_the_passes_and_the_search_on_a_pool_of_two(pool_always,
             super().__init__(max_workers=max_workers, **kw)
 
     monkeypatch.setattr(blocks, "ThreadPoolExecutor", Spy)
+    monkeypatch.setattr(blocks, "_pools", {})  # the kept pools: made anew here
     monkeypatch.setattr(bitset_mod, "_SLICE", 2)
     rng = np.random.default_rng(3)
     dense = rng.random((300, 40)) < 0.1

@@ -69,12 +69,28 @@ class PoolProfile:
         PoolProfile.active = None
 
 
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+_PREFIX = "camplace-block"
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """The process's pool of ``threads`` workers, made on first use and kept: a solve makes some
+    50 parallel passes, and starting 16 threads for each cost more than a short pass itself."""
+    with _pools_lock:
+        pool = _pools.get(threads)
+        if pool is None:
+            pool = _pools[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=f"{_PREFIX}{threads}")
+        return pool
+
+
 def run_blocks(fn: Callable[[int, int], object], bounds: list[int], threads: int | None = None) -> list:
     """``fn(lo, hi)`` for every block of ``bounds`` (from :func:`cuts`), on ``threads`` threads
-    (default :func:`thread_count`); returns the results in block order."""
+    (default :func:`thread_count`); returns the results in block order. Called from one of the
+    pool's own workers, it runs the blocks there, one by one (no pool waits on itself)."""
     spans = list(zip(bounds[:-1], bounds[1:]))
     t = min(len(spans), thread_count() if threads is None else threads)
-    if t <= 1:
+    if t <= 1 or threading.current_thread().name.startswith(_PREFIX):
         return [fn(lo, hi) for lo, hi in spans]
     prof = PoolProfile.active
     if prof is None:
@@ -88,8 +104,7 @@ def run_blocks(fn: Callable[[int, int], object], bounds: list[int], threads: int
             ident = threading.get_ident()
             per[ident] = per.get(ident, 0.0) + time.thread_time() - c0
             return out
-    with ThreadPoolExecutor(max_workers=t, thread_name_prefix="camplace-block") as pool:
-        out = list(pool.map(call, spans))
+    out = list(_pool(t).map(call, spans))
     if prof is not None:
         prof.cpu += sum(per.values())
         prof.critical += max(per.values(), default=0.0)

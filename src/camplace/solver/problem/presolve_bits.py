@@ -25,7 +25,6 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numba
@@ -36,6 +35,7 @@ from camplace._bitops import ctz as _ctz, popcount as _popc, transpose64 as _tra
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
+from camplace.solver._support.blocks import run_blocks
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.problem.presolve import Presolved, check_weights
 
@@ -237,14 +237,12 @@ def _blocks(n: int) -> list[tuple[int, int]]:
 
 
 def _run(fn, ranges, workers: int) -> None:
+    """``fn(lo, hi)`` for every non-empty range, on the solver's pool of ``workers`` threads."""
     ranges = [r for r in ranges if r[1] > r[0]]
-    with ctrl_c_deferred():
-        if workers > 1 and len(ranges) > 1:
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                list(pool.map(lambda r: fn(*r), ranges))
-        else:
-            for r in ranges:
-                fn(*r)
+    if not ranges:
+        return
+    with ctrl_c_deferred():  # the ranges of _blocks are contiguous
+        run_blocks(fn, [ranges[0][0], *[r[1] for r in ranges]], workers)
 
 
 def _pack(mask: np.ndarray, n_words: int) -> np.ndarray:
@@ -413,7 +411,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     red = np.zeros((nc, (int(n_groups) + 63) // 64), dtype=np.uint64)
     sel = idx[first]  # each group's first row, as a row of rb
     _run(lambda cw0, cw1: _gather(rb, sel, nc, cw0, cw1, red), _blocks(rb.shape[1]), workers)
-    del rb
+    rb = None  # freed before the reduced instance is made (up to m x n / 8 bytes)
     stats["time_merge_s"] = time.perf_counter() - t2
 
     pos = w[w > 0]
