@@ -11,6 +11,7 @@ scipy.stats.qmc) are there for comparison.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from camplace.errors import CamplaceError
@@ -39,20 +40,32 @@ def logistic_orbits(x0: np.ndarray, n: int, *, burn_in: int = 1000, stride: int 
     (n, d) float64
         Values in [0, 1], uniform in distribution for r = 4.
     """
-    x = np.array(x0, dtype=np.float64)
-    out = np.empty((n, x.size), dtype=np.float64)
+    x = np.array(x0, dtype=np.float64).reshape(-1)
+    out = _orbits(x, int(n), int(burn_in), int(stride), float(r))
+    return (2.0 / np.pi) * np.arcsin(np.sqrt(out))
+
+
+@numba.njit(cache=True, nogil=True)
+def _orbits(x0, n, burn_in, stride, r):  # pragma: no cover - compiled
+    """Raw iterates of :func:`logistic_orbits`, (n, d) float64 (compiled: the loop is n x stride
+    steps; the same floating-point operations in the same order as numpy's elementwise ones)."""
+    x = x0.copy()
+    d = x.shape[0]
+    out = np.empty((n, d), dtype=np.float64)
     for _ in range(burn_in):
-        x = r * x * (1.0 - x)
+        for j in range(d):
+            x[j] = r * x[j] * (1.0 - x[j])
     # In float64 the r = 4 orbit can collapse onto the fixed point 0 (x = 0.5 -> 1 -> 0) or a
     # short cycle; nudge such states deterministically (an irrational rotation of the state).
     for i in range(n):
         for _ in range(stride):
-            x = r * x * (1.0 - x)
-            bad = (x <= 1e-12) | (x >= 1.0 - 1e-12)
-            if bad.any():
-                x[bad] = np.mod(x[bad] + 0.6180339887498949 + 1e-3 * (i + 1), 1.0) * 0.98 + 0.01
+            for j in range(d):
+                v = r * x[j] * (1.0 - x[j])
+                if v <= 1e-12 or v >= 1.0 - 1e-12:
+                    v = np.mod(v + 0.6180339887498949 + 1e-3 * (i + 1), 1.0) * 0.98 + 0.01
+                x[j] = v
         out[i] = x
-    return (2.0 / np.pi) * np.arcsin(np.sqrt(out))
+    return out
 
 
 def sample_unit(kind: str, n: int, dim: int = 3, *, seed: int | None = 0) -> np.ndarray:
