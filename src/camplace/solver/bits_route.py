@@ -81,7 +81,7 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     stats.update(choice.stats)
     if asked != "maxcover":
         stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
-    pre = presolve_bits(bits, w, k)
+    pre = presolve_bits(bits, w, k, deadline=deadline.share(0.5))  # at least half the time left to the search
     name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline.left(), stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
     objective = covered_weight(bits, w, sel) if sel else 0.0

@@ -36,6 +36,7 @@ from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support.blocks import run_blocks
+from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.problem.presolve import Presolved, check_weights
 
@@ -45,6 +46,7 @@ log = logging.getLogger(__name__)
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _BLOCKS = 64  # fixed work blocks (not the thread count: the same results at every count)
+_DOMINANCE_BLOCKS = 8 * _BLOCKS  # the dominance's blocks, run _BLOCKS at a time (the time limit is checked between)
 
 
 @numba.njit(**_JIT)
@@ -96,11 +98,12 @@ def _rarest(words, live, row_nnz, lo, hi, out):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _dominated_groups(words, live, size, order, starts, rows, g0, g1, out, cand):  # pragma: no cover - compiled
+def _dominated_groups(words, live, size, order, starts, rows, g0, g1, out):  # pragma: no cover - compiled
     """Columns ``order[starts[g]:starts[g + 1]]`` for groups ``g0:g1`` (one rarest row ``rows[g]``
     each): dominated when a column observing that row holds them (more rows, or identical and a
-    lower index). ``cand`` is an (n,) int64 work array."""
+    lower index)."""
     n = words.shape[0]
+    cand = np.empty(n, dtype=np.int64)
     for g in range(g0, g1):
         r = rows[g]
         wd = r >> 6
@@ -231,8 +234,8 @@ def _gather(rb, sel, nc, cw0, cw1, out):  # pragma: no cover - compiled
                 out[c0 + q, gb] = a[q]
 
 
-def _blocks(n: int) -> list[tuple[int, int]]:
-    parts = max(1, min(_BLOCKS, n))
+def _blocks(n: int, blocks: int = _BLOCKS) -> list[tuple[int, int]]:
+    parts = max(1, min(blocks, n))
     return [(n * p // parts, n * (p + 1) // parts) for p in range(parts)]
 
 
@@ -295,7 +298,8 @@ def covered_weight(bits, weights: np.ndarray, selected) -> float:
     return float(np.sum(w[covered], dtype=np.float64))
 
 
-def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers: int | None = None) -> BitPresolved:
+def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers: int | None = None,
+                  deadline: Deadline | None = None) -> BitPresolved:
     """:func:`camplace.solver.problem.presolve.presolve` of a matrix held as column bitsets.
 
     Parameters
@@ -307,6 +311,11 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     dominance : bool
     workers : int or None
         Threads (default: :func:`camplace._cores.thread_count`).
+    deadline : Deadline or None
+        When it expires during the column dominance (the part that grows fastest with the size),
+        the dominance stops there: the columns found dominated so far are dropped (each has an
+        undominated dominator, so the optimum is kept) and the rest kept; ``stats`` says so. The
+        result then depends on timing; without expiry it is the same at every thread count.
 
     Returns
     -------
@@ -361,10 +370,16 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
         starts = np.concatenate([[0], cut, [order.size]]).astype(np.int64)
         grows = rows_sorted[starts[:-1]] if order.size else np.zeros(0, dtype=np.int64)
         ng = grows.size
-        gb = _blocks(ng)
-        cand = [np.empty(n, dtype=np.int64) for _ in gb]
-        _run(lambda g0, g1: _dominated_groups(words, live, size, order.astype(np.int64), starts, grows, g0, g1,
-                                              dominated, cand[gb.index((g0, g1))]) or release(0, n), gb, workers)
+        gb = _blocks(ng, _DOMINANCE_BLOCKS)
+        order = order.astype(np.int64)
+        for r0 in range(0, len(gb), _BLOCKS):  # rounds of _BLOCKS blocks; the time limit between rounds
+            if deadline is not None and deadline.expired():
+                done = gb[r0][0]
+                stats["dominance_stopped"] = (f"time limit: {done} of {ng} rarest-row groups checked (the columns "
+                                              "found dominated so far are dropped, the rest kept)")
+                break
+            _run(lambda g0, g1: _dominated_groups(words, live, size, order, starts, grows, g0, g1, dominated)
+                 or release(0, n), gb[r0:r0 + _BLOCKS], workers)
         stats["dominance_method"] = "column bitsets"
     keep = ~dominated
     restored = 0
