@@ -98,21 +98,33 @@ def _rarest(words, live, row_nnz, lo, hi, out):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _dominated_groups(words, live, size, order, starts, rows, g0, g1, out):  # pragma: no cover - compiled
+def _dominated_groups(words, live, size, order, starts, rows, rowsets, g0, g1, out):  # pragma: no cover - compiled
     """Columns ``order[starts[g]:starts[g + 1]]`` for groups ``g0:g1`` (one rarest row ``rows[g]``
     each): dominated when a column observing that row holds them (more rows, or identical and a
-    lower index)."""
+    lower index). The columns observing row ``rows[g]`` are the set bits of ``rowsets[g]`` (its
+    row bitset over all columns, :func:`_row_bits`), or, when ``rowsets`` has no rows (over the
+    memory budget), found by reading that row's bit in every column."""
     n = words.shape[0]
     cand = np.empty(n, dtype=np.int64)
+    have_sets = rowsets.shape[0] > 0
     for g in range(g0, g1):
-        r = rows[g]
-        wd = r >> 6
-        bit = np.uint64(1) << np.uint64(r & 63)
         nc = 0
-        for b in range(n):
-            if words[b, wd] & bit:
-                cand[nc] = b
-                nc += 1
+        if have_sets:
+            for cw in range(rowsets.shape[1]):
+                x = rowsets[g, cw]
+                base = np.int64(cw) << 6
+                while x:
+                    cand[nc] = base + np.int64(_ctz(x))
+                    nc += 1
+                    x &= x - np.uint64(1)
+        else:
+            r = rows[g]
+            wd = r >> 6
+            bit = np.uint64(1) << np.uint64(r & 63)
+            for b in range(n):
+                if words[b, wd] & bit:
+                    cand[nc] = b
+                    nc += 1
         for q in range(starts[g], starts[g + 1]):
             a = order[q]
             for t in range(nc):
@@ -139,6 +151,13 @@ def _row_bits(words, columns, pos, w0, w1, out):  # pragma: no cover - compiled
     for wd in range(w0, w1):
         base = wd * 64
         rows_here = min(64, m - base)
+        wanted = False
+        for r in range(rows_here):
+            if pos[base + r] >= 0:
+                wanted = True
+                break
+        if not wanted:
+            continue
         for cb in range((nc + 63) // 64):
             c0 = cb * 64
             cnt = min(64, nc - c0)
@@ -372,14 +391,25 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
         ng = grows.size
         gb = _blocks(ng, _DOMINANCE_BLOCKS)
         order = order.astype(np.int64)
+        # each group's candidate dominators: its rarest row's bitset over all columns, by transposes
+        # (one pass over the matrix), instead of reading that row's bit in every column per group
+        rowsets = np.zeros((0, 1), dtype=np.uint64)
+        if ng * ((n + 63) // 64) * 8 <= memory_budget_bytes() // 4:
+            rowsets = np.zeros((ng, (n + 63) // 64), dtype=np.uint64)
+            gpos = np.full(m, -1, dtype=np.int64)
+            gpos[grows] = np.arange(ng, dtype=np.int64)
+            all_cols = np.arange(n, dtype=np.int64)
+            _run(lambda w0, w1: (_row_bits(words, all_cols, gpos, w0, w1, rowsets), release(0, n)), _blocks(nw), workers)
+            del gpos, all_cols
         for r0 in range(0, len(gb), _BLOCKS):  # rounds of _BLOCKS blocks; the time limit between rounds
             if deadline is not None and deadline.expired():
                 done = gb[r0][0]
                 stats["dominance_stopped"] = (f"time limit: {done} of {ng} rarest-row groups checked (the columns "
                                               "found dominated so far are dropped, the rest kept)")
                 break
-            _run(lambda g0, g1: _dominated_groups(words, live, size, order, starts, grows, g0, g1, dominated)
+            _run(lambda g0, g1: _dominated_groups(words, live, size, order, starts, grows, rowsets, g0, g1, dominated)
                  or release(0, n), gb[r0:r0 + _BLOCKS], workers)
+        rowsets = None
         stats["dominance_method"] = "column bitsets"
     keep = ~dominated
     restored = 0
