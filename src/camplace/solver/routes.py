@@ -455,24 +455,26 @@ def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxco
     if mode == "maxcover" and conflicts == 0:
         return "bnb", (f"{count:.3g} possible teams (> {limit}), maxcover: the team branch and bound on marginal "
                        "gains proves the answer (no column dropped by dominance)")
+    why = mode if mode != "maxcover" else "minimum-distance conflicts"
     if engine == "exact":
         if count > _EXACT_TEAM_LIMIT:
             raise CamplaceError(f"engine exact: no exact team engine for this case ({count:.3g} possible teams, "
-                                f"{'setcover' if mode == 'setcover' else 'minimum-distance conflicts'}); "
-                                "use engine auto or mip")
+                                f"{why}); use engine auto or mip")
         return "enumerate", f"engine exact requested: enumeration of at most {count:.3g} teams"
-    why = "setcover" if mode == "setcover" else "minimum-distance conflicts"
     return "mip", (f"{count:.3g} possible teams (> {limit}), {why}: the team model (SCIP) enforces the counts, "
                    "the budget, the zone quotas and one camera per pose")
 
 
 def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
              free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline,
-             k_solver: Callable[[SolveOptions], Any] | None = None) -> ModeOutcome:
+             k_solver: Callable[[SolveOptions], Any] | None = None, pos: np.ndarray | None = None,
+             pts: np.ndarray | None = None) -> ModeOutcome:
     """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
     the exact enumeration on small instances, else the team model of
     :mod:`camplace.solver.engines.mip.team_model`; no column is dropped by dominance (a column may be
-    the only one of its model, zone, cost or pose class that meets a constraint)."""
+    the only one of its model, zone, cost or pose class that meets a constraint). Every mode:
+    maxcover, quality, multiview (``pos`` (n, 3) and ``pts`` (m, 3), metres, for the minimum
+    angle) and setcover."""
     from camplace.solver.engines.mip.team_model import solve_team_model
     from camplace.solver.engines.team.enumeration import ENUMERATION_LIMIT, enumerate_teams, team_count
 
@@ -485,18 +487,20 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     stats: dict[str, Any] = {"k": k, "team": team.record(),
                              "engine_choice": {"engine": name, "route": "team", "reason": reason}}
     costs = None if o.costs is None else np.asarray(o.costs, dtype=np.float64)
-    maximize = mode == "maxcover"
+    maximize = mode != "setcover"
+    view = dict(views=int(o.views), min_angle_deg=o.min_angle_deg, pos=pos, pts=pts)
 
     def value(sel: tuple[int, ...]) -> float:
         if maximize:
-            return mode_value(q, w, sel, mode="maxcover")
+            return mode_value(q, w, sel, mode=mode, views=int(o.views), min_angle_deg=o.min_angle_deg, positions=pos,
+                              points=pts)
         c = team.cost if costs is None else costs
         return float(sum(c[j] for j in sel if j not in fixed_t))
 
     if name == "enumerate":
         sel, status, _, est = enumerate_teams(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols,
                                               conflicts=conflicts, costs=costs, required_fraction=o.required_fraction,
-                                              deadline=deadline)
+                                              deadline=deadline, **view)
         stats["engine_stats"] = est
         engine = "exact"
         bound = (math.inf if maximize else -math.inf) if status != "optimal" else math.nan
@@ -524,7 +528,7 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     else:
         out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
                                costs=costs, required_fraction=o.required_fraction, backend=name,
-                               time_limit_s=deadline.left())
+                               time_limit_s=deadline.left(), **view)
         stats.update(out.stats)
         sel, status, bound, engine = out.selected, out.status, out.bound, name
     if sel is None:
