@@ -215,3 +215,7 @@ def test_engine_choice_names_the_mode() -> None:
     assert "multiview" in choose_team_engine("auto", 1e6, 20_000, "multiview")[1]
     assert choose_team_engine("auto", 10, 20_000, "multiview")[0] == "enumerate"
     assert choose_team_engine("exact", 1e5, 20_000, "quality")[0] == "enumerate"
+    # multiview with a minimum angle: the enumeration goes further under auto (the model's angle rows are many)
+    assert choose_team_engine("auto", 3e5, 20_000, "multiview", angle=True)[0] == "enumerate"
+    assert choose_team_engine("auto", 1e7, 20_000, "multiview", angle=True)[0] == "mip"
+    assert choose_team_engine("mip", 10, 20_000, "multiview", angle=True)[0] == "mip"

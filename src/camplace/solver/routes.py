@@ -439,19 +439,27 @@ def _run_cover(p: CoverProblem) -> ModeOutcome:
 
 #: ``engine="exact"`` enumerates at most this many teams where the branch and bound does not apply.
 _EXACT_TEAM_LIMIT = 2_000_000
+#: ``auto`` enumerates up to this many teams in multiview with a minimum angle (about 30 us a team;
+#: the team model has a row per pair of observers too close in angle, which SCIP does not get through).
+_ANGLE_TEAM_LIMIT = 500_000
 
 
 def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxcover",
-                       conflicts: int = 0) -> tuple[str, str]:
+                       conflicts: int = 0, angle: bool = False) -> tuple[str, str]:
     """The engine of a team solve and why (pure): ``("enumerate" | "bnb" | "mip" | "cpsat", reason)``.
 
     ``count`` is :func:`~camplace.solver.engines.team.enumeration.team_count`, the teams the exact
     enumeration would visit at most; ``bnb`` is the branch and bound of
-    :mod:`camplace.solver.engines.team.bnb` (maxcover without minimum-distance conflicts)."""
+    :mod:`camplace.solver.engines.team.bnb` (maxcover without minimum-distance conflicts); ``angle``:
+    multiview with a minimum angle, enumerated up to :data:`_ANGLE_TEAM_LIMIT` teams."""
     if engine in ("mip", "cpsat"):
         return engine, f"engine {engine} requested: the team model"
     if count <= limit:
         return "enumerate", f"at most {count:.3g} teams (<= {limit}): the exact enumeration proves the answer"
+    if angle and engine == "auto" and count <= _ANGLE_TEAM_LIMIT:
+        return "enumerate", (f"at most {count:.3g} teams (<= {_ANGLE_TEAM_LIMIT}), multiview with a minimum angle: "
+                             "the exact enumeration proves the answer (the team model's pairwise angle rows are "
+                             "too many for SCIP)")
     if mode == "maxcover" and conflicts == 0:
         return "bnb", (f"{count:.3g} possible teams (> {limit}), maxcover: the team branch and bound on marginal "
                        "gains proves the answer (no column dropped by dominance)")
@@ -483,7 +491,8 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     if team.pose is not None and len(fixed_t):  # a pose a fixed camera holds takes no other model
         free_cols = free_cols[~np.isin(team.pose[free_cols], team.pose[list(fixed_t)])]
     count = team_count(team, k, fixed_t, free_cols)
-    name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]))
+    name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]),
+                                      angle=mode == "multiview" and o.min_angle_deg is not None)
     stats: dict[str, Any] = {"k": k, "team": team.record(),
                              "engine_choice": {"engine": name, "route": "team", "reason": reason}}
     costs = None if o.costs is None else np.asarray(o.costs, dtype=np.float64)
