@@ -237,9 +237,9 @@ def team_record(instance, cameras: list[dict], *, enforced: bool = False, cardin
     ``"enforced": true`` and its ``cardinality`` (``exact``: k cameras; ``budget``: any number
     within the budget); every mode of :data:`camplace.names.TEAM_MODES` (maxcover, quality,
     multiview, setcover) does. Otherwise (the robust placement, or a mode that cannot enforce
-    them) they are only checked on the chosen cameras: ``"enforced": false`` and a warning names the ones the chosen team breaks (or
-    says that none is enforced when it happens to meet them; ``why_not`` replaces the reason
-    given). ``uses`` and ``broken`` either way.
+    them) they are only checked on the chosen cameras: ``"enforced": false`` and a warning names
+    the ones the chosen team breaks (or says that none is enforced when it happens to meet them;
+    ``why_not`` replaces the reason given). ``uses`` and ``broken`` either way.
     """
     team = getattr(instance, "team", None)
     if team is None:

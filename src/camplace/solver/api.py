@@ -291,8 +291,9 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
             if o.team.cardinality == "exact" and k_team > free_cols.size:
                 raise CamplaceError(f"cannot choose k={k_team} new cameras from {free_cols.size} allowed candidates "
                                     "(lower k, or forbid/fix fewer cameras)")
-        ctx = run_team(q, w, o, k_team, fixed_t, free_cols, conflicts, deadline,  # k_solver: single-model count patterns
-                       k_solver=lambda sub: _solve(q, w, None, None, sub), pos=pos, pts=pts)
+        ctx = run_team(q, w, o, k_team, fixed_t, free_cols, conflicts, deadline,
+                       k_solver=lambda sub: _solve(q, w, None, None, sub),  # single-model count patterns
+                       pos=pos, pts=pts)
     elif mode == "setcover":
         if conflicts.size:  # the model runs directly (otherwise the local search checks its own memory)
             check_setcover_memory(q, w, free_cols, conflicts, engine)

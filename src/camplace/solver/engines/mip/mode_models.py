@@ -3,7 +3,9 @@
 :func:`model_size` states a k-camera model's size before :func:`build_model` builds it (the caller
 compares :func:`~camplace.solver.engines.mip.linear.model_bytes` of it with the memory budget);
 :func:`setcover_model` is the minimum-cost cover with minimum-distance conflicts
-(:func:`check_setcover_memory` first). The generic 0/1 model and its two OR-Tools backends stay in
+(:func:`check_setcover_memory` first). :func:`add_quality_rows` and :func:`add_multiview_rows`
+are the objective rows of quality and multiview, shared with the camera-team model
+(:mod:`camplace.solver.engines.mip.team_model`). The generic 0/1 model and its two OR-Tools backends stay in
 :mod:`camplace.solver.engines.mip.linear`, which :mod:`camplace.plan` uses as well.
 """
 
@@ -24,7 +26,8 @@ from camplace.solver.engines.mip.linear import LinearModel, model_bytes
 from camplace.solver.problem.objectives import angle_ok_pairs, selected_row_stats
 from camplace.solver.problem.presolve import as_pattern
 
-__all__ = ["BuildTimeout", "add_level_chain", "add_quality_rows", "add_multiview_rows", "merge_rows", "model_size", "build_model", "check_setcover_memory", "setcover_model"]
+__all__ = ["BuildTimeout", "add_level_chain", "add_quality_rows", "add_multiview_rows", "merge_rows", "model_size",
+           "build_model", "check_setcover_memory", "setcover_model"]
 
 _MODEL_BYTES_PER_ROW_MIN = 1000  # no model row costs less (see camplace.solver.engines.mip.linear.model_bytes)
 

@@ -5,10 +5,10 @@ get worse (a model's or a zone's maximum, the budget, a pose taken twice, a conf
 new cameras than allowed); complete teams are checked against the minimums and the cardinality and
 scored on the original matrix: covered weight (maxcover), ``sum_i w_i max_j q_ij`` (quality),
 the weight of the rows at least ``views`` chosen cameras observe, two of them at least
-``min_angle_deg`` apart when given (multiview), or the cost of the new cameras (setcover). Every feasible team is visited, so the best is optimal (or the team
-is infeasible when there is none). :func:`team_count` bounds the number of teams visited, which
-:func:`camplace.solver.routes.run_team` compares with :data:`ENUMERATION_LIMIT` to choose this
-engine.
+``min_angle_deg`` apart when given (multiview), or the cost of the new cameras (setcover). Every
+feasible team is visited, so the best is optimal (or the team is infeasible when there is none).
+:func:`team_count` bounds the number of teams visited, which :func:`camplace.solver.routes.run_team`
+compares with :data:`ENUMERATION_LIMIT` to choose this engine.
 """
 
 from __future__ import annotations
