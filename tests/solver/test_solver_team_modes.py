@@ -219,3 +219,50 @@ def test_engine_choice_names_the_mode() -> None:
     assert choose_team_engine("auto", 3e5, 20_000, "multiview", angle=True)[0] == "enumerate"
     assert choose_team_engine("auto", 1e7, 20_000, "multiview", angle=True)[0] == "mip"
     assert choose_team_engine("mip", 10, 20_000, "multiview", angle=True)[0] == "mip"
+
+
+def _large_team(m: int = 1500, n: int = 80):
+    """A random graded matrix too big for the enumeration, and a two-model team with a budget and a zone."""
+    from camplace.solver.problem.team import TeamConstraints
+
+    q = sp.random(m, n, density=0.15, random_state=1, format="csr", dtype=np.float32)
+    q.data = np.ceil(q.data * 4) / 4
+    w = np.random.default_rng(1).random(m)
+    half = n // 2
+    team = TeamConstraints(model=np.repeat([0, 1], half), model_names=("a", "b"), model_min=(1, 1), model_max=(3, 2),
+                           cost=np.repeat([1.0, 3.0], half), budget=8.0, cardinality="budget", zone_names=("z",),
+                           zone_member=(np.arange(n) % 5 == 0)[:, None], zone_min=(1,), zone_max=(None,))
+    return q, w, team
+
+
+@pytest.mark.parametrize("mode", ["quality", "multiview"])
+def test_team_model_under_a_time_limit_keeps_a_valid_answer(mode) -> None:
+    """Beyond the enumeration, on a short time limit: the team route's answer meets the team, and
+    status, objective, bound and gap agree (the bound at least the objective)."""
+    q, w, team = _large_team()
+    res = solve(q, w, options=SolveOptions(mode=mode, engine="auto", team=team, time_limit_s=1.0))
+    assert res.stats["engine_choice"]["engine"] == "mip" and res.stats["engine_choice"]["route"] == "team"
+    assert mode in res.stats["engine_choice"]["reason"]
+    assert res.status in ("optimal", "feasible", "unknown")
+    if res.status == "unknown":
+        assert res.selected == () and math.isinf(res.gap)
+        return
+    assert team.violations(res.selected) == []
+    assert res.bound >= res.objective - 1e-9 and res.gap >= 0.0
+    if res.status == "optimal":
+        assert res.gap == 0.0 and res.bound == res.objective
+    else:
+        assert res.gap > 0.0
+    q_dense = q.toarray()
+    sub = q_dense[:, list(res.selected)]
+    want = float(w @ sub.max(axis=1)) if mode == "quality" else float(w[(sub > 0).sum(axis=1) >= 2].sum())
+    assert res.objective == pytest.approx(want, abs=1e-9)
+
+
+def test_team_model_too_big_is_a_one_line_error() -> None:
+    from camplace.errors import CamplaceError
+
+    q, w, team = _large_team()
+    with pytest.raises(CamplaceError, match="team model of mode quality needs about") as exc:
+        solve(q, w, options=SolveOptions(mode="quality", engine="mip", team=team, memory_budget_bytes=10**6))
+    assert "\n" not in str(exc.value)
