@@ -8,7 +8,7 @@ from __future__ import annotations
 #: Formulations of :func:`camplace.solver.solve`.
 MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
 #: The modes that enforce a camera team's constraints (:class:`camplace.solver.problem.team.TeamConstraints`).
-TEAM_MODES = ("maxcover", "setcover")
+TEAM_MODES: tuple[str, ...] = ("maxcover", "quality", "multiview", "setcover")
 #: Solver engines a user may ask for (``auto`` chooses per problem).
 ENGINES: tuple[str, ...] = ("auto", "exact", "mip", "cpsat")
 #: Engines of the ``setcover`` verb (the exact bitset engines do not minimise).

@@ -63,8 +63,8 @@ class Solution:
     team : dict or None
         A team run (``Instance.team``): the models' costs and counts, the budget, the zones,
         ``enforced`` (true: the solver imposed the counts, the budget, the quotas and one camera
-        per pose, ``cardinality`` says whether k or the budget set the number of cameras; false:
-        a mode that cannot, the best k over all pose x model columns) and what the chosen team
+        per pose, in every mode, ``cardinality`` says whether k or the budget set the number of
+        cameras; false: the robust placement, which chose among all pose x model columns) and what the chosen team
         ``uses`` of each.
     instance : str
         Instance name.
@@ -235,10 +235,11 @@ def team_record(instance, cameras: list[dict], *, enforced: bool = False, cardin
     With ``enforced`` (the solver imposed the per-model counts, the budget, the zone quotas and
     one camera per pose: :class:`camplace.solver.problem.team.TeamConstraints`) the record says
     ``"enforced": true`` and its ``cardinality`` (``exact``: k cameras; ``budget``: any number
-    within the budget). Otherwise (a mode that cannot enforce them) they are only checked on the
-    chosen cameras: ``"enforced": false`` and a warning names the ones the chosen team breaks (or
-    says that none is enforced when it happens to meet them; ``why_not`` replaces the reason
-    given). ``uses`` and ``broken`` either way.
+    within the budget); every mode of :data:`camplace.names.TEAM_MODES` (maxcover, quality,
+    multiview, setcover) does. Otherwise (the robust placement, or a mode that cannot enforce
+    them) they are only checked on the chosen cameras: ``"enforced": false`` and a warning names
+    the ones the chosen team breaks (or says that none is enforced when it happens to meet them;
+    ``why_not`` replaces the reason given). ``uses`` and ``broken`` either way.
     """
     team = getattr(instance, "team", None)
     if team is None:
@@ -272,9 +273,11 @@ def team_record(instance, cameras: list[dict], *, enforced: bool = False, cardin
         # the solver checked every constraint; anything broken here is a bug worth saying loudly
         return rec, ([f"team: the solver enforced the constraints but the chosen team breaks {'; '.join(broken)}"]
                      if broken else [])
+    from camplace.names import TEAM_MODES
+
     note = ("team: the per-model counts, the budget and the zone quotas are not enforced "
-            + (why_not or "in this mode (the solver enforces them in maxcover and setcover; it chose the best k cameras "
-               "over all pose x model columns)"))
+            + (why_not or f"in this mode (the solver enforces them in {', '.join(TEAM_MODES)}; it chose the best k "
+               "cameras over all pose x model columns)"))
     note += ": the chosen team breaks " + "; ".join(broken) if broken else "; the chosen team happens to meet them"
     return rec, [note]
 

@@ -252,3 +252,23 @@ def test_solve_enforces_the_team_and_an_impossible_quota_exits_1(team_run, tmp_p
                         *SIZES], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
     assert r.returncode == 1, (r.stdout, r.stderr[-2000:])
     assert r.stdout.startswith("infeasible") and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("flags", [["--mode", "quality"], ["--mode", "multiview", "--views", "2"],
+                                   ["--mode", "multiview", "--views", "2", "--min-angle", "20"]],
+                         ids=["quality", "multiview", "multiview-angle"])
+def test_solve_enforces_the_team_in_quality_and_multiview(team_run, tmp_path, flags) -> None:
+    """``camplace solve`` in modes quality and multiview (with and without a minimum angle) on the
+    team run's folder: the team route, every constraint met, optimal (budget cardinality: no k)."""
+    from camplace.runfolder import RunFolder
+    from camplace.solver.problem.team import TeamConstraints
+
+    env, out = team_run["env"], team_run["out"]
+    _cli("solve", str(out), *flags, "--fixed", str(team_run["science"]), "-o", str(tmp_path / "s.json"), env=env,
+         cwd=tmp_path)
+    got = json.loads((tmp_path / "s.json").read_text())
+    assert got["status"] == "optimal" and got["gap"] == 0.0 and got["objective"] > 0, got["status"]
+    assert got["stats"]["engine_choice"]["route"] == "team" and got["options"]["team"]["cardinality"] == "budget"
+    assert team_run["science"] in got["selected"]
+    team = TeamConstraints.from_team(team_run["inst"].team, RunFolder(out).candidates)
+    assert team.violations(got["selected"], fixed=[team_run["science"]]) == []

@@ -304,8 +304,9 @@ def test_pose_index_matches_position_and_rotation() -> None:
 
 def test_options_check_the_team() -> None:
     t = TeamConstraints(model=[0, 0], model_names=("a",), model_min=(0,), model_max=(None,), cost=[1, 1])
-    with pytest.raises(CamplaceError, match="modes maxcover and setcover"):
-        SolveOptions(mode="quality", k=1, team=t)
+    # every mode enforces a team (quality and multiview too: tests/solver/test_solver_team_modes.py)
+    for mode in ("maxcover", "quality", "multiview"):
+        assert SolveOptions(mode=mode, k=1, team=t).team is t
     with pytest.raises(CamplaceError, match="describe 2 candidate columns"):
         solve(sp.csr_matrix(np.ones((2, 3))), np.ones(2), options=SolveOptions(k=1, team=t))
     with pytest.raises(CamplaceError, match="shape"):
@@ -394,11 +395,11 @@ def test_from_team_on_the_builtin_team() -> None:
             shared += 1
     assert shared > 0
     assert len(np.unique(t.pose)) == len({(tuple(p), tuple(r.ravel())) for p, r in zip(cands.positions, cands.rotations)})
-    # the options: budget cardinality drops k; quality cannot enforce and stays as it was
-    o = team_options(inst.team, cands, SolveOptions(k=3))
-    assert o.team is not None and o.k is None
-    q = SolveOptions(mode="quality", k=3)
-    assert team_options(inst.team, cands, q) is q
+    # the options: budget cardinality drops k, in every mode (quality and multiview enforce teams too)
+    for mode in ("maxcover", "quality", "multiview"):
+        o = team_options(inst.team, cands, SolveOptions(mode=mode, k=3))
+        assert o.team is not None and o.k is None and o.mode == mode
+    assert team_options(None, cands, SolveOptions(mode="quality", k=3)).team is None
 
 
 @pytest.mark.parametrize("seed", [0, 1])

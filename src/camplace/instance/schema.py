@@ -351,7 +351,7 @@ class KeepOut:
 
 @dataclass(frozen=True)
 class Zone:
-    """A named box region with camera quotas (``[[zones]]``); enforced by the solver (maxcover, setcover).
+    """A named box region with camera quotas (``[[zones]]``); enforced by the solver (every mode).
 
     Attributes
     ----------

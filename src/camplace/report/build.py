@@ -108,7 +108,7 @@ def _instance_section(run) -> str:
                          + (", ".join(f"{z.name} ({z.min_cameras}{'..' + str(z.max_cameras) if z.max_cameras is not None else '+'})"
                                       for z in team.zones) or "no zones")
                          + (" (enforced by the solver)" if (getattr(sol, "team", None) or {}).get("enforced")
-                            else " (not enforced in this mode)")))
+                            else " (not enforced: see the notes)")))
     rows = [
         ("instance", inst.name),
         ("source", inst.source or "–"),

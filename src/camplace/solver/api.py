@@ -292,7 +292,8 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
                 raise CamplaceError(f"cannot choose k={k_team} new cameras from {free_cols.size} allowed candidates "
                                     "(lower k, or forbid/fix fewer cameras)")
         ctx = run_team(q, w, o, k_team, fixed_t, free_cols, conflicts, deadline,
-                       k_solver=lambda sub: _solve(q, w, None, None, sub))  # single-model count patterns
+                       k_solver=lambda sub: _solve(q, w, None, None, sub),  # single-model count patterns
+                       pos=pos, pts=pts)
     elif mode == "setcover":
         if conflicts.size:  # the model runs directly (otherwise the local search checks its own memory)
             check_setcover_memory(q, w, free_cols, conflicts, engine)

@@ -153,7 +153,7 @@ def _check(o: SolveOptions) -> None:
         if not all(hasattr(o.team, a) for a in ("violations", "cardinality", "record")):  # no import: this module stays light
             raise CamplaceError(f"team must be a TeamConstraints, got {type(o.team).__name__}")
         if o.mode not in TEAM_MODES:
-            raise CamplaceError(f"team constraints apply to modes {' and '.join(TEAM_MODES)} only, not {o.mode!r}")
+            raise CamplaceError(f"team constraints apply to modes {', '.join(TEAM_MODES)} only, not {o.mode!r}")
     if o.mode == "setcover":
         if o.k is not None:
             raise CamplaceError("mode 'setcover' chooses the number of cameras itself: do not give k")

@@ -439,40 +439,50 @@ def _run_cover(p: CoverProblem) -> ModeOutcome:
 
 #: ``engine="exact"`` enumerates at most this many teams where the branch and bound does not apply.
 _EXACT_TEAM_LIMIT = 2_000_000
+#: ``auto`` enumerates up to this many teams in multiview with a minimum angle (about 30 us a team;
+#: the team model has a row per pair of observers too close in angle, which SCIP does not get through).
+_ANGLE_TEAM_LIMIT = 500_000
 
 
 def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxcover",
-                       conflicts: int = 0) -> tuple[str, str]:
+                       conflicts: int = 0, angle: bool = False) -> tuple[str, str]:
     """The engine of a team solve and why (pure): ``("enumerate" | "bnb" | "mip" | "cpsat", reason)``.
 
     ``count`` is :func:`~camplace.solver.engines.team.enumeration.team_count`, the teams the exact
     enumeration would visit at most; ``bnb`` is the branch and bound of
-    :mod:`camplace.solver.engines.team.bnb` (maxcover without minimum-distance conflicts)."""
+    :mod:`camplace.solver.engines.team.bnb` (maxcover without minimum-distance conflicts); ``angle``:
+    multiview with a minimum angle, enumerated up to :data:`_ANGLE_TEAM_LIMIT` teams."""
     if engine in ("mip", "cpsat"):
         return engine, f"engine {engine} requested: the team model"
     if count <= limit:
         return "enumerate", f"at most {count:.3g} teams (<= {limit}): the exact enumeration proves the answer"
+    if angle and engine == "auto" and count <= _ANGLE_TEAM_LIMIT:
+        return "enumerate", (f"at most {count:.3g} teams (<= {_ANGLE_TEAM_LIMIT}), multiview with a minimum angle: "
+                             "the exact enumeration proves the answer (the team model's pairwise angle rows are "
+                             "too many for SCIP)")
     if mode == "maxcover" and conflicts == 0:
         return "bnb", (f"{count:.3g} possible teams (> {limit}), maxcover: the team branch and bound on marginal "
                        "gains proves the answer (no column dropped by dominance)")
+    why = mode if mode != "maxcover" else "minimum-distance conflicts"
     if engine == "exact":
         if count > _EXACT_TEAM_LIMIT:
             raise CamplaceError(f"engine exact: no exact team engine for this case ({count:.3g} possible teams, "
-                                f"{'setcover' if mode == 'setcover' else 'minimum-distance conflicts'}); "
-                                "use engine auto or mip")
+                                f"{why}); use engine auto or mip")
         return "enumerate", f"engine exact requested: enumeration of at most {count:.3g} teams"
-    why = "setcover" if mode == "setcover" else "minimum-distance conflicts"
     return "mip", (f"{count:.3g} possible teams (> {limit}), {why}: the team model (SCIP) enforces the counts, "
                    "the budget, the zone quotas and one camera per pose")
 
 
 def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
              free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline,
-             k_solver: Callable[[SolveOptions], Any] | None = None) -> ModeOutcome:
+             k_solver: Callable[[SolveOptions], Any] | None = None, pos: np.ndarray | None = None,
+             pts: np.ndarray | None = None) -> ModeOutcome:
     """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
     the exact enumeration on small instances, else the team model of
     :mod:`camplace.solver.engines.mip.team_model`; no column is dropped by dominance (a column may be
-    the only one of its model, zone, cost or pose class that meets a constraint)."""
+    the only one of its model, zone, cost or pose class that meets a constraint). Every mode:
+    maxcover, quality, multiview (``pos`` (n, 3) and ``pts`` (m, 3), metres, for the minimum
+    angle) and setcover."""
     from camplace.solver.engines.mip.team_model import solve_team_model
     from camplace.solver.engines.team.enumeration import ENUMERATION_LIMIT, enumerate_teams, team_count
 
@@ -481,22 +491,25 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     if team.pose is not None and len(fixed_t):  # a pose a fixed camera holds takes no other model
         free_cols = free_cols[~np.isin(team.pose[free_cols], team.pose[list(fixed_t)])]
     count = team_count(team, k, fixed_t, free_cols)
-    name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]))
+    name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]),
+                                      angle=mode == "multiview" and o.min_angle_deg is not None)
     stats: dict[str, Any] = {"k": k, "team": team.record(),
                              "engine_choice": {"engine": name, "route": "team", "reason": reason}}
     costs = None if o.costs is None else np.asarray(o.costs, dtype=np.float64)
-    maximize = mode == "maxcover"
+    maximize = mode != "setcover"
+    view = dict(views=int(o.views), min_angle_deg=o.min_angle_deg, pos=pos, pts=pts)
 
     def value(sel: tuple[int, ...]) -> float:
         if maximize:
-            return mode_value(q, w, sel, mode="maxcover")
+            return mode_value(q, w, sel, mode=mode, views=int(o.views), min_angle_deg=o.min_angle_deg, positions=pos,
+                              points=pts)
         c = team.cost if costs is None else costs
         return float(sum(c[j] for j in sel if j not in fixed_t))
 
     if name == "enumerate":
         sel, status, _, est = enumerate_teams(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols,
                                               conflicts=conflicts, costs=costs, required_fraction=o.required_fraction,
-                                              deadline=deadline)
+                                              deadline=deadline, **view)
         stats["engine_stats"] = est
         engine = "exact"
         bound = (math.inf if maximize else -math.inf) if status != "optimal" else math.nan
@@ -524,7 +537,7 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     else:
         out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
                                costs=costs, required_fraction=o.required_fraction, backend=name,
-                               time_limit_s=deadline.left())
+                               time_limit_s=deadline.left(), **view)
         stats.update(out.stats)
         sel, status, bound, engine = out.selected, out.status, out.bound, name
     if sel is None:

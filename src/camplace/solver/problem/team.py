@@ -257,9 +257,10 @@ def team_options(team: Any, candidates: Any, options: Any) -> Any:
     """``options`` (a :class:`~camplace.solver.options.SolveOptions`) carrying the constraints of
     ``team`` on ``candidates`` (the pipeline's and ``camplace solve``'s one place to build them).
 
-    Unchanged when there is no team or the mode cannot enforce them (quality, multiview: the
-    run then records ``team.enforced: false``). With a budget the cardinality is ``"budget"``:
-    any number of cameras within it, ``k`` dropped."""
+    Unchanged when there is no team or the mode cannot enforce them (a mode outside
+    :data:`camplace.names.TEAM_MODES`: the run then records ``team.enforced: false``); every
+    mode enforces them today (maxcover, quality, multiview, setcover). With a budget the
+    cardinality is ``"budget"``: any number of cameras within it, ``k`` dropped."""
     from camplace.names import TEAM_MODES
 
     if team is None or options.mode not in TEAM_MODES:

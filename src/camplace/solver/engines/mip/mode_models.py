@@ -3,13 +3,16 @@
 :func:`model_size` states a k-camera model's size before :func:`build_model` builds it (the caller
 compares :func:`~camplace.solver.engines.mip.linear.model_bytes` of it with the memory budget);
 :func:`setcover_model` is the minimum-cost cover with minimum-distance conflicts
-(:func:`check_setcover_memory` first). The generic 0/1 model and its two OR-Tools backends stay in
+(:func:`check_setcover_memory` first). :func:`add_quality_rows` and :func:`add_multiview_rows`
+are the objective rows of quality and multiview, shared with the camera-team model
+(:mod:`camplace.solver.engines.mip.team_model`). The generic 0/1 model and its two OR-Tools backends stay in
 :mod:`camplace.solver.engines.mip.linear`, which :mod:`camplace.plan` uses as well.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -23,7 +26,8 @@ from camplace.solver.engines.mip.linear import LinearModel, model_bytes
 from camplace.solver.problem.objectives import angle_ok_pairs, selected_row_stats
 from camplace.solver.problem.presolve import as_pattern
 
-__all__ = ["BuildTimeout", "add_level_chain", "merge_rows", "model_size", "build_model", "check_setcover_memory", "setcover_model"]
+__all__ = ["BuildTimeout", "add_level_chain", "add_quality_rows", "add_multiview_rows", "merge_rows", "model_size",
+           "build_model", "check_setcover_memory", "setcover_model"]
 
 _MODEL_BYTES_PER_ROW_MIN = 1000  # no model row costs less (see camplace.solver.engines.mip.linear.model_bytes)
 
@@ -159,48 +163,103 @@ def build_model(
             model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -1.0), lo=0.0)
         const = fixed_value
     elif mode == "quality":
-        live = (resid_w > 0) & (np.diff(resid.indptr) > 0)
-        pr, pw = merge_rows(resid[live].tocsr(), resid_w[live])
-        for r in range(pr.shape[0]):
-            check(r)
-            s, e = pr.indptr[r], pr.indptr[r + 1]
-            add_level_chain(model, x, pr.indices[s:e], pr.data[s:e], pw[r], wmax)
+        add_quality_rows(model, x, resid, resid_w, wmax, check)
         const = float(w @ base)
     else:
-        fx = np.array(fixed_t, dtype=np.int64)
-        allc = np.concatenate([free_cols, fx])  # model columns: free ones then fixed
-        xf = model.add_vars(fx.size, lb=1.0, ub=1.0)
-        xall = np.concatenate([x, xf])
-        qa = q[:, allc].tocsr()
-        nobs = np.diff(qa.indptr)
-        live = (w > 0) & (nobs >= views)
-        if pts is None:
-            pr, pw = merge_rows(as_pattern(qa[live]), w[live])
-            y = model.add_vars(pr.shape[0], obj=pw / wmax)
-            for r in range(pr.shape[0]):
-                check(r)
-                cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
-                model.add_row(np.append(xall[cols], y[r]), np.append(np.ones(cols.size), -float(views)), lo=0.0)
-        else:
-            assert pos is not None
-            for r, i in enumerate(np.flatnonzero(live)):
-                check(r)
-                cols = qa.indices[qa.indptr[i] : qa.indptr[i + 1]]
-                good = angle_ok_pairs(pts[i], pos[allc[cols]], float(min_angle_deg or 0.0))
-                if not np.any(np.triu(good, 1)):
-                    continue
-                yi = int(model.add_vars(1, obj=w[i] / wmax)[0])
-                if views > 2:
-                    model.add_row(np.append(xall[cols], yi), np.append(np.ones(cols.size), -float(views)), lo=0.0)
-                u = model.add_vars(cols.size)
-                for t, c in enumerate(cols):
-                    model.add_row([u[t], xall[c]], [1.0, -1.0], hi=0.0)
-                model.add_row(np.append(u, yi), np.append(np.ones(cols.size), -2.0), 0.0, 0.0)
-                bad_a, bad_b = np.nonzero(np.triu(~good, 1))
-                for a, b in zip(bad_a.tolist(), bad_b.tolist()):
-                    model.add_row([u[a], u[b]], [1.0, 1.0], hi=1.0)
+        add_multiview_rows(model, x, q, w, views, min_angle_deg, pos, pts, fixed_t, free_cols, wmax, check)
 
     return model, x, wmax, const
+
+
+def add_quality_rows(model: LinearModel, x: np.ndarray, resid: sp.csr_matrix, resid_w: np.ndarray, wmax: float,
+                     check: Callable[[int], None] = lambda r: None) -> None:
+    """The quality objective: one :func:`add_level_chain` per live row of ``resid`` (identical rows merged).
+
+    Parameters
+    ----------
+    model : LinearModel
+    x : (f,) int64
+        The variables of the free columns (the columns of ``resid``).
+    resid : (m, f) csr_matrix
+        What each free column adds over the fixed cameras' best quality (values in (0, 1]).
+    resid_w : (m,) float64
+        Row weights.
+    wmax : float
+        The objective's scale (objective coefficients are divided by it).
+    check : callable, optional
+        Called with the row number as rows are added (raises :class:`BuildTimeout` at the time limit).
+    """
+    live = (resid_w > 0) & (np.diff(resid.indptr) > 0)
+    pr, pw = merge_rows(resid[live].tocsr(), resid_w[live])
+    for r in range(pr.shape[0]):
+        check(r)
+        s, e = pr.indptr[r], pr.indptr[r + 1]
+        add_level_chain(model, x, pr.indices[s:e], pr.data[s:e], pw[r], wmax)
+
+
+def add_multiview_rows(
+    model: LinearModel, x: np.ndarray, q: sp.csr_matrix, w: np.ndarray, views: int, min_angle_deg: float | None,
+    pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...], free_cols: np.ndarray, wmax: float,
+    check: Callable[[int], None] = lambda r: None, x_fixed: np.ndarray | None = None,
+) -> None:
+    """The multiview objective: ``y_i`` (0/1, objective ``w_i / wmax``) only when at least ``views``
+    chosen cameras observe row ``i`` (fixed ones included) and, with ``pts`` (the minimum angle),
+    two of them whose view rays make at least ``min_angle_deg``.
+
+    Parameters
+    ----------
+    model : LinearModel
+    x : (f,) int64
+        The variables of the free columns.
+    q : (m, n) csr_matrix
+    w : (m,) float64
+    views : int
+    min_angle_deg : float or None
+    pos : (n, 3) float64 or None
+        Camera positions (with ``pts``), metres.
+    pts : (m, 3) float64 or None
+        Point positions, metres; None: no angle.
+    fixed_t : tuple of int
+    free_cols : (f,) int64
+    wmax : float
+    check : callable, optional
+        As in :func:`add_quality_rows`.
+    x_fixed : (len(fixed_t),) int64, optional
+        Variables of the fixed columns already in the model (fixed to 1 by the caller); default:
+        new variables fixed to 1.
+    """
+    fx = np.array(fixed_t, dtype=np.int64)
+    allc = np.concatenate([free_cols, fx])  # model columns: free ones then fixed
+    xf = model.add_vars(fx.size, lb=1.0, ub=1.0) if x_fixed is None else np.asarray(x_fixed, dtype=np.int64)
+    xall = np.concatenate([x, xf])
+    qa = q[:, allc].tocsr()
+    nobs = np.diff(qa.indptr)
+    live = (w > 0) & (nobs >= views)
+    if pts is None:
+        pr, pw = merge_rows(as_pattern(qa[live]), w[live])
+        y = model.add_vars(pr.shape[0], obj=pw / wmax)
+        for r in range(pr.shape[0]):
+            check(r)
+            cols = pr.indices[pr.indptr[r] : pr.indptr[r + 1]]
+            model.add_row(np.append(xall[cols], y[r]), np.append(np.ones(cols.size), -float(views)), lo=0.0)
+    else:
+        assert pos is not None
+        for r, i in enumerate(np.flatnonzero(live)):
+            check(r)
+            cols = qa.indices[qa.indptr[i] : qa.indptr[i + 1]]
+            good = angle_ok_pairs(pts[i], pos[allc[cols]], float(min_angle_deg or 0.0))
+            if not np.any(np.triu(good, 1)):
+                continue
+            yi = int(model.add_vars(1, obj=w[i] / wmax)[0])
+            if views > 2:
+                model.add_row(np.append(xall[cols], yi), np.append(np.ones(cols.size), -float(views)), lo=0.0)
+            u = model.add_vars(cols.size)
+            for t, c in enumerate(cols):
+                model.add_row([u[t], xall[c]], [1.0, -1.0], hi=0.0)
+            model.add_row(np.append(u, yi), np.append(np.ones(cols.size), -2.0), 0.0, 0.0)
+            bad_a, bad_b = np.nonzero(np.triu(~good, 1))
+            for a, b in zip(bad_a.tolist(), bad_b.tolist()):
+                model.add_row([u[a], u[b]], [1.0, 1.0], hi=1.0)
 
 
 def check_setcover_memory(q: sp.csr_matrix, w: np.ndarray, free_cols: np.ndarray, conflicts: np.ndarray,

@@ -1,5 +1,5 @@
-"""The camera-team model (issue 31): max coverage or minimum-cost cover under
-:class:`~camplace.solver.problem.team.TeamConstraints`, for SCIP or CP-SAT.
+"""The camera-team model (issue 31): max coverage, best quality, multiview coverage or minimum-cost
+cover under :class:`~camplace.solver.problem.team.TeamConstraints`, for SCIP or CP-SAT.
 
 Variables ``x_j`` for every allowed column (fixed ones with ``x_j = 1``), no column dropped (a
 dominance argument across models, zones or costs would be wrong once these constraints apply)::
@@ -8,6 +8,12 @@ dominance argument across models, zones or costs would be wrong once these const
     setcover   minimise  sum_{j free} c_j x_j
                s.t.      sum_{j observes r} x_j >= 1   (every coverable row of positive weight), or
                          sum_r w_r y_r >= f * W           (required_fraction f < 1)
+    quality    maximise  sum_i w_i max_{j chosen} q_ij    (the level chains of
+                         :func:`~camplace.solver.engines.mip.mode_models.add_quality_rows`, over what a
+                         free column adds to the fixed cameras' best quality)
+    multiview  maximise  sum_i w_i y_i      y_i = 1 only when >= views chosen cameras (fixed ones
+                         included) observe i, and with a minimum angle two of them far enough apart
+                         (:func:`~camplace.solver.engines.mip.mode_models.add_multiview_rows`)
 
 and the team rows: ``sum_{j free} x_j = k`` (cardinality ``exact``; ``<= k`` for ``budget`` with
 a k), ``lo_m <= sum_{j of model m} x_j <= hi_m``, ``sum_j cost_j x_j <= budget``,
@@ -26,8 +32,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
-from camplace.solver.engines.mip.linear import LinearModel, solve_model
-from camplace.solver.engines.mip.mode_models import merge_rows
+from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver.engines.mip.linear import LinearModel, model_bytes, solve_model
+from camplace.solver.engines.mip.mode_models import (BuildTimeout, add_multiview_rows, add_quality_rows, merge_rows,
+                                                     model_size)
 from camplace.solver.problem.team import TeamConstraints
 
 __all__ = ["TeamModelOutcome", "solve_team_model"]
@@ -52,7 +61,8 @@ def _integral(values: np.ndarray) -> bool:
 def solve_team_model(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, mode: str, k: int | None, fixed: tuple[int, ...],
     free_cols: np.ndarray, conflicts: np.ndarray, costs: np.ndarray | None, required_fraction: float,
-    backend: str, time_limit_s: float | None, hint: tuple[int, ...] | None = None,
+    backend: str, time_limit_s: float | None, hint: tuple[int, ...] | None = None, views: int = 2,
+    min_angle_deg: float | None = None, pos: np.ndarray | None = None, pts: np.ndarray | None = None,
 ) -> TeamModelOutcome:
     """Build and solve the team model (see the module docstring).
 
@@ -61,7 +71,7 @@ def solve_team_model(
     q : (m, n) csr_matrix
     w : (m,) float64
     team : TeamConstraints
-    mode : {"maxcover", "setcover"}
+    mode : {"maxcover", "quality", "multiview", "setcover"}
     k : int or None
         New cameras (exactly, or at most for cardinality ``budget``); None: no count.
     fixed : tuple of int
@@ -76,13 +86,28 @@ def solve_team_model(
     time_limit_s : float or None
     hint : tuple of int, optional
         A feasible selection (original columns) given to the solver.
+    views : int, optional
+        multiview: observers a row needs.
+    min_angle_deg : float, optional
+        multiview: the smallest angle between two of them (needs ``pos`` and ``pts``).
+    pos : (n, 3) float64, optional
+        Camera positions, metres (multiview with a minimum angle).
+    pts : (m, 3) float64, optional
+        Point positions, metres (multiview with a minimum angle; None: no angle).
+
+    Returns
+    -------
+    TeamModelOutcome
+        ``status`` ``"unknown"`` with no selection when the time limit passes while the model is
+        being built (quality, multiview).
     """
     m, n = q.shape
     if backend == "cpsat" and mode == "setcover" and required_fraction < 1.0:
         raise CamplaceError("engine cpsat: a team set cover with required_fraction < 1 has a weighted row; use engine mip")
     cols = np.concatenate([np.asarray(fixed, dtype=np.int64), np.asarray(free_cols, dtype=np.int64)])
     nfix = len(fixed)
-    model = LinearModel(maximize=mode == "maxcover")
+    deadline = Deadline(time_limit_s)
+    model = LinearModel(maximize=mode != "setcover")
     x = model.add_vars(cols.size, integer=True)
     for i in range(nfix):
         model.lb[int(x[i])] = 1.0
@@ -107,6 +132,33 @@ def solve_team_model(
             idx = a.indices[a.indptr[r]:a.indptr[r + 1]]
             model.add_row(np.r_[y[r], x[nfix + idx]], np.r_[1.0, -np.ones(idx.size)], hi=0.0)
         scale = wmax
+    elif mode in ("quality", "multiview"):
+        if mode == "multiview" and min_angle_deg is None:
+            pts = None
+        _check_memory(q, w, mode, views, min_angle_deg, pos, pts, tuple(fixed), free_cols, conflicts, backend)
+        wpos = w[w > 0]
+        scale = float(wpos.max()) if wpos.size else 1.0
+
+        def check(r: int) -> None:
+            if (r & 255) == 0 and deadline.expired():
+                raise BuildTimeout
+
+        try:
+            if mode == "quality":
+                base = q[:, list(fixed)].max(axis=1).toarray().ravel() if nfix else np.zeros(m)
+                resid = q_free.astype(np.float64)
+                if nfix:  # what a new camera adds over the fixed cameras' best quality
+                    resid.data = np.maximum(resid.data - np.repeat(base, np.diff(resid.indptr)), 0.0)
+                    resid.eliminate_zeros()
+                const = float(w @ base)
+                add_quality_rows(model, x[nfix:], resid, w, scale, check)
+            else:
+                add_multiview_rows(model, x[nfix:], q, w, int(views), min_angle_deg, pos, pts, tuple(fixed),
+                                   np.asarray(free_cols, dtype=np.int64), scale, check, x_fixed=x[:nfix])
+        except BuildTimeout:
+            stats["model_build"] = "interrupted by the time limit"
+            return TeamModelOutcome(None, "unknown", math.inf, stats)
+        stats["model_variables"] = len(model.lb)
     else:
         c = team.cost if costs is None else np.asarray(costs, dtype=np.float64)
         cf = c[free_cols]
@@ -174,7 +226,7 @@ def solve_team_model(
     if hint is not None:
         hs = set(hint)
         hint_d = {int(x[i]): (1.0 if int(cols[i]) in hs else 0.0) for i in range(cols.size)}
-    out = solve_model(model, backend, time_limit_s=time_limit_s, hint=hint_d)
+    out = solve_model(model, backend, time_limit_s=deadline.left(), hint=hint_d)
     stats["engine_stats"] = dict(out.stats)
     if out.values is None:
         bound = out.bound
@@ -183,3 +235,19 @@ def solve_team_model(
     raw = out.bound if abs(out.bound) < 1e19 else math.copysign(math.inf, out.bound)  # SCIP's "no bound yet" is 1e20
     bound = raw * scale + const if math.isfinite(raw) else raw
     return TeamModelOutcome(chosen, out.status, bound, stats)
+
+
+def _check_memory(q: sp.csr_matrix, w: np.ndarray, mode: str, views: int, min_angle_deg: float | None,
+                  pos: np.ndarray | None, pts: np.ndarray | None, fixed: tuple[int, ...], free_cols: np.ndarray,
+                  conflicts: np.ndarray, backend: str) -> None:
+    """One-line error before building a quality / multiview team model that would not fit in
+    memory (the size of the k-camera model of :func:`~camplace.solver.engines.mip.mode_models.model_size`;
+    the team rows add a handful)."""
+    budget = memory_budget_bytes()
+    qf = q[:, np.asarray(free_cols, dtype=np.int64)].tocsr()
+    size = model_size(q, qf, w, w, mode, int(views), min_angle_deg, pos, pts, fixed, np.asarray(free_cols),
+                      np.asarray(conflicts, dtype=np.int64).reshape(-1, 2), budget)
+    need = model_bytes(backend, *size)
+    if need > budget:
+        exc = OverBudget(need, budget, f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} team model of mode {mode}")
+        raise CamplaceError(f"{exc.message}; use fewer candidates / points")

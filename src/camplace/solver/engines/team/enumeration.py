@@ -3,16 +3,18 @@
 Columns are added in index order; a partial team is cut as soon as it breaks a limit that can only
 get worse (a model's or a zone's maximum, the budget, a pose taken twice, a conflicting pair, more
 new cameras than allowed); complete teams are checked against the minimums and the cardinality and
-scored on the original matrix. Every feasible team is visited, so the best is optimal (or the team
-is infeasible when there is none). :func:`team_count` bounds the number of teams visited, which
-:func:`camplace.solver.routes.run_team` compares with :data:`ENUMERATION_LIMIT` to choose this
-engine.
+scored on the original matrix: covered weight (maxcover), ``sum_i w_i max_j q_ij`` (quality),
+the weight of the rows at least ``views`` chosen cameras observe, two of them at least
+``min_angle_deg`` apart when given (multiview), or the cost of the new cameras (setcover). Every
+feasible team is visited, so the best is optimal (or the team is infeasible when there is none).
+:func:`team_count` bounds the number of teams visited, which :func:`camplace.solver.routes.run_team`
+compares with :data:`ENUMERATION_LIMIT` to choose this engine.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -53,9 +55,36 @@ def team_count(team: TeamConstraints, k: int | None, fixed: tuple[int, ...], fre
 def enumerate_teams(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, mode: str, k: int | None, fixed: tuple[int, ...],
     free_cols: np.ndarray, conflicts: np.ndarray, costs: np.ndarray | None, required_fraction: float,
-    deadline: Deadline,
+    deadline: Deadline, views: int = 2, min_angle_deg: float | None = None, pos: np.ndarray | None = None,
+    pts: np.ndarray | None = None,
 ) -> tuple[tuple[int, ...] | None, str, float, dict[str, Any]]:
     """Visit every feasible team (module docstring).
+
+    Parameters
+    ----------
+    q : (m, n) csr_matrix
+        Observation quality (> 0 observes; quality reads the values, in [0, 1]).
+    w : (m,) float64
+    team : TeamConstraints
+    mode : {"maxcover", "quality", "multiview", "setcover"}
+    k : int or None
+        New cameras (exactly, or at most for cardinality ``budget``); None: no count.
+    fixed : tuple of int
+    free_cols : (f,) int64
+    conflicts : (c, 2) int64
+        Pairs of free columns that may not both be chosen.
+    costs : (n,) float64 or None
+        setcover objective costs (default: the team's).
+    required_fraction : float
+    deadline : Deadline
+    views : int, optional
+        multiview: observers a row needs.
+    min_angle_deg : float, optional
+        multiview: two of them at least this far apart (degrees; needs ``pos`` and ``pts``).
+    pos : (n, 3) float64, optional
+        Camera positions, metres.
+    pts : (m, 3) float64, optional
+        Point positions, metres.
 
     Returns
     -------
@@ -63,7 +92,7 @@ def enumerate_teams(
         The best team (original columns, fixed included); None when none is feasible or time ran out first.
     status : {"optimal", "infeasible", "unknown", "feasible"}
     objective : float
-        Covered weight (maxcover) or cost of the new cameras (setcover).
+        The mode's value (maxcover, quality, multiview) or cost of the new cameras (setcover).
     stats : dict
     """
     m, n = q.shape
@@ -97,7 +126,9 @@ def enumerate_teams(
     budget = math.inf if team.budget is None else float(team.budget) * (1 + 1e-12) + 1e-9
     top = _largest_team(team, k, nf, cost0, fc)
     exact = team.cardinality == "exact" and k is not None
-    best: list[Any] = [None, -math.inf if mode == "maxcover" else math.inf]
+    maximize = mode != "setcover"
+    score = _scorer(q, w, mode, fixed, free_cols, dense, base, views, min_angle_deg, pos, pts)
+    best: list[Any] = [None, -math.inf if maximize else math.inf]
     visited = [0]
     timed_out = [False]
     chosen: list[int] = []
@@ -113,12 +144,12 @@ def enumerate_teams(
             return
         if any(mcount[i] < team.model_min[i] for i in range(nm)) or any(zcount[i] < team.zone_min[i] for i in range(nz)):
             return
-        cov = base | (dense[:, chosen].any(axis=1) if chosen else False)
-        if mode == "maxcover":
-            value = float(w[cov].sum())
+        if maximize:
+            value = score(chosen)
             if value > best[1] + 1e-12:
                 best[0], best[1] = tuple(chosen), value
         else:
+            cov = base | (dense[:, chosen].any(axis=1) if chosen else False)
             if float(w[cov & (w > 0)].sum()) < need * (1 - 1e-12) - 1e-12:
                 return
             value = float(c_obj[free_cols[chosen]].sum()) if chosen else 0.0
@@ -164,3 +195,88 @@ def enumerate_teams(
         return None, ("unknown" if timed_out[0] else "infeasible"), best[1], stats
     sel = tuple(sorted(set(fixed) | {int(free_cols[i]) for i in best[0]}))
     return sel, ("feasible" if timed_out[0] else "optimal"), float(best[1]), stats
+
+
+#: The minimum-angle scorer keeps the rows of at most this many bytes of camera pairs.
+_PAIR_CACHE_BYTES = 1 << 27
+
+
+def _scorer(q: sp.csr_matrix, w: np.ndarray, mode: str, fixed: tuple[int, ...], free_cols: np.ndarray,
+            dense: np.ndarray, base: np.ndarray, views: int, min_angle_deg: float | None, pos: np.ndarray | None,
+            pts: np.ndarray | None) -> Callable[[list[int]], float]:
+    """The objective of a maximising mode as a function of the chosen free columns (positions in
+    ``free_cols``), fixed cameras included.
+
+    Parameters
+    ----------
+    q : (m, n) csr_matrix
+    w : (m,) float64
+    mode : {"maxcover", "quality", "multiview", "setcover"}
+        setcover: none (returns a function that is never called).
+    fixed : tuple of int
+    free_cols : (f,) int64
+    dense : (m, f) bool
+        Which free column observes which row.
+    base : (m,) bool
+        Rows a fixed camera observes.
+    views, min_angle_deg, pos, pts
+        multiview (see :func:`enumerate_teams`).
+    """
+    if mode == "maxcover":
+        return lambda chosen: float(w[base | (dense[:, chosen].any(axis=1) if chosen else False)].sum())
+    if mode == "quality":
+        qd = q[:, free_cols].toarray()
+        qbest = q[:, list(fixed)].max(axis=1).toarray().ravel() if fixed else np.zeros(q.shape[0])
+
+        def quality(chosen: list[int]) -> float:
+            best = np.maximum(qbest, qd[:, chosen].max(axis=1)) if chosen else qbest
+            return float(w @ best)
+
+        return quality
+    if mode != "multiview":
+        return lambda chosen: math.nan
+    pat = (q > 0).tocsc() if q.dtype != np.bool_ else q.tocsc()
+    fixed_seen = np.asarray(pat[:, list(fixed)].toarray(), dtype=bool) if fixed else np.zeros((q.shape[0], 0), bool)
+    base_count = fixed_seen.sum(axis=1)
+    if min_angle_deg is None or pos is None or pts is None:
+        return lambda chosen: float(w[base_count + (dense[:, chosen].sum(axis=1) if chosen else 0) >= views].sum())
+    # the angle: a row counts when two chosen cameras that both observe it make >= min_angle_deg at it
+    seen = np.concatenate([fixed_seen, dense], axis=1)  # columns: fixed ones, then the free ones
+    cols = np.concatenate([np.asarray(fixed, dtype=np.int64), np.asarray(free_cols, dtype=np.int64)])
+    nfix = len(fixed)
+    cache: dict[tuple[int, int], np.ndarray] = {}
+    used = [0]
+
+    def pair(a: int, b: int) -> np.ndarray:
+        got = cache.get((a, b))
+        if got is not None:
+            return got
+        both = seen[:, a] & seen[:, b]
+        rows = np.flatnonzero(both)
+        da = pos[cols[a]][None, :] - pts[rows]
+        db = pos[cols[b]][None, :] - pts[rows]
+        da /= np.maximum(np.linalg.norm(da, axis=1, keepdims=True), 1e-300)
+        db /= np.maximum(np.linalg.norm(db, axis=1, keepdims=True), 1e-300)
+        ang = np.degrees(np.arccos(np.clip(np.sum(da * db, axis=1), -1.0, 1.0)))
+        out = np.zeros(both.size, dtype=bool)
+        out[rows[ang >= float(min_angle_deg)]] = True
+        if used[0] + out.size <= _PAIR_CACHE_BYTES:
+            cache[(a, b)] = out
+            used[0] += out.size
+        return out
+
+    fixed_pairs = np.zeros(q.shape[0], dtype=bool)
+    for a in range(nfix):
+        for b in range(a + 1, nfix):
+            fixed_pairs |= pair(a, b)
+
+    def multiview(chosen: list[int]) -> float:
+        ok = base_count + (dense[:, chosen].sum(axis=1) if chosen else 0) >= views
+        paired = fixed_pairs.copy()
+        sel = list(range(nfix)) + [nfix + i for i in chosen]
+        for t, a in enumerate(sel):
+            for b in sel[max(t + 1, nfix):]:
+                paired |= pair(a, b)
+        return float(w[ok & paired].sum())
+
+    return multiview
