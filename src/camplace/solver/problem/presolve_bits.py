@@ -69,14 +69,21 @@ def _live_sizes(words, live, lo, hi, size):  # pragma: no cover - compiled
 
 @numba.njit(**_JIT)
 def _row_counts(words, w0, w1, counts):  # pragma: no cover - compiled
-    """Columns observing each row of words ``w0:w1`` (all rows)."""
-    for j in range(words.shape[0]):
-        for w in range(w0, w1):
-            x = words[j, w]
-            base = np.int64(w) << 6
-            while x:
-                counts[base + np.int64(_ctz(x))] += 1
-                x &= x - np.uint64(1)
+    """Columns observing each row of words ``w0:w1`` (all rows): the popcounts of the row words
+    after 64 x 64 bit transposes of the column words."""
+    n = words.shape[0]
+    a = np.empty(64, dtype=np.uint64)
+    for wd in range(w0, w1):
+        base = np.int64(wd) << 6
+        for c0 in range(0, n, 64):
+            cnt = min(64, n - c0)
+            for t in range(cnt):
+                a[t] = words[c0 + t, wd]
+            for t in range(cnt, 64):
+                a[t] = 0
+            _transpose64(a)  # a[r]: the columns c0 .. c0 + 63 observing row base + r
+            for r in range(64):
+                counts[base + r] += np.int64(_popc(a[r]))
 
 
 @numba.njit(**_JIT)
