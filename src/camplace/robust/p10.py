@@ -37,6 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.mip.linear import LinearModel, solve_model
 from camplace.solver.problem.objectives import selected_row_stats
 from camplace.solver.result import SolverResult, relative_gap
@@ -319,7 +320,7 @@ def solve_p10(
             chosen = set(best_sel)
             hint = {int(x[j]): (1.0 if j in chosen else 0.0) for j in range(n)}
         rem = None if time_limit_s is None else max(1.0, time_limit_s - (time.perf_counter() - t0))
-        out = solve_model(model, "mip", time_limit_s=rem, hint=hint)
+        out = solve_model(model, "mip", deadline=Deadline(rem), hint=hint)
         stats["model"] = out.stats
         if out.values is not None:
             sel = tuple(int(j) for j in np.flatnonzero(out.values[x] > 0.5))

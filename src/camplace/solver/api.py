@@ -210,7 +210,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     deadline = Deadline(o.time_limit_s)  # the solve's one deadline, passed down to the engines
     t0 = deadline.start
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
-    min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
+    min_distance_m = o.min_distance_m
     if getattr(matrix, "format", None) == "bits":  # a binary matrix as column bitsets
         from camplace.solver.bits_route import bits_applies, bits_outcome
 
@@ -313,14 +313,14 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
         cap = mode == "multiview" and k + len(fixed_t) < 2 * views
         inner = deadline
-        if cap and time_limit_s is not None:
-            inner = deadline.shortened(min(_CAP_SHARE * time_limit_s, _CAP_MAX_S))
+        if cap and deadline.limit is not None:
+            inner = deadline.shortened(min(_CAP_SHARE * deadline.limit, _CAP_MAX_S))
         ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, o,
                                      inner, stats={"k": k}))
         searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
         if cap and ctx.selected is not None and ctx.status != "optimal" and not searched and not deadline.expired():
             ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
-                                     deadline.left())
+                                     deadline)
 
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
 
@@ -364,10 +364,10 @@ def _result(ctx: ModeOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int
 
 def _opposite_pair_cap(
     ctx: ModeOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
-    cameras: int, allowed: np.ndarray, time_limit_s: float | None,
+    cameras: int, allowed: np.ndarray, deadline: Deadline,
 ) -> ModeOutcome:
     """Tighten an unproven multiview bound with :func:`~camplace.solver.engines.bitset.pair_cap.opposite_pair_bound`."""
-    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, time_limit_s=time_limit_s)
+    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, deadline=deadline)
     cap_stats["bound_before"] = float(ctx.bound)
     ctx.stats["opposite_pairs"] = cap_stats
     return replace(ctx, bound=cap) if cap < ctx.bound else ctx

@@ -82,7 +82,7 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     if asked != "maxcover":
         stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
     pre = presolve_bits(bits, w, k)
-    name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline.left(), stats, budget)
+    name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline, stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
     objective = covered_weight(bits, w, sel) if sel else 0.0
     stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),

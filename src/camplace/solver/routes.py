@@ -9,7 +9,8 @@ under ``auto``: the run then goes on with the general model (``model``), or, for
 engines, with the choice made without them.
 
 The problem carries the solve's one :class:`~camplace.solver._support.deadline.Deadline`; each
-runner hands its engines what is left of it.
+runner hands it (or a slice of it) to its engines, which check it themselves (the bitset engine
+alone still takes the seconds left of it).
 """
 
 from __future__ import annotations
@@ -206,7 +207,7 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> ModeOutcome |
     assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
     try:
         out = solve_angle(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts,
-                          np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, time_limit_s=p.deadline.left(),
+                          np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline,
                           budget_bytes=memory_budget_bytes(), start=p.start)
     except OverBudget as exc:
         exact_too_big(p.engine, p.stats, exc.need, exc.budget)
@@ -236,7 +237,7 @@ def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
     engines within the memory budget (:func:`~camplace.solver.engines.maxcover.run_maxcover_engine`)."""
     pat, pw = (p.resid, p.resid_w) if p.mode == "maxcover" else expand_levels(p.resid, p.resid_w)
     pre = presolve(pat, pw, p.k, deadline=p.deadline)
-    name, out = run_maxcover_engine(choice.engine, p.engine, pre, p.deadline.left(), p.stats, p.budget,
+    name, out = run_maxcover_engine(choice.engine, p.engine, pre, p.deadline, p.stats, p.budget,
                                     start=_reduced_start(p, pre))
     new = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
     sel = tuple(sorted(set(p.fixed_t) | set(new))) if new else None
@@ -296,7 +297,7 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
         if p.angle_ok:  # the greedy above ignores the angle; this one counts it (O(m + n) memory)
             assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
             new = greedy_angle(q, w, k, views, float(p.min_angle_deg), p.pos, p.pts,
-                               np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, time_limit_s=p.deadline.left())
+                               np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline)
             cand = tuple(sorted(set(p.fixed_t) | set(new)))
             if hint_sel is None or p.value(cand) > p.value(hint_sel):
                 hint_sel = cand
@@ -306,7 +307,7 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
     hint = None
     if hint_local is not None:
         hint = {int(x[j]): (1.0 if j in hint_local else 0.0) for j in range(nf)}
-    out = solve_model(model, name, time_limit_s=p.deadline.left(), hint=hint)
+    out = solve_model(model, name, deadline=p.deadline, hint=hint)
     stats["engine_stats"] = dict(out.stats)
     sel = None
     if out.values is not None:
@@ -524,7 +525,7 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     else:
         out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
                                costs=costs, required_fraction=o.required_fraction, backend=name,
-                               time_limit_s=deadline.left())
+                               deadline=deadline)
         stats.update(out.stats)
         sel, status, bound, engine = out.selected, out.status, out.bound, name
     if sel is None:

@@ -14,13 +14,13 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from camplace._cores import thread_count
 from camplace.errors import CamplaceError
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 
 __all__ = ["Row", "LinearModel", "ModelOutcome", "solve_model", "model_bytes"]
 
@@ -163,7 +163,7 @@ def solve_model(
     model: LinearModel,
     backend: str,
     *,
-    time_limit_s: float | None = None,
+    deadline: Deadline | None = None,
     hint: dict[int, float] | None = None,
     workers: int | None = None,
 ) -> ModelOutcome:
@@ -173,8 +173,8 @@ def solve_model(
     ----------
     model : LinearModel
     backend : {"mip", "cpsat"}
-    time_limit_s : float, optional
-        Wall-clock limit.
+    deadline : Deadline, optional
+        The solve's deadline (default: none); building the model counts.
     hint : dict, optional
         Partial solution ``{variable: value}`` given to the solver as a hint.
     workers : int, optional
@@ -186,14 +186,14 @@ def solve_model(
     ModelOutcome
     """
     if backend == "mip":
-        return _solve_scip(model, time_limit_s, hint)
+        return _solve_scip(model, as_deadline(deadline), hint)
     if backend == "cpsat":
-        return _solve_cpsat(model, time_limit_s, hint, workers)
+        return _solve_cpsat(model, as_deadline(deadline), hint, workers)
     raise CamplaceError(f"unknown model backend {backend!r} (use mip or cpsat)")
 
 
 def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_values: Sequence[float] = (), *,
-             no_scip: str = "use engine='cpsat'"):
+             no_scip: str = "use engine='cpsat'", since: Callable[[], float] | None = None):
     """Solve an ``MPModelProto`` with SCIP: one thread, the hint, the relative gap ``_OPT_TOL`` and
     what is left of ``deadline`` (the one SCIP set-up of the package: the mode models and the
     max-coverage MIP engine both run here).
@@ -202,11 +202,14 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     ----------
     proto : ortools.linear_solver.linear_solver_pb2.MPModelProto
     deadline : Deadline
-        The build time counts from its start.
+        The solve's deadline: SCIP gets what is left of it.
     hint_vars, hint_values : sequence
         Variable indices and their hinted values.
     no_scip : str
         What to do instead when OR-Tools has no SCIP (the end of the one-line error).
+    since : callable, optional
+        The caller's stopwatch (:func:`~camplace.solver._support.deadline.stopwatch`): the build
+        time counts from its start (default: from the deadline's).
 
     Returns
     -------
@@ -215,7 +218,7 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     code : int
         ``solver.Solve``'s result status.
     build_s : float
-        Seconds from the deadline's start until the solve began.
+        Seconds from ``since``'s start until the solve began.
     """
     from ortools.linear_solver import pywraplp
 
@@ -229,7 +232,7 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     variables = solver.variables()
     if len(hint_vars):
         solver.SetHint([variables[i] for i in hint_vars], [float(v) for v in hint_values])
-    build_s = deadline.elapsed()
+    build_s = deadline.elapsed() if since is None else since()
     rem = deadline.remaining()
     if rem is not None:
         solver.SetTimeLimit(max(1, int(rem * 1000)))
@@ -239,10 +242,10 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     return solver, variables, code, build_s
 
 
-def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None) -> ModelOutcome:
+def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] | None) -> ModelOutcome:
     from ortools.linear_solver import linear_solver_pb2, pywraplp
 
-    deadline = Deadline(time_limit_s)
+    since = stopwatch(deadline)
     proto = linear_solver_pb2.MPModelProto()
     proto.maximize = bool(model.maximize)
     for lb, ub, integ, c in zip(model.lb, model.ub, model.integer, model.obj):
@@ -258,14 +261,14 @@ def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, 
         nnz += row.idx.size
     keys = sorted(hint) if hint else []
     solver, variables, code, build_s = run_scip(proto, deadline, keys, [float(hint[i]) for i in keys] if hint else [],
-                                                no_scip="use engine='cpsat'")
+                                                no_scip="use engine='cpsat'", since=since)
     stats: dict[str, Any] = {
         "backend": "SCIP",
         "variables": model.n_vars,
         "constraints": len(model.rows),
         "nonzeros": int(nnz),
         "time_build_s": build_s,
-        "time_solve_s": deadline.elapsed() - build_s,
+        "time_solve_s": since() - build_s,
         "solver_status": int(code),
     }
     values = None
@@ -286,9 +289,10 @@ def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, 
     return ModelOutcome(values, status, bound, stats)
 
 
-def run_cpsat(model, workers: int | None, deadline: Deadline):
+def run_cpsat(model, workers: int | None, deadline: Deadline, since: Callable[[], float] | None = None):
     """Solve a built CP-SAT model with ``workers`` threads (None: :func:`camplace._cores.thread_count`)
-    within the deadline's remaining time.
+    within the deadline's remaining time (``since``: the caller's stopwatch, which the build time
+    is read from; default: the deadline's start).
 
     Returns
     -------
@@ -302,7 +306,7 @@ def run_cpsat(model, workers: int | None, deadline: Deadline):
 
     solver = cp_model.CpSolver()
     solver.parameters.num_workers = thread_count(workers)
-    build_s = deadline.elapsed()
+    build_s = deadline.elapsed() if since is None else since()
     rem = deadline.remaining()
     if rem is not None:
         solver.parameters.max_time_in_seconds = max(0.01, rem)
@@ -321,11 +325,11 @@ def _int_objective(obj: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 
 def _solve_cpsat(
-    model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None, workers: int | None
+    model: LinearModel, deadline: Deadline, hint: dict[int, float] | None, workers: int | None
 ) -> ModelOutcome:
     from ortools.sat.python import cp_model
 
-    deadline = Deadline(time_limit_s)
+    since = stopwatch(deadline)
     cp = cp_model.CpModel()
     xs = []
     for i, (lb, ub) in enumerate(zip(model.lb, model.ub)):
@@ -358,14 +362,14 @@ def _solve_cpsat(
     if hint:
         for i, v in hint.items():
             cp.add_hint(xs[i], int(round(v)))
-    solver, code, build_s = run_cpsat(cp, workers, deadline)
+    solver, code, build_s = run_cpsat(cp, workers, deadline, since)
     stats: dict[str, Any] = {
         "backend": "CP-SAT",
         "workers": thread_count(workers),
         "variables": model.n_vars,
         "constraints": len(model.rows),
         "time_build_s": build_s,
-        "time_solve_s": deadline.elapsed() - build_s,
+        "time_solve_s": since() - build_s,
         "objective_unit": unit,
         "rounding_error": err,
         "solver_status": solver.status_name(code),

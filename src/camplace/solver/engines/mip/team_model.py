@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.mip.linear import LinearModel, solve_model
 from camplace.solver.engines.mip.mode_models import merge_rows
 from camplace.solver.problem.team import TeamConstraints
@@ -52,7 +53,7 @@ def _integral(values: np.ndarray) -> bool:
 def solve_team_model(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, mode: str, k: int | None, fixed: tuple[int, ...],
     free_cols: np.ndarray, conflicts: np.ndarray, costs: np.ndarray | None, required_fraction: float,
-    backend: str, time_limit_s: float | None, hint: tuple[int, ...] | None = None,
+    backend: str, deadline: Deadline | None = None, hint: tuple[int, ...] | None = None,
 ) -> TeamModelOutcome:
     """Build and solve the team model (see the module docstring).
 
@@ -73,7 +74,8 @@ def solve_team_model(
         setcover objective costs (default: the team's).
     required_fraction : float
     backend : {"mip", "cpsat"}
-    time_limit_s : float or None
+    deadline : Deadline, optional
+        The solve's deadline (default: none).
     hint : tuple of int, optional
         A feasible selection (original columns) given to the solver.
     """
@@ -174,7 +176,7 @@ def solve_team_model(
     if hint is not None:
         hs = set(hint)
         hint_d = {int(x[i]): (1.0 if int(cols[i]) in hs else 0.0) for i in range(cols.size)}
-    out = solve_model(model, backend, time_limit_s=time_limit_s, hint=hint_d)
+    out = solve_model(model, backend, deadline=deadline, hint=hint_d)
     stats["engine_stats"] = dict(out.stats)
     if out.values is None:
         bound = out.bound

@@ -34,12 +34,13 @@ def quality_engines(
     not depend on coherence). The better camera set wins; the smaller bound holds for both."""
     runs: list[tuple[str, Any]] = []
     if tree_ok:
-        limit = deadline.left()
-        if gram_ok:
-            limit = _TREE_FIRST_S if limit is None else min(limit, max(_TREE_FIRST_MIN_S, _TREE_FIRST_SHARE * limit))
-        runs.append(("tree", solve_quality_tree(resid, resid_w, k, time_limit_s=limit)))
+        first = deadline
+        if gram_ok:  # the tree's share: at most _TREE_FIRST_S without a limit
+            left = deadline.remaining()
+            first = deadline.within(_TREE_FIRST_S if left is None else max(_TREE_FIRST_MIN_S, _TREE_FIRST_SHARE * left))
+        runs.append(("tree", solve_quality_tree(resid, resid_w, k, deadline=first)))
     if gram_ok and (not runs or runs[0][1].status != "optimal"):
-        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, time_limit_s=deadline.left())))
+        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, deadline=deadline)))
     best = None
     for name, out in runs:
         sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))

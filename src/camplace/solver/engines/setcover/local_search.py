@@ -70,6 +70,7 @@ import scipy.sparse as sp
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline, as_deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.engines.setcover import _kernels as K
 from camplace.solver.result import EngineOutcome
@@ -715,7 +716,7 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
 
 
 def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: str,
-                 time_limit_s: float | None) -> tuple[np.ndarray | None, str, float, dict[str, Any]]:
+                 deadline: Deadline) -> tuple[np.ndarray | None, str, float, dict[str, Any]]:
     """Solve the reduced instance with SCIP or CP-SAT, the cover ``hint`` as a start and
     ``cost <= upper`` as a cutoff. Returns (reduced columns or None, status, lower bound, stats)."""
     from camplace.solver.engines.mip.linear import LinearModel, solve_model
@@ -747,7 +748,7 @@ def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: s
         # makes its root LP far slower and its time limit unreliable)
         model.add_row(x, red.cost, hi=float(upper), int_variant=(red.cost.astype(np.int64), -math.inf, float(upper)))
     start = {int(x[j]): (1.0 if j in set(hint.tolist()) else 0.0) for j in range(n)}
-    out = solve_model(model, backend, time_limit_s=time_limit_s, hint=start)
+    out = solve_model(model, backend, deadline=deadline, hint=start)
     stats = dict(out.stats)
     stats["status"] = out.status
     bound = out.bound
@@ -807,7 +808,7 @@ def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) 
 
 
 def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None = None,
-                need: float | None = None, *, engine: str = "auto", time_limit_s: float | None = None,
+                need: float | None = None, *, engine: str = "auto", deadline: Deadline | None = None,
                 seed: int = 0, max_iterations: int | None = None) -> EngineOutcome:
     """Reductions, local search, Lagrangian bound and (if it applies) SCIP / CP-SAT.
 
@@ -824,8 +825,9 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     engine : {"auto", "mip", "cpsat"}
         ``auto``: SCIP after the first search when :func:`_model_choice` says it can close the
         gap; ``mip`` / ``cpsat``: always (unless the bound already proves the cover optimal).
-    time_limit_s : float, optional
-        Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it; the first
+    deadline : Deadline, optional
+        The solve's deadline (default: none), for everything; the shares below are of the time
+        left at the call. The Lagrangian bound gets at most 15 % of it; the first
         search stops on a short patience (:func:`patience_work`) or after half of what is left;
         the model gets three quarters of what is then left; if there is still no proof, the
         search goes on until the time limit. Without a time limit the second search stops on the
@@ -846,9 +848,9 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         ran, else the model's backend (``"mip"``, ``"cpsat"``).
     """
     t0 = time.perf_counter()
-
-    def left() -> float | None:
-        return None if time_limit_s is None else max(1e-3, float(time_limit_s) - (time.perf_counter() - t0))
+    deadline = as_deadline(deadline)
+    left = deadline.left
+    total = left()  # the time left at the call (None: no limit)
 
     m, n = pattern.shape
     need_bytes = cover_bytes(m, n, int(pattern.nnz))
@@ -895,9 +897,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         stats["model_skipped"] = why_not
     if not proven and backend is not None:
         name = backend
-        rem = left()
-        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend,
-                                                     None if rem is None else _MODEL_SHARE * rem)
+        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, deadline.share(_MODEL_SHARE))
         stats["model"] = mstats
         if msel is not None and _is_cover(red, msel):
             mcost = float(red.cost[msel].sum())
@@ -913,7 +913,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
             bound_r = max(bound_r, min(mbound, cost_r))
         proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
     rem = left()
-    if not proven and why in ("patience", "time") and (rem is None or rem > 0.02 * float(time_limit_s)):
+    if not proven and why in ("patience", "time") and (rem is None or total is None or rem > 0.02 * total):
         # the search goes on from where it was, with restarts, beside a second one started from its
         # best cover (own random stream), one thread each: until the time limit when there is one,
         # else each with the full patience counted from now

@@ -82,13 +82,13 @@ def setcover(
         return finish((), "optimal", 0.0)
     if conflicts.size == 0:
         out = solve_cover(sub, c[free_cols], sw if frac < 1.0 else None, need if frac < 1.0 else None, engine=engine,
-                          time_limit_s=deadline.left(), seed=seed, max_iterations=iterations)
+                          deadline=deadline, seed=seed, max_iterations=iterations)
         stats["setcover"] = out.stats
         if out.selected is None:
             return ModeOutcome(None, "unknown", math.nan, out.bound, out.engine, stats)
         return finish(out.selected, out.status, out.bound, out.engine)
     model, x, rows_after = setcover_model(sub, sw, c[free_cols], free_cols, conflicts, frac, need, coverable_w)
-    out = solve_model(model, name, time_limit_s=deadline.left())
+    out = solve_model(model, name, deadline=deadline)
     stats["engine_stats"] = dict(out.stats)
     stats["rows_after"] = rows_after
     if out.values is None:
