@@ -17,7 +17,7 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
 from camplace.solver.engines.bitset.search import solve_bitset
 from camplace.solver.problem.presolve import presolve
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 from tests.solver._oracle import ExpiringDeadline, mode_objective, small_instances, tolerance
 
 
@@ -109,7 +109,7 @@ def test_solve_tightens_an_unproven_multiview_bound(monkeypatch) -> None:
 
     def loose(problem):
         seen["limit"] = problem.deadline.limit
-        return ModeOutcome((0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": problem.k})
+        return EngineOutcome((0, 4, 8), "feasible", 1.0, {"k": problem.k}, engine="exact", objective=0.5)
 
     monkeypatch.setattr(modes, "run_cover", loose)
     res = solve(dense, w, 3, mode="multiview", views=2, time_limit_s=10.0)

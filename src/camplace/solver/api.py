@@ -78,7 +78,7 @@ from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
 from camplace.solver.problem.objectives import cheap_bound, mode_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.result import ModeOutcome, SolverResult, jsonable, relative_gap
+from camplace.solver.result import EngineOutcome, SolverResult, jsonable, relative_gap
 from camplace.solver.routes import CoverProblem, fixed_base, run_cover, run_team
 
 __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
@@ -325,7 +325,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
 
 
-def _result(ctx: ModeOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...],
+def _result(ctx: EngineOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...],
             conflicts: np.ndarray, shape: tuple[int, int], t0: float) -> SolverResult:
     """The :class:`SolverResult` of a mode's outcome: the status, bound and gap made consistent,
     and the run's figures added to the stats."""
@@ -363,9 +363,9 @@ def _result(ctx: ModeOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int
 
 
 def _opposite_pair_cap(
-    ctx: ModeOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
+    ctx: EngineOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
     cameras: int, allowed: np.ndarray, deadline: Deadline,
-) -> ModeOutcome:
+) -> EngineOutcome:
     """Tighten an unproven multiview bound with :func:`~camplace.solver.engines.bitset.pair_cap.opposite_pair_bound`."""
     cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, deadline=deadline)
     cap_stats["bound_before"] = float(ctx.bound)

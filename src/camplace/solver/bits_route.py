@@ -25,7 +25,7 @@ from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 
 __all__ = ["bits_applies", "bits_outcome"]
 
@@ -54,7 +54,7 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
 
     Returns
     -------
-    (ModeOutcome, (m,) float64 weights) or None
+    (EngineOutcome, (m,) float64 weights) or None
         None when the engine choice is not plain max coverage (large k, the general model).
     """
     m, n = bits.shape
@@ -87,4 +87,5 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     objective = covered_weight(bits, w, sel) if sel else 0.0
     stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
                   "engine_stats": dict(out.stats)})
-    return ModeOutcome(sel, out.status if sel else "unknown", objective, float(out.bound), name, stats), w
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=name,
+                         objective=objective), w

@@ -1,10 +1,11 @@
 """The engine table of the k-camera modes (maxcover, quality, multiview): one problem object, one
-runner per route of :func:`~camplace.solver.choose.choose_engine`, one outcome type.
+runner per route of :func:`~camplace.solver.choose.choose_engine`, one outcome type
+(:class:`~camplace.solver.result.EngineOutcome`, the engines' too).
 
 :func:`run_cover` builds nothing itself: it asks :func:`~camplace.solver.choose.choose_engine`
 for a route and looks the route up in :data:`ROUTES`. Every runner takes the same
 :class:`CoverProblem` and the :class:`~camplace.solver.choose.EngineChoice`, and returns a
-:class:`~camplace.solver.result.ModeOutcome`, or None when its engine does not fit in memory
+:class:`~camplace.solver.result.EngineOutcome`, or None when its engine does not fit in memory
 under ``auto``: the run then goes on with the general model (``model``), or, for the large-k
 engines, with the choice made without them.
 
@@ -38,7 +39,7 @@ from camplace.solver.engines.quality.portfolio import quality_engines
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.objectives import cheap_bound, expand_levels, mode_value
 from camplace.solver.problem.presolve import presolve
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 
 __all__ = ["CoverProblem", "ROUTES", "run_cover", "fixed_base"]
 
@@ -181,10 +182,10 @@ class CoverProblem:
         return self.mode == "multiview" and self.min_angle_deg is not None and self.conflicts.shape[0] == 0
 
 
-Runner = Callable[[CoverProblem, EngineChoice], "ModeOutcome | None"]
+Runner = Callable[[CoverProblem, EngineChoice], "EngineOutcome | None"]
 
 
-def _large_k(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
+def _large_k(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:
     """The engines for 4 < k <= 8 (:func:`~camplace.solver.engines.large_k.search.run_large_k`)."""
     got = run_large_k(p.resid, p.resid_w, p.k, p.mode, p.views, p.engine, p.deadline, p.stats)
     if got is None:
@@ -192,16 +193,16 @@ def _large_k(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
     p.stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
     sel = p.with_fixed(got.selected)
     const = p.fixed_value if p.mode == "maxcover" else float(p.w @ p.base) if p.mode == "quality" else 0.0
-    return ModeOutcome(sel, got.status, p.value(sel), got.bound + const, got.engine, p.stats)
+    return EngineOutcome(sel, got.status, got.bound + const, p.stats, engine=got.engine, objective=p.value(sel))
 
 
-def _quality_portfolio(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
+def _quality_portfolio(p: CoverProblem, choice: EngineChoice) -> EngineOutcome:
     """The exact quality engines (:func:`~camplace.solver.engines.quality.portfolio.quality_engines`)."""
     return quality_engines(p.resid, p.resid_w, p.k, choice.tree, choice.gram, p.fixed_t, p.free_cols, p.value,
                            float(p.w @ p.base), p.deadline, p.stats)
 
 
-def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> ModeOutcome | None:
+def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> EngineOutcome | None:
     """The exact angle engine (:mod:`camplace.solver.engines.angle.search`); None when it does not fit in
     memory and ``auto`` may fall back (``exact`` requested: a one-line error)."""
     assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
@@ -214,10 +215,10 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> ModeOutcome |
         return None
     sel = tuple(sorted(set(p.fixed_t) | set(out.selected)))
     p.stats["engine_stats"] = dict(out.stats)
-    return ModeOutcome(sel, out.status, p.value(sel), float(out.bound), "exact", p.stats)
+    return EngineOutcome(sel, out.status, float(out.bound), p.stats, engine="exact", objective=p.value(sel))
 
 
-def _multiview(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
+def _multiview(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:
     """The bitset engine with ``views`` per point (:func:`~camplace.solver.engines.bitset.search.solve_bitset`)."""
     pre = presolve(p.resid, p.resid_w, p.k, dominance=False, deadline=p.deadline)  # dominance: one view only
     mp, np_ = pre.shape
@@ -228,11 +229,11 @@ def _multiview(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
     out = solve_bitset(pre, views=p.views, time_limit_s=p.deadline.left(), start=_reduced_start(p, pre))
     sel = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
     p.stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
-    return ModeOutcome(sel, out.status if sel else "unknown", p.value(sel) if sel else 0.0, float(out.bound),
-                       choice.engine, p.stats)
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), p.stats, engine=choice.engine,
+                         objective=p.value(sel) if sel else 0.0)
 
 
-def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
+def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> EngineOutcome:
     """Plain max coverage (of the points, or of quality's level rows): presolve, then the max-coverage
     engines within the memory budget (:func:`~camplace.solver.engines.maxcover.run_maxcover_engine`)."""
     pat, pw = (p.resid, p.resid_w) if p.mode == "maxcover" else expand_levels(p.resid, p.resid_w)
@@ -245,10 +246,11 @@ def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
     const = p.fixed_value if p.mode == "maxcover" else float(p.w @ p.base)
     p.stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
                     "engine_stats": dict(out.stats)})
-    return ModeOutcome(sel, out.status if sel else "unknown", objective, float(out.bound) + const, name, p.stats)
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound) + const, p.stats, engine=name,
+                         objective=objective)
 
 
-def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle_tried: bool = False) -> ModeOutcome:
+def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle_tried: bool = False) -> EngineOutcome:
     """The general model (SCIP / CP-SAT). The greedy answer comes first: it is the hint, and the
     answer (with a cheap valid bound) when the time limit passes while the model is still being
     built, or when the model would not fit in memory."""
@@ -302,8 +304,8 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
             if hint_sel is None or p.value(cand) > p.value(hint_sel):
                 hint_sel = cand
         if hint_sel is None:
-            return ModeOutcome(None, "unknown", p.fixed_value, bound, name, stats)
-        return ModeOutcome(hint_sel, "feasible", p.value(hint_sel), bound, name, stats)
+            return EngineOutcome(None, "unknown", bound, stats, engine=name, objective=p.fixed_value)
+        return EngineOutcome(hint_sel, "feasible", bound, stats, engine=name, objective=p.value(hint_sel))
     hint = None
     if hint_local is not None:
         hint = {int(x[j]): (1.0 if j in hint_local else 0.0) for j in range(nf)}
@@ -322,9 +324,9 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
             if status in ("unknown", "optimal"):
                 status = "feasible"
     if sel is None:
-        return ModeOutcome(None, status, p.fixed_value, math.inf, name, stats)
+        return EngineOutcome(None, status, math.inf, stats, engine=name, objective=p.fixed_value)
     bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
-    return ModeOutcome(sel, status, objective, bound, name, stats)
+    return EngineOutcome(sel, status, bound, stats, engine=name, objective=objective)
 
 
 def _reduced_start(p: CoverProblem, pre) -> tuple[int, ...] | None:
@@ -369,7 +371,7 @@ def warm_subset(p: CoverProblem) -> np.ndarray:
     return np.sort(p.free_cols[top])
 
 
-def _warm_started(p: CoverProblem) -> ModeOutcome:
+def _warm_started(p: CoverProblem) -> EngineOutcome:
     """Solve ``p`` on :func:`warm_subset` first (``WARM_SHARE`` of the time left), offer that
     answer to the full search as its first incumbent (``p.start``), and keep the better of the
     two: the answer is at least as good as the subset's, and the bound is the full search's."""
@@ -398,11 +400,12 @@ def _warm_started(p: CoverProblem) -> ModeOutcome:
     if got_sel is not None and (out.selected is None or got.objective > out.objective):
         warm["kept"] = True  # the full search found nothing better within the limit
         status = "optimal" if out.status == "optimal" and out.bound <= got.objective else "feasible"
-        out = ModeOutcome(got_sel, status, got.objective, max(out.bound, got.objective), out.engine, out.stats)
+        out = EngineOutcome(got_sel, status, max(out.bound, got.objective), out.stats, engine=out.engine,
+                            objective=got.objective)
     return out
 
 
-def run_cover(p: CoverProblem) -> ModeOutcome:
+def run_cover(p: CoverProblem) -> EngineOutcome:
     """Choose the engine of ``p`` and run it from :data:`ROUTES`; a runner that does not fit in
     memory under ``auto`` hands over to the general model (the large-k engines: to the choice
     made without them). A large problem with a time limit is warm-started from a solve on a
@@ -413,10 +416,11 @@ def run_cover(p: CoverProblem) -> ModeOutcome:
     return _run_cover(p)
 
 
-def _run_cover(p: CoverProblem) -> ModeOutcome:
+def _run_cover(p: CoverProblem) -> EngineOutcome:
     """:func:`run_cover` without the warm start."""
     if p.k == 0:
-        return ModeOutcome(tuple(p.fixed_t), "optimal", p.fixed_value, p.fixed_value, "exact", p.stats)
+        return EngineOutcome(tuple(p.fixed_t), "optimal", p.fixed_value, p.stats, engine="exact",
+                             objective=p.fixed_value)
     choice = p.choose()
     if choice.route == "large-k":
         got = ROUTES["large-k"](p, choice)
@@ -469,7 +473,7 @@ def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxco
 
 def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
              free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline,
-             k_solver: Callable[[SolveOptions], Any] | None = None) -> ModeOutcome:
+             k_solver: Callable[[SolveOptions], Any] | None = None) -> EngineOutcome:
     """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
     the exact enumeration on small instances, else the team model of
     :mod:`camplace.solver.engines.mip.team_model`; no column is dropped by dominance (a column may be
@@ -529,7 +533,7 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         stats.update(out.stats)
         sel, status, bound, engine = out.selected, out.status, out.bound, name
     if sel is None:
-        return ModeOutcome(None, status, math.nan, bound, engine, stats)
+        return EngineOutcome(None, status, bound, stats, engine=engine, objective=math.nan)
     objective = value(sel)
     if status == "optimal":
         bound = objective
@@ -537,4 +541,4 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     broken = team.violations(sel, k=k, fixed=fixed_t)
     if broken:  # never expected: the engines enforce them
         raise CamplaceError(f"internal error: the team solve broke its constraints: {'; '.join(broken)}")
-    return ModeOutcome(sel, status, objective, bound, engine, stats)
+    return EngineOutcome(sel, status, bound, stats, engine=engine, objective=objective)

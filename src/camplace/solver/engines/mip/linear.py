@@ -21,8 +21,9 @@ import numpy as np
 from camplace._cores import thread_count
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
+from camplace.solver.result import EngineOutcome
 
-__all__ = ["Row", "LinearModel", "ModelOutcome", "solve_model", "model_bytes"]
+__all__ = ["Row", "LinearModel", "solve_model", "model_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -136,29 +137,6 @@ class LinearModel:
         return len(self.lb)
 
 
-@dataclass(frozen=True)
-class ModelOutcome:
-    """Result of :func:`solve_model`.
-
-    Attributes
-    ----------
-    values : (n_vars,) float64 or None
-        Best solution found (None if none).
-    status : str
-        ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
-    bound : float
-        Solver's proven bound on the objective (upper when maximising, lower when minimising),
-        in the model's objective units; +-inf when unknown.
-    stats : dict
-        JSON-serialisable details.
-    """
-
-    values: np.ndarray | None
-    status: str
-    bound: float
-    stats: dict[str, Any]
-
-
 def solve_model(
     model: LinearModel,
     backend: str,
@@ -166,7 +144,7 @@ def solve_model(
     deadline: Deadline | None = None,
     hint: dict[int, float] | None = None,
     workers: int | None = None,
-) -> ModelOutcome:
+) -> EngineOutcome:
     """Solve a :class:`LinearModel` with SCIP (``backend="mip"``) or CP-SAT (``"cpsat"``).
 
     Parameters
@@ -183,7 +161,11 @@ def solve_model(
 
     Returns
     -------
-    ModelOutcome
+    EngineOutcome
+        ``values``: the variables' values of the best solution found (None if none; ``selected``
+        is None); ``status``; ``bound``: the solver's proven bound on the objective (upper when
+        maximising, lower when minimising) in the model's objective units, +-inf when unknown;
+        ``engine``: ``backend``; ``stats``.
     """
     if backend == "mip":
         return _solve_scip(model, as_deadline(deadline), hint)
@@ -242,7 +224,7 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     return solver, variables, code, build_s
 
 
-def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] | None) -> ModelOutcome:
+def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] | None) -> EngineOutcome:
     from ortools.linear_solver import linear_solver_pb2, pywraplp
 
     since = stopwatch(deadline)
@@ -286,7 +268,7 @@ def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] |
         status = "infeasible"
     else:
         status = "unknown"
-    return ModelOutcome(values, status, bound, stats)
+    return EngineOutcome(None, status, bound, stats, engine="mip", values=values)
 
 
 def run_cpsat(model, workers: int | None, deadline: Deadline, since: Callable[[], float] | None = None):
@@ -326,7 +308,7 @@ def _int_objective(obj: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 def _solve_cpsat(
     model: LinearModel, deadline: Deadline, hint: dict[int, float] | None, workers: int | None
-) -> ModelOutcome:
+) -> EngineOutcome:
     from ortools.sat.python import cp_model
 
     since = stopwatch(deadline)
@@ -390,4 +372,4 @@ def _solve_cpsat(
         status = "infeasible"
     else:
         status = "unknown"
-    return ModelOutcome(values, status, bound, stats)
+    return EngineOutcome(None, status, bound, stats, engine="cpsat", values=values)

@@ -19,7 +19,6 @@ for every pair closer than ``min_distance_m``. Rows covered by a fixed camera le
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -30,20 +29,9 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.mip.linear import LinearModel, solve_model
 from camplace.solver.engines.mip.mode_models import merge_rows
 from camplace.solver.problem.team import TeamConstraints
+from camplace.solver.result import EngineOutcome
 
-__all__ = ["TeamModelOutcome", "solve_team_model"]
-
-
-@dataclass(frozen=True)
-class TeamModelOutcome:
-    """``selected`` (original columns, fixed included, or None), the model's ``status`` and
-    ``bound`` (objective units: coverage weight including ``base``, or cost of the new cameras) and
-    ``stats``."""
-
-    selected: tuple[int, ...] | None
-    status: str
-    bound: float
-    stats: dict[str, Any]
+__all__ = ["solve_team_model"]
 
 
 def _integral(values: np.ndarray) -> bool:
@@ -54,7 +42,7 @@ def solve_team_model(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, mode: str, k: int | None, fixed: tuple[int, ...],
     free_cols: np.ndarray, conflicts: np.ndarray, costs: np.ndarray | None, required_fraction: float,
     backend: str, deadline: Deadline | None = None, hint: tuple[int, ...] | None = None,
-) -> TeamModelOutcome:
+) -> EngineOutcome:
     """Build and solve the team model (see the module docstring).
 
     Parameters
@@ -78,6 +66,13 @@ def solve_team_model(
         The solve's deadline (default: none).
     hint : tuple of int, optional
         A feasible selection (original columns) given to the solver.
+
+    Returns
+    -------
+    EngineOutcome
+        ``selected``: original columns, fixed included (None: none found); the model's ``status``
+        and ``bound`` (objective units: coverage weight including ``base``, or cost of the new
+        cameras); ``engine``: ``backend``; ``stats``.
     """
     m, n = q.shape
     if backend == "cpsat" and mode == "setcover" and required_fraction < 1.0:
@@ -180,8 +175,8 @@ def solve_team_model(
     stats["engine_stats"] = dict(out.stats)
     if out.values is None:
         bound = out.bound
-        return TeamModelOutcome(None, out.status, bound, stats)
+        return EngineOutcome(None, out.status, bound, stats, engine=backend)
     chosen = tuple(sorted(int(cols[i]) for i in range(cols.size) if out.values[int(x[i])] > 0.5))
     raw = out.bound if abs(out.bound) < 1e19 else math.copysign(math.inf, out.bound)  # SCIP's "no bound yet" is 1e20
     bound = raw * scale + const if math.isfinite(raw) else raw
-    return TeamModelOutcome(chosen, out.status, bound, stats)
+    return EngineOutcome(chosen, out.status, bound, stats, engine=backend)

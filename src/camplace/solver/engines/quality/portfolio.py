@@ -13,7 +13,7 @@ import scipy.sparse as sp
 from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.quality.min_gram import solve_quality_exact
 from camplace.solver.engines.quality.tree import solve_quality_tree
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 
 __all__ = ["quality_engines"]
 
@@ -27,7 +27,7 @@ _TREE_FIRST_MIN_S = 2.0
 def quality_engines(
     resid: sp.csr_matrix, resid_w: np.ndarray, k: int, tree_ok: bool, gram_ok: bool, fixed_t: tuple[int, ...],
     free_cols: np.ndarray, value: Any, const: float, deadline: Deadline, stats: dict[str, Any],
-) -> ModeOutcome:
+) -> EngineOutcome:
     """The exact quality engines as a portfolio: the quantised tree first (fast on the spatially
     coherent qualities of real scenes); if it has not proven the optimum within its share of the
     time and the min-Gram triple engine applies (k = 2, 3, small n), that one gets the rest (it does
@@ -56,4 +56,4 @@ def quality_engines(
     stats["engine_stats"] = dict(runs[0][1].stats)
     if len(runs) > 1:
         stats["engine_stats"]["min_gram"] = dict(runs[1][1].stats)
-    return ModeOutcome(sel, status, objective, bound, "exact", stats)
+    return EngineOutcome(sel, status, bound, stats, engine="exact", objective=objective)
