@@ -70,7 +70,7 @@ from camplace.errors import CamplaceError
 from camplace.names import MODES
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import NearCandidates, greedy
-from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
 from camplace.solver.engines.mip.mode_models import check_setcover_memory
 from camplace.solver.engines.setcover.mode import setcover
@@ -224,8 +224,8 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         # these engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
         need, budget = 4 * int(q.nnz), memory_budget_bytes()
         if need > budget:
-            raise CamplaceError(f"{OverBudget(need, budget, 'the float32 values of the matrix').message}; "
-                                "pass the float32 matrix (load_visibility without pattern=True)")
+            memory_fallback(OverBudget(need, budget, "the float32 values of the matrix"), None, asked=False, then=None,
+                            fix="pass the float32 matrix (load_visibility without pattern=True)")
         q = float_values(q)
     m, n = q.shape
     if n == 0:
@@ -240,17 +240,18 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     if positions is not None:
         pos = coords(positions, n, "positions", "camera positions")
     conflicts = np.zeros((0, 2), dtype=np.int64)
-    too_many: OverBudget | None = None  # conflicting pairs that would not fit in memory
+    too_many: str | None = None  # conflicting pairs that would not fit in memory: the fallback's message
     if min_distance_m is not None:
         if pos is None:
             raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
         n_pairs = conflict_count(pos, float(min_distance_m))
         need, budget = n_pairs * _CONFLICT_PAIR_BYTES, memory_budget_bytes()
         if need > budget:
-            too_many = OverBudget(need, budget, f"min_distance_m={float(min_distance_m):g} ({n_pairs} candidate pairs "
-                                                "closer than that)")
-            if engine != "auto" or mode == "setcover":
-                raise CamplaceError(f"{too_many.message}; lower min_distance_m or use fewer candidates")
+            too_many = memory_fallback(
+                OverBudget(need, budget, f"min_distance_m={float(min_distance_m):g} ({n_pairs} candidate pairs closer "
+                                         "than that)"), None, asked=engine != "auto", warn=False,
+                then=None if mode == "setcover" else "returning the greedy answer with a bound that ignores the spacing",
+                fix="lower min_distance_m or use fewer candidates")  # logged by _spaced_fallback
         else:
             conflicts = conflict_pairs(pos, float(min_distance_m))
     pts = None
@@ -376,7 +377,7 @@ def _opposite_pair_cap(
 def _spaced_fallback(
     q: sp.csr_matrix, w: np.ndarray, k: Any, mode: str, views: int, min_angle_deg: float | None, pos: np.ndarray,
     points: np.ndarray | None, fixed: Sequence[int], forbidden: Sequence[int], dmin: float, engine: str,
-    exc: OverBudget, deadline: Deadline,
+    msg: str, deadline: Deadline,
 ) -> SolverResult:
     """Too many conflicting pairs to list: the greedy answer (spacing checked with a k-d tree) and the
     cheap bound, which ignores the spacing and so stays valid."""
@@ -401,8 +402,7 @@ def _spaced_fallback(
     pts = points
     qf = q[:, free_cols].tocsr()
     base, gw = fixed_base(q, w, fixed_t, mode)
-    msg = f"{exc.message}; returning the greedy answer with a bound that ignores the spacing"
-    log.warning("%s", msg)
+    log.warning("%s", msg)  # memory_fallback's message
     local = greedy(qf.tocsc(), gw, mode, views, base, k, np.ones(free_cols.size, dtype=bool),
                     NearCandidates(pos[free_cols], dmin)) if k else ()
     sel = None if local is None else tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in local}))

@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import greedy
-from camplace.solver._support.memory import OverBudget, exact_too_big, memory_budget_bytes, memory_fallback
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.choose import EngineChoice, choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
@@ -211,7 +211,7 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> EngineOutcome
                           np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline,
                           budget_bytes=memory_budget_bytes(), start=p.start)
     except OverBudget as exc:
-        exact_too_big(p.engine, p.stats, exc.need, exc.budget)
+        _exact_fallback(p, exc)
         return None
     sel = tuple(sorted(set(p.fixed_t) | set(out.selected)))
     p.stats["engine_stats"] = dict(out.stats)
@@ -224,13 +224,20 @@ def _multiview(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:
     mp, np_ = pre.shape
     need = bitset_bytes(mp, np_, min(p.views, p.k), p.k)
     if need > p.budget:
-        exact_too_big(p.engine, p.stats, need, p.budget)
+        _exact_fallback(p, OverBudget(need, p.budget, "the exact engine"))
         return None
     out = solve_bitset(pre, views=p.views, time_limit_s=p.deadline.left(), start=_reduced_start(p, pre))
     sel = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
     p.stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
     return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), p.stats, engine=choice.engine,
                          objective=p.value(sel) if sel else 0.0)
+
+
+def _exact_fallback(p: CoverProblem, exc: OverBudget) -> None:
+    """An exact engine does not fit: :func:`~camplace.solver._support.memory.memory_fallback` to
+    the general model (an error when ``exact`` was asked for)."""
+    memory_fallback(exc, p.stats, asked=p.engine == "exact", then="falling back to the general model",
+                    fix="use engine mip (or fewer candidates / points)")
 
 
 def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> EngineOutcome:
@@ -281,15 +288,15 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
     try:
         if need > budget:
             exc = OverBudget(need, budget, f"the {'SCIP' if name == 'mip' else 'CP-SAT'} model of mode {mode}")
-            if p.engine == name:
-                raise CamplaceError(f"{exc.message}; use fewer candidates / points"
-                                    + (", or engine exact" if p.angle_ok else ""))
+            fix = "use fewer candidates / points" + (", or engine exact" if p.angle_ok else "")
             if p.angle_ok and not angle_tried:  # auto, k > 4: the angle engine gives a valid bound at the limit
-                memory_fallback(exc, p.engine, name, stats, "falling back to the exact angle engine")
+                memory_fallback(exc, stats, asked=p.engine == name, then="falling back to the exact angle engine",
+                                fix=fix)
                 got = _angle(p)
                 if got is not None:
                     return got
-            memory_fallback(exc, p.engine, name, stats, "returning the greedy answer with a cheap bound")
+            memory_fallback(exc, stats, asked=p.engine == name, then="returning the greedy answer with a cheap bound",
+                            fix=fix)
             raise BuildTimeout(f"skipped: {exc.message}")
         model, x, wmax, const = build_model(q, p.resid, p.resid_w, w, p.base, k, mode, views, p.min_angle_deg, p.pos,
                                             p.pts, p.fixed_t, p.free_cols, p.conflicts, p.fixed_value, p.deadline)
@@ -429,8 +436,8 @@ def _run_cover(p: CoverProblem) -> EngineOutcome:
         choice = p.choose(large_k=False)  # it does not fit in memory (auto): the choice without the large-k engines
     p.stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
     p.stats.update(choice.stats)
-    if "memory_fallback" in choice.stats:
-        log.warning("%s; falling back to the general model", choice.stats["memory_fallback"])
+    if "memory_fallback" in choice.stats:  # recorded by the (pure) engine choice, logged here
+        log.warning("%s", choice.stats["memory_fallback"])
     got = ROUTES[choice.route](p, choice)
     if got is not None:
         return got

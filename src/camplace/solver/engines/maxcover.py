@@ -24,6 +24,11 @@ from camplace.solver.result import EngineOutcome
 
 __all__ = ["run_maxcover_engine"]
 
+#: What the user can do when an engine asked for by name does not fit.
+_FIX = {"exact": "use engine mip, or fewer candidates / points",
+        "mip": "use engine exact, or fewer candidates / points",
+        "cpsat": "use engine exact, or fewer candidates / points"}
+
 #: The max-coverage engines by name.
 _FUNCS = {"exact": solve_bitset, "mip": solve_mip, "cpsat": solve_cpsat}
 
@@ -56,7 +61,8 @@ def run_maxcover_engine(name: str, requested: str, pre: Presolved, deadline: Dea
             return name, _FUNCS[name](pre, deadline=deadline)
         except OverBudget as exc:
             nxt = next((e for e in ("exact", "mip") if e not in tried), None)
-            memory_fallback(exc, requested, name, stats, f"falling back to engine {nxt}" if nxt else
+            memory_fallback(exc, stats, asked=requested == name, fix=_FIX[name],
+                            then=f"falling back to engine {nxt}" if nxt else
                             "returning the greedy answer with the trivial bound")
             if nxt is None:
                 break

@@ -610,8 +610,8 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
         need = bitset_bytes(pre.shape[0], pre.shape[1], min(views, k), k) + large_k_bytes(m, n, resid.nnz)
         if need > budget:
-            memory_fallback(OverBudget(need, budget, "the exact multiview engine"), engine, "exact", stats,
-                            "falling back to the general model")
+            memory_fallback(OverBudget(need, budget, "the exact multiview engine"), stats, asked=engine == "exact",
+                            then="falling back to the general model", fix="use engine mip, or fewer candidates / points")
             return None
         vs = _Views(resid, resid_w, views)
         # a counted row uses `views` of the views the k chosen columns give: the k heaviest columns
@@ -645,8 +645,8 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         return EngineOutcome(tuple(int(j) for j in pre.original_columns(sel)), status, bound, stats, engine=name)
     need = large_k_bytes(m, n, resid.nnz)
     if need > budget:
-        memory_fallback(OverBudget(need, budget, "the large-k engine"), engine, "exact", stats,
-                        "falling back to the general model")
+        memory_fallback(OverBudget(need, budget, "the large-k engine"), stats, asked=engine == "exact",
+                        then="falling back to the general model", fix="use engine mip, or fewer candidates / points")
         return None
     share = first_dl if mode == "maxcover" and engine == "auto" else deadline
     out = solve_large_k(resid, resid_w, k, binary=mode == "maxcover", deadline=share, seed=seed)

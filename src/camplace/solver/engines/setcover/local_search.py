@@ -71,7 +71,7 @@ from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline, as_deadline
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.setcover import _kernels as K
 from camplace.solver.result import EngineOutcome
 
@@ -856,8 +856,8 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     need_bytes = cover_bytes(m, n, int(pattern.nnz))
     budget = memory_budget_bytes()
     if need_bytes > budget:
-        exc = OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)")
-        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
+        memory_fallback(OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)"),
+                        stats=None, asked=True, then=None)  # nothing answers without it
     c = np.asarray(costs, dtype=np.float64)
     red = reduce_cover(pattern, c, weights, need)
     stats: dict[str, Any] = {"reduction": dict(red.stats)}
@@ -887,11 +887,11 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     proven = cost_r <= lb + 1e-9 * max(1.0, abs(cost_r))
     backend, why_not = _model_choice(engine, red, cost_r, lb)
     if not proven and backend is not None and cover_model_bytes(red, backend) > memory_budget_bytes():
-        msg = (f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} model of the reduced {mr} x {nr} instance "
-               f"({red.nnz} nonzeros) would need about {cover_model_bytes(red, backend) / 2**30:.1f} GiB but only "
-               f"{memory_budget_bytes() / 2**30:.1f} GiB may be used; kept the local-search cover and its bound")
-        log.warning("setcover: %s", msg)
-        stats["memory_fallback"] = msg
+        # the search's cover answers whichever engine was asked for: no error here
+        memory_fallback(OverBudget(cover_model_bytes(red, backend), memory_budget_bytes(),
+                                   f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} model of the reduced {mr} x {nr} "
+                                   f"set-cover instance ({red.nnz} nonzeros)"),
+                        stats, asked=False, then="kept the local-search cover and its bound")
         backend = None
     if not proven and backend is None and why_not:
         stats["model_skipped"] = why_not
