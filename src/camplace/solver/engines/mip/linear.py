@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -174,6 +174,47 @@ def solve_model(
     raise CamplaceError(f"unknown model backend {backend!r} (use mip or cpsat)")
 
 
+def scip_proto(maximize: bool, variables: Iterable[tuple[float, float, bool, float]],
+               rows: Iterable[tuple[float, float, Sequence[int], Sequence[float]]],
+               stop: Callable[[], bool] | None = None, check_every: int = 256):
+    """The ``MPModelProto`` SCIP loads (the one model-building loop of the package: the mode
+    models, through :func:`solve_model`, and the max-coverage MIP of
+    :mod:`camplace.solver.engines.mip.ortools`).
+
+    Parameters
+    ----------
+    maximize : bool
+    variables : iterable of (lower, upper, integer, objective coefficient)
+        One tuple per variable, in index order.
+    rows : iterable of (lower, upper, variable indices, coefficients)
+        One tuple per constraint (``lower <= sum coef * x[idx] <= upper``; +-inf for none).
+    stop : callable, optional
+        Checked before every ``check_every``-th row (the first included): building stops when it
+        returns True (the time limit passed).
+
+    Returns
+    -------
+    ortools.linear_solver.linear_solver_pb2.MPModelProto or None
+        None when ``stop`` said so.
+    """
+    from ortools.linear_solver import linear_solver_pb2
+
+    proto = linear_solver_pb2.MPModelProto()
+    proto.maximize = bool(maximize)
+    for lb, ub, integ, c in variables:
+        v = proto.variable.add()
+        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = lb, ub, integ, c
+    for i, (lo, hi, idx, coef) in enumerate(rows):
+        if stop is not None and i % check_every == 0 and stop():
+            return None
+        ct = proto.constraint.add()
+        ct.lower_bound = lo
+        ct.upper_bound = hi
+        ct.var_index.extend(idx)
+        ct.coefficient.extend(coef)
+    return proto
+
+
 def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_values: Sequence[float] = (), *,
              no_scip: str = "use engine='cpsat'", since: Callable[[], float] | None = None):
     """Solve an ``MPModelProto`` with SCIP: one thread, the hint, the relative gap ``_OPT_TOL`` and
@@ -225,22 +266,12 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
 
 
 def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] | None) -> EngineOutcome:
-    from ortools.linear_solver import linear_solver_pb2, pywraplp
+    from ortools.linear_solver import pywraplp
 
     since = stopwatch(deadline)
-    proto = linear_solver_pb2.MPModelProto()
-    proto.maximize = bool(model.maximize)
-    for lb, ub, integ, c in zip(model.lb, model.ub, model.integer, model.obj):
-        v = proto.variable.add()
-        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = lb, ub, integ, c
-    nnz = 0
-    for row in model.rows:
-        ct = proto.constraint.add()
-        ct.lower_bound = row.lo
-        ct.upper_bound = row.hi
-        ct.var_index.extend(row.idx.tolist())
-        ct.coefficient.extend(row.coef.tolist())
-        nnz += row.idx.size
+    proto = scip_proto(model.maximize, zip(model.lb, model.ub, model.integer, model.obj),
+                       ((row.lo, row.hi, row.idx.tolist(), row.coef.tolist()) for row in model.rows))
+    nnz = sum(row.idx.size for row in model.rows)
     keys = sorted(hint) if hint else []
     solver, variables, code, build_s = run_scip(proto, deadline, keys, [float(hint[i]) for i in keys] if hint else [],
                                                 no_scip="use engine='cpsat'", since=since)

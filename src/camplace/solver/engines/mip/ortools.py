@@ -29,7 +29,7 @@ from camplace._cores import thread_count
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.greedy import greedy_incumbent
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
-from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat, run_scip
+from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat, run_scip, scip_proto
 from camplace.solver.problem.presolve import Presolved
 from camplace.solver.result import EngineOutcome
 
@@ -148,7 +148,7 @@ def solve_mip(pre: Presolved, *, deadline: Deadline | None = None) -> EngineOutc
     OverBudget
         When :func:`maxcover_model_bytes` exceeds the memory budget (before anything is built).
     """
-    from ortools.linear_solver import linear_solver_pb2, pywraplp
+    from ortools.linear_solver import pywraplp
 
     triv = _trivial(pre)
     if triv is not None:
@@ -161,27 +161,18 @@ def solve_mip(pre: Presolved, *, deadline: Deadline | None = None) -> EngineOutc
     coef, scale = _objective_coefficients(pre)
     hint = greedy_incumbent(pre.matrix, pre.weights, k)
 
-    proto = linear_solver_pb2.MPModelProto()
-    proto.maximize = True
-    for j in range(n):
-        v = proto.variable.add()
-        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = 0.0, 1.0, True, 0.0
-    for i in range(m):
-        v = proto.variable.add()
-        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = 0.0, 1.0, False, float(coef[i])
     csr = pre.matrix.tocsr()
     indptr, indices = csr.indptr, csr.indices
-    for i in range(m):
-        if i % _BUILD_CHECK == 0 and deadline.expired():
-            return _build_stopped(pre, hint, "SCIP", since())
-        ct = proto.constraint.add()
-        ct.lower_bound = 0.0
-        ct.upper_bound = math.inf
-        cols = indices[indptr[i] : indptr[i + 1]].tolist()
-        ct.var_index.extend(cols)
-        ct.coefficient.extend([1.0] * len(cols))
-        ct.var_index.append(n + i)
-        ct.coefficient.append(-1.0)
+
+    def covers():  # y_i <= sum of the x_j that observe row i
+        for i in range(m):
+            cols = indices[indptr[i] : indptr[i + 1]].tolist()
+            yield 0.0, math.inf, cols + [n + i], [1.0] * len(cols) + [-1.0]
+
+    var_specs = [(0.0, 1.0, True, 0.0)] * n + [(0.0, 1.0, False, float(c)) for c in coef]  # x, then y
+    proto = scip_proto(True, var_specs, covers(), stop=deadline.expired, check_every=_BUILD_CHECK)
+    if proto is None:
+        return _build_stopped(pre, hint, "SCIP", since())
     card = proto.constraint.add()
     card.lower_bound = card.upper_bound = float(k)
     card.var_index.extend(range(n))
