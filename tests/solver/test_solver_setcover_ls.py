@@ -338,7 +338,7 @@ def test_side_by_side_searches_stop_together_at_the_target() -> None:
     red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(12))
     searches = [S.LocalSearch(red, seed=2, stream=k) for k in range(2)]
     t0 = __import__("time").perf_counter()
-    whys = S.run_searches(searches, time_limit_s=30.0, target=best - red.forced_cost)
+    whys = S.run_searches(searches, deadline=Deadline(30.0), target=best - red.forced_cost)
     assert __import__("time").perf_counter() - t0 < 10.0
     assert "target" in whys and set(whys) <= {"target", "stopped"}
     assert min(s.best_cost for s in searches) + red.forced_cost == best

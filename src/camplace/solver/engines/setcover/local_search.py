@@ -503,7 +503,7 @@ class LocalSearch:
         """Iteration at which the best cover was found."""
         return int(self.ist[K.BEST_IT])
 
-    def run(self, *, max_iterations: int | None = None, time_limit_s: float | None = None, target: float = -math.inf,
+    def run(self, *, max_iterations: int | None = None, deadline: Deadline | None = None, target: float = -math.inf,
             patience: int | None = None, stop: threading.Event | None = None,
             reached: threading.Event | None = None) -> str:
         """Search until an iteration budget, a time limit, the target cost or a stall.
@@ -512,8 +512,8 @@ class LocalSearch:
         ----------
         max_iterations : int, optional
             Stop once this many iterations have run in total (deterministic).
-        time_limit_s : float, optional
-            Stop after this many seconds (checked between compiled chunks).
+        deadline : Deadline, optional
+            Stop when it expires (checked between compiled chunks; default: no limit).
         target : float
             Stop once the best cost is at most this (a lower bound: the cover is then optimal).
         patience : int, optional
@@ -536,14 +536,13 @@ class LocalSearch:
             Why it stopped: ``"target"``, ``"iterations"``, ``"patience"``, ``"time"``, ``"stuck"``
             (every row covered, the required weight not reached) or ``"stopped"``.
         """
-        t0 = time.perf_counter()
         chunk = 64
         stop_it = np.iinfo(np.int64).max if max_iterations is None else int(max_iterations)
         pat = np.iinfo(np.int64).max // 4 if patience is None else int(patience)
         args = self._args()
         improved = int(self.ist[K.IMPROVED])
         while True:
-            if time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+            if deadline is not None and deadline.expired():
                 return "time"
             if stop is not None and stop.is_set():
                 return "stopped"
@@ -596,11 +595,11 @@ def search_threads() -> int:
     return max(1, min(SEARCH_THREADS, thread_count()))
 
 
-def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = None, target: float = -math.inf,
+def run_searches(searches: list[LocalSearch], *, deadline: Deadline | None = None, target: float = -math.inf,
                  patience: int | None = None) -> list[str]:
     """Run several searches side by side, one thread each (the compiled kernels release the GIL).
 
-    With a time limit, the first to reach ``target`` stops the others (the answer then depends on
+    With a deadline that has a limit, the first to reach ``target`` stops the others (the answer then depends on
     the machine's speed, as any timed search does); without one, each runs to its own end, so the
     outcome of every search is that of running it alone (deterministic).
 
@@ -610,11 +609,12 @@ def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = No
         Why each stopped (:meth:`LocalSearch.run`).
     """
     if len(searches) == 1:
-        return [searches[0].run(time_limit_s=time_limit_s, target=target, patience=patience)]
+        return [searches[0].run(deadline=deadline, target=target, patience=patience)]
     ev = threading.Event()  # also stops the threads when the main one is interrupted (Ctrl-C)
     with ThreadPoolExecutor(max_workers=len(searches), thread_name_prefix="setcover-search") as ex:
-        futs = [ex.submit(s.run, time_limit_s=time_limit_s, target=target, patience=patience, stop=ev,
-                          reached=ev if time_limit_s is not None else None) for s in searches]
+        timed = deadline is not None and deadline.limit is not None
+        futs = [ex.submit(s.run, deadline=deadline, target=target, patience=patience, stop=ev,
+                          reached=ev if timed else None) for s in searches]
         try:
             return [f.result() for f in futs]
         finally:
@@ -622,7 +622,7 @@ def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = No
 
 
 def local_search(red: CoverReduction, *, seed: int = 0, max_iterations: int | None = None,
-                 time_limit_s: float | None = None, target: float = -math.inf,
+                 deadline: Deadline | None = None, target: float = -math.inf,
                  patience: int | None = None) -> tuple[np.ndarray, float, dict[str, Any]]:
     """Greedy plus row-weighting local search (see :class:`LocalSearch`).
 
@@ -636,7 +636,7 @@ def local_search(red: CoverReduction, *, seed: int = 0, max_iterations: int | No
     """
     t0 = time.perf_counter()
     ls = LocalSearch(red, seed=seed)
-    why = ls.run(max_iterations=max_iterations, time_limit_s=time_limit_s, target=target, patience=patience)
+    why = ls.run(max_iterations=max_iterations, deadline=deadline, target=target, patience=patience)
     sel = ls.best_cover()
     cost = float(red.cost[sel].sum())
     return sel, cost, {"greedy_cost": ls.greedy_cost, "cost": cost, "iterations": ls.iterations,
@@ -654,7 +654,7 @@ def _integral(values: np.ndarray) -> bool:
 
 
 def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int = _LAG_MAX_ITERS,
-                     time_limit_s: float | None = None) -> tuple[float, dict[str, Any]]:
+                     deadline: Deadline | None = None) -> tuple[float, dict[str, Any]]:
     """Lower bound on the reduced instance's optimum (forced columns excluded).
 
     Parameters
@@ -663,7 +663,8 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
     upper : float
         Cost of a known cover (the step size aims at it).
     max_iterations : int
-    time_limit_s : float, optional
+    deadline : Deadline, optional
+        Stop when it expires (default: no limit); the bound found so far stays valid.
 
     Returns
     -------
@@ -687,7 +688,7 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
     chunk = 4
     converged = False
     while done < max_iterations:
-        if time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+        if deadline is not None and deadline.expired():
             break
         c0 = time.perf_counter()
         with ctrl_c_deferred():
@@ -868,12 +869,9 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         stats["time_s"] = time.perf_counter() - t0
         return EngineOutcome(sel, "optimal", cost, stats, engine="local-search", objective=cost)
     ls = LocalSearch(red, seed=seed)
-    rem = left()
-    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost,
-                                               time_limit_s=None if rem is None else _LAG_SHARE * rem)
+    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost, deadline=deadline.share(_LAG_SHARE))
     # first search: short patience, at most half the time left (the whole budget with an iteration budget)
-    rem = left()
-    why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else _LS_SHARE_BEFORE_MODEL * rem,
+    why = ls.run(max_iterations=max_iterations, deadline=deadline.share(_LS_SHARE_BEFORE_MODEL),
                  target=lb, patience=None if max_iterations is not None else patience_work(red.nnz, before_model=True))
     sel_r = ls.best_cover()
     cost_r = float(red.cost[sel_r].sum())
@@ -922,7 +920,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
                            for k in range(1, search_threads())]
         for s in searches:
             s.restart_work = restart_unit_work(red.nnz)
-        whys = run_searches(searches, time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
+        whys = run_searches(searches, deadline=deadline.share(0.97), target=bound_r,
                             patience=None if rem is not None else patience_work(red.nnz))
         costs2 = [s.best_cost for s in searches]
         k_best = int(np.argmin(costs2))  # ties: the first
