@@ -174,6 +174,7 @@ def run_ladder(positions: list[int], modes: list[str], limit: float, k: int) -> 
 def run_quality_engines(seed: int, k: int) -> None:
     """The two exact quality engines on the same graded comet-67p-bunker matrices (same run):
     min-Gram triple enumeration vs the quantised tree, times and their ratio."""
+    from camplace.solver._support.deadline import Deadline
     from camplace.solver.engines.quality.min_gram import QUALITY_EXACT_MAX_N, solve_quality_exact
     from camplace.solver.engines.quality.tree import solve_quality_tree
 
@@ -184,7 +185,7 @@ def run_quality_engines(seed: int, k: int) -> None:
             if name == "min-gram" and n_cams > QUALITY_EXACT_MAX_N:
                 continue
             t = time.perf_counter()
-            res = fn(matrix, weights, k, time_limit_s=120.0)
+            res = fn(matrix, weights, k, deadline=Deadline(120.0))
             out[name] = (time.perf_counter() - t, res)
             print(f"   quality {name:8s} {n_cams:5d}x{m_pts:6d} k={k}: {out[name][0]:7.2f} s {res.status:8s} "
                   f"bound={res.bound:.6f} selected={res.selected}")

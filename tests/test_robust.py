@@ -204,7 +204,7 @@ def test_p10_solver_matches_enumeration(mode) -> None:
     w = rng.uniform(0.1, 1.0, m)
     best = max(order_p10(scenario_values(stacked, w, S, sel, mode=mode, views=2))
                for sel in itertools.combinations(range(n), k))
-    res = solve_p10(stacked, w, S, k, mode=mode, views=2, incumbents=[(0, 1, 2)], time_limit_s=60)
+    res = solve_p10(stacked, w, S, SolveOptions(mode=mode, k=k, views=2, time_limit_s=60), incumbents=[(0, 1, 2)])
     assert res.status == "optimal"
     assert res.objective == pytest.approx(best, rel=1e-9)
     assert res.bound >= res.objective - 1e-12
@@ -224,7 +224,7 @@ def test_p10_fallback_bound_is_valid() -> None:
     old = p10mod.P10_MODEL_MAX_NNZ
     p10mod.P10_MODEL_MAX_NNZ = 0
     try:
-        res = solve_p10(stacked, w, S, k, incumbents=[(0, 1)], mean_bound=mean_best)
+        res = solve_p10(stacked, w, S, SolveOptions(k=k), incumbents=[(0, 1)], mean_bound=mean_best)
     finally:
         p10mod.P10_MODEL_MAX_NNZ = old
     assert "not built" in res.stats["model"] or "not needed" in res.stats["model"]

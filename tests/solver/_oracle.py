@@ -163,29 +163,41 @@ def brute_force_setcover(dense, w, costs, fraction=1.0, *, fixed=(), forbidden=(
     return best
 
 
-class ExpiringDeadline:
-    """A stand-in for ``Deadline`` that expires after ``ExpiringDeadline.checks`` checks
-    (deterministic interruption of an engine's search)."""
+class ExpiringDeadline(Deadline):
+    """A stand-in for the solve's one ``Deadline`` that expires after ``checks`` checks
+    (deterministic interruption of an engine's search): injected as an engine's ``deadline``, or
+    as the deadline :func:`camplace.solver.solve` makes (``solve_deadline``). It has no limit:
+    the slices cut from it (``share``, ``within``, ``shortened``) are itself (they expire with
+    it), and ``remaining`` says 1 s until it expires."""
 
-    checks = 0
-    limit = None
-
-    def __init__(self, time_limit_s) -> None:
-        self.left = ExpiringDeadline.checks
+    def __init__(self, checks: int) -> None:
+        super().__init__(None)
+        self.left_checks = checks
 
     def expired(self) -> bool:
-        self.left -= 1
-        return self.left < 0
-
-    def elapsed(self) -> float:
-        return 0.0
+        self.left_checks -= 1
+        return self.left_checks < 0
 
     def remaining(self) -> float:
-        return 0.0 if self.left < 0 else 1.0
+        return 0.0 if self.left_checks < 0 else 1.0
+
+    def share(self, fraction: float) -> "ExpiringDeadline":
+        return self  # a step's slice expires with it
+
+    within = shortened = share
+
+
+def solve_deadline(monkeypatch, deadline: Deadline) -> None:
+    """Make ``deadline`` the one deadline of the next solves (where :func:`camplace.solver.solve`
+    makes it), instead of one from ``time_limit_s``."""
+    import camplace.solver.api as api
+
+    monkeypatch.setattr(api, "Deadline", lambda _limit: deadline)
 
 
 class CountingDeadline(Deadline):
-    """Expires after a fixed number of checks: interrupts an engine at a deterministic point."""
+    """Expires after a fixed number of checks: interrupts an engine at a deterministic point
+    (injected as an engine's ``deadline``, or as the solve's with :func:`solve_deadline`)."""
 
     def __init__(self, after: int) -> None:
         super().__init__(None)
@@ -197,3 +209,8 @@ class CountingDeadline(Deadline):
 
     def remaining(self) -> float | None:
         return 1e-3 if self.calls > self.after else None
+
+    def share(self, fraction: float) -> "CountingDeadline":
+        return self  # a step's slice expires with it
+
+    within = shortened = share

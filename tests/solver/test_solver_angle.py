@@ -20,7 +20,7 @@ from camplace.solver import solve_maxcover
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import memory_budget, memory_budget_bytes
 from camplace.solver.api import solve
-from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective
+from tests.solver._oracle import ExpiringDeadline, brute_force_mode, mode_objective, solve_deadline
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 _TINY = 4096  # bytes: no engine or model fits
@@ -168,10 +168,9 @@ def medium():
 @pytest.mark.parametrize("checks", [0, 1, 2, 5, 9])
 def test_angle_engine_interrupted_keeps_a_valid_bound(monkeypatch, medium, checks) -> None:
     dense, w, pos, pts, best = medium
-    monkeypatch.setattr(ae, "Deadline", ExpiringDeadline)
+    solve_deadline(monkeypatch, ExpiringDeadline(checks))  # the solve's one deadline
     monkeypatch.setattr(ae, "_BATCH", 4)
     monkeypatch.setattr(ae, "_CHUNK", 2)
-    ExpiringDeadline.checks = checks
     res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
     v = _value(dense, w, pos, pts, res.selected, 2, 20.0)
     assert res.objective == pytest.approx(v, rel=1e-9)
@@ -441,11 +440,10 @@ def test_angle_engine_without_cone_refinement_equals_enumeration(monkeypatch, se
 @pytest.mark.parametrize("checks", [1, 3, 6])
 def test_angle_engine_interrupted_without_refinement_keeps_a_valid_bound(monkeypatch, medium, checks) -> None:
     dense, w, pos, pts, best = medium
-    monkeypatch.setattr(ae, "Deadline", ExpiringDeadline)
+    solve_deadline(monkeypatch, ExpiringDeadline(checks))  # the solve's one deadline
     monkeypatch.setattr(ae, "_BATCH", 4)
     monkeypatch.setattr(ae, "_CHUNK", 2)
     monkeypatch.setattr(ae._Tree, "_learn", lambda self, refined, cut: self.refine.fill(False))
-    ExpiringDeadline.checks = checks
     res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
     v = _value(dense, w, pos, pts, res.selected, 2, 20.0)
     assert res.objective == pytest.approx(v, rel=1e-9)

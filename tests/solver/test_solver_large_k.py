@@ -14,10 +14,9 @@ from hypothesis import strategies as st
 from camplace.errors import CamplaceError
 from camplace.solver.api import solve
 from camplace.solver.engines.bitset import search as bitset_mod
-from camplace.solver.engines.large_k import search as lk_mod
 from camplace.solver.engines.large_k.search import solve_large_k, views_incumbent
 from camplace.solver.problem._synthetic import structured_instance
-from tests.solver._oracle import CountingDeadline, brute_force_mode
+from tests.solver._oracle import CountingDeadline, brute_force_mode, solve_deadline
 
 _SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 _TOL = 1e-9
@@ -127,8 +126,9 @@ def test_interrupted_anywhere_keeps_a_valid_bound(monkeypatch, mode: str, after:
         dense = dense * np.random.default_rng(1).uniform(0.2, 1.0, size=dense.shape)
     views, k = (3, 6) if mode == "multiview" else (1, 7)
     opt = _enumerate(dense, w, k, mode, views)
-    monkeypatch.setattr(lk_mod, "Deadline", lambda _limit: CountingDeadline(after))
-    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))  # multiview's search
+    solve_deadline(monkeypatch, CountingDeadline(after))  # the solve's one deadline
+    # the bitset engine (multiview's search) still makes its own from the seconds it is handed
+    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
     monkeypatch.setattr(bitset_mod, "_SLICE", 3)  # deadline checks every 3 bound evaluations
     res = solve(sp.csr_matrix(dense), w, k, mode=mode, views=views, time_limit_s=30.0)
     assert res.status in ("optimal", "feasible")
@@ -162,7 +162,7 @@ def test_views_incumbent_is_a_local_optimum() -> None:
     """No single swap improves the local-search answer (checked by enumeration of every swap)."""
     matrix, w = structured_instance(300, 20, seed=8, shape="bilobed")
     dense = matrix.toarray() > 0
-    sel, value, _ = views_incumbent(matrix, w, 6, 3, time_limit_s=None, seed=0, patience=2)
+    sel, value, _ = views_incumbent(matrix, w, 6, 3, seed=0, patience=2)
     assert value == pytest.approx(float(w @ (dense[:, list(sel)].sum(axis=1) >= 3)), abs=_TOL)
     for t in range(6):
         for j in set(range(20)) - set(sel):

@@ -13,10 +13,11 @@ from hypothesis import strategies as st
 import camplace.solver.engines.bitset.search as bitset_mod
 import camplace.solver.api as modes
 from camplace.solver.api import solve
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
 from camplace.solver.engines.bitset.search import solve_bitset
 from camplace.solver.problem.presolve import presolve
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 from tests.solver._oracle import ExpiringDeadline, mode_objective, small_instances, tolerance
 
 
@@ -89,7 +90,7 @@ def test_half_circles_bound_equals_the_optimum(n_points, n_cams) -> None:
 def test_time_limit_keeps_a_valid_bound() -> None:
     dense = circle(40, 12)
     w = np.full(40, 0.025)
-    bound, stats = opposite_pair_bound(dense, w, views=2, cameras=3, time_limit_s=0.0)
+    bound, stats = opposite_pair_bound(dense, w, views=2, cameras=3, deadline=Deadline(0.0))
     assert not stats["complete"]
     assert bound == pytest.approx(1.0)  # nothing matched: the countable weight
 
@@ -108,7 +109,7 @@ def test_solve_tightens_an_unproven_multiview_bound(monkeypatch) -> None:
 
     def loose(problem):
         seen["limit"] = problem.deadline.limit
-        return ModeOutcome((0, 4, 8), "feasible", 0.5, 1.0, "exact", {"k": problem.k})
+        return EngineOutcome((0, 4, 8), "feasible", 1.0, {"k": problem.k}, engine="exact", objective=0.5)
 
     monkeypatch.setattr(modes, "run_cover", loose)
     res = solve(dense, w, 3, mode="multiview", views=2, time_limit_s=10.0)
@@ -170,8 +171,8 @@ def test_bitset_opposite_pairs_search_equals_enumeration(inst, chunk, checks, in
         mp.setattr(bitset_mod, "_STARTS", 0)
         checks = None
     if checks is not None:
-        mp.setattr(bitset_mod, "Deadline", ExpiringDeadline)
-        ExpiringDeadline.checks = checks
+        # the bitset engine still makes its deadline from the seconds it is handed
+        mp.setattr(bitset_mod, "Deadline", lambda _limit: ExpiringDeadline(checks))
     try:
         out = solve_bitset(pre, views=views)
     finally:

@@ -66,9 +66,7 @@ def test_tree_engine_interrupted_keeps_a_valid_bound(monkeypatch, checks) -> Non
     w = rng.uniform(0.0, 1.0, 60)
     best = brute_force_mode(dense, w, 3, "quality")
     monkeypatch.setattr(qt, "_CHUNK", 1)
-    monkeypatch.setattr(qt, "Deadline", ExpiringDeadline)
-    ExpiringDeadline.checks = checks
-    out = qt.solve_quality_tree(sp.csr_matrix(dense), w, 3, time_limit_s=1.0)
+    out = qt.solve_quality_tree(sp.csr_matrix(dense), w, 3, deadline=ExpiringDeadline(checks))
     v = _value(dense, w, out.selected)
     assert len(set(out.selected)) == 3
     # v (BLAS dot) and best (a loop over the rows) are sums of the same terms in different orders;

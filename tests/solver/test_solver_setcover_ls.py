@@ -18,6 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.api import solve
 from camplace.solver.engines.setcover import local_search as S
 from camplace.solver.problem.formats import read_gecco, read_orlib
@@ -297,7 +298,7 @@ def test_time_limit_is_kept_and_the_answer_is_a_cover() -> None:
     a = _hard_unicost(9, m=300, n=2000, density=0.02)
     S.solve_cover(a[:30], np.ones(a.shape[1]), max_iterations=100)  # compile (or load) the kernels first
     t0 = __import__("time").perf_counter()
-    out = S.solve_cover(a, np.ones(a.shape[1]), time_limit_s=1.0, seed=1)
+    out = S.solve_cover(a, np.ones(a.shape[1]), deadline=Deadline(1.0), seed=1)
     elapsed = __import__("time").perf_counter() - t0
     assert elapsed < 1.0 + 0.5, elapsed
     assert out.stats["local_search"].get("resumed") and out.status == "feasible"
@@ -316,7 +317,7 @@ def test_timed_solve_with_searches_side_by_side_equals_enumeration_bounds(inst) 
     S.AUTO_MODEL_NNZ, S.RESTART_WORK_MIN = 0, 1000
     try:
         out = S.solve_cover(sp.csr_matrix(dense.astype(float)), costs, None if need is None else w, need,
-                            time_limit_s=0.05)
+                            deadline=Deadline(0.05))
     finally:
         S.AUTO_MODEL_NNZ, S.RESTART_WORK_MIN = old
     assert _covers(dense, w, need, out.selected)
@@ -337,7 +338,7 @@ def test_side_by_side_searches_stop_together_at_the_target() -> None:
     red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(12))
     searches = [S.LocalSearch(red, seed=2, stream=k) for k in range(2)]
     t0 = __import__("time").perf_counter()
-    whys = S.run_searches(searches, time_limit_s=30.0, target=best - red.forced_cost)
+    whys = S.run_searches(searches, deadline=Deadline(30.0), target=best - red.forced_cost)
     assert __import__("time").perf_counter() - t0 < 10.0
     assert "target" in whys and set(whys) <= {"target", "stopped"}
     assert min(s.best_cost for s in searches) + red.forced_cost == best

@@ -417,6 +417,7 @@ def _lns(problem, index, plan, value, extra_sets, U, backend, clock, max_nonzero
     Returns (plan, objective, rounds); no bound (a restricted model bounds nothing).
     """
     from camplace.plan.heuristic import agent_ascent, neighbourhood
+    from camplace.solver._support.deadline import Deadline
     from camplace.solver.engines.mip.linear import solve_model
 
     top, rounds = LNS_FIRST_TOP, []
@@ -427,7 +428,7 @@ def _lns(problem, index, plan, value, extra_sets, U, backend, clock, max_nonzero
             break
         fm = build_flow_model(problem, kept, U)
         rem = clock.remaining()
-        out = solve_model(fm.model, backend, time_limit_s=LNS_SOLVE_MAX_S if rem is None else min(rem, LNS_SOLVE_MAX_S),
+        out = solve_model(fm.model, backend, deadline=Deadline(LNS_SOLVE_MAX_S if rem is None else min(rem, LNS_SOLVE_MAX_S)),
                           hint=_hint(fm, plan))
         found = None
         if out.values is not None:
@@ -459,13 +460,14 @@ def _hint(fm, plan) -> dict[int, float] | None:
 
 def _exact(problem, kept, U, best_plan, incumbent, backend, clock, stats, timings, finish) -> PlanResult:
     """Solve the flow model; combine its answer and bound with the incumbent."""
+    from camplace.solver._support.deadline import Deadline
     from camplace.solver.engines.mip.linear import solve_model
 
     t0 = time.perf_counter()
     fm = build_flow_model(problem, kept, U)
     timings["time_model_build_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    out = solve_model(fm.model, backend, time_limit_s=clock.remaining(), hint=_hint(fm, best_plan))
+    out = solve_model(fm.model, backend, deadline=Deadline(clock.remaining()), hint=_hint(fm, best_plan))
     timings["time_model_solve_s"] = time.perf_counter() - t0
     stats["exact"] = {"backend": backend, "status": out.status, **fm.stats,
                       **{k: v for k, v in out.stats.items() if not str(k).startswith("time")}}

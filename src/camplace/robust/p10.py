@@ -37,7 +37,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.mip.linear import LinearModel, solve_model
+from camplace.solver.options import SolveOptions
 from camplace.solver.problem.objectives import selected_row_stats
 from camplace.solver.result import SolverResult, relative_gap
 
@@ -146,7 +148,7 @@ def _swap_search(
     -------
     (system, its p10, swaps made)
     """
-    m, n = len(w), stacked.shape[1]
+    m = len(w)
     need = 1 if mode == "maxcover" else int(views)
     pattern = sp.csr_matrix((np.ones(stacked.nnz, dtype=np.float64), stacked.indices, stacked.indptr), shape=stacked.shape)
     block = np.arange(scenarios * m) // m
@@ -190,17 +192,11 @@ def solve_p10(
     stacked: sp.csr_matrix,
     weights: np.ndarray,
     scenarios: int,
-    k: int,
+    options: SolveOptions,
     *,
-    mode: str = "maxcover",
-    views: int = 2,
-    fixed: Sequence[int] = (),
-    forbidden: Sequence[int] = (),
     conflicts: np.ndarray | None = None,
     incumbents: Sequence[Sequence[int]] = (),
     mean_bound: float | None = None,
-    engine: str = "auto",
-    time_limit_s: float | None = None,
 ) -> SolverResult:
     """Maximise the 10th-percentile objective over the scenarios (see the module docstring).
 
@@ -211,11 +207,12 @@ def solve_p10(
         Point weights of one scenario.
     scenarios : int
         S.
-    k : int
-        New cameras.
-    mode : {"maxcover", "multiview"}
-    views : int
-    fixed, forbidden : sequence of int
+    options : SolveOptions
+        The run's solver options, unchanged: ``mode`` ("maxcover" or "multiview"), ``k`` (new
+        cameras), ``views`` (multiview), ``fixed``, ``forbidden``, ``engine`` ("auto" or "mip":
+        the p10 model runs on SCIP), ``time_limit_s`` (seconds, for the whole of it),
+        ``memory_budget_bytes`` and ``threads`` (the per-scenario solves and the model keep to
+        them). ``min_distance_m`` arrives as ``conflicts``.
     conflicts : (p, 2) int64 or None
         Candidate pairs that may not both be chosen (minimum distance).
     incumbents : sequence of systems
@@ -223,14 +220,27 @@ def solve_p10(
     mean_bound : float or None
         A proven upper bound of the mean objective over the same scenarios (gives a bound when
         the model is not built or not solved).
-    engine : {"auto", "mip"}
-    time_limit_s : float or None
 
     Returns
     -------
     SolverResult
         ``objective`` the sampled p10 of ``selected``; ``stats["values"]`` its per-scenario values.
     """
+    from camplace._cores import using_threads
+    from camplace.solver._support.memory import memory_budget
+
+    with memory_budget(options.memory_budget_bytes), using_threads(options.threads):
+        return _solve_p10(stacked, weights, scenarios, options, conflicts, incumbents, mean_bound)
+
+
+def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, options: SolveOptions,
+               conflicts: np.ndarray | None, incumbents: Sequence[Sequence[int]],
+               mean_bound: float | None) -> SolverResult:
+    """:func:`solve_p10` within the memory budget and the thread count of ``options``."""
+    mode, engine, time_limit_s = options.mode, options.engine, options.time_limit_s
+    k = int(options.k)
+    views = options.views if mode == "multiview" else 2
+    fixed, forbidden = options.fixed, options.forbidden
     t0 = time.perf_counter()
     if mode not in P10_MODES:
         raise CamplaceError(f"robust objective p10: mode {mode} is not supported (use {' or '.join(P10_MODES)}, or objective mean)")
@@ -274,10 +284,12 @@ def solve_p10(
     m = len(w)
     from camplace.solver.api import solve as solve_mode
 
+    # each scenario's own problem: fixed / forbidden kept, the other side constraints relaxed
+    scenario_options = SolveOptions(mode=mode, k=k, views=views, fixed=fixed, forbidden=forbidden, time_limit_s=t_share,
+                                    memory_budget_bytes=options.memory_budget_bytes, threads=options.threads)
     per_s = []
     for s in range(scenarios):
-        r = solve_mode(stacked[s * m:(s + 1) * m], w, k, mode=mode, views=views, fixed=tuple(fixed),
-                       forbidden=tuple(forbidden), time_limit_s=t_share)
+        r = solve_mode(stacked[s * m:(s + 1) * m], w, options=scenario_options)
         per_s.append(float(r.bound) if math.isfinite(r.bound) else total)
     scen_bound = float(np.sort(per_s)[::-1][q_need - 1])
     stats["bound_per_scenario"] = scen_bound
@@ -319,7 +331,7 @@ def solve_p10(
             chosen = set(best_sel)
             hint = {int(x[j]): (1.0 if j in chosen else 0.0) for j in range(n)}
         rem = None if time_limit_s is None else max(1.0, time_limit_s - (time.perf_counter() - t0))
-        out = solve_model(model, "mip", time_limit_s=rem, hint=hint)
+        out = solve_model(model, "mip", deadline=Deadline(rem), hint=hint)
         stats["model"] = out.stats
         if out.values is not None:
             sel = tuple(int(j) for j in np.flatnonzero(out.values[x] > 0.5))

@@ -256,16 +256,11 @@ def solve_robust(
         return mean
     from camplace.robust.p10 import solve_p10
 
-    from camplace.solver._support.memory import memory_budget
-
     conflicts = conflict_pairs(np.asarray(positions), float(min_d)) if min_d is not None else None
-    with memory_budget(options.memory_budget_bytes):  # the per-scenario solves and the p10 model keep to it
-        return solve_p10(
-            stacked, weights, s_count, int(options.k), mode=options.mode,
-            views=options.views if options.mode == "multiview" else 2, fixed=options.fixed,
-            forbidden=options.forbidden, conflicts=conflicts, incumbents=[mean.selected, *incumbents],
-            mean_bound=mean.bound, engine="mip" if options.engine == "mip" else "auto", time_limit_s=options.time_limit_s,
-        )
+    # the options unchanged: the per-scenario solves and the p10 model keep to their memory budget
+    # and thread count (the engine was checked by robust_checks: auto or mip)
+    return solve_p10(stacked, weights, s_count, options, conflicts=conflicts, incumbents=[mean.selected, *incumbents],
+                     mean_bound=mean.bound)
 
 
 def out_of_sample(

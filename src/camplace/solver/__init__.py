@@ -30,7 +30,7 @@ engine in its own private module):
   object, ``CoverProblem``, and the engine table ``ROUTES`` keyed by the engine choice's route);
   :mod:`~camplace.solver.options` (``SolveOptions`` and the command-line flags),
   :mod:`~camplace.solver.choose` (engine choice), :mod:`~camplace.solver.result` (``SolverResult``;
-  ``EngineOutcome`` and ``ModeOutcome`` between an engine and ``solve``), :mod:`~camplace.solver.cli`.
+  ``EngineOutcome``, the one outcome type between an engine and ``solve``), :mod:`~camplace.solver.cli`.
 * ``problem/``: input checks, objectives (what each mode counts), presolve, set-cover formats.
 * ``engines/``: ``bitset/`` (the exact tuple search, the opposite-pairs bound), ``angle/``,
   ``quality/`` (tree, min-Gram, their portfolio), ``large_k/``, ``setcover/``, ``mip/`` (the linear

@@ -70,7 +70,7 @@ from camplace.errors import CamplaceError
 from camplace.names import MODES
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import NearCandidates, greedy
-from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
 from camplace.solver.engines.mip.mode_models import check_setcover_memory
 from camplace.solver.engines.setcover.mode import setcover
@@ -78,7 +78,7 @@ from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
 from camplace.solver.problem.objectives import cheap_bound, mode_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.result import ModeOutcome, SolverResult, jsonable, relative_gap
+from camplace.solver.result import EngineOutcome, SolverResult, jsonable, relative_gap
 from camplace.solver.routes import CoverProblem, fixed_base, run_cover, run_team
 
 __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
@@ -210,7 +210,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     deadline = Deadline(o.time_limit_s)  # the solve's one deadline, passed down to the engines
     t0 = deadline.start
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
-    min_distance_m, time_limit_s = o.min_distance_m, o.time_limit_s
+    min_distance_m = o.min_distance_m
     if getattr(matrix, "format", None) == "bits":  # a binary matrix as column bitsets
         from camplace.solver.bits_route import bits_applies, bits_outcome
 
@@ -224,8 +224,8 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         # these engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
         need, budget = 4 * int(q.nnz), memory_budget_bytes()
         if need > budget:
-            raise CamplaceError(f"{OverBudget(need, budget, 'the float32 values of the matrix').message}; "
-                                "pass the float32 matrix (load_visibility without pattern=True)")
+            memory_fallback(OverBudget(need, budget, "the float32 values of the matrix"), None, asked=False, then=None,
+                            fix="pass the float32 matrix (load_visibility without pattern=True)")
         q = float_values(q)
     m, n = q.shape
     if n == 0:
@@ -240,17 +240,18 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     if positions is not None:
         pos = coords(positions, n, "positions", "camera positions")
     conflicts = np.zeros((0, 2), dtype=np.int64)
-    too_many: OverBudget | None = None  # conflicting pairs that would not fit in memory
+    too_many: str | None = None  # conflicting pairs that would not fit in memory: the fallback's message
     if min_distance_m is not None:
         if pos is None:
             raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
         n_pairs = conflict_count(pos, float(min_distance_m))
         need, budget = n_pairs * _CONFLICT_PAIR_BYTES, memory_budget_bytes()
         if need > budget:
-            too_many = OverBudget(need, budget, f"min_distance_m={float(min_distance_m):g} ({n_pairs} candidate pairs "
-                                                "closer than that)")
-            if engine != "auto" or mode == "setcover":
-                raise CamplaceError(f"{too_many.message}; lower min_distance_m or use fewer candidates")
+            too_many = memory_fallback(
+                OverBudget(need, budget, f"min_distance_m={float(min_distance_m):g} ({n_pairs} candidate pairs closer "
+                                         "than that)"), None, asked=engine != "auto", warn=False,
+                then=None if mode == "setcover" else "returning the greedy answer with a bound that ignores the spacing",
+                fix="lower min_distance_m or use fewer candidates")  # logged by _spaced_fallback
         else:
             conflicts = conflict_pairs(pos, float(min_distance_m))
     pts = None
@@ -314,19 +315,19 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
         cap = mode == "multiview" and k + len(fixed_t) < 2 * views
         inner = deadline
-        if cap and time_limit_s is not None:
-            inner = deadline.shortened(min(_CAP_SHARE * time_limit_s, _CAP_MAX_S))
+        if cap and deadline.limit is not None:
+            inner = deadline.shortened(min(_CAP_SHARE * deadline.limit, _CAP_MAX_S))
         ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, o,
                                      inner, stats={"k": k}))
         searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
         if cap and ctx.selected is not None and ctx.status != "optimal" and not searched and not deadline.expired():
             ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
-                                     deadline.left())
+                                     deadline)
 
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
 
 
-def _result(ctx: ModeOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...],
+def _result(ctx: EngineOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...],
             conflicts: np.ndarray, shape: tuple[int, int], t0: float) -> SolverResult:
     """The :class:`SolverResult` of a mode's outcome: the status, bound and gap made consistent,
     and the run's figures added to the stats."""
@@ -364,11 +365,11 @@ def _result(ctx: ModeOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int
 
 
 def _opposite_pair_cap(
-    ctx: ModeOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
-    cameras: int, allowed: np.ndarray, time_limit_s: float | None,
-) -> ModeOutcome:
+    ctx: EngineOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
+    cameras: int, allowed: np.ndarray, deadline: Deadline,
+) -> EngineOutcome:
     """Tighten an unproven multiview bound with :func:`~camplace.solver.engines.bitset.pair_cap.opposite_pair_bound`."""
-    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, time_limit_s=time_limit_s)
+    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, deadline=deadline)
     cap_stats["bound_before"] = float(ctx.bound)
     ctx.stats["opposite_pairs"] = cap_stats
     return replace(ctx, bound=cap) if cap < ctx.bound else ctx
@@ -377,7 +378,7 @@ def _opposite_pair_cap(
 def _spaced_fallback(
     q: sp.csr_matrix, w: np.ndarray, k: Any, mode: str, views: int, min_angle_deg: float | None, pos: np.ndarray,
     points: np.ndarray | None, fixed: Sequence[int], forbidden: Sequence[int], dmin: float, engine: str,
-    exc: OverBudget, deadline: Deadline,
+    msg: str, deadline: Deadline,
 ) -> SolverResult:
     """Too many conflicting pairs to list: the greedy answer (spacing checked with a k-d tree) and the
     cheap bound, which ignores the spacing and so stays valid."""
@@ -402,8 +403,7 @@ def _spaced_fallback(
     pts = points
     qf = q[:, free_cols].tocsr()
     base, gw = fixed_base(q, w, fixed_t, mode)
-    msg = f"{exc.message}; returning the greedy answer with a bound that ignores the spacing"
-    log.warning("%s", msg)
+    log.warning("%s", msg)  # memory_fallback's message
     local = greedy(qf.tocsc(), gw, mode, views, base, k, np.ones(free_cols.size, dtype=bool),
                     NearCandidates(pos[free_cols], dmin)) if k else ()
     sel = None if local is None else tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in local}))

@@ -25,7 +25,7 @@ from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 
 __all__ = ["bits_applies", "bits_outcome"]
 
@@ -54,7 +54,7 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
 
     Returns
     -------
-    (ModeOutcome, (m,) float64 weights) or None
+    (EngineOutcome, (m,) float64 weights) or None
         None when the engine choice is not plain max coverage (large k, the general model).
     """
     m, n = bits.shape
@@ -82,9 +82,10 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     if asked != "maxcover":
         stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
     pre = presolve_bits(bits, w, k, deadline=deadline.share(0.5))  # at least half the time left to the search
-    name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline.left(), stats, budget)
+    name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline, stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
     objective = covered_weight(bits, w, sel) if sel else 0.0
     stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
                   "engine_stats": dict(out.stats)})
-    return ModeOutcome(sel, out.status if sel else "unknown", objective, float(out.bound), name, stats), w
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=name,
+                         objective=objective), w

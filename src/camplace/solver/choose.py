@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from camplace.errors import CamplaceError
-from camplace.solver._support.memory import too_big_message
+from camplace.solver._support.memory import OverBudget, memory_fallback
 from camplace.solver.engines.bitset.search import BITSET_MAX_K as EXACT_MAX_K
 from camplace.solver.engines.large_k.search import LARGE_K_MAX
 from camplace.solver.engines.quality.min_gram import QUALITY_EXACT_MAX_N, QUALITY_EXACT_MAX_PAIRS, quality_exact_bytes
@@ -200,10 +200,9 @@ def choose_engine(problem: ProblemSizes, options: SolveOptions, budget_bytes: in
             if est <= _QUALITY_EXPAND_MAX and expand_bytes(est, nnz) <= budget_bytes:
                 expanded = True
             else:
-                msg = too_big_message(quality_tree_bytes(m, nf, nnz), budget_bytes)
-                if engine == "exact":
-                    raise CamplaceError(msg + "; use engine mip (or fewer candidates / points)")
-                stats["memory_fallback"] = msg
+                memory_fallback(OverBudget(quality_tree_bytes(m, nf, nnz), budget_bytes, "the exact engine"), stats,
+                                asked=engine == "exact", then="falling back to the general model",
+                                fix="use engine mip (or fewer candidates / points)", warn=False)
                 why_not = "the quality engines and level rows do not fit in memory"
     multiview_ok = mode == "multiview" and options.min_angle_deg is None and not problem.fixed and problem.conflicts == 0
     angle_ok = mode == "multiview" and options.min_angle_deg is not None and problem.conflicts == 0

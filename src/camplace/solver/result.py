@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["ModeOutcome", "SolverResult", "STATUSES", "jsonable", "relative_gap", "EngineOutcome"]
+__all__ = ["EngineOutcome", "SolverResult", "STATUSES", "jsonable", "relative_gap"]
 
 STATUSES = ("optimal", "feasible", "infeasible", "unknown")
 
@@ -127,54 +127,34 @@ class SolverResult:
 
 
 @dataclass(frozen=True)
-class ModeOutcome:
-    """What a mode's engine hands back to :func:`camplace.solver.solve`, before the final checks
-    (status ``optimal`` when the gap closed, the gap, the common stats) make it a :class:`SolverResult`.
-
-    Attributes
-    ----------
-    selected : tuple of int or None
-        Chosen columns of the ORIGINAL matrix, fixed ones included (None: no answer).
-    status : str
-        One of :data:`STATUSES`.
-    objective : float
-        Value of ``selected`` on the original data (setcover: the cost of the new cameras).
-    bound : float
-        Valid bound (upper for the covering modes, lower for setcover).
-    engine : str
-        The engine that produced it (``exact``, ``mip``, ``cpsat``, ``local-search``).
-    stats : dict
-        Details gathered so far (``solve`` adds the common entries).
-    """
-
-    selected: tuple[int, ...] | None
-    status: str
-    objective: float
-    bound: float
-    engine: str
-    stats: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
 class EngineOutcome:
-    """What every engine returns (the column indices are those of the matrix the engine was given:
-    the presolved instance's REDUCED indices, the free columns, or the input's, as each engine says).
+    """The one outcome type between an engine (or a route, or the linear-model backend) and
+    :func:`camplace.solver.solve`, before the final checks (status ``optimal`` when the gap closed,
+    the gap, the common stats) make it a :class:`SolverResult`. Which columns ``selected`` indexes
+    is the producer's to say: an engine's, those of the matrix it was given (the presolved
+    instance's REDUCED indices, the free columns, or the input's); a route's, the ORIGINAL matrix's,
+    fixed cameras included.
 
     Attributes
     ----------
     selected : tuple of int, or None
-        Column indices (empty, or None for the set-cover search, if no solution was found).
+        Column indices (None, or empty for some engines, when no solution was found; None from the
+        linear-model backend, which answers with ``values``).
     status : str
-        ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
+        One of :data:`STATUSES`.
     bound : float
         Proven bound on the optimum (upper when maximising, lower for set cover), in original
-        weight (or cost) units.
+        weight (or cost) units; the linear-model backend's in the model's objective units (+-inf
+        when unknown).
     stats : dict
-        JSON-serialisable engine details.
+        JSON-serialisable details gathered so far (``solve`` adds the common entries).
     engine : str
         The engine that found ``selected`` (``"exact"``, ``"mip"``, ``"cpsat"``, ``"local-search"``).
     objective : float
-        The value of ``selected`` where the engine reports it (set cover: its cost), else NaN.
+        The value of ``selected`` where the producer reports it (a route: on the original data;
+        setcover: the cost of the new cameras), else NaN.
+    values : (n_vars,) float64 ndarray or None
+        The linear-model backend's variable values (None elsewhere, or when it found no solution).
     """
 
     selected: tuple[int, ...] | None
@@ -183,3 +163,4 @@ class EngineOutcome:
     stats: dict[str, Any] = field(default_factory=dict)
     engine: str = "exact"
     objective: float = math.nan
+    values: Any = None

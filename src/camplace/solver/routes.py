@@ -1,15 +1,17 @@
 """The engine table of the k-camera modes (maxcover, quality, multiview): one problem object, one
-runner per route of :func:`~camplace.solver.choose.choose_engine`, one outcome type.
+runner per route of :func:`~camplace.solver.choose.choose_engine`, one outcome type
+(:class:`~camplace.solver.result.EngineOutcome`, the engines' too).
 
 :func:`run_cover` builds nothing itself: it asks :func:`~camplace.solver.choose.choose_engine`
 for a route and looks the route up in :data:`ROUTES`. Every runner takes the same
 :class:`CoverProblem` and the :class:`~camplace.solver.choose.EngineChoice`, and returns a
-:class:`~camplace.solver.result.ModeOutcome`, or None when its engine does not fit in memory
+:class:`~camplace.solver.result.EngineOutcome`, or None when its engine does not fit in memory
 under ``auto``: the run then goes on with the general model (``model``), or, for the large-k
 engines, with the choice made without them.
 
 The problem carries the solve's one :class:`~camplace.solver._support.deadline.Deadline`; each
-runner hands its engines what is left of it.
+runner hands it (or a slice of it) to its engines, which check it themselves (the bitset engine
+alone still takes the seconds left of it).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import scipy.sparse as sp
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import greedy
-from camplace.solver._support.memory import OverBudget, exact_too_big, memory_budget_bytes, memory_fallback
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.choose import EngineChoice, choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
@@ -37,7 +39,7 @@ from camplace.solver.engines.quality.portfolio import quality_engines
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.objectives import cheap_bound, expand_levels, mode_value
 from camplace.solver.problem.presolve import presolve
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 
 __all__ = ["CoverProblem", "ROUTES", "run_cover", "fixed_base"]
 
@@ -180,10 +182,10 @@ class CoverProblem:
         return self.mode == "multiview" and self.min_angle_deg is not None and self.conflicts.shape[0] == 0
 
 
-Runner = Callable[[CoverProblem, EngineChoice], "ModeOutcome | None"]
+Runner = Callable[[CoverProblem, EngineChoice], "EngineOutcome | None"]
 
 
-def _large_k(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
+def _large_k(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:
     """The engines for 4 < k <= 8 (:func:`~camplace.solver.engines.large_k.search.run_large_k`)."""
     got = run_large_k(p.resid, p.resid_w, p.k, p.mode, p.views, p.engine, p.deadline, p.stats)
     if got is None:
@@ -191,52 +193,59 @@ def _large_k(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
     p.stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
     sel = p.with_fixed(got.selected)
     const = p.fixed_value if p.mode == "maxcover" else float(p.w @ p.base) if p.mode == "quality" else 0.0
-    return ModeOutcome(sel, got.status, p.value(sel), got.bound + const, got.engine, p.stats)
+    return EngineOutcome(sel, got.status, got.bound + const, p.stats, engine=got.engine, objective=p.value(sel))
 
 
-def _quality_portfolio(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
+def _quality_portfolio(p: CoverProblem, choice: EngineChoice) -> EngineOutcome:
     """The exact quality engines (:func:`~camplace.solver.engines.quality.portfolio.quality_engines`)."""
     return quality_engines(p.resid, p.resid_w, p.k, choice.tree, choice.gram, p.fixed_t, p.free_cols, p.value,
                            float(p.w @ p.base), p.deadline, p.stats)
 
 
-def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> ModeOutcome | None:
+def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> EngineOutcome | None:
     """The exact angle engine (:mod:`camplace.solver.engines.angle.search`); None when it does not fit in
     memory and ``auto`` may fall back (``exact`` requested: a one-line error)."""
     assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
     try:
         out = solve_angle(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts,
-                          np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, time_limit_s=p.deadline.left(),
+                          np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline,
                           budget_bytes=memory_budget_bytes(), start=p.start)
     except OverBudget as exc:
-        exact_too_big(p.engine, p.stats, exc.need, exc.budget)
+        _exact_fallback(p, exc)
         return None
     sel = tuple(sorted(set(p.fixed_t) | set(out.selected)))
     p.stats["engine_stats"] = dict(out.stats)
-    return ModeOutcome(sel, out.status, p.value(sel), float(out.bound), "exact", p.stats)
+    return EngineOutcome(sel, out.status, float(out.bound), p.stats, engine="exact", objective=p.value(sel))
 
 
-def _multiview(p: CoverProblem, choice: EngineChoice) -> ModeOutcome | None:
+def _multiview(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:
     """The bitset engine with ``views`` per point (:func:`~camplace.solver.engines.bitset.search.solve_bitset`)."""
     pre = presolve(p.resid, p.resid_w, p.k, dominance=False, deadline=p.deadline)  # dominance: one view only
     mp, np_ = pre.shape
     need = bitset_bytes(mp, np_, min(p.views, p.k), p.k)
     if need > p.budget:
-        exact_too_big(p.engine, p.stats, need, p.budget)
+        _exact_fallback(p, OverBudget(need, p.budget, "the exact engine"))
         return None
     out = solve_bitset(pre, views=p.views, time_limit_s=p.deadline.left(), start=_reduced_start(p, pre))
     sel = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
     p.stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
-    return ModeOutcome(sel, out.status if sel else "unknown", p.value(sel) if sel else 0.0, float(out.bound),
-                       choice.engine, p.stats)
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), p.stats, engine=choice.engine,
+                         objective=p.value(sel) if sel else 0.0)
 
 
-def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
+def _exact_fallback(p: CoverProblem, exc: OverBudget) -> None:
+    """An exact engine does not fit: :func:`~camplace.solver._support.memory.memory_fallback` to
+    the general model (an error when ``exact`` was asked for)."""
+    memory_fallback(exc, p.stats, asked=p.engine == "exact", then="falling back to the general model",
+                    fix="use engine mip (or fewer candidates / points)")
+
+
+def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> EngineOutcome:
     """Plain max coverage (of the points, or of quality's level rows): presolve, then the max-coverage
     engines within the memory budget (:func:`~camplace.solver.engines.maxcover.run_maxcover_engine`)."""
     pat, pw = (p.resid, p.resid_w) if p.mode == "maxcover" else expand_levels(p.resid, p.resid_w)
     pre = presolve(pat, pw, p.k, deadline=p.deadline)
-    name, out = run_maxcover_engine(choice.engine, p.engine, pre, p.deadline.left(), p.stats, p.budget,
+    name, out = run_maxcover_engine(choice.engine, p.engine, pre, p.deadline, p.stats, p.budget,
                                     start=_reduced_start(p, pre))
     new = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else ()
     sel = tuple(sorted(set(p.fixed_t) | set(new))) if new else None
@@ -244,10 +253,11 @@ def _presolved_maxcover(p: CoverProblem, choice: EngineChoice) -> ModeOutcome:
     const = p.fixed_value if p.mode == "maxcover" else float(p.w @ p.base)
     p.stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
                     "engine_stats": dict(out.stats)})
-    return ModeOutcome(sel, out.status if sel else "unknown", objective, float(out.bound) + const, name, p.stats)
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound) + const, p.stats, engine=name,
+                         objective=objective)
 
 
-def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle_tried: bool = False) -> ModeOutcome:
+def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle_tried: bool = False) -> EngineOutcome:
     """The general model (SCIP / CP-SAT). The greedy answer comes first: it is the hint, and the
     answer (with a cheap valid bound) when the time limit passes while the model is still being
     built, or when the model would not fit in memory."""
@@ -278,15 +288,15 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
     try:
         if need > budget:
             exc = OverBudget(need, budget, f"the {'SCIP' if name == 'mip' else 'CP-SAT'} model of mode {mode}")
-            if p.engine == name:
-                raise CamplaceError(f"{exc.message}; use fewer candidates / points"
-                                    + (", or engine exact" if p.angle_ok else ""))
+            fix = "use fewer candidates / points" + (", or engine exact" if p.angle_ok else "")
             if p.angle_ok and not angle_tried:  # auto, k > 4: the angle engine gives a valid bound at the limit
-                memory_fallback(exc, p.engine, name, stats, "falling back to the exact angle engine")
+                memory_fallback(exc, stats, asked=p.engine == name, then="falling back to the exact angle engine",
+                                fix=fix)
                 got = _angle(p)
                 if got is not None:
                     return got
-            memory_fallback(exc, p.engine, name, stats, "returning the greedy answer with a cheap bound")
+            memory_fallback(exc, stats, asked=p.engine == name, then="returning the greedy answer with a cheap bound",
+                            fix=fix)
             raise BuildTimeout(f"skipped: {exc.message}")
         model, x, wmax, const = build_model(q, p.resid, p.resid_w, w, p.base, k, mode, views, p.min_angle_deg, p.pos,
                                             p.pts, p.fixed_t, p.free_cols, p.conflicts, p.fixed_value, p.deadline)
@@ -296,17 +306,17 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
         if p.angle_ok:  # the greedy above ignores the angle; this one counts it (O(m + n) memory)
             assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
             new = greedy_angle(q, w, k, views, float(p.min_angle_deg), p.pos, p.pts,
-                               np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, time_limit_s=p.deadline.left())
+                               np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline)
             cand = tuple(sorted(set(p.fixed_t) | set(new)))
             if hint_sel is None or p.value(cand) > p.value(hint_sel):
                 hint_sel = cand
         if hint_sel is None:
-            return ModeOutcome(None, "unknown", p.fixed_value, bound, name, stats)
-        return ModeOutcome(hint_sel, "feasible", p.value(hint_sel), bound, name, stats)
+            return EngineOutcome(None, "unknown", bound, stats, engine=name, objective=p.fixed_value)
+        return EngineOutcome(hint_sel, "feasible", bound, stats, engine=name, objective=p.value(hint_sel))
     hint = None
     if hint_local is not None:
         hint = {int(x[j]): (1.0 if j in hint_local else 0.0) for j in range(nf)}
-    out = solve_model(model, name, time_limit_s=p.deadline.left(), hint=hint)
+    out = solve_model(model, name, deadline=p.deadline, hint=hint)
     stats["engine_stats"] = dict(out.stats)
     sel = None
     if out.values is not None:
@@ -321,9 +331,9 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
             if status in ("unknown", "optimal"):
                 status = "feasible"
     if sel is None:
-        return ModeOutcome(None, status, p.fixed_value, math.inf, name, stats)
+        return EngineOutcome(None, status, math.inf, stats, engine=name, objective=p.fixed_value)
     bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
-    return ModeOutcome(sel, status, objective, bound, name, stats)
+    return EngineOutcome(sel, status, bound, stats, engine=name, objective=objective)
 
 
 def _reduced_start(p: CoverProblem, pre) -> tuple[int, ...] | None:
@@ -368,7 +378,7 @@ def warm_subset(p: CoverProblem) -> np.ndarray:
     return np.sort(p.free_cols[top])
 
 
-def _warm_started(p: CoverProblem) -> ModeOutcome:
+def _warm_started(p: CoverProblem) -> EngineOutcome:
     """Solve ``p`` on :func:`warm_subset` first (``WARM_SHARE`` of the time left), offer that
     answer to the full search as its first incumbent (``p.start``), and keep the better of the
     two: the answer is at least as good as the subset's, and the bound is the full search's."""
@@ -397,11 +407,12 @@ def _warm_started(p: CoverProblem) -> ModeOutcome:
     if got_sel is not None and (out.selected is None or got.objective > out.objective):
         warm["kept"] = True  # the full search found nothing better within the limit
         status = "optimal" if out.status == "optimal" and out.bound <= got.objective else "feasible"
-        out = ModeOutcome(got_sel, status, got.objective, max(out.bound, got.objective), out.engine, out.stats)
+        out = EngineOutcome(got_sel, status, max(out.bound, got.objective), out.stats, engine=out.engine,
+                            objective=got.objective)
     return out
 
 
-def run_cover(p: CoverProblem) -> ModeOutcome:
+def run_cover(p: CoverProblem) -> EngineOutcome:
     """Choose the engine of ``p`` and run it from :data:`ROUTES`; a runner that does not fit in
     memory under ``auto`` hands over to the general model (the large-k engines: to the choice
     made without them). A large problem with a time limit is warm-started from a solve on a
@@ -412,10 +423,11 @@ def run_cover(p: CoverProblem) -> ModeOutcome:
     return _run_cover(p)
 
 
-def _run_cover(p: CoverProblem) -> ModeOutcome:
+def _run_cover(p: CoverProblem) -> EngineOutcome:
     """:func:`run_cover` without the warm start."""
     if p.k == 0:
-        return ModeOutcome(tuple(p.fixed_t), "optimal", p.fixed_value, p.fixed_value, "exact", p.stats)
+        return EngineOutcome(tuple(p.fixed_t), "optimal", p.fixed_value, p.stats, engine="exact",
+                             objective=p.fixed_value)
     choice = p.choose()
     if choice.route == "large-k":
         got = ROUTES["large-k"](p, choice)
@@ -424,8 +436,8 @@ def _run_cover(p: CoverProblem) -> ModeOutcome:
         choice = p.choose(large_k=False)  # it does not fit in memory (auto): the choice without the large-k engines
     p.stats["engine_choice"] = {"engine": choice.engine, "route": choice.route, "reason": choice.reason}
     p.stats.update(choice.stats)
-    if "memory_fallback" in choice.stats:
-        log.warning("%s; falling back to the general model", choice.stats["memory_fallback"])
+    if "memory_fallback" in choice.stats:  # recorded by the (pure) engine choice, logged here
+        log.warning("%s", choice.stats["memory_fallback"])
     got = ROUTES[choice.route](p, choice)
     if got is not None:
         return got
@@ -476,7 +488,7 @@ def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxco
 def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
              free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline,
              k_solver: Callable[[SolveOptions], Any] | None = None, pos: np.ndarray | None = None,
-             pts: np.ndarray | None = None) -> ModeOutcome:
+             pts: np.ndarray | None = None) -> EngineOutcome:
     """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
     the exact enumeration on small instances, else the team model of
     :mod:`camplace.solver.engines.mip.team_model`; no column is dropped by dominance (a column may be
@@ -537,11 +549,11 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     else:
         out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
                                costs=costs, required_fraction=o.required_fraction, backend=name,
-                               time_limit_s=deadline.left(), **view)
+                               deadline=deadline, **view)
         stats.update(out.stats)
         sel, status, bound, engine = out.selected, out.status, out.bound, name
     if sel is None:
-        return ModeOutcome(None, status, math.nan, bound, engine, stats)
+        return EngineOutcome(None, status, bound, stats, engine=engine, objective=math.nan)
     objective = value(sel)
     if status == "optimal":
         bound = objective
@@ -549,4 +561,4 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     broken = team.violations(sel, k=k, fixed=fixed_t)
     if broken:  # never expected: the engines enforce them
         raise CamplaceError(f"internal error: the team solve broke its constraints: {'; '.join(broken)}")
-    return ModeOutcome(sel, status, objective, bound, engine, stats)
+    return EngineOutcome(sel, status, bound, stats, engine=engine, objective=objective)

@@ -1,10 +1,18 @@
-"""The wall-clock deadline of a solve."""
+"""The wall-clock deadline of a solve: made once per solve, passed to every engine.
+
+The engines take this object (``deadline=``), never a number of seconds: they check it
+(:meth:`Deadline.expired`, :meth:`Deadline.remaining`), cut their steps' slices from it
+(:meth:`Deadline.share`, :meth:`Deadline.within`, :meth:`Deadline.shortened`), and time their
+own stats from ``deadline.elapsed()`` at their start. A test injects one stand-in (an object with
+the same methods) instead of patching a module's ``Deadline``.
+"""
 
 from __future__ import annotations
 
 import time
+from typing import Any, Callable
 
-__all__ = ["Deadline"]
+__all__ = ["Deadline", "as_deadline", "stopwatch"]
 
 
 class Deadline:
@@ -46,6 +54,12 @@ class Deadline:
         """The same deadline ``seconds`` earlier (for a step that must leave time to another)."""
         return Deadline(None if self.limit is None else self.limit - float(seconds), start=self.start)
 
+    def within(self, seconds: float) -> "Deadline":
+        """A deadline (same start) ending ``seconds`` from now, or at this one's end if that is
+        earlier: a step that may take at most ``seconds`` of what is left."""
+        end = self.elapsed() + max(0.0, float(seconds))
+        return Deadline(end if self.limit is None else min(end, self.limit), start=self.start)
+
     def share(self, fraction: float) -> "Deadline":
         """A deadline (same start) ending after ``fraction`` of the time left now: a step's slice of
         what is left (without a limit when this one has none)."""
@@ -53,3 +67,16 @@ class Deadline:
             return Deadline(None, start=self.start)
         left = max(0.0, self.limit - self.elapsed())
         return Deadline(self.elapsed() + max(0.0, float(fraction)) * left, start=self.start)
+
+
+def as_deadline(deadline: Any) -> Any:
+    """``deadline`` itself, or a :class:`Deadline` without a limit when it is None (an engine
+    called on its own, outside :func:`camplace.solver.solve`)."""
+    return Deadline(None) if deadline is None else deadline
+
+
+def stopwatch(deadline: Any) -> Callable[[], float]:
+    """Seconds since now, read from ``deadline``'s clock: an engine's own timings (its stats)
+    while it checks the solve's one deadline."""
+    t0 = deadline.elapsed()
+    return lambda: deadline.elapsed() - t0

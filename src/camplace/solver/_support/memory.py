@@ -2,9 +2,9 @@
 
 How many bytes an engine may allocate (:func:`memory_budget_bytes`, capped by
 :func:`memory_budget`), the error an engine raises before allocating more (:class:`OverBudget`),
-and what happens then: an engine asked for by name is a one-line error, under ``auto`` a logged
-warning, ``stats["memory_fallback"]`` and the next engine (:func:`memory_fallback`,
-:func:`exact_too_big`)."""
+and what happens then, decided in one place (:func:`memory_fallback`): an engine asked for by name,
+or a step with nothing to fall back to, is a one-line error; otherwise a logged warning,
+``stats["memory_fallback"]`` and the next engine."""
 
 from __future__ import annotations
 
@@ -16,8 +16,7 @@ from typing import Any, Iterator
 
 from camplace.errors import CamplaceError
 
-__all__ = ["MEMORY_FRACTION", "OverBudget", "memory_budget", "memory_budget_bytes", "memory_fallback", "exact_too_big",
-           "too_big_message"]
+__all__ = ["MEMORY_FRACTION", "OverBudget", "memory_budget", "memory_budget_bytes", "memory_fallback"]
 
 log = logging.getLogger(__name__)
 
@@ -102,32 +101,48 @@ def _available_fraction() -> int:
     return int(MEMORY_FRACTION * avail)
 
 
-_FIX = {"exact": "use engine mip, or fewer candidates / points",
-        "mip": "use engine exact, or fewer candidates / points",
-        "cpsat": "use engine exact, or fewer candidates / points"}
+def memory_fallback(exc: OverBudget, stats: dict[str, Any] | None, *, asked: bool, then: str | None,
+                    fix: str = "use fewer candidates / points", warn: bool = True) -> str:
+    """The one memory policy: what happens when an engine, model or step needs more memory than
+    the budget (``exc``, raised or made before anything large is allocated).
 
+    It stops with a one-line :class:`~camplace.errors.CamplaceError` (``"<exc.message>; <fix>"``)
+    when the thing that does not fit was asked for by name (``asked``: ``engine="exact"`` and the
+    exact engine does not fit) or there is nothing to fall back to (``then`` is None). Otherwise
+    the run goes on with ``then``: the message ``"<exc.message>; <then>"`` is logged as a warning
+    and recorded in ``stats["memory_fallback"]``.
 
-def memory_fallback(exc: OverBudget, requested: str, name: str, stats: dict[str, Any], then: str) -> None:
-    """Engine ``name`` does not fit: a one-line error when it was requested by name, otherwise a
-    logged warning and ``stats["memory_fallback"]`` (``then`` says what happens instead)."""
-    if requested == name:
-        raise CamplaceError(f"{exc.message}; {_FIX.get(name, 'use fewer candidates / points')}")
+    Parameters
+    ----------
+    exc : OverBudget
+        What does not fit: its estimated and allowed bytes.
+    stats : dict or None
+        The result's stats (None: nothing to record, e.g. when ``then`` is None).
+    asked : bool
+        The engine that does not fit is the one the caller asked for by name.
+    then : str or None
+        What happens instead (``"falling back to the general model"``); None: nothing.
+    fix : str
+        What the user can do (the end of the error).
+    warn : bool
+        Log the warning here (False: a pure caller, :func:`~camplace.solver.choose.choose_engine`,
+        whose caller logs the recorded message).
+
+    Returns
+    -------
+    str
+        The message recorded.
+
+    Raises
+    ------
+    CamplaceError
+        When ``asked`` or ``then`` is None.
+    """
+    if asked or then is None:
+        raise CamplaceError(f"{exc.message}; {fix}")
     msg = f"{exc.message}; {then}"
-    log.warning("%s", msg)
-    stats["memory_fallback"] = msg
-
-
-def too_big_message(need: int, budget: int) -> str:
-    """The exact engine's one-line memory message."""
-    return (f"the exact engine needs about {need / 2**30:.1f} GiB for this instance but only "
-            f"{budget / 2**30:.1f} GiB may be used")
-
-
-def exact_too_big(engine: str, stats: dict[str, Any], need: int, budget: int) -> None:
-    """An exact engine of a k-camera mode would need more memory than is free: an error when
-    ``exact`` was asked for, otherwise a logged fallback to the general model (recorded in ``stats``)."""
-    msg = too_big_message(need, budget)
-    if engine == "exact":
-        raise CamplaceError(msg + "; use engine mip (or fewer candidates / points)")
-    log.warning("%s; falling back to the general model", msg)
-    stats["memory_fallback"] = msg
+    if warn:
+        log.warning("%s", msg)
+    if stats is not None:
+        stats["memory_fallback"] = msg
+    return msg

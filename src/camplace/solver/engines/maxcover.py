@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.mip.ortools import solve_cpsat, solve_mip
@@ -23,17 +24,23 @@ from camplace.solver.result import EngineOutcome
 
 __all__ = ["run_maxcover_engine"]
 
+#: What the user can do when an engine asked for by name does not fit.
+_FIX = {"exact": "use engine mip, or fewer candidates / points",
+        "mip": "use engine exact, or fewer candidates / points",
+        "cpsat": "use engine exact, or fewer candidates / points"}
+
 #: The max-coverage engines by name.
 _FUNCS = {"exact": solve_bitset, "mip": solve_mip, "cpsat": solve_cpsat}
 
 
-def run_maxcover_engine(name: str, requested: str, pre: Presolved, time_limit_s: float | None,
+def run_maxcover_engine(name: str, requested: str, pre: Presolved, deadline: Deadline,
                         stats: dict[str, Any], budget: int | None = None,
                         start: tuple[int, ...] | None = None) -> tuple[str, EngineOutcome]:
     """Run engine ``name`` ("exact", "mip" or "cpsat") on ``pre`` within the memory budget
     (``budget`` bytes for the exact engine, default :func:`memory_budget_bytes`; the models check
     their own). ``start``, reduced column indices of a known selection, is the exact engine's
-    first incumbent (a warm start).
+    first incumbent (a warm start). ``deadline`` is the solve's (the bitset engine is handed the
+    seconds left of it: it does not take the deadline object yet).
 
     Returns
     -------
@@ -50,11 +57,12 @@ def run_maxcover_engine(name: str, requested: str, pre: Presolved, time_limit_s:
                 have = memory_budget_bytes() if budget is None else budget
                 if need > have:
                     raise OverBudget(need, have, "the exact engine")
-                return name, solve_bitset(pre, time_limit_s=time_limit_s, start=start)
-            return name, _FUNCS[name](pre, time_limit_s=time_limit_s)
+                return name, solve_bitset(pre, time_limit_s=deadline.left(), start=start)
+            return name, _FUNCS[name](pre, deadline=deadline)
         except OverBudget as exc:
             nxt = next((e for e in ("exact", "mip") if e not in tried), None)
-            memory_fallback(exc, requested, name, stats, f"falling back to engine {nxt}" if nxt else
+            memory_fallback(exc, stats, asked=requested == name, fix=_FIX[name],
+                            then=f"falling back to engine {nxt}" if nxt else
                             "returning the greedy answer with the trivial bound")
             if nxt is None:
                 break

@@ -57,7 +57,7 @@ import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.memory import OverBudget
 from camplace.solver.engines.angle import _kernels as AK
@@ -226,19 +226,18 @@ class _Incumbent:
     """Greedy + 1-swap with exact angles on the original matrix (weights zero off the search rows)."""
 
     def __init__(self, q: sp.csr_matrix, wu: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int,
-                 theta_deg: float, fixed: np.ndarray, free: np.ndarray, margin: float, deadline: Deadline,
-                 stop_s: float | None) -> None:
+                 theta_deg: float, fixed: np.ndarray, free: np.ndarray, margin: float, stop: Deadline) -> None:
         self.q, self.wu, self.pos, self.pts = q, wu, pos, pts
         self.views, self.theta_deg, self.fixed, self.margin = views, theta_deg, fixed, margin
         self.allowed = np.zeros(q.shape[1], dtype=bool)
         self.allowed[free] = True
-        self.deadline, self.stop_s = deadline, stop_s
+        self.stop = stop  # when the swaps stop
         self.best = -math.inf
         self.best_set: tuple[int, ...] = ()
         self.calls = 0
 
     def expired(self) -> bool:
-        return self.stop_s is not None and self.deadline.elapsed() >= self.stop_s
+        return self.stop.expired()
 
     def _state(self, sel: list[int]) -> tuple[np.ndarray, np.ndarray]:
         a = self.q
@@ -418,24 +417,24 @@ class _Tree:
 
 def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
                  pts: np.ndarray, fixed: np.ndarray, free: np.ndarray, *,
-                 time_limit_s: float | None = None) -> tuple[int, ...]:
+                 deadline: Deadline | None = None) -> tuple[int, ...]:
     """Greedy plus 1-swap choice of ``k`` new cameras with exact angles (the angle engine's
     incumbent alone), in O(m + n) memory besides the matrix: the fallback when nothing else fits.
 
-    Parameters are those of :func:`solve_angle`; the swaps stop at ``time_limit_s``.
+    Parameters are those of :func:`solve_angle`; the swaps stop at ``deadline``.
 
     Returns
     -------
     tuple of int
         The new cameras (original column indices, sorted).
     """
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
     fixed = np.asarray(fixed, dtype=np.int64)
     free = np.asarray(free, dtype=np.int64)
     wu = np.where(w > 0, w, 0.0)
     with ctrl_c_deferred():
         colw = AK.column_weights(q.indptr, q.indices, q.data, np.arange(q.shape[0], dtype=np.int64), wu, q.shape[1])
-    inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline, deadline.limit)
+    inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline)
     inc.run(k, colw)
     return inc.best_set
 
@@ -451,7 +450,7 @@ def solve_angle(
     fixed: np.ndarray,
     free: np.ndarray,
     *,
-    time_limit_s: float | None = None,
+    deadline: Deadline | None = None,
     budget_bytes: int,
     start: Sequence[int] | None = None,
 ) -> EngineOutcome:
@@ -477,8 +476,9 @@ def solve_angle(
         Cameras always used.
     free : (f,) int64
         Cameras that may be chosen (neither fixed nor forbidden), ``f >= k``.
-    time_limit_s : float, optional
-        On expiry the best set found comes back with status ``"feasible"`` and a valid bound.
+    deadline : Deadline, optional
+        The solve's deadline (default: none). On expiry the best set found comes back with status
+        ``"feasible"`` and a valid bound.
     budget_bytes : int
         Memory the engine may use.
     start : sequence of int, optional
@@ -496,7 +496,10 @@ def solve_angle(
     OverBudget
         When :func:`angle_bytes` exceeds ``budget_bytes`` (raised before any large allocation).
     """
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    since = stopwatch(deadline)
+    total = None if deadline.limit is None else deadline.remaining()  # the steps' shares are of this
+    inc_stop = deadline.share(_INCUMBENT_SHARE)
     m, n = q.shape
     fixed = np.asarray(fixed, dtype=np.int64)
     free = np.asarray(free, dtype=np.int64)
@@ -505,7 +508,7 @@ def solve_angle(
     last = [0.0]
 
     def lap(what: str) -> None:
-        now = deadline.elapsed()
+        now = since()
         stats["times_s"][what] = now - last[0]
         last[0] = now
     # rows the fixed cameras already make count: a constant
@@ -539,8 +542,7 @@ def solve_angle(
 
     with ctrl_c_deferred():
         colw = AK.column_weights(q.indptr, q.indices, q.data, search, wu[search], n)
-    inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, deadline,
-                     None if deadline.limit is None else _INCUMBENT_SHARE * deadline.limit)
+    inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, inc_stop)
     lap("column_weights")
     start_ok = start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all()
     left = deadline.remaining()
@@ -564,10 +566,10 @@ def solve_angle(
     # bit rows: spatial blocks, with the opposite-pairs layout when it pays
     layout = None
     if k + fixed.size < 2 * views:
-        limit = None if deadline.limit is None else _PAIRS_TIME_SHARE * deadline.limit
         wm = np.zeros(m)
         wm[search] = wu[search]
-        match = match_opposite(q, wm, views, columns=np.flatnonzero(allowed), time_limit_s=limit)
+        match = match_opposite(q, wm, views, columns=np.flatnonzero(allowed),
+                               deadline=Deadline(None) if total is None else deadline.within(_PAIRS_TIME_SHARE * total))
         share = match.matched / match.countable if match.countable > 0 else 0.0
         stats["opposite_pairs"] = dict(match.stats, matched_share=share)
         if share >= _PAIRS_MIN_SHARE:
@@ -578,7 +580,7 @@ def solve_angle(
     lap("layout")
     tree = _Tree(q, pos, pts, layout, free, fixed, colw, k, views, theta_deg, unit is not None, lap)
     stats.update({"bit_rows": int(layout.rows.size), "words": int(tree.levels.shape[2]), "pair_words": int(layout.pw),
-                  "cols": int(tree.cols_ord.size), "time_setup_s": deadline.elapsed()})
+                  "cols": int(tree.cols_ord.size), "time_setup_s": since()})
 
     # the incumbent (in layout units: its value on the search rows), then best-first search
     best = inc.best
@@ -609,7 +611,7 @@ def solve_angle(
         front, expand, offer, lambda: best + margin, deadline, stats, max_open=cap, batch=min(_BATCH, _BATCH_MIN),
         batch_min=_BATCH_MIN, batch_max=_BATCH, batch_s=_BATCH_S)
     log.debug("angle: %d bounds (%d pruned without the angle, %d angle-free), open %d, %.1f s",
-              evaluated, cheap_prunes, angle_free, front.n_open, deadline.elapsed())
+              evaluated, cheap_prunes, angle_free, front.n_open, since())
     bound = max(best, open_bound)
     if bound <= best + margin:
         status, bound = "optimal", best
@@ -621,11 +623,11 @@ def solve_angle(
                                     for v in np.flatnonzero(tree.tries)},
                   "peak_open": int(front.peak),
                   "depth_first_batches": front.lifo_batches, "incumbent_calls": inc.calls,
-                  "time_search_s": deadline.elapsed() - stats["time_setup_s"],
+                  "time_search_s": since() - stats["time_setup_s"],
                   "cpu_search_s": time.process_time() - cpu_search, "time_expand_s": t_expand})
     log.info("angle: k=%d views=%d angle %.3g deg on %d rows x %d columns, %s value %.9g bound %.9g, %d bound "
              "evaluations, %.3f s", k, views, theta_deg, layout.rows.size, tree.cols_ord.size, status, const + best * scale,
-             const + bound * scale, evaluated, deadline.elapsed())
+             const + bound * scale, evaluated, since())
     return EngineOutcome(best_set, status, const + bound * scale, stats)
 
 

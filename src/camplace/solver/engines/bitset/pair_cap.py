@@ -33,6 +33,7 @@ import numpy as np
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as _bk
+from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import memory_budget_bytes
 from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve import canonical_csr, check_weights
@@ -126,6 +127,7 @@ def match_opposite(
     columns: Sequence[int] | None = None,
     time_limit_s: float | None = None,
     order_seed: int | None = None,
+    deadline: Deadline | None = None,
 ) -> OppositePairs:
     """Match opposite points greedily (see the module docstring).
 
@@ -140,10 +142,13 @@ def match_opposite(
     columns : sequence of int, optional
         The allowed cameras (default: every column).
     time_limit_s : float, optional
-        Matching stops at this many seconds (a partial matching is still valid).
+        Matching stops at this many seconds from the call (a partial matching is still valid); for
+        the callers that do not hand over a deadline yet (the bitset engine), else None.
     order_seed : int, optional
         Process the rows in a random order from this seed instead of heaviest first (better when
         many rows have different weights, e.g. merged rows).
+    deadline : Deadline, optional
+        Matching stops when it expires (a partial matching is still valid); not with ``time_limit_s``.
 
     Returns
     -------
@@ -151,6 +156,10 @@ def match_opposite(
         With ``stats["skipped"]`` and no pairs if the row bitsets would not fit in memory.
     """
     t0 = time.perf_counter()
+    if time_limit_s is not None:
+        if deadline is not None:
+            raise ValueError("match_opposite: a time limit or a deadline, not both")
+        deadline = Deadline(time_limit_s, start=t0)
     a = canonical_csr(matrix)
     m, n = a.shape
     w = check_weights(weights, m)
@@ -186,9 +195,8 @@ def match_opposite(
     amount = np.zeros(max(r, 1))
     n_pairs = np.zeros(1, dtype=np.int64)
     checks, start = 0, 0
-    deadline = None if time_limit_s is None else t0 + max(0.0, float(time_limit_s))
     while start < r:
-        if deadline is not None and time.perf_counter() >= deadline:
+        if deadline is not None and deadline.expired():
             break
         stop = min(r, start + _BATCH)
         with ctrl_c_deferred():
@@ -209,7 +217,7 @@ def opposite_pair_bound(
     views: int,
     cameras: int,
     columns: Sequence[int] | None = None,
-    time_limit_s: float | None = None,
+    deadline: Deadline | None = None,
 ) -> tuple[float, dict[str, Any]]:
     """Upper bound on the weight seen by ``>= views`` of any ``cameras`` allowed cameras.
 
@@ -225,8 +233,8 @@ def opposite_pair_bound(
         Size of the camera system (new and fixed cameras together); must be below ``2 * views``.
     columns : sequence of int, optional
         The allowed cameras (default: every column). Fixed cameras must be among them.
-    time_limit_s : float, optional
-        Matching stops at this many seconds (the bound stays valid, only looser).
+    deadline : Deadline, optional
+        The solve's deadline: matching stops there (the bound stays valid, only looser).
 
     Returns
     -------
@@ -243,6 +251,6 @@ def opposite_pair_bound(
     """
     if cameras >= 2 * views:
         raise ValueError(f"opposite pairs bound nothing with {cameras} cameras and {views} views")
-    res = match_opposite(matrix, weights, views, columns=columns, time_limit_s=time_limit_s)
+    res = match_opposite(matrix, weights, views, columns=columns, deadline=deadline)
     stats = dict(res.stats, countable=res.countable, matched=res.matched)
     return (math.inf if "skipped" in res.stats else res.bound), stats

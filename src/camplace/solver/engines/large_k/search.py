@@ -45,7 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.memory import memory_budget_bytes
 from camplace.solver.engines.large_k import _kernels as LK
 from camplace.solver.result import EngineOutcome
@@ -235,11 +235,11 @@ class _Views(_IteratedSearch):
 
 
 
-def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int, *, time_limit_s: float | None,
+def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int, *, deadline: Deadline | None = None,
                     seed: int = 0, patience: int = 10,
                     prepared: _Views | None = None) -> tuple[tuple[int, ...], float, dict[str, Any]]:
     """A good k-set for m-view coverage: greedy, 1-swap local search, then perturbed local search
-    until ``time_limit_s`` or ``patience`` runs without improvement.
+    until ``deadline`` or ``patience`` runs without improvement.
 
     Parameters
     ----------
@@ -247,7 +247,8 @@ def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int
         Values > 0 mean "observes".
     weights : (m,) float64
     k, views : int
-    time_limit_s : float or None
+    deadline : Deadline, optional
+        When to stop (default: no limit).
     seed : int
         Seed of the perturbations.
     patience : int
@@ -263,7 +264,8 @@ def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int
         Weight of the rows observed by at least ``views`` of them.
     stats : dict
     """
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    clock = stopwatch(deadline)
     vs = prepared if prepared is not None else _Views(matrix, weights, views)
     if vs.n <= k:
         sel = list(range(vs.n))
@@ -279,7 +281,7 @@ def views_incumbent(matrix: sp.spmatrix, weights: np.ndarray, k: int, views: int
         if v > best + vs.margin:
             sel, best, since = cand, v, 0
     return tuple(sorted(sel)), best, {"greedy_swap": first, "local_search": best, "local_search_tries": tries,
-                                      "time_local_search_s": deadline.elapsed()}
+                                      "time_local_search_s": clock()}
 
 
 class _Lagrangian:
@@ -346,7 +348,7 @@ def _fixing(rho: np.ndarray, bound: float, k: int, best: float, margin: float) -
 
 
 def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: bool = False,
-                  time_limit_s: float | None = None, seed: int = 0) -> EngineOutcome:
+                  deadline: Deadline | None = None, seed: int = 0) -> EngineOutcome:
     """Best ``k`` columns for ``sum_i w_i max_{j in S} Q_ij`` (``binary``: the 0/1 pattern, i.e.
     max coverage).
 
@@ -360,9 +362,9 @@ def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: b
         Columns to choose, ``1 <= k <= n``.
     binary : bool
         Max coverage (every value > 0 counts as 1).
-    time_limit_s : float, optional
-        Wall-clock limit; on expiry the incumbent comes back with status "feasible" and a valid
-        bound. Without one the engine stops when the bound has converged and the perturbed local
+    deadline : Deadline, optional
+        The solve's deadline (default: none); on expiry the incumbent comes back with status
+        "feasible" and a valid bound. Without a limit the engine stops when the bound has converged and the perturbed local
         search has not improved for a while.
     seed : int
         Seed of the perturbations of the local search.
@@ -372,7 +374,8 @@ def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: b
     EngineOutcome
         ``selected`` are column indices of ``matrix``; ``bound`` an upper bound on the optimum.
     """
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    clock = stopwatch(deadline)
     a = sp.csc_matrix(matrix, dtype=np.float64, copy=True)
     if binary:
         a.data = (a.data > 0).astype(np.float64)
@@ -389,10 +392,10 @@ def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: b
 
     sel, best = qs.swap(qs.greedy([], k), deadline)
     stats["initial_incumbent"] = best
-    stats["time_incumbent_s"] = deadline.elapsed()
+    stats["time_incumbent_s"] = clock()
     total = qs.total
     if best >= total - qs.margin:  # everything is served at its best: optimal
-        stats["time_s"] = deadline.elapsed()
+        stats["time_s"] = clock()
         return EngineOutcome(selected=tuple(sorted(sel)), status="optimal", bound=best, stats=stats)
 
     with ctrl_c_deferred():
@@ -428,7 +431,7 @@ def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: b
             break
     bound = min(lag.bound, total)
     stats.update({"lagrangian_iterations": lag.iterations, "lagrangian_bound": lag.bound, "lagrangian_step": lag.theta,
-                  "local_search_tries": tries, "time_lagrangian_s": deadline.elapsed()})
+                  "local_search_tries": tries, "time_lagrangian_s": clock()})
     status = "optimal" if bound <= best + qs.margin else "feasible"
     if status == "feasible" and not deadline.expired():
         keep, forced = residual if residual is not None else _fixing(lag.rho, lag.bound, k, best, qs.margin)
@@ -443,9 +446,8 @@ def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: b
                 status = "optimal"
     if status == "optimal":
         bound = best
-    stats["time_s"] = deadline.elapsed()
-    log.info("large-k: k=%d on %dx%d, %s value %.9g bound %.9g, %.3f s", k, m, n, status, best, bound,
-             deadline.elapsed())
+    stats["time_s"] = clock()
+    log.info("large-k: k=%d on %dx%d, %s value %.9g bound %.9g, %.3f s", k, m, n, status, best, bound, clock())
     return EngineOutcome(selected=tuple(sorted(int(j) for j in sel)), status=status, bound=float(bound), stats=stats)
 
 
@@ -500,13 +502,13 @@ def _residual(qs: _Quality, keep: np.ndarray, forced: np.ndarray, k: int, best: 
     if sub.nnz == 0:
         sel = [int(j) for j in fixed] + [int(j) for j in free[:kr]]
         return sel, qs.value(sel), const
-    limit = deadline.remaining()
     if binary:
+        limit = deadline.remaining()  # (the bitset engine still takes seconds)
         pre = presolve(sub, w, kr, deadline=deadline)
         out = solve_bitset(pre, time_limit_s=limit)
         local = pre.original_columns(out.selected)
     else:
-        out = solve_quality_tree(sub, w, kr, time_limit_s=limit)
+        out = solve_quality_tree(sub, w, kr, deadline=deadline)
         local = out.selected
     sel = [int(j) for j in fixed] + [int(free[j]) for j in local]
     v = qs.value(sel)
@@ -548,8 +550,7 @@ def _views_scip(pre: Any, views: int, k: int, start: tuple[int, ...],
         cols = a.indices[a.indptr[r] : a.indptr[r + 1]]
         model.add_row(np.append(x[cols], y[r]), np.append(np.ones(cols.size), -float(views)), lo=0.0)
     chosen = set(start)
-    left = deadline.remaining()
-    out = solve_model(model, "mip", time_limit_s=None if left is None else max(left, 1e-3),
+    out = solve_model(model, "mip", deadline=deadline,
                       hint={int(x[j]): (1.0 if j in chosen else 0.0) for j in range(pre.shape[1])})
     sel = None
     if out.values is not None:
@@ -600,28 +601,29 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     from camplace.solver.engines.mip.linear import model_bytes
     from camplace.solver.problem.presolve import presolve
 
-    time_limit_s = deadline.left()
+    # the steps' slices of the time left now
+    views_dl = deadline.share(_VIEWS_SHARE)
+    first_dl = deadline.within(_MAXCOVER_FIRST_S) if deadline.limit is None else deadline.share(_MAXCOVER_SHARE)
     m, n = resid.shape
     budget = memory_budget_bytes()
     if mode == "multiview":
         pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
         need = bitset_bytes(pre.shape[0], pre.shape[1], min(views, k), k) + large_k_bytes(m, n, resid.nnz)
         if need > budget:
-            memory_fallback(OverBudget(need, budget, "the exact multiview engine"), engine, "exact", stats,
-                            "falling back to the general model")
+            memory_fallback(OverBudget(need, budget, "the exact multiview engine"), stats, asked=engine == "exact",
+                            then="falling back to the general model", fix="use engine mip, or fewer candidates / points")
             return None
         vs = _Views(resid, resid_w, views)
         # a counted row uses `views` of the views the k chosen columns give: the k heaviest columns
         # / views caps the bound (the search's open tuples are not capped by their parents')
         with ctrl_c_deferred():
             cap = float(np.sort(LK.view_gains(vs.indptr, vs.indices, vs.w))[-k:].sum()) / views
-        share = None if time_limit_s is None else _VIEWS_SHARE * time_limit_s
-        start, _, ls = views_incumbent(resid, resid_w, k, views, time_limit_s=share, seed=seed, prepared=vs)
+        start, _, ls = views_incumbent(resid, resid_w, k, views, deadline=views_dl, seed=seed, prepared=vs)
         del vs
         scip_need = model_bytes("mip", pre.shape[0] + pre.shape[1], pre.shape[0] + 1,
                                 int(pre.matrix.nnz) + pre.shape[0] + pre.shape[1])
         scip = engine == "auto" and scip_need <= budget and pre.matrix.nnz <= _VIEWS_SCIP_MAX_NNZ
-        limit = deadline.remaining()
+        limit = deadline.remaining()  # (the bitset engine still takes seconds)
         if scip and limit is not None:  # SCIP gets the rest if the search does not finish
             limit = _VIEWS_SEARCH_SHARE * limit
         out = solve_bitset(pre, views=views, time_limit_s=limit, start=pre.reduced_columns(start))
@@ -643,18 +645,16 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         return EngineOutcome(tuple(int(j) for j in pre.original_columns(sel)), status, bound, stats, engine=name)
     need = large_k_bytes(m, n, resid.nnz)
     if need > budget:
-        memory_fallback(OverBudget(need, budget, "the large-k engine"), engine, "exact", stats,
-                        "falling back to the general model")
+        memory_fallback(OverBudget(need, budget, "the large-k engine"), stats, asked=engine == "exact",
+                        then="falling back to the general model", fix="use engine mip, or fewer candidates / points")
         return None
-    share = time_limit_s
-    if mode == "maxcover" and engine == "auto":
-        share = _MAXCOVER_FIRST_S if time_limit_s is None else _MAXCOVER_SHARE * time_limit_s
-    out = solve_large_k(resid, resid_w, k, binary=mode == "maxcover", time_limit_s=share, seed=seed)
+    share = first_dl if mode == "maxcover" and engine == "auto" else deadline
+    out = solve_large_k(resid, resid_w, k, binary=mode == "maxcover", deadline=share, seed=seed)
     stats["engine_stats"] = dict(out.stats)
     sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
     if status != "optimal" and mode == "maxcover" and engine == "auto" and not deadline.expired():
         pre = presolve(resid, resid_w, k, deadline=deadline)
-        used, mip = run_maxcover_engine("mip", engine, pre, deadline.remaining(), stats)
+        used, mip = run_maxcover_engine("mip", engine, pre, deadline, stats)
         stats["engine_stats"]["then"] = dict(mip.stats, engine=used)
         if mip.selected and "model_build" not in mip.stats:  # (stopped while building: the greedy answer)
             cand = tuple(int(j) for j in pre.original_columns(mip.selected))

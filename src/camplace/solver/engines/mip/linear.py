@@ -14,15 +14,16 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
 from camplace._cores import thread_count
 from camplace.errors import CamplaceError
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
+from camplace.solver.result import EngineOutcome
 
-__all__ = ["Row", "LinearModel", "ModelOutcome", "solve_model", "model_bytes"]
+__all__ = ["Row", "LinearModel", "solve_model", "model_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -136,45 +137,22 @@ class LinearModel:
         return len(self.lb)
 
 
-@dataclass(frozen=True)
-class ModelOutcome:
-    """Result of :func:`solve_model`.
-
-    Attributes
-    ----------
-    values : (n_vars,) float64 or None
-        Best solution found (None if none).
-    status : str
-        ``"optimal"``, ``"feasible"``, ``"infeasible"`` or ``"unknown"``.
-    bound : float
-        Solver's proven bound on the objective (upper when maximising, lower when minimising),
-        in the model's objective units; +-inf when unknown.
-    stats : dict
-        JSON-serialisable details.
-    """
-
-    values: np.ndarray | None
-    status: str
-    bound: float
-    stats: dict[str, Any]
-
-
 def solve_model(
     model: LinearModel,
     backend: str,
     *,
-    time_limit_s: float | None = None,
+    deadline: Deadline | None = None,
     hint: dict[int, float] | None = None,
     workers: int | None = None,
-) -> ModelOutcome:
+) -> EngineOutcome:
     """Solve a :class:`LinearModel` with SCIP (``backend="mip"``) or CP-SAT (``"cpsat"``).
 
     Parameters
     ----------
     model : LinearModel
     backend : {"mip", "cpsat"}
-    time_limit_s : float, optional
-        Wall-clock limit.
+    deadline : Deadline, optional
+        The solve's deadline (default: none); building the model counts.
     hint : dict, optional
         Partial solution ``{variable: value}`` given to the solver as a hint.
     workers : int, optional
@@ -183,17 +161,62 @@ def solve_model(
 
     Returns
     -------
-    ModelOutcome
+    EngineOutcome
+        ``values``: the variables' values of the best solution found (None if none; ``selected``
+        is None); ``status``; ``bound``: the solver's proven bound on the objective (upper when
+        maximising, lower when minimising) in the model's objective units, +-inf when unknown;
+        ``engine``: ``backend``; ``stats``.
     """
     if backend == "mip":
-        return _solve_scip(model, time_limit_s, hint)
+        return _solve_scip(model, as_deadline(deadline), hint)
     if backend == "cpsat":
-        return _solve_cpsat(model, time_limit_s, hint, workers)
+        return _solve_cpsat(model, as_deadline(deadline), hint, workers)
     raise CamplaceError(f"unknown model backend {backend!r} (use mip or cpsat)")
 
 
+def scip_proto(maximize: bool, variables: Iterable[tuple[float, float, bool, float]],
+               rows: Iterable[tuple[float, float, Sequence[int], Sequence[float]]],
+               stop: Callable[[], bool] | None = None, check_every: int = 256):
+    """The ``MPModelProto`` SCIP loads (the one model-building loop of the package: the mode
+    models, through :func:`solve_model`, and the max-coverage MIP of
+    :mod:`camplace.solver.engines.mip.ortools`).
+
+    Parameters
+    ----------
+    maximize : bool
+    variables : iterable of (lower, upper, integer, objective coefficient)
+        One tuple per variable, in index order.
+    rows : iterable of (lower, upper, variable indices, coefficients)
+        One tuple per constraint (``lower <= sum coef * x[idx] <= upper``; +-inf for none).
+    stop : callable, optional
+        Checked before every ``check_every``-th row (the first included): building stops when it
+        returns True (the time limit passed).
+
+    Returns
+    -------
+    ortools.linear_solver.linear_solver_pb2.MPModelProto or None
+        None when ``stop`` said so.
+    """
+    from ortools.linear_solver import linear_solver_pb2
+
+    proto = linear_solver_pb2.MPModelProto()
+    proto.maximize = bool(maximize)
+    for lb, ub, integ, c in variables:
+        v = proto.variable.add()
+        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = lb, ub, integ, c
+    for i, (lo, hi, idx, coef) in enumerate(rows):
+        if stop is not None and i % check_every == 0 and stop():
+            return None
+        ct = proto.constraint.add()
+        ct.lower_bound = lo
+        ct.upper_bound = hi
+        ct.var_index.extend(idx)
+        ct.coefficient.extend(coef)
+    return proto
+
+
 def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_values: Sequence[float] = (), *,
-             no_scip: str = "use engine='cpsat'"):
+             no_scip: str = "use engine='cpsat'", since: Callable[[], float] | None = None):
     """Solve an ``MPModelProto`` with SCIP: one thread, the hint, the relative gap ``_OPT_TOL`` and
     what is left of ``deadline`` (the one SCIP set-up of the package: the mode models and the
     max-coverage MIP engine both run here).
@@ -202,11 +225,14 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     ----------
     proto : ortools.linear_solver.linear_solver_pb2.MPModelProto
     deadline : Deadline
-        The build time counts from its start.
+        The solve's deadline: SCIP gets what is left of it.
     hint_vars, hint_values : sequence
         Variable indices and their hinted values.
     no_scip : str
         What to do instead when OR-Tools has no SCIP (the end of the one-line error).
+    since : callable, optional
+        The caller's stopwatch (:func:`~camplace.solver._support.deadline.stopwatch`): the build
+        time counts from its start (default: from the deadline's).
 
     Returns
     -------
@@ -215,7 +241,7 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     code : int
         ``solver.Solve``'s result status.
     build_s : float
-        Seconds from the deadline's start until the solve began.
+        Seconds from ``since``'s start until the solve began.
     """
     from ortools.linear_solver import pywraplp
 
@@ -229,7 +255,7 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     variables = solver.variables()
     if len(hint_vars):
         solver.SetHint([variables[i] for i in hint_vars], [float(v) for v in hint_values])
-    build_s = deadline.elapsed()
+    build_s = deadline.elapsed() if since is None else since()
     rem = deadline.remaining()
     if rem is not None:
         solver.SetTimeLimit(max(1, int(rem * 1000)))
@@ -239,33 +265,23 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     return solver, variables, code, build_s
 
 
-def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None) -> ModelOutcome:
-    from ortools.linear_solver import linear_solver_pb2, pywraplp
+def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] | None) -> EngineOutcome:
+    from ortools.linear_solver import pywraplp
 
-    deadline = Deadline(time_limit_s)
-    proto = linear_solver_pb2.MPModelProto()
-    proto.maximize = bool(model.maximize)
-    for lb, ub, integ, c in zip(model.lb, model.ub, model.integer, model.obj):
-        v = proto.variable.add()
-        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = lb, ub, integ, c
-    nnz = 0
-    for row in model.rows:
-        ct = proto.constraint.add()
-        ct.lower_bound = row.lo
-        ct.upper_bound = row.hi
-        ct.var_index.extend(row.idx.tolist())
-        ct.coefficient.extend(row.coef.tolist())
-        nnz += row.idx.size
+    since = stopwatch(deadline)
+    proto = scip_proto(model.maximize, zip(model.lb, model.ub, model.integer, model.obj),
+                       ((row.lo, row.hi, row.idx.tolist(), row.coef.tolist()) for row in model.rows))
+    nnz = sum(row.idx.size for row in model.rows)
     keys = sorted(hint) if hint else []
     solver, variables, code, build_s = run_scip(proto, deadline, keys, [float(hint[i]) for i in keys] if hint else [],
-                                                no_scip="use engine='cpsat'")
+                                                no_scip="use engine='cpsat'", since=since)
     stats: dict[str, Any] = {
         "backend": "SCIP",
         "variables": model.n_vars,
         "constraints": len(model.rows),
         "nonzeros": int(nnz),
         "time_build_s": build_s,
-        "time_solve_s": deadline.elapsed() - build_s,
+        "time_solve_s": since() - build_s,
         "solver_status": int(code),
     }
     values = None
@@ -283,12 +299,13 @@ def _solve_scip(model: LinearModel, time_limit_s: float | None, hint: dict[int, 
         status = "infeasible"
     else:
         status = "unknown"
-    return ModelOutcome(values, status, bound, stats)
+    return EngineOutcome(None, status, bound, stats, engine="mip", values=values)
 
 
-def run_cpsat(model, workers: int | None, deadline: Deadline):
+def run_cpsat(model, workers: int | None, deadline: Deadline, since: Callable[[], float] | None = None):
     """Solve a built CP-SAT model with ``workers`` threads (None: :func:`camplace._cores.thread_count`)
-    within the deadline's remaining time.
+    within the deadline's remaining time (``since``: the caller's stopwatch, which the build time
+    is read from; default: the deadline's start).
 
     Returns
     -------
@@ -302,7 +319,7 @@ def run_cpsat(model, workers: int | None, deadline: Deadline):
 
     solver = cp_model.CpSolver()
     solver.parameters.num_workers = thread_count(workers)
-    build_s = deadline.elapsed()
+    build_s = deadline.elapsed() if since is None else since()
     rem = deadline.remaining()
     if rem is not None:
         solver.parameters.max_time_in_seconds = max(0.01, rem)
@@ -321,11 +338,11 @@ def _int_objective(obj: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 
 def _solve_cpsat(
-    model: LinearModel, time_limit_s: float | None, hint: dict[int, float] | None, workers: int | None
-) -> ModelOutcome:
+    model: LinearModel, deadline: Deadline, hint: dict[int, float] | None, workers: int | None
+) -> EngineOutcome:
     from ortools.sat.python import cp_model
 
-    deadline = Deadline(time_limit_s)
+    since = stopwatch(deadline)
     cp = cp_model.CpModel()
     xs = []
     for i, (lb, ub) in enumerate(zip(model.lb, model.ub)):
@@ -358,14 +375,14 @@ def _solve_cpsat(
     if hint:
         for i, v in hint.items():
             cp.add_hint(xs[i], int(round(v)))
-    solver, code, build_s = run_cpsat(cp, workers, deadline)
+    solver, code, build_s = run_cpsat(cp, workers, deadline, since)
     stats: dict[str, Any] = {
         "backend": "CP-SAT",
         "workers": thread_count(workers),
         "variables": model.n_vars,
         "constraints": len(model.rows),
         "time_build_s": build_s,
-        "time_solve_s": deadline.elapsed() - build_s,
+        "time_solve_s": since() - build_s,
         "objective_unit": unit,
         "rounding_error": err,
         "solver_status": solver.status_name(code),
@@ -386,4 +403,4 @@ def _solve_cpsat(
         status = "infeasible"
     else:
         status = "unknown"
-    return ModelOutcome(values, status, bound, stats)
+    return EngineOutcome(None, status, bound, stats, engine="cpsat", values=values)

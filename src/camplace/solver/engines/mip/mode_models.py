@@ -18,9 +18,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
-from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.angle._kernels import count_bad_pairs
 from camplace.solver.engines.mip.linear import LinearModel, model_bytes
 from camplace.solver.problem.objectives import angle_ok_pairs, selected_row_stats
@@ -274,8 +273,8 @@ def check_setcover_memory(q: sp.csr_matrix, w: np.ndarray, free_cols: np.ndarray
     need = model_bytes(backend, free_cols.size + rows, rows + 1 + n_conf, entries + rows + 2 * n_conf)
     budget = memory_budget_bytes()
     if need > budget:
-        exc = OverBudget(need, budget, f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} set-cover model")
-        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
+        memory_fallback(OverBudget(need, budget, f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} set-cover model"),
+                        None, asked=engine != "auto", then=None)  # no cheaper engine to fall back to
 
 
 def setcover_model(

@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 
 from camplace._cores import thread_count
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.greedy import greedy_incumbent
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
-from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat, run_scip
+from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat, run_scip, scip_proto
 from camplace.solver.problem.presolve import Presolved
 from camplace.solver.result import EngineOutcome
 
@@ -118,25 +118,25 @@ def _pick_k(values: np.ndarray, k: int) -> tuple[int, ...]:
 _BUILD_CHECK = 256  # model rows built between deadline checks
 
 
-def _build_stopped(pre: Presolved, hint: tuple[int, ...], backend: str, deadline: Deadline) -> EngineOutcome:
+def _build_stopped(pre: Presolved, hint: tuple[int, ...], backend: str, build_s: float) -> EngineOutcome:
     """The time limit passed while the model was being built: the greedy answer and the trivial
     bound (every remaining row's weight)."""
     log.info("%s: the time limit passed while building the model: greedy answer, trivial bound", backend)
     stats = {"backend": backend, "model_build": "interrupted by the time limit", "hint_value": _value(pre, hint),
-             "time_build_s": deadline.elapsed()}
+             "time_build_s": build_s}
     return EngineOutcome(selected=tuple(hint), status="feasible", bound=max(float(pre.weights.sum()), _value(pre, hint)),
                          stats=stats)
 
 
-def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOutcome:
+def solve_mip(pre: Presolved, *, deadline: Deadline | None = None) -> EngineOutcome:
     """Solve the presolved instance with SCIP through ``ortools.linear_solver.pywraplp``.
 
     Parameters
     ----------
     pre : Presolved
         Presolved instance.
-    time_limit_s : float, optional
-        Wall-clock limit for SCIP.
+    deadline : Deadline, optional
+        The solve's deadline (default: none); building the model counts.
 
     Returns
     -------
@@ -148,51 +148,43 @@ def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOut
     OverBudget
         When :func:`maxcover_model_bytes` exceeds the memory budget (before anything is built).
     """
-    from ortools.linear_solver import linear_solver_pb2, pywraplp
+    from ortools.linear_solver import pywraplp
 
     triv = _trivial(pre)
     if triv is not None:
         return triv
     _check_memory(pre, "mip")
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    since = stopwatch(deadline)
     m, n = pre.shape
     k = pre.k
     coef, scale = _objective_coefficients(pre)
     hint = greedy_incumbent(pre.matrix, pre.weights, k)
 
-    proto = linear_solver_pb2.MPModelProto()
-    proto.maximize = True
-    for j in range(n):
-        v = proto.variable.add()
-        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = 0.0, 1.0, True, 0.0
-    for i in range(m):
-        v = proto.variable.add()
-        v.lower_bound, v.upper_bound, v.is_integer, v.objective_coefficient = 0.0, 1.0, False, float(coef[i])
     csr = pre.matrix.tocsr()
     indptr, indices = csr.indptr, csr.indices
-    for i in range(m):
-        if i % _BUILD_CHECK == 0 and deadline.expired():
-            return _build_stopped(pre, hint, "SCIP", deadline)
-        ct = proto.constraint.add()
-        ct.lower_bound = 0.0
-        ct.upper_bound = math.inf
-        cols = indices[indptr[i] : indptr[i + 1]].tolist()
-        ct.var_index.extend(cols)
-        ct.coefficient.extend([1.0] * len(cols))
-        ct.var_index.append(n + i)
-        ct.coefficient.append(-1.0)
+
+    def covers():  # y_i <= sum of the x_j that observe row i
+        for i in range(m):
+            cols = indices[indptr[i] : indptr[i + 1]].tolist()
+            yield 0.0, math.inf, cols + [n + i], [1.0] * len(cols) + [-1.0]
+
+    var_specs = [(0.0, 1.0, True, 0.0)] * n + [(0.0, 1.0, False, float(c)) for c in coef]  # x, then y
+    proto = scip_proto(True, var_specs, covers(), stop=deadline.expired, check_every=_BUILD_CHECK)
+    if proto is None:
+        return _build_stopped(pre, hint, "SCIP", since())
     card = proto.constraint.add()
     card.lower_bound = card.upper_bound = float(k)
     card.var_index.extend(range(n))
     card.coefficient.extend([1.0] * n)
 
     solver, variables, code, build_s = run_scip(proto, deadline, range(n), [1.0 if j in hint else 0.0 for j in range(n)],
-                                                no_scip="use engine='cpsat' or 'exact'")
+                                                no_scip="use engine='cpsat' or 'exact'", since=since)
 
     stats: dict[str, Any] = {
         "backend": "SCIP",
         "time_build_s": build_s,
-        "time_solve_s": deadline.elapsed() - build_s,
+        "time_solve_s": since() - build_s,
         "objective_scale": scale,
         "variables": int(n + m),
         "constraints": int(m + 1),
@@ -221,19 +213,19 @@ def solve_mip(pre: Presolved, *, time_limit_s: float | None = None) -> EngineOut
         status = "infeasible"
     else:
         status = "feasible"
-    log.info("mip: %s value %.9g bound %.9g (%dx%d) in %.3f s", status, value, bound, m, n, deadline.elapsed())
+    log.info("mip: %s value %.9g bound %.9g (%dx%d) in %.3f s", status, value, bound, m, n, since())
     return EngineOutcome(selected=sel, status=status, bound=bound, stats=stats)
 
 
-def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: int | None = None) -> EngineOutcome:
+def solve_cpsat(pre: Presolved, *, deadline: Deadline | None = None, workers: int | None = None) -> EngineOutcome:
     """Solve the presolved instance with CP-SAT (integer-scaled weights).
 
     Parameters
     ----------
     pre : Presolved
         Presolved instance.
-    time_limit_s : float, optional
-        Wall-clock limit.
+    deadline : Deadline, optional
+        The solve's deadline (default: none); building the model counts.
     workers : int, optional
         CP-SAT search workers (default :func:`camplace._cores.thread_count`: ``--threads`` /
         ``SolveOptions.threads``, else the cores this process may use).
@@ -255,7 +247,8 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
     if triv is not None:
         return triv
     _check_memory(pre, "cpsat")
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    since = stopwatch(deadline)
     m, n = pre.shape
     k = pre.k
     cint, unit, err = _integer_weights(pre)
@@ -268,7 +261,7 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
     indptr, indices = csr.indptr, csr.indices
     for i in range(m):
         if i % _BUILD_CHECK == 0 and deadline.expired():
-            return _build_stopped(pre, hint, "CP-SAT", deadline)
+            return _build_stopped(pre, hint, "CP-SAT", since())
         lits = [x[j] for j in indices[indptr[i] : indptr[i + 1]].tolist()]
         lits.append(~y[i])
         model.add_bool_or(lits)
@@ -277,13 +270,13 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
     for j in range(n):
         model.add_hint(x[j], j in hint)
 
-    solver, code, build_s = run_cpsat(model, workers, deadline)
+    solver, code, build_s = run_cpsat(model, workers, deadline, since)
 
     stats: dict[str, Any] = {
         "backend": "CP-SAT",
         "workers": thread_count(workers),
         "time_build_s": build_s,
-        "time_solve_s": deadline.elapsed() - build_s,
+        "time_solve_s": since() - build_s,
         "weight_unit": unit,
         "weight_scale": 1.0 / unit,
         "weights_integer_exact": err == 0.0,
@@ -314,5 +307,5 @@ def solve_cpsat(pre: Presolved, *, time_limit_s: float | None = None, workers: i
             bound = value
     else:
         status = "feasible"
-    log.info("cpsat: %s value %.9g bound %.9g (%dx%d) in %.3f s", status, value, bound, m, n, deadline.elapsed())
+    log.info("cpsat: %s value %.9g bound %.9g (%dx%d) in %.3f s", status, value, bound, m, n, since())
     return EngineOutcome(selected=sel, status=status, bound=bound, stats=stats)

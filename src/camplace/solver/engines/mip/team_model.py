@@ -25,33 +25,21 @@ for every pair closer than ``min_distance_m``. Rows covered by a fixed camera le
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.engines.mip.linear import LinearModel, model_bytes, solve_model
 from camplace.solver.engines.mip.mode_models import (BuildTimeout, add_multiview_rows, add_quality_rows, merge_rows,
                                                      model_size)
 from camplace.solver.problem.team import TeamConstraints
+from camplace.solver.result import EngineOutcome
 
-__all__ = ["TeamModelOutcome", "solve_team_model"]
-
-
-@dataclass(frozen=True)
-class TeamModelOutcome:
-    """``selected`` (original columns, fixed included, or None), the model's ``status`` and
-    ``bound`` (objective units: coverage weight including ``base``, or cost of the new cameras) and
-    ``stats``."""
-
-    selected: tuple[int, ...] | None
-    status: str
-    bound: float
-    stats: dict[str, Any]
+__all__ = ["solve_team_model"]
 
 
 def _integral(values: np.ndarray) -> bool:
@@ -61,9 +49,9 @@ def _integral(values: np.ndarray) -> bool:
 def solve_team_model(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, mode: str, k: int | None, fixed: tuple[int, ...],
     free_cols: np.ndarray, conflicts: np.ndarray, costs: np.ndarray | None, required_fraction: float,
-    backend: str, time_limit_s: float | None, hint: tuple[int, ...] | None = None, views: int = 2,
+    backend: str, deadline: Deadline | None = None, hint: tuple[int, ...] | None = None, views: int = 2,
     min_angle_deg: float | None = None, pos: np.ndarray | None = None, pts: np.ndarray | None = None,
-) -> TeamModelOutcome:
+) -> EngineOutcome:
     """Build and solve the team model (see the module docstring).
 
     Parameters
@@ -83,7 +71,8 @@ def solve_team_model(
         setcover objective costs (default: the team's).
     required_fraction : float
     backend : {"mip", "cpsat"}
-    time_limit_s : float or None
+    deadline : Deadline, optional
+        The solve's deadline (default: none).
     hint : tuple of int, optional
         A feasible selection (original columns) given to the solver.
     views : int, optional
@@ -97,16 +86,18 @@ def solve_team_model(
 
     Returns
     -------
-    TeamModelOutcome
-        ``status`` ``"unknown"`` with no selection when the time limit passes while the model is
-        being built (quality, multiview).
+    EngineOutcome
+        ``selected``: original columns, fixed included (None: none found); the model's ``status``
+        and ``bound`` (objective units: coverage weight including ``base``, or cost of the new
+        cameras); ``engine``: ``backend``; ``stats``. Status ``"unknown"`` with no selection when the
+        time limit passes while the model is being built (quality, multiview).
     """
     m, n = q.shape
     if backend == "cpsat" and mode == "setcover" and required_fraction < 1.0:
         raise CamplaceError("engine cpsat: a team set cover with required_fraction < 1 has a weighted row; use engine mip")
     cols = np.concatenate([np.asarray(fixed, dtype=np.int64), np.asarray(free_cols, dtype=np.int64)])
     nfix = len(fixed)
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
     model = LinearModel(maximize=mode != "setcover")
     x = model.add_vars(cols.size, integer=True)
     for i in range(nfix):
@@ -157,7 +148,7 @@ def solve_team_model(
                                    np.asarray(free_cols, dtype=np.int64), scale, check, x_fixed=x[:nfix])
         except BuildTimeout:
             stats["model_build"] = "interrupted by the time limit"
-            return TeamModelOutcome(None, "unknown", math.inf, stats)
+            return EngineOutcome(None, "unknown", math.inf, stats, engine=backend)
         stats["model_variables"] = len(model.lb)
     else:
         c = team.cost if costs is None else np.asarray(costs, dtype=np.float64)
@@ -226,15 +217,15 @@ def solve_team_model(
     if hint is not None:
         hs = set(hint)
         hint_d = {int(x[i]): (1.0 if int(cols[i]) in hs else 0.0) for i in range(cols.size)}
-    out = solve_model(model, backend, time_limit_s=deadline.left(), hint=hint_d)
+    out = solve_model(model, backend, deadline=deadline, hint=hint_d)
     stats["engine_stats"] = dict(out.stats)
     if out.values is None:
         bound = out.bound
-        return TeamModelOutcome(None, out.status, bound, stats)
+        return EngineOutcome(None, out.status, bound, stats, engine=backend)
     chosen = tuple(sorted(int(cols[i]) for i in range(cols.size) if out.values[int(x[i])] > 0.5))
     raw = out.bound if abs(out.bound) < 1e19 else math.copysign(math.inf, out.bound)  # SCIP's "no bound yet" is 1e20
     bound = raw * scale + const if math.isfinite(raw) else raw
-    return TeamModelOutcome(chosen, out.status, bound, stats)
+    return EngineOutcome(chosen, out.status, bound, stats, engine=backend)
 
 
 def _check_memory(q: sp.csr_matrix, w: np.ndarray, mode: str, views: int, min_angle_deg: float | None,

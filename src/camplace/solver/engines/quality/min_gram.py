@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["solve_quality_exact", "min_gram_cost", "quality_exact_bytes", "QUALITY_EXACT_MAX_N", "QUALITY_EXACT_MAX_PAIRS"]
@@ -141,7 +141,7 @@ def _local_search(qt: np.ndarray, w: np.ndarray, sel: list[int], rounds: int = 5
 
 
 def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
-                        time_limit_s: float | None = None) -> EngineOutcome:
+                        deadline: Deadline | None = None) -> EngineOutcome:
     """Best ``k`` (2 or 3) columns for ``sum_i w_i max_{j in S} Q_ij``.
 
     Parameters
@@ -151,7 +151,9 @@ def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
     weights : (m,) float64
     k : int
         2 or 3 (at most n).
-    time_limit_s : float, optional
+    deadline : Deadline, optional
+        The solve's deadline (default: none); on expiry the best triple found comes back with
+        status "feasible" and a valid bound.
 
     Returns
     -------
@@ -160,7 +162,8 @@ def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
     """
     if k not in (2, 3):
         raise ValueError("the quality engine chooses 2 or 3 cameras")
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    since = stopwatch(deadline)
     q = sp.csr_matrix(matrix, dtype=np.float64)
     q.sort_indices()
     m, n = q.shape
@@ -173,7 +176,7 @@ def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
     with ctrl_c_deferred():
         mg = _min_gram(q.indptr, q.indices, q.data, w, n)
     f = np.diagonal(mg).copy()
-    stats: dict[str, Any] = {"time_min_gram_s": deadline.elapsed()}
+    stats: dict[str, Any] = {"time_min_gram_s": since()}
     if k == 2:
         pair = f[:, None] + f[None, :] - mg
         np.fill_diagonal(pair, -math.inf)
@@ -206,7 +209,7 @@ def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
     # checked between blocks); a first column is skipped when ub_a, valid for every triple
     # containing a, cannot beat the incumbent.
     status = "optimal"
-    t_scan = deadline.elapsed()
+    t_scan = since()
     for s0 in range(0, n, block):
         if deadline.expired():
             status = "feasible"
@@ -225,7 +228,7 @@ def solve_quality_exact(matrix: sp.csr_matrix, weights: np.ndarray, k: int, *,
             best_set = tuple(sorted(int(x) for x in out_set))
     if status == "optimal":
         bound = best
-    stats.update({"exact_evaluations": evals, "time_scan_s": deadline.elapsed() - t_scan, "time_s": deadline.elapsed()})
+    stats.update({"exact_evaluations": evals, "time_scan_s": since() - t_scan, "time_s": since()})
     log.info("quality exact: %dx%d %s value %.9g bound %.9g, %d exact triples, %.3f s", m, n, status, best, bound,
-             evals, deadline.elapsed())
+             evals, since())
     return EngineOutcome(selected=best_set, status=status, bound=float(bound), stats=stats)

@@ -13,7 +13,7 @@ import scipy.sparse as sp
 from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.quality.min_gram import solve_quality_exact
 from camplace.solver.engines.quality.tree import solve_quality_tree
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 
 __all__ = ["quality_engines"]
 
@@ -27,19 +27,20 @@ _TREE_FIRST_MIN_S = 2.0
 def quality_engines(
     resid: sp.csr_matrix, resid_w: np.ndarray, k: int, tree_ok: bool, gram_ok: bool, fixed_t: tuple[int, ...],
     free_cols: np.ndarray, value: Any, const: float, deadline: Deadline, stats: dict[str, Any],
-) -> ModeOutcome:
+) -> EngineOutcome:
     """The exact quality engines as a portfolio: the quantised tree first (fast on the spatially
     coherent qualities of real scenes); if it has not proven the optimum within its share of the
     time and the min-Gram triple engine applies (k = 2, 3, small n), that one gets the rest (it does
     not depend on coherence). The better camera set wins; the smaller bound holds for both."""
     runs: list[tuple[str, Any]] = []
     if tree_ok:
-        limit = deadline.left()
-        if gram_ok:
-            limit = _TREE_FIRST_S if limit is None else min(limit, max(_TREE_FIRST_MIN_S, _TREE_FIRST_SHARE * limit))
-        runs.append(("tree", solve_quality_tree(resid, resid_w, k, time_limit_s=limit)))
+        first = deadline
+        if gram_ok:  # the tree's share: at most _TREE_FIRST_S without a limit
+            left = deadline.remaining()
+            first = deadline.within(_TREE_FIRST_S if left is None else max(_TREE_FIRST_MIN_S, _TREE_FIRST_SHARE * left))
+        runs.append(("tree", solve_quality_tree(resid, resid_w, k, deadline=first)))
     if gram_ok and (not runs or runs[0][1].status != "optimal"):
-        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, time_limit_s=deadline.left())))
+        runs.append(("min-gram", solve_quality_exact(resid, resid_w, k, deadline=deadline)))
     best = None
     for name, out in runs:
         sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in out.selected}))
@@ -55,4 +56,4 @@ def quality_engines(
     stats["engine_stats"] = dict(runs[0][1].stats)
     if len(runs) > 1:
         stats["engine_stats"]["min_gram"] = dict(runs[1][1].stats)
-    return ModeOutcome(sel, status, objective, bound, "exact", stats)
+    return EngineOutcome(sel, status, bound, stats, engine="exact", objective=objective)

@@ -39,7 +39,7 @@ from numba import prange
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import best_leaf, push_chunks
 from camplace.solver._support.greedy import greedy_swap
 from camplace.solver.result import EngineOutcome
@@ -251,7 +251,7 @@ class _Columns:
 
 
 def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
-                       time_limit_s: float | None = None) -> EngineOutcome:
+                       deadline: Deadline | None = None) -> EngineOutcome:
     """Best ``k`` columns for ``sum_i w_i max_{j in S} Q_ij`` (tree bound, exact leaves).
 
     Parameters
@@ -262,16 +262,17 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
         Non-negative row weights.
     k : int
         Columns to choose (1 <= k).
-    time_limit_s : float, optional
-        Wall-clock limit; on expiry the incumbent is returned with status "feasible" and a valid
-        bound.
+    deadline : Deadline, optional
+        The solve's deadline (default: none); on expiry the incumbent is returned with status
+        "feasible" and a valid bound.
 
     Returns
     -------
     EngineOutcome
         ``selected`` are column indices of ``matrix``; ``bound`` an upper bound on the optimum.
     """
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    since = stopwatch(deadline)
     qc = sp.csc_matrix(matrix)
     if not np.issubdtype(qc.dtype, np.floating):
         qc = qc.astype(np.float64)
@@ -299,7 +300,7 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
         if deadline.expired():
             break
     stats["initial_incumbent"] = best
-    stats["time_incumbent_s"] = deadline.elapsed()
+    stats["time_incumbent_s"] = since()
     if deadline.expired():  # no time for the tree: every point gets its best quality
         with ctrl_c_deferred():
             bound = float(w @ _row_max(qc.indptr, qc.indices, qc.data, m))  # each point's best camera
@@ -326,7 +327,7 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
         table = _node_table(qc.indptr, qc.indices, qc.data, rowmap, m_live, order, lo, left, right, 255.0 / qmax)
     wq = w[live] * (qmax / 255.0)
     equal = bool(np.all(wq == wq[0]))
-    stats["time_setup_s"] = deadline.elapsed()
+    stats["time_setup_s"] = since()
     stats["table_bytes"] = int(table.nbytes)
 
     # Depth-first over chunks: pop the top chunk, expand it in parallel, push its surviving
@@ -368,9 +369,9 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
     if bound <= best + margin:
         status, bound = "optimal", best
     stats.update({"bound_evaluations": evaluated, "exact_evaluations": exact_evals, "chunks": chunks,
-                  "peak_open": int(peak), "time_search_s": deadline.elapsed() - stats["time_setup_s"]})
+                  "peak_open": int(peak), "time_search_s": since() - stats["time_setup_s"]})
     log.info("quality tree: k=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", k, m_live, n,
-             status, best, bound, evaluated, deadline.elapsed())
+             status, best, bound, evaluated, since())
     return EngineOutcome(selected=best_set, status=status, bound=float(bound), stats=stats)
 
 

@@ -70,7 +70,8 @@ import scipy.sparse as sp
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.deadline import Deadline, as_deadline
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.setcover import _kernels as K
 from camplace.solver.result import EngineOutcome
 
@@ -502,7 +503,7 @@ class LocalSearch:
         """Iteration at which the best cover was found."""
         return int(self.ist[K.BEST_IT])
 
-    def run(self, *, max_iterations: int | None = None, time_limit_s: float | None = None, target: float = -math.inf,
+    def run(self, *, max_iterations: int | None = None, deadline: Deadline | None = None, target: float = -math.inf,
             patience: int | None = None, stop: threading.Event | None = None,
             reached: threading.Event | None = None) -> str:
         """Search until an iteration budget, a time limit, the target cost or a stall.
@@ -511,8 +512,8 @@ class LocalSearch:
         ----------
         max_iterations : int, optional
             Stop once this many iterations have run in total (deterministic).
-        time_limit_s : float, optional
-            Stop after this many seconds (checked between compiled chunks).
+        deadline : Deadline, optional
+            Stop when it expires (checked between compiled chunks; default: no limit).
         target : float
             Stop once the best cost is at most this (a lower bound: the cover is then optimal).
         patience : int, optional
@@ -535,14 +536,13 @@ class LocalSearch:
             Why it stopped: ``"target"``, ``"iterations"``, ``"patience"``, ``"time"``, ``"stuck"``
             (every row covered, the required weight not reached) or ``"stopped"``.
         """
-        t0 = time.perf_counter()
         chunk = 64
         stop_it = np.iinfo(np.int64).max if max_iterations is None else int(max_iterations)
         pat = np.iinfo(np.int64).max // 4 if patience is None else int(patience)
         args = self._args()
         improved = int(self.ist[K.IMPROVED])
         while True:
-            if time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+            if deadline is not None and deadline.expired():
                 return "time"
             if stop is not None and stop.is_set():
                 return "stopped"
@@ -595,11 +595,11 @@ def search_threads() -> int:
     return max(1, min(SEARCH_THREADS, thread_count()))
 
 
-def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = None, target: float = -math.inf,
+def run_searches(searches: list[LocalSearch], *, deadline: Deadline | None = None, target: float = -math.inf,
                  patience: int | None = None) -> list[str]:
     """Run several searches side by side, one thread each (the compiled kernels release the GIL).
 
-    With a time limit, the first to reach ``target`` stops the others (the answer then depends on
+    With a deadline that has a limit, the first to reach ``target`` stops the others (the answer then depends on
     the machine's speed, as any timed search does); without one, each runs to its own end, so the
     outcome of every search is that of running it alone (deterministic).
 
@@ -609,11 +609,12 @@ def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = No
         Why each stopped (:meth:`LocalSearch.run`).
     """
     if len(searches) == 1:
-        return [searches[0].run(time_limit_s=time_limit_s, target=target, patience=patience)]
+        return [searches[0].run(deadline=deadline, target=target, patience=patience)]
     ev = threading.Event()  # also stops the threads when the main one is interrupted (Ctrl-C)
     with ThreadPoolExecutor(max_workers=len(searches), thread_name_prefix="setcover-search") as ex:
-        futs = [ex.submit(s.run, time_limit_s=time_limit_s, target=target, patience=patience, stop=ev,
-                          reached=ev if time_limit_s is not None else None) for s in searches]
+        timed = deadline is not None and deadline.limit is not None
+        futs = [ex.submit(s.run, deadline=deadline, target=target, patience=patience, stop=ev,
+                          reached=ev if timed else None) for s in searches]
         try:
             return [f.result() for f in futs]
         finally:
@@ -621,7 +622,7 @@ def run_searches(searches: list[LocalSearch], *, time_limit_s: float | None = No
 
 
 def local_search(red: CoverReduction, *, seed: int = 0, max_iterations: int | None = None,
-                 time_limit_s: float | None = None, target: float = -math.inf,
+                 deadline: Deadline | None = None, target: float = -math.inf,
                  patience: int | None = None) -> tuple[np.ndarray, float, dict[str, Any]]:
     """Greedy plus row-weighting local search (see :class:`LocalSearch`).
 
@@ -635,7 +636,7 @@ def local_search(red: CoverReduction, *, seed: int = 0, max_iterations: int | No
     """
     t0 = time.perf_counter()
     ls = LocalSearch(red, seed=seed)
-    why = ls.run(max_iterations=max_iterations, time_limit_s=time_limit_s, target=target, patience=patience)
+    why = ls.run(max_iterations=max_iterations, deadline=deadline, target=target, patience=patience)
     sel = ls.best_cover()
     cost = float(red.cost[sel].sum())
     return sel, cost, {"greedy_cost": ls.greedy_cost, "cost": cost, "iterations": ls.iterations,
@@ -653,7 +654,7 @@ def _integral(values: np.ndarray) -> bool:
 
 
 def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int = _LAG_MAX_ITERS,
-                     time_limit_s: float | None = None) -> tuple[float, dict[str, Any]]:
+                     deadline: Deadline | None = None) -> tuple[float, dict[str, Any]]:
     """Lower bound on the reduced instance's optimum (forced columns excluded).
 
     Parameters
@@ -662,7 +663,8 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
     upper : float
         Cost of a known cover (the step size aims at it).
     max_iterations : int
-    time_limit_s : float, optional
+    deadline : Deadline, optional
+        Stop when it expires (default: no limit); the bound found so far stays valid.
 
     Returns
     -------
@@ -686,7 +688,7 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
     chunk = 4
     converged = False
     while done < max_iterations:
-        if time_limit_s is not None and time.perf_counter() - t0 >= time_limit_s:
+        if deadline is not None and deadline.expired():
             break
         c0 = time.perf_counter()
         with ctrl_c_deferred():
@@ -715,7 +717,7 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
 
 
 def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: str,
-                 time_limit_s: float | None) -> tuple[np.ndarray | None, str, float, dict[str, Any]]:
+                 deadline: Deadline) -> tuple[np.ndarray | None, str, float, dict[str, Any]]:
     """Solve the reduced instance with SCIP or CP-SAT, the cover ``hint`` as a start and
     ``cost <= upper`` as a cutoff. Returns (reduced columns or None, status, lower bound, stats)."""
     from camplace.solver.engines.mip.linear import LinearModel, solve_model
@@ -747,7 +749,7 @@ def _model_cover(red: CoverReduction, hint: np.ndarray, upper: float, backend: s
         # makes its root LP far slower and its time limit unreliable)
         model.add_row(x, red.cost, hi=float(upper), int_variant=(red.cost.astype(np.int64), -math.inf, float(upper)))
     start = {int(x[j]): (1.0 if j in set(hint.tolist()) else 0.0) for j in range(n)}
-    out = solve_model(model, backend, time_limit_s=time_limit_s, hint=start)
+    out = solve_model(model, backend, deadline=deadline, hint=start)
     stats = dict(out.stats)
     stats["status"] = out.status
     bound = out.bound
@@ -807,7 +809,7 @@ def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) 
 
 
 def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None = None,
-                need: float | None = None, *, engine: str = "auto", time_limit_s: float | None = None,
+                need: float | None = None, *, engine: str = "auto", deadline: Deadline | None = None,
                 seed: int = 0, max_iterations: int | None = None) -> EngineOutcome:
     """Reductions, local search, Lagrangian bound and (if it applies) SCIP / CP-SAT.
 
@@ -824,8 +826,9 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     engine : {"auto", "mip", "cpsat"}
         ``auto``: SCIP after the first search when :func:`_model_choice` says it can close the
         gap; ``mip`` / ``cpsat``: always (unless the bound already proves the cover optimal).
-    time_limit_s : float, optional
-        Wall-clock limit for everything. The Lagrangian bound gets at most 15 % of it; the first
+    deadline : Deadline, optional
+        The solve's deadline (default: none), for everything; the shares below are of the time
+        left at the call. The Lagrangian bound gets at most 15 % of it; the first
         search stops on a short patience (:func:`patience_work`) or after half of what is left;
         the model gets three quarters of what is then left; if there is still no proof, the
         search goes on until the time limit. Without a time limit the second search stops on the
@@ -846,16 +849,16 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         ran, else the model's backend (``"mip"``, ``"cpsat"``).
     """
     t0 = time.perf_counter()
-
-    def left() -> float | None:
-        return None if time_limit_s is None else max(1e-3, float(time_limit_s) - (time.perf_counter() - t0))
+    deadline = as_deadline(deadline)
+    left = deadline.left
+    total = left()  # the time left at the call (None: no limit)
 
     m, n = pattern.shape
     need_bytes = cover_bytes(m, n, int(pattern.nnz))
     budget = memory_budget_bytes()
     if need_bytes > budget:
-        exc = OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)")
-        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
+        memory_fallback(OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)"),
+                        stats=None, asked=True, then=None)  # nothing answers without it
     c = np.asarray(costs, dtype=np.float64)
     red = reduce_cover(pattern, c, weights, need)
     stats: dict[str, Any] = {"reduction": dict(red.stats)}
@@ -866,12 +869,9 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
         stats["time_s"] = time.perf_counter() - t0
         return EngineOutcome(sel, "optimal", cost, stats, engine="local-search", objective=cost)
     ls = LocalSearch(red, seed=seed)
-    rem = left()
-    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost,
-                                               time_limit_s=None if rem is None else _LAG_SHARE * rem)
+    lb, stats["lagrangian"] = lagrangian_bound(red, ls.best_cost, deadline=deadline.share(_LAG_SHARE))
     # first search: short patience, at most half the time left (the whole budget with an iteration budget)
-    rem = left()
-    why = ls.run(max_iterations=max_iterations, time_limit_s=None if rem is None else _LS_SHARE_BEFORE_MODEL * rem,
+    why = ls.run(max_iterations=max_iterations, deadline=deadline.share(_LS_SHARE_BEFORE_MODEL),
                  target=lb, patience=None if max_iterations is not None else patience_work(red.nnz, before_model=True))
     sel_r = ls.best_cover()
     cost_r = float(red.cost[sel_r].sum())
@@ -885,19 +885,17 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     proven = cost_r <= lb + 1e-9 * max(1.0, abs(cost_r))
     backend, why_not = _model_choice(engine, red, cost_r, lb)
     if not proven and backend is not None and cover_model_bytes(red, backend) > memory_budget_bytes():
-        msg = (f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} model of the reduced {mr} x {nr} instance "
-               f"({red.nnz} nonzeros) would need about {cover_model_bytes(red, backend) / 2**30:.1f} GiB but only "
-               f"{memory_budget_bytes() / 2**30:.1f} GiB may be used; kept the local-search cover and its bound")
-        log.warning("setcover: %s", msg)
-        stats["memory_fallback"] = msg
+        # the search's cover answers whichever engine was asked for: no error here
+        memory_fallback(OverBudget(cover_model_bytes(red, backend), memory_budget_bytes(),
+                                   f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} model of the reduced {mr} x {nr} "
+                                   f"set-cover instance ({red.nnz} nonzeros)"),
+                        stats, asked=False, then="kept the local-search cover and its bound")
         backend = None
     if not proven and backend is None and why_not:
         stats["model_skipped"] = why_not
     if not proven and backend is not None:
         name = backend
-        rem = left()
-        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend,
-                                                     None if rem is None else _MODEL_SHARE * rem)
+        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, deadline.share(_MODEL_SHARE))
         stats["model"] = mstats
         if msel is not None and _is_cover(red, msel):
             mcost = float(red.cost[msel].sum())
@@ -913,7 +911,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
             bound_r = max(bound_r, min(mbound, cost_r))
         proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
     rem = left()
-    if not proven and why in ("patience", "time") and (rem is None or rem > 0.02 * float(time_limit_s)):
+    if not proven and why in ("patience", "time") and (rem is None or total is None or rem > 0.02 * total):
         # the search goes on from where it was, with restarts, beside a second one started from its
         # best cover (own random stream), one thread each: until the time limit when there is one,
         # else each with the full patience counted from now
@@ -922,7 +920,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
                            for k in range(1, search_threads())]
         for s in searches:
             s.restart_work = restart_unit_work(red.nnz)
-        whys = run_searches(searches, time_limit_s=None if rem is None else 0.97 * rem, target=bound_r,
+        whys = run_searches(searches, deadline=deadline.share(0.97), target=bound_r,
                             patience=None if rem is not None else patience_work(red.nnz))
         costs2 = [s.best_cost for s in searches]
         k_best = int(np.argmin(costs2))  # ties: the first

@@ -19,7 +19,7 @@ from camplace.solver.engines.mip.mode_models import setcover_model
 from camplace.solver.engines.setcover.local_search import solve_cover
 from camplace.solver.problem.objectives import coverage_weight
 from camplace.solver.problem.presolve import as_pattern
-from camplace.solver.result import ModeOutcome
+from camplace.solver.result import EngineOutcome
 
 __all__ = ["setcover"]
 
@@ -30,7 +30,7 @@ def setcover(
     q: sp.csr_matrix, w: np.ndarray, costs: Any, required_fraction: float, fixed_t: tuple[int, ...],
     free_cols: np.ndarray, conflicts: np.ndarray, engine: str, deadline: Deadline,
     seed: int = 0, iterations: int | None = None,
-) -> ModeOutcome:
+) -> EngineOutcome:
     """Minimum-cost cover: the cost of the new cameras and a LOWER bound.
 
     Without minimum-distance conflicts: :func:`camplace.solver.engines.setcover.local_search.solve_cover`
@@ -70,31 +70,31 @@ def setcover(
     sw = w[rows]
 
     def finish(sel_free: Sequence[int], status: str, bound: float,
-               used: str = name) -> ModeOutcome:
+               used: str = name) -> EngineOutcome:
         sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in sel_free}))
         cov = coverage_weight(pat, w, sel) if sel else 0.0
         stats["covered_fraction"] = cov / coverable_w if coverable_w > 0 else 1.0
         stats["covered_weight"] = cov
         cost = float(sum(c[j] for j in sel if j not in set(fixed_t)))
-        return ModeOutcome(sel, status, cost, bound, used, stats)
+        return EngineOutcome(sel, status, bound, stats, engine=used, objective=cost)
 
     if sub.shape[0] == 0 or need <= 1e-12 * max(coverable_w, 1e-300):
         return finish((), "optimal", 0.0)
     if conflicts.size == 0:
         out = solve_cover(sub, c[free_cols], sw if frac < 1.0 else None, need if frac < 1.0 else None, engine=engine,
-                          time_limit_s=deadline.left(), seed=seed, max_iterations=iterations)
+                          deadline=deadline, seed=seed, max_iterations=iterations)
         stats["setcover"] = out.stats
         if out.selected is None:
-            return ModeOutcome(None, "unknown", math.nan, out.bound, out.engine, stats)
+            return EngineOutcome(None, "unknown", out.bound, stats, engine=out.engine, objective=math.nan)
         return finish(out.selected, out.status, out.bound, out.engine)
     model, x, rows_after = setcover_model(sub, sw, c[free_cols], free_cols, conflicts, frac, need, coverable_w)
-    out = solve_model(model, name, time_limit_s=deadline.left())
+    out = solve_model(model, name, deadline=deadline)
     stats["engine_stats"] = dict(out.stats)
     stats["rows_after"] = rows_after
     if out.values is None:
         st = "infeasible" if out.status == "infeasible" else "unknown"
         finish((), st, -math.inf)  # the coverage entries of stats
-        return ModeOutcome(None, st, math.nan, out.bound, name, stats)
+        return EngineOutcome(None, st, out.bound, stats, engine=name, objective=math.nan)
     sel_free = [int(j) for j in np.flatnonzero(out.values[x] > 0.5)]
     bound = out.bound
     if np.all(c == np.rint(c)) and math.isfinite(bound):
