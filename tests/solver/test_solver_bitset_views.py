@@ -13,7 +13,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camplace.solver._support import bitkernels as K
-from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.bitset import search as bitset_mod
 from camplace.solver.engines.bitset.search import solve_bitset
 from camplace.solver.problem._synthetic import structured_instance
@@ -104,9 +103,8 @@ def test_views_search_interrupted_keeps_a_valid_bound(inst, after: int, budget: 
     pre = presolve(sp.csr_matrix(dense.astype(np.float64)), w, k, dominance=False)
     mp = pytest.MonkeyPatch()
     mp.setattr(bitset_mod, "_ROOT_BUDGET", budget)
-    mp.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
     try:
-        out = solve_bitset(pre, views=views, time_limit_s=10.0)
+        out = solve_bitset(pre, views=views, deadline=CountingDeadline(after))
     finally:
         mp.undo()
     best = _best(dense, w, k, views)
@@ -128,11 +126,9 @@ def test_views_search_structured(after: int, views: int, k: int, monkeypatch) ->
     best = _best(dense, w, k, views)
     pre = presolve(matrix, w, k, dominance=False)
     monkeypatch.setattr(bitset_mod, "_ROOT_BUDGET", 3)
-    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
-    out = solve_bitset(pre, views=views, time_limit_s=10.0)
+    out = solve_bitset(pre, views=views, deadline=CountingDeadline(after))
     assert out.bound >= best - tolerance(w)
     assert _value(dense, w, pre.original_columns(out.selected), views) <= best + tolerance(w)
-    monkeypatch.setattr(bitset_mod, "Deadline", Deadline)
     out = solve_bitset(pre, views=views)
     assert out.status == "optimal" and abs(out.bound - best) <= tolerance(w)
     assert abs(_value(dense, w, pre.original_columns(out.selected), views) - best) <= tolerance(w)

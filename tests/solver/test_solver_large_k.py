@@ -127,8 +127,6 @@ def test_interrupted_anywhere_keeps_a_valid_bound(monkeypatch, mode: str, after:
     views, k = (3, 6) if mode == "multiview" else (1, 7)
     opt = _enumerate(dense, w, k, mode, views)
     solve_deadline(monkeypatch, CountingDeadline(after))  # the solve's one deadline
-    # the bitset engine (multiview's search) still makes its own from the seconds it is handed
-    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
     monkeypatch.setattr(bitset_mod, "_SLICE", 3)  # deadline checks every 3 bound evaluations
     res = solve(sp.csr_matrix(dense), w, k, mode=mode, views=views, time_limit_s=30.0)
     assert res.status in ("optimal", "feasible")

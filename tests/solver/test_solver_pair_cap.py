@@ -170,11 +170,8 @@ def test_bitset_opposite_pairs_search_equals_enumeration(inst, chunk, checks, in
     if not incumbent:
         mp.setattr(bitset_mod, "_STARTS", 0)
         checks = None
-    if checks is not None:
-        # the bitset engine still makes its deadline from the seconds it is handed
-        mp.setattr(bitset_mod, "Deadline", lambda _limit: ExpiringDeadline(checks))
     try:
-        out = solve_bitset(pre, views=views)
+        out = solve_bitset(pre, views=views, deadline=None if checks is None else ExpiringDeadline(checks))
     finally:
         mp.undo()
     best = best_multiview(dense, w, k, views, range(n))

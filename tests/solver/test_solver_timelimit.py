@@ -12,7 +12,7 @@ from camplace.solver import SolverResult, solve_maxcover
 from camplace.solver.engines.bitset import search as bitset_mod
 from camplace.solver.problem._synthetic import structured_instance
 from camplace.solver.result import relative_gap
-from tests.solver._oracle import CountingDeadline
+from tests.solver._oracle import CountingDeadline, solve_deadline
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +48,7 @@ def _check_honest(res: SolverResult, opt: float) -> None:
 @pytest.mark.parametrize("after", [0, 1, 2, 3, 5, 8, 13, 30, 80, 200])
 def test_exact_interrupted_anywhere_has_valid_bound(instance, optimum, monkeypatch, k: int, after: int) -> None:
     matrix, weights = instance
-    monkeypatch.setattr(bitset_mod, "Deadline", lambda _limit: CountingDeadline(after))
+    solve_deadline(monkeypatch, CountingDeadline(after))  # the solve's one deadline
     monkeypatch.setattr(bitset_mod, "_SLICE", 3)  # deadline checks every 3 bound evaluations
     res = solve_maxcover(matrix, weights, k, engine="exact", time_limit_s=10.0)
     _check_honest(res, optimum[k])

@@ -226,7 +226,7 @@ def _multiview(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:
     if need > p.budget:
         _exact_fallback(p, OverBudget(need, p.budget, "the exact engine"))
         return None
-    out = solve_bitset(pre, views=p.views, time_limit_s=p.deadline.left(), start=_reduced_start(p, pre))
+    out = solve_bitset(pre, views=p.views, deadline=p.deadline, start=_reduced_start(p, pre))
     sel = tuple(int(p.free_cols[j]) for j in pre.original_columns(out.selected)) if out.selected else None
     p.stats.update({"rows_after": mp, "cols_after": np_, "engine_stats": dict(out.stats)})
     return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), p.stats, engine=choice.engine,

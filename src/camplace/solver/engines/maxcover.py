@@ -57,7 +57,7 @@ def run_maxcover_engine(name: str, requested: str, pre: Presolved, deadline: Dea
                 have = memory_budget_bytes() if budget is None else budget
                 if need > have:
                     raise OverBudget(need, have, "the exact engine")
-                return name, solve_bitset(pre, time_limit_s=deadline.left(), start=start)
+                return name, solve_bitset(pre, deadline=deadline, start=start)
             return name, _FUNCS[name](pre, deadline=deadline)
         except OverBudget as exc:
             nxt = next((e for e in ("exact", "mip") if e not in tried), None)

@@ -125,7 +125,6 @@ def match_opposite(
     weights: Any,
     views: int,
     columns: Sequence[int] | None = None,
-    time_limit_s: float | None = None,
     order_seed: int | None = None,
     deadline: Deadline | None = None,
 ) -> OppositePairs:
@@ -141,14 +140,11 @@ def match_opposite(
         Sightings a point needs to count (rows with fewer allowed observers are left out).
     columns : sequence of int, optional
         The allowed cameras (default: every column).
-    time_limit_s : float, optional
-        Matching stops at this many seconds from the call (a partial matching is still valid); for
-        the callers that do not hand over a deadline yet (the bitset engine), else None.
     order_seed : int, optional
         Process the rows in a random order from this seed instead of heaviest first (better when
         many rows have different weights, e.g. merged rows).
     deadline : Deadline, optional
-        Matching stops when it expires (a partial matching is still valid); not with ``time_limit_s``.
+        Matching stops when it expires (a partial matching is still valid).
 
     Returns
     -------
@@ -156,10 +152,6 @@ def match_opposite(
         With ``stats["skipped"]`` and no pairs if the row bitsets would not fit in memory.
     """
     t0 = time.perf_counter()
-    if time_limit_s is not None:
-        if deadline is not None:
-            raise ValueError("match_opposite: a time limit or a deadline, not both")
-        deadline = Deadline(time_limit_s, start=t0)
     a = canonical_csr(matrix)
     m, n = a.shape
     w = check_weights(weights, m)

@@ -73,7 +73,7 @@ from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
 from camplace.solver._support import parkernels as P
 from camplace.solver._support.blocks import run_blocks
-from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.greedy import greedy_swap
 from camplace.solver._support.memory import memory_budget_bytes
@@ -271,8 +271,8 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
         gg = np.where(live, g, 0)
         w = np.where(live, pre.weights[gg] / np.maximum(pre.counts[gg], 1), 0.0)
         seed = 0
-    limit = None if deadline.limit is None else _PAIRS_TIME_SHARE * deadline.limit
-    match = match_opposite(a, w, views, columns=np.flatnonzero(col_map >= 0), time_limit_s=limit, order_seed=seed)
+    match = match_opposite(a, w, views, columns=np.flatnonzero(col_map >= 0), order_seed=seed,
+                           deadline=deadline.share(_PAIRS_TIME_SHARE))
     share = match.matched / match.countable if match.countable > 0 else 0.0
     stats["opposite_pairs"] = dict(match.stats, matched_share=share)
     if share < _PAIRS_MIN_SHARE:
@@ -296,7 +296,7 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
 
 
 def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.ndarray, deadline: Deadline,
-                  stats: dict[str, Any]) -> tuple[str, float]:
+                  stats: dict[str, Any], since) -> tuple[str, float]:
     """Best-first over parallel batches of tuples on the opposite-pairs layout (views > 1, k < 2 views):
     the open tuples in chunks of similar bounds (:class:`camplace.solver._support.frontier.Frontier`), so
     the reported bound (the largest open) falls as the search goes; depth-first (newest chunks)
@@ -312,7 +312,7 @@ def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.
     del bits
     planes = K.weight_planes(lw) if st.integer else np.zeros((0, levels.shape[2]), np.uint64)
     total = float(lw.sum())
-    stats["time_setup_s"] = deadline.elapsed()
+    stats["time_setup_s"] = since()
     front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([min(root, total)]), _DEPTH_FIRST_OPEN, _CHUNK)
     evaluated = 0
 
@@ -335,7 +335,7 @@ def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.
 
 
 def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray, deadline: Deadline,
-                  stats: dict[str, Any]) -> tuple[str, float]:
+                  stats: dict[str, Any], since) -> tuple[str, float]:
     """Best-first over the open tuples, depth-first below them, in parallel (views > 1 on the
     plain layout).
 
@@ -362,7 +362,7 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
         score = union - colmax
     else:  # max coverage: the largest node, as the serial search
         score = np.zeros(0)
-    stats["time_setup_s"] = deadline.elapsed()
+    stats["time_setup_s"] = since()
     front = Frontier(np.zeros((1, k), dtype=np.int64), np.array([min(root, st.total)]), _DEPTH_FIRST_OPEN, _ROOT_CHUNK)
     evaluated = rounds = 0
     n_roots = _ROOTS_MIN
@@ -411,7 +411,7 @@ def _dfs_stack(k: int, n: int) -> int:
     return (k + 1) * (k * max(1, math.ceil(math.log2(max(n, 2)))) + 1)
 
 
-def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None = None,
+def solve_bitset(pre: Presolved, *, views: int = 1, deadline: Deadline | None = None,
                  start: tuple[int, ...] | None = None) -> EngineOutcome:
     """Choose ``pre.k`` columns maximising the weight of rows observed by at least ``views`` of them.
 
@@ -422,9 +422,9 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
         dominance, which is only valid for ``views = 1``).
     views : int
         Chosen columns a row needs (1: max coverage).
-    time_limit_s : float, optional
-        Wall-clock limit; on expiry the incumbent is returned with status "feasible" and a valid
-        bound.
+    deadline : Deadline, optional
+        The solve's deadline (default: none); on expiry the incumbent is returned with status
+        "feasible" and a valid bound. The stats' times count from this call.
     start : tuple of int, optional
         ``k`` reduced column indices found elsewhere (e.g. by
         :func:`camplace.solver.engines.large_k.search.views_incumbent`): the first incumbent, instead of the
@@ -435,7 +435,8 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
     EngineOutcome
         Reduced column indices, status, bound (original weight units) and stats.
     """
-    deadline = Deadline(time_limit_s)
+    deadline = as_deadline(deadline)
+    since = stopwatch(deadline)
     k = pre.k
     m, n = pre.shape
     if views < 1:
@@ -448,18 +449,18 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
 
     st = _State(pre, views)
     stats: dict[str, Any] = {"arithmetic": "integer" if st.integer else "float64", "views": views, "words": st.n_words,
-                             "time_bitsets_s": deadline.elapsed()}
+                             "time_bitsets_s": since()}
     if start is not None and len(set(start)) == k:
         st.offer(st.value(list(start)), list(start))
     else:
         st.incumbent()
     stats["initial_incumbent"] = st.best * st.scale
-    stats["time_incumbent_s"] = deadline.elapsed() - stats["time_bitsets_s"]
+    stats["time_incumbent_s"] = since() - stats["time_bitsets_s"]
     left = deadline.remaining()
     if left is not None and left <= _TREE_COST * stats["time_bitsets_s"]:
         # no time for the search's set-up (compiled, not interruptible): the incumbent, the trivial bound
-        stats.update({"time_setup_s": deadline.elapsed(), "bound_evaluations": 0, "skipped": "time limit"})
-        return _finish(st, "feasible", st.total, stats, deadline, m, n)
+        stats.update({"time_setup_s": since(), "bound_evaluations": 0, "skipped": "time limit"})
+        return _finish(st, "feasible", st.total, stats, since, m, n)
     with ctrl_c_deferred():
         perm = K.bisection_order(st.bits)
     layout = _pair_layout(pre, views, deadline, stats) if 1 < views and k < 2 * views else None
@@ -473,19 +474,19 @@ def solve_bitset(pre: Presolved, *, views: int = 1, time_limit_s: float | None =
             colmax[v] = f[lo[v]] if left[v] < 0 else max(colmax[left[v]], colmax[right[v]])
     if layout is not None:
         root = min(st.total, float(np.sort(f)[-k:].sum()) / views)
-        status, bound = _pairs_search(st, perm, layout, root, colmax, deadline, stats)
-        return _finish(st, status, bound, stats, deadline, m, n)
+        status, bound = _pairs_search(st, perm, layout, root, colmax, deadline, stats, since)
+        return _finish(st, status, bound, stats, since, m, n)
     # best-first roots, depth-first below, in parallel (the plain layout)
     root = min(st.total, float(np.sort(f)[-k:].sum()) / views) if views > 1 else st.total
-    status, bound = _roots_search(st, perm, root, colmax, deadline, stats)
-    return _finish(st, status, bound, stats, deadline, m, n)
+    status, bound = _roots_search(st, perm, root, colmax, deadline, stats, since)
+    return _finish(st, status, bound, stats, since, m, n)
 
 
-def _finish(st: _State, status: str, bound: float, stats: dict[str, Any], deadline: Deadline, m: int,
+def _finish(st: _State, status: str, bound: float, stats: dict[str, Any], since, m: int,
             n: int) -> EngineOutcome:
     if bound <= st.best + st.margin:
         status, bound = "optimal", st.best
-    stats["time_search_s"] = deadline.elapsed() - stats["time_setup_s"]
+    stats["time_search_s"] = since() - stats["time_setup_s"]
     log.info("bitset: k=%d views=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", st.k, st.views,
-             m, n, status, st.best * st.scale, bound * st.scale, stats["bound_evaluations"], deadline.elapsed())
+             m, n, status, st.best * st.scale, bound * st.scale, stats["bound_evaluations"], since())
     return EngineOutcome(selected=st.best_set, status=status, bound=float(bound) * st.scale, stats=stats)

@@ -503,9 +503,8 @@ def _residual(qs: _Quality, keep: np.ndarray, forced: np.ndarray, k: int, best: 
         sel = [int(j) for j in fixed] + [int(j) for j in free[:kr]]
         return sel, qs.value(sel), const
     if binary:
-        limit = deadline.remaining()  # (the bitset engine still takes seconds)
         pre = presolve(sub, w, kr, deadline=deadline)
-        out = solve_bitset(pre, time_limit_s=limit)
+        out = solve_bitset(pre, deadline=deadline)
         local = pre.original_columns(out.selected)
     else:
         out = solve_quality_tree(sub, w, kr, deadline=deadline)
@@ -623,10 +622,8 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         scip_need = model_bytes("mip", pre.shape[0] + pre.shape[1], pre.shape[0] + 1,
                                 int(pre.matrix.nnz) + pre.shape[0] + pre.shape[1])
         scip = engine == "auto" and scip_need <= budget and pre.matrix.nnz <= _VIEWS_SCIP_MAX_NNZ
-        limit = deadline.remaining()  # (the bitset engine still takes seconds)
-        if scip and limit is not None:  # SCIP gets the rest if the search does not finish
-            limit = _VIEWS_SEARCH_SHARE * limit
-        out = solve_bitset(pre, views=views, time_limit_s=limit, start=pre.reduced_columns(start))
+        search_dl = deadline.share(_VIEWS_SEARCH_SHARE) if scip else deadline  # SCIP gets the rest if the search does not finish
+        out = solve_bitset(pre, views=views, deadline=search_dl, start=pre.reduced_columns(start))
         sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
         es = dict(out.stats, local_search=ls, column_cap=cap)
         if status != "optimal":
