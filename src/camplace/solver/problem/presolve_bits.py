@@ -37,7 +37,7 @@ from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support.blocks import run_blocks
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.presolve import Presolved, check_weights
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight"]
@@ -438,9 +438,9 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     nc = columns.size
     need = live_rows.size * ((nc + 63) // 64) * 8  # the row bitsets; the reduced columns are at most as big
     budget = memory_budget_bytes()
-    if need > budget:
-        raise CamplaceError(f"{OverBudget(need, budget, 'the presolve (live rows x kept columns as bitsets)').message}; "
-                            "lower --points or --candidates, or raise --memory-budget-gb")
+    if need > budget:  # nothing to fall back to: a one-line error (the one memory policy)
+        memory_fallback(OverBudget(need, budget, "the presolve (live rows x kept columns as bitsets)"), None,
+                        asked=False, then=None, fix="lower --points or --candidates, or raise --memory-budget-gb")
     rb = np.zeros((live_rows.size, (nc + 63) // 64), dtype=np.uint64)
     rbk = _blocks(live_rows.size)
     pos = np.full(m, -1, dtype=np.int64)
