@@ -70,13 +70,14 @@ def _live_sizes(words, live, lo, hi, size):  # pragma: no cover - compiled
 @numba.njit(**_JIT)
 def _row_counts(words, w0, w1, counts):  # pragma: no cover - compiled
     """Columns observing each row of words ``w0:w1`` (all rows): the popcounts of the row words
-    after 64 x 64 bit transposes of the column words."""
+    after 64 x 64 bit transposes of the column words (64 columns at a time, their words ``w0:w1``
+    read in order)."""
     n = words.shape[0]
     a = np.empty(64, dtype=np.uint64)
-    for wd in range(w0, w1):
-        base = np.int64(wd) << 6
-        for c0 in range(0, n, 64):
-            cnt = min(64, n - c0)
+    for c0 in range(0, n, 64):
+        cnt = min(64, n - c0)
+        for wd in range(w0, w1):
+            base = np.int64(wd) << 6
             for t in range(cnt):
                 a[t] = words[c0 + t, wd]
             for t in range(cnt, 64):
@@ -151,29 +152,30 @@ def _dominated_groups(words, live, size, order, starts, rows, rowsets, g0, g1, o
 @numba.njit(**_JIT)
 def _row_bits(words, columns, pos, w0, w1, out):  # pragma: no cover - compiled
     """Row bitsets ``out[pos[r]]`` (bit c = kept column ``columns[c]``) of the rows r of words
-    ``w0:w1`` (``pos[r] = -1``: a row not kept), by 64 x 64 bit transposes."""
+    ``w0:w1`` (``pos[r] = -1``: a row not kept), by 64 x 64 bit transposes (64 columns at a time,
+    their words ``w0:w1`` read in order)."""
     nc = columns.shape[0]
     m = pos.shape[0]
     a = np.empty(64, dtype=np.uint64)
+    wanted = np.zeros(w1 - w0, dtype=np.bool_)
     for wd in range(w0, w1):
-        base = wd * 64
-        rows_here = min(64, m - base)
-        wanted = False
-        for r in range(rows_here):
-            if pos[base + r] >= 0:
-                wanted = True
+        for r in range(min(64, m - wd * 64)):
+            if pos[wd * 64 + r] >= 0:
+                wanted[wd - w0] = True
                 break
-        if not wanted:
-            continue
-        for cb in range((nc + 63) // 64):
-            c0 = cb * 64
-            cnt = min(64, nc - c0)
+    for cb in range((nc + 63) // 64):
+        c0 = cb * 64
+        cnt = min(64, nc - c0)
+        for wd in range(w0, w1):
+            if not wanted[wd - w0]:
+                continue
+            base = wd * 64
             for t in range(cnt):
                 a[t] = words[columns[c0 + t], wd]
             for t in range(cnt, 64):
                 a[t] = 0
             _transpose64(a)  # a[r] bit t: column c0 + t observes row base + r
-            for r in range(rows_here):
+            for r in range(min(64, m - base)):
                 i = pos[base + r]
                 if i >= 0:
                     out[i, cb] = a[r]
@@ -242,22 +244,33 @@ def _group_rows(rb, idx, h):  # pragma: no cover - compiled
 def _gather(rb, sel, nc, cw0, cw1, out):  # pragma: no cover - compiled
     """Reduced column bitsets ``out`` (nc, ceil(G / 64)) of the kept columns of column words
     ``cw0:cw1``: bit g of column c = row bitset ``rb[sel[g]]`` has bit c (a transposition of the
-    groups' first rows, 64 x 64 bits at a time)."""
+    groups' first rows, 64 x 64 bits at a time, each row's words ``cw0:cw1`` read in order)."""
     n_groups = sel.shape[0]
     a = np.empty(64, dtype=np.uint64)
-    for cw in range(cw0, cw1):
-        c0 = cw * 64
-        cols_here = min(64, nc - c0)
-        for gb in range((n_groups + 63) // 64):
-            g0 = gb * 64
-            cnt = min(64, n_groups - g0)
+    for gb in range((n_groups + 63) // 64):
+        g0 = gb * 64
+        cnt = min(64, n_groups - g0)
+        for cw in range(cw0, cw1):
+            c0 = cw * 64
             for t in range(cnt):
                 a[t] = rb[sel[g0 + t], cw]
             for t in range(cnt, 64):
                 a[t] = 0
             _transpose64(a)  # a[s] bit t: column c0 + s observes group g0 + t
-            for q in range(cols_here):
+            for q in range(min(64, nc - c0)):
                 out[c0 + q, gb] = a[q]
+
+
+def _work_blocks(work: np.ndarray, blocks: int) -> list[tuple[int, int]]:
+    """Contiguous blocks of ``range(len(work))`` of about equal total ``work`` (a single item heavier
+    than a block's share is a block of its own); fixed by ``work``, not by the thread count."""
+    n = int(work.size)
+    if n == 0:
+        return []
+    cum = np.cumsum(work, dtype=np.float64)
+    targets = cum[-1] * np.arange(1, blocks, dtype=np.float64) / blocks
+    cuts = np.unique(np.concatenate([[0], np.searchsorted(cum, targets, side="right"), [n]]))
+    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if b > a]
 
 
 def _blocks(n: int, blocks: int = _BLOCKS) -> list[tuple[int, int]]:
@@ -396,7 +409,10 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
         starts = np.concatenate([[0], cut, [order.size]]).astype(np.int64)
         grows = rows_sorted[starts[:-1]] if order.size else np.zeros(0, dtype=np.int64)
         ng = grows.size
-        gb = _blocks(ng, _DOMINANCE_BLOCKS)
+        # blocks of about equal work (columns of the group x columns observing its row), not of
+        # equal group counts: one rare row observed by many columns is most of the work
+        work = np.diff(starts) * np.maximum(row_nnz[grows], 1)
+        gb = _work_blocks(work, _DOMINANCE_BLOCKS)
         order = order.astype(np.int64)
         # each group's candidate dominators: its rarest row's bitset over all columns, by transposes
         # (one pass over the matrix), instead of reading that row's bit in every column per group
@@ -408,14 +424,22 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
             all_cols = np.arange(n, dtype=np.int64)
             _run(lambda w0, w1: (_row_bits(words, all_cols, gpos, w0, w1, rowsets), release(0, n)), _blocks(nw), workers)
             del gpos, all_cols
-        for r0 in range(0, len(gb), _BLOCKS):  # rounds of _BLOCKS blocks; the time limit between rounds
+        # a first round of _BLOCKS blocks; the rest at once when it would end well inside the time
+        # limit at that round's rate, else in rounds with the limit checked between them
+        r0, per_block = 0, 0.0
+        while r0 < len(gb):
             if deadline is not None and deadline.expired():
-                done = gb[r0][0]
-                stats["dominance_stopped"] = (f"time limit: {done} of {ng} rarest-row groups checked (the columns "
-                                              "found dominated so far are dropped, the rest kept)")
+                stats["dominance_stopped"] = (f"time limit: {gb[r0][0]} of {ng} rarest-row groups checked (the "
+                                              "columns found dominated so far are dropped, the rest kept)")
                 break
+            t_round = time.perf_counter()
+            left = deadline.remaining() if deadline is not None else None
+            rest = r0 > 0 and (left is None or 2.0 * per_block * (len(gb) - r0) < left)
+            r1 = len(gb) if rest else r0 + _BLOCKS
             _run(lambda g0, g1: _dominated_groups(words, live, size, order, starts, grows, rowsets, g0, g1, dominated)
-                 or release(0, n), gb[r0:r0 + _BLOCKS], workers)
+                 or release(0, n), gb[r0:r1], workers)
+            per_block = (time.perf_counter() - t_round) / max(1, min(r1, len(gb)) - r0)
+            r0 = r1
         rowsets = None
         stats["dominance_method"] = "column bitsets"
     keep = ~dominated
