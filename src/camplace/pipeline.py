@@ -30,7 +30,6 @@ from camplace.visibility.stages import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from camplace.visibility.engine import VisibilityMatrix
     from camplace.visibility.points import TargetPoints
 
 __all__ = ["RunSettings", "degenerate_warnings", "resolve_settings", "run", "run_settings", "sampling_stage", "solve_stage",

@@ -9,8 +9,8 @@ from camplace.errors import CamplaceError, InstanceError
 from camplace.instance.builtins import BUILTINS, builtin, builtin_toml, write_builtin
 from camplace.instance.parse import load_instance, parse_instance
 from camplace.instance.write import mesh_folder, save_instance
+from camplace.names import SAMPLERS
 from camplace.instance.schema import (
-    SAMPLERS,
     SCHEMA_VERSION,
     CameraModel,
     Frame,

@@ -26,9 +26,8 @@ from camplace.errors import CamplaceError, InstanceError, plural
 from camplace.instance import procedural
 from camplace.instance.lab import PhysicalCamera, TransformConfig, parse_physical, parse_transform
 from camplace.instance.meshio import MissingPackageError, is_watertight, read_mesh_file
-from camplace.names import ROBUST_OBJECTIVES
+from camplace.names import ROBUST_OBJECTIVES, SAMPLERS
 from camplace.instance.schema import (
-    SAMPLERS,
     SCHEMA_VERSION,
     QUALITY_MODES,
     CameraModel,

@@ -14,7 +14,6 @@ import numpy as np
 SCHEMA_VERSION = 1
 from camplace.geometry import rotation_from_euler_deg  # noqa: E402, F401  (re-exported)
 from camplace.instance.lab import PhysicalCamera, TransformConfig  # noqa: E402
-from camplace.names import SAMPLERS  # noqa: E402  (one list of the names)
 
 
 @dataclass(frozen=True)
@@ -536,7 +535,6 @@ class AgentsSpec:
     start_time_s: float | None = None
 
 
-from camplace.names import ROBUST_OBJECTIVES  # noqa: E402  (one list of the names)
 
 
 @dataclass(frozen=True)

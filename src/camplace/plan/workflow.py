@@ -14,7 +14,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from camplace.errors import CamplaceError
-from camplace.plan.phases import Phase, phase_of_frame, reach_m, split_phases, start_reach_m
+from camplace.plan.phases import phase_of_frame, reach_m, split_phases, start_reach_m
 
 __all__ = ["AgentSettings", "agent_settings", "static_from_solution", "plan_run_folder"]
 

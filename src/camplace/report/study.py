@@ -150,7 +150,7 @@ def sampler_study(
 
     from camplace._progress import Reporter
     from camplace.visibility.stages import make_run_candidates, stage_seeds, visibility_stage
-    from camplace.sampling import SAMPLERS, CandidateSet
+    from camplace.sampling import SAMPLERS
     from camplace.report.campaign import scoring_of
     from camplace.solver import solve
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from camplace._io import read_numeric_csv, write_text_atomic
 from camplace.errors import CamplaceError
-from camplace.geometry import WORLD_UP, look_at  # noqa: F401  (re-exported)
+from camplace.geometry import look_at
 from camplace.sampling.samplers import sample_positions
 
 CSV_HEADER = "index,x,y,z,aim_x,aim_y,aim_z," + ",".join(f"r{i}{j}" for i in range(1, 4) for j in range(1, 4))

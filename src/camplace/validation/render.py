@@ -23,7 +23,6 @@ Images are linear float32 radiance; :func:`write_png` quantises them (8 or 16 bi
 from __future__ import annotations
 
 import logging
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path

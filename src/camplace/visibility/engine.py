@@ -51,15 +51,7 @@ from camplace.errors import CamplaceError
 from camplace.visibility.points import TargetPoints
 from camplace.visibility.raycast import RayScene
 from camplace.visibility import cache
-from camplace.visibility.chunk import (  # noqa: F401  (ENGINE_VERSION, sphere_inside_view: re-exported)
-    COUNT_KEYS,
-    ENGINE_VERSION,
-    ChunkResult,
-    FrameScenes,
-    VisibilityTask,
-    compute_chunk,
-    sphere_inside_view,
-)
+from camplace.visibility.chunk import COUNT_KEYS, ChunkResult, FrameScenes, VisibilityTask, compute_chunk
 from camplace.visibility.distributed import compute_chunks_dask
 from camplace.visibility.store import first_touch_empty, populate
 
