@@ -291,8 +291,10 @@ def _free(inst: dict) -> np.ndarray:
 @settings(max_examples=60, **_SETTINGS)
 @given(inst=graded_instances("combined"), how=_TIMED_MODES)
 def test_team_greedy_is_feasible_and_bound_valid(inst, how) -> None:
-    """The greedy team meets every constraint; the cheap bound is at least the oracle's optimum."""
-    from camplace.solver.engines.team.greedy import team_bound, team_greedy
+    """The greedy team meets every constraint, and so does its local search (never worse); the
+    cheap bound is at least the oracle's optimum."""
+    from camplace.solver._support.deadline import Deadline
+    from camplace.solver.engines.team.greedy import improve_team, team_bound, team_greedy
 
     mode, views, _ = how
     if inst["k"] is None and inst["cardinality"] == "exact":
@@ -306,6 +308,13 @@ def test_team_greedy_is_feasible_and_bound_valid(inst, how) -> None:
         assert want is not None and _ok(sel, inst["fixed"], inst), (sel, inst)
         assert team.violations(sel, k=inst["k"], fixed=inst["fixed"]) == []
         assert set(inst["fixed"]) <= set(sel) and not set(inst["forbidden"]) & set(sel)
+        # the local search keeps it feasible and never worse
+        score = lambda s: _score(inst, list(s), mode, views, None)  # noqa: E731
+        better, info = improve_team(sel, team, k=inst["k"], fixed=tuple(inst["fixed"]), free_cols=kw["free_cols"],
+                                    conflicts=np.zeros((0, 2), np.int64), value=score, deadline=Deadline(None))
+        assert _ok(better, inst["fixed"], inst) and set(inst["fixed"]) <= set(better)
+        assert not set(inst["forbidden"]) & set(better)
+        assert score(better) >= score(sel) - 1e-12 and info["evals"] >= 1
     if want is not None:
         assert team_bound(q, inst["w"], team, views=views, **kw) >= want - 1e-9, (mode, views, want, inst)
 

@@ -456,6 +456,11 @@ _EXACT_TEAM_LIMIT = 2_000_000
 _ANGLE_TEAM_LIMIT = 500_000
 
 
+#: The greedy team's local search (before the team model, as its hint) takes at most this share
+#: of the time left.
+_TEAM_SEARCH_SHARE = 0.2
+
+
 def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxcover",
                        conflicts: int = 0, angle: bool = False) -> tuple[str, str]:
     """The engine of a team solve and why (pure): ``("enumerate" | "bnb" | "mip" | "cpsat", reason)``.
@@ -493,8 +498,9 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     the exact enumeration on small instances, else the team model of
     :mod:`camplace.solver.engines.mip.team_model` with the greedy team of
     :mod:`camplace.solver.engines.team.greedy` as its hint (and as the answer, with that module's
-    cheap bound, when the time limit leaves the model no better team); no column is dropped by dominance (a column may be
-    the only one of its model, zone, cost or pose class that meets a constraint). Every mode:
+    cheap bound, when the time limit leaves the model no better team); no column is dropped by
+    dominance (a column may be the only one of its model, zone, cost or pose class that meets a
+    constraint). Every mode:
     maxcover, quality, multiview (``pos`` (n, 3) and ``pts`` (m, 3), metres, for the minimum
     angle) and setcover."""
     from camplace.solver.engines.mip.team_model import solve_team_model
@@ -571,6 +577,14 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         engine = "exact"
     else:
         hint = greedy_team() if maximize else None
+        if hint is not None and not deadline.expired():  # a short 1-swap local search on it
+            from camplace.solver.engines.team.greedy import improve_team
+
+            stats["greedy_value"] = value(hint)
+            hint, stats["local_search"] = improve_team(hint, team, k=k, fixed=fixed_t, free_cols=free_cols,
+                                                       conflicts=conflicts, value=value,
+                                                       deadline=deadline.share(_TEAM_SEARCH_SHARE),
+                                                       max_evals=int(min(5000, max(20, 2e8 / max(q.nnz, 1)))))
         stats["hint_value"] = None if hint is None else value(hint)
         out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
                                costs=costs, required_fraction=o.required_fraction, backend=name,

@@ -241,3 +241,43 @@ def _greedy_once(q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, mode: s
 
 def _col_sum(col_of: np.ndarray, values: np.ndarray, nf: int) -> np.ndarray:
     return np.bincount(col_of, weights=values, minlength=nf)
+
+
+def improve_team(sel: tuple[int, ...], team: TeamConstraints, *, k: int | None, fixed: tuple[int, ...],
+                 free_cols: np.ndarray, conflicts: np.ndarray, value: Callable[[tuple[int, ...]], float],
+                 deadline, max_evals: int = 5000) -> tuple[tuple[int, ...], dict]:
+    """1-swap local search from the feasible team ``sel``: replace a new camera by an allowed free
+    column when the team stays feasible (``TeamConstraints.violations``, conflicting pairs) and
+    ``value`` grows; first improvement, passes until none or ``deadline`` (checked before each
+    evaluation) or ``max_evals`` evaluations. Returns the team and ``{"evals", "swaps"}``."""
+    fixed_s = {int(j) for j in fixed}
+    clash: dict[int, set[int]] = {}
+    for a, b in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2).tolist():
+        clash.setdefault(a, set()).add(b)
+        clash.setdefault(b, set()).add(a)
+    cur = tuple(sorted(sel))
+    best = value(cur)
+    evals, swaps = 1, 0
+    cands = [int(j) for j in np.asarray(free_cols, dtype=np.int64)]
+    improved = True
+    while improved:
+        improved = False
+        for out_j in [j for j in cur if j not in fixed_s]:
+            rest = [j for j in cur if j != out_j]
+            rest_s = set(rest)
+            for in_j in cands:
+                if in_j in rest_s or in_j == out_j or (clash.get(in_j, set()) & rest_s):
+                    continue
+                new = tuple(sorted(rest + [in_j]))
+                if team.violations(new, k=k, fixed=fixed):
+                    continue
+                if evals >= max_evals or deadline.expired():
+                    return cur, {"evals": evals, "swaps": swaps}
+                v = value(new)
+                evals += 1
+                if v > best + 1e-12 * max(1.0, abs(best)):
+                    cur, best, swaps, improved = new, v, swaps + 1, True
+                    break
+            if improved:
+                break
+    return cur, {"evals": evals, "swaps": swaps}
