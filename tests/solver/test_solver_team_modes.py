@@ -83,7 +83,7 @@ def graded_instances(draw, keep: str = "combined"):
 
 
 def _score(inst: dict, sel: list[int], mode: str, views: int, min_angle: float | None) -> float:
-    """The mode's objective of the full selection ``sel`` (numpy only)."""
+    """The mode's objective of the full selection ``sel`` (numpy only; maxcover too)."""
     q, w = inst["a"].astype(np.float64), inst["w"]
     if not sel:
         return 0.0
@@ -91,6 +91,8 @@ def _score(inst: dict, sel: list[int], mode: str, views: int, min_angle: float |
     if mode == "quality":
         return float(w @ sub.max(axis=1))
     seen = sub > 0
+    if mode == "maxcover":
+        return float(w[seen.any(axis=1)].sum())
     ok = seen.sum(axis=1) >= views
     if min_angle is not None:
         paired = np.zeros(len(w), dtype=bool)
@@ -266,3 +268,102 @@ def test_team_model_too_big_is_a_one_line_error() -> None:
     with pytest.raises(CamplaceError, match="team model of mode quality needs about") as exc:
         solve(q, w, options=SolveOptions(mode="quality", engine="mip", team=team, memory_budget_bytes=10**6))
     assert "\n" not in str(exc.value)
+
+
+# ----------------------------------------------------------------------------------------------
+# a time limit: the greedy team, a valid bound (issue 31)
+# ----------------------------------------------------------------------------------------------
+
+_TIMED_MODES = st.sampled_from([("maxcover", 1, None), ("quality", 2, None), ("multiview", 1, None),
+                                ("multiview", 2, None), ("multiview", 3, None)])
+
+
+def _free(inst: dict) -> np.ndarray:
+    """The allowed free columns as ``run_team`` sees them (a fixed camera's pose takes no other model)."""
+    n = inst["model"].size
+    free = [j for j in range(n) if j not in inst["fixed"] and j not in inst["forbidden"]]
+    if inst["one_per_pose"] and inst["fixed"]:
+        held = {int(inst["pose"][j]) for j in inst["fixed"]}
+        free = [j for j in free if int(inst["pose"][j]) not in held]
+    return np.array(free, dtype=np.int64)
+
+
+@settings(max_examples=60, **_SETTINGS)
+@given(inst=graded_instances("combined"), how=_TIMED_MODES)
+def test_team_greedy_is_feasible_and_bound_valid(inst, how) -> None:
+    """The greedy team meets every constraint, and so does its local search (never worse); the
+    cheap bound is at least the oracle's optimum."""
+    from camplace.solver._support.deadline import Deadline
+    from camplace.solver.engines.team.greedy import improve_team, team_bound, team_greedy
+
+    mode, views, _ = how
+    if inst["k"] is None and inst["cardinality"] == "exact":
+        return
+    team = _constraints(inst)
+    q = sp.csr_matrix(inst["a"])
+    kw = dict(mode=mode, k=inst["k"], fixed=tuple(inst["fixed"]), free_cols=_free(inst))
+    sel = team_greedy(q, inst["w"], team, conflicts=np.zeros((0, 2), np.int64), views=views, **kw)
+    want = _oracle(inst, mode, views, None)
+    if sel is not None:
+        assert want is not None and _ok(sel, inst["fixed"], inst), (sel, inst)
+        assert team.violations(sel, k=inst["k"], fixed=inst["fixed"]) == []
+        assert set(inst["fixed"]) <= set(sel) and not set(inst["forbidden"]) & set(sel)
+        # the local search keeps it feasible and never worse
+        score = lambda s: _score(inst, list(s), mode, views, None)  # noqa: E731
+        better, info = improve_team(sel, team, k=inst["k"], fixed=tuple(inst["fixed"]), free_cols=kw["free_cols"],
+                                    conflicts=np.zeros((0, 2), np.int64), value=score, deadline=Deadline(None))
+        assert _ok(better, inst["fixed"], inst) and set(inst["fixed"]) <= set(better)
+        assert not set(inst["forbidden"]) & set(better)
+        assert score(better) >= score(sel) - 1e-12 and info["evals"] >= 1
+    if want is not None:
+        assert team_bound(q, inst["w"], team, views=views, **kw) >= want - 1e-9, (mode, views, want, inst)
+
+
+@pytest.mark.parametrize("engine", ["exact", "mip"])
+@settings(max_examples=30, **_SETTINGS)
+@given(inst=graded_instances("combined"), how=_TIMED_MODES)
+def test_time_limit_gives_a_feasible_team_and_a_valid_bound(engine, inst, how) -> None:
+    """The solve's deadline expires at its first check (the enumeration or the team model gets no
+    time): the answer is a team meeting every constraint (the greedy one at worst) with a finite
+    bound at least the oracle's optimum, or no team (status unknown / infeasible) when none is found."""
+    from tests.solver._oracle import ExpiringDeadline, solve_deadline
+
+    mode, views, angle = how
+    if inst["k"] is None and inst["cardinality"] == "exact":
+        return
+    want = _oracle(inst, mode, views, angle)
+    extra = dict(views=views) if mode == "multiview" else {}
+    opts = SolveOptions(mode=mode, k=inst["k"], engine=engine, fixed=inst["fixed"], forbidden=inst["forbidden"],
+                        team=_constraints(inst), time_limit_s=1.0, **extra)
+    with pytest.MonkeyPatch.context() as mp:
+        solve_deadline(mp, ExpiringDeadline(0))
+        res = solve(sp.csr_matrix(inst["a"]), inst["w"], options=opts)
+    if res.status in ("unknown", "infeasible"):  # (an empty team may be a feasible answer)
+        assert res.selected == () and math.isinf(res.gap)
+        if res.status == "infeasible":
+            assert want is None
+        return
+    assert want is not None
+    assert _ok(res.selected, inst["fixed"], inst), (res.selected, inst)
+    assert _constraints(inst).violations(res.selected, k=inst["k"], fixed=inst["fixed"]) == []
+    assert res.status in ("optimal", "feasible")
+    assert res.objective == pytest.approx(_score(inst, list(res.selected), mode, views, angle), abs=1e-9)
+    assert math.isfinite(res.bound) and res.bound >= want - 1e-9 and res.bound >= res.objective - 1e-9
+    assert res.gap >= 0.0 and (res.gap == 0.0) == (res.status == "optimal")
+
+
+@pytest.mark.parametrize("mode", ["quality", "multiview", "maxcover"])
+def test_team_model_build_interrupted_returns_the_greedy_team(mode) -> None:
+    """The time limit passes while the team model is being built (or before it is solved): the
+    answer is the greedy team (status feasible, a finite bound at least its value), not "unknown"."""
+    from tests.solver._oracle import ExpiringDeadline, solve_deadline
+
+    q, w, team = _large_team()
+    with pytest.MonkeyPatch.context() as mp:
+        solve_deadline(mp, ExpiringDeadline(0))
+        res = solve(q, w, options=SolveOptions(mode=mode, engine="mip", team=team, time_limit_s=1.0))
+    assert res.status == "feasible" and res.selected, res
+    assert team.violations(res.selected) == []
+    assert res.stats["answer"].startswith("greedy team")
+    assert res.objective == pytest.approx(res.stats["hint_value"])
+    assert math.isfinite(res.bound) and res.bound >= res.objective and 0.0 < res.gap < 1.0

@@ -456,6 +456,11 @@ _EXACT_TEAM_LIMIT = 2_000_000
 _ANGLE_TEAM_LIMIT = 500_000
 
 
+#: The greedy team's local search (before the team model, as its hint) takes at most this share
+#: of the time left.
+_TEAM_SEARCH_SHARE = 0.2
+
+
 def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxcover",
                        conflicts: int = 0, angle: bool = False) -> tuple[str, str]:
     """The engine of a team solve and why (pure): ``("enumerate" | "bnb" | "mip" | "cpsat", reason)``.
@@ -491,8 +496,11 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
              pts: np.ndarray | None = None) -> EngineOutcome:
     """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
     the exact enumeration on small instances, else the team model of
-    :mod:`camplace.solver.engines.mip.team_model`; no column is dropped by dominance (a column may be
-    the only one of its model, zone, cost or pose class that meets a constraint). Every mode:
+    :mod:`camplace.solver.engines.mip.team_model` with the greedy team of
+    :mod:`camplace.solver.engines.team.greedy` as its hint (and as the answer, with that module's
+    cheap bound, when the time limit leaves the model no better team); no column is dropped by
+    dominance (a column may be the only one of its model, zone, cost or pose class that meets a
+    constraint). Every mode:
     maxcover, quality, multiview (``pos`` (n, 3) and ``pts`` (m, 3), metres, for the minimum
     angle) and setcover."""
     from camplace.solver.engines.mip.team_model import solve_team_model
@@ -518,6 +526,20 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         c = team.cost if costs is None else costs
         return float(sum(c[j] for j in sel if j not in fixed_t))
 
+    def greedy_team() -> tuple[int, ...] | None:
+        from camplace.solver.engines.team.greedy import team_greedy
+
+        return team_greedy(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
+                           views=int(o.views), value=value)
+
+    def cheap_bound() -> float:
+        """A valid bound without solving: the team's (maximising modes) or 0 (set cover: costs >= 0)."""
+        if not maximize:
+            return 0.0
+        from camplace.solver.engines.team.greedy import team_bound
+
+        return team_bound(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, views=int(o.views))
+
     if name == "enumerate":
         sel, status, _, est = enumerate_teams(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols,
                                               conflicts=conflicts, costs=costs, required_fraction=o.required_fraction,
@@ -525,6 +547,13 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         stats["engine_stats"] = est
         engine = "exact"
         bound = (math.inf if maximize else -math.inf) if status != "optimal" else math.nan
+        if status in ("feasible", "unknown"):  # timed out: a cheap valid bound instead of an infinite one
+            bound = cheap_bound()
+            if sel is None and maximize:
+                sel = greedy_team()
+                if sel is not None:
+                    status = "feasible"
+                    stats["answer"] = "greedy team: the enumeration ran out of time before finding one"
     elif name == "bnb":
         from camplace.solver.engines.team.bnb import team_branch_and_bound
         from camplace.solver.engines.team.patterns import count_patterns, maximal_patterns, model_costs, solve_by_patterns
@@ -547,11 +576,32 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
         stats["engine_stats"] = est
         engine = "exact"
     else:
+        hint = greedy_team() if maximize else None
+        if hint is not None and not deadline.expired():  # a short 1-swap local search on it
+            from camplace.solver.engines.team.greedy import improve_team
+
+            stats["greedy_value"] = value(hint)
+            hint, stats["local_search"] = improve_team(hint, team, k=k, fixed=fixed_t, free_cols=free_cols,
+                                                       conflicts=conflicts, value=value,
+                                                       deadline=deadline.share(_TEAM_SEARCH_SHARE),
+                                                       max_evals=int(min(5000, max(20, 2e8 / max(q.nnz, 1)))))
+        stats["hint_value"] = None if hint is None else value(hint)
         out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
                                costs=costs, required_fraction=o.required_fraction, backend=name,
-                               deadline=deadline, **view)
+                               deadline=deadline, hint=hint, **view)
         stats.update(out.stats)
         sel, status, bound, engine = out.selected, out.status, out.bound, name
+        if hint is not None and status in ("feasible", "unknown", "optimal") and (
+                sel is None or stats["hint_value"] > value(sel) + 1e-12):
+            # the model found nothing (time limit while building or solving) or worse: the greedy team
+            stats["answer"] = ("greedy team: " + ("the model found no team in time" if sel is None else
+                                                 "better than the model's"))
+            sel = hint
+            if status != "optimal":
+                status = "feasible"
+        if maximize and status != "optimal":  # the model's bound and the cheap one are both valid
+            cb = cheap_bound()
+            bound = cb if not math.isfinite(bound) or math.isnan(bound) else min(bound, cb)
     if sel is None:
         return EngineOutcome(None, status, bound, stats, engine=engine, objective=math.nan)
     objective = value(sel)

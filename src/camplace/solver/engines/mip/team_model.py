@@ -90,7 +90,8 @@ def solve_team_model(
         ``selected``: original columns, fixed included (None: none found); the model's ``status``
         and ``bound`` (objective units: coverage weight including ``base``, or cost of the new
         cameras); ``engine``: ``backend``; ``stats``. Status ``"unknown"`` with no selection when the
-        time limit passes while the model is being built (quality, multiview).
+        time limit passes while the model is being built (quality, multiview); the caller,
+        :func:`camplace.solver.routes.run_team`, then answers with its greedy team (the ``hint``).
     """
     m, n = q.shape
     if backend == "cpsat" and mode == "setcover" and required_fraction < 1.0:
