@@ -116,13 +116,30 @@ def _pick_k(values: np.ndarray, k: int) -> tuple[int, ...]:
 
 
 _BUILD_CHECK = 256  # model rows built between deadline checks
+#: SCIP's fixed cost a model nonzero, whatever its time limit: measured on a 3,000 x 16,000 max-coverage
+#: model (13.3 M nonzeros) on 2 cores: building the proto 0.55 s, loading it 0.71 s, solving with a
+#: 0.1 s limit 4.19 s (the root LP does not look at the clock), freeing it 2.68 s; 8.1 s in all
+_SCIP_S_PER_NONZERO = 6e-7
 
 
-def _build_stopped(pre: Presolved, hint: tuple[int, ...], backend: str, build_s: float) -> EngineOutcome:
-    """The time limit passed while the model was being built: the greedy answer and the trivial
-    bound (every remaining row's weight)."""
-    log.info("%s: the time limit passed while building the model: greedy answer, trivial bound", backend)
-    stats = {"backend": backend, "model_build": "interrupted by the time limit", "hint_value": _value(pre, hint),
+def scip_too_slow(nonzeros: int, deadline: Deadline) -> str | None:
+    """Why SCIP cannot end inside ``deadline`` on a model of ``nonzeros`` (its fixed cost,
+    :data:`_SCIP_S_PER_NONZERO` a nonzero, is more than the time left), or None when it can or
+    there is no limit."""
+    left = deadline.remaining()
+    need = _SCIP_S_PER_NONZERO * nonzeros
+    if left is None or need <= left:
+        return None
+    return (f"the time left ({left:.1f} s) is shorter than SCIP's fixed cost on a model of {nonzeros:,} nonzeros "
+            f"(about {need:.1f} s: building, loading, the root LP and freeing it)")
+
+
+def _build_stopped(pre: Presolved, hint: tuple[int, ...], backend: str, build_s: float,
+                   why: str = "interrupted by the time limit") -> EngineOutcome:
+    """The time limit passed while the model was being built (or would pass before the solver
+    could end): the greedy answer and the trivial bound (every remaining row's weight)."""
+    log.info("%s: %s: greedy answer, trivial bound", backend, why)
+    stats = {"backend": backend, "model_build": why, "hint_value": _value(pre, hint),
              "time_build_s": build_s}
     return EngineOutcome(selected=tuple(hint), status="feasible", bound=max(float(pre.weights.sum()), _value(pre, hint)),
                          stats=stats)
@@ -169,6 +186,9 @@ def solve_mip(pre: Presolved, *, deadline: Deadline | None = None) -> EngineOutc
             cols = indices[indptr[i] : indptr[i + 1]].tolist()
             yield 0.0, math.inf, cols + [n + i], [1.0] * len(cols) + [-1.0]
 
+    too_slow = scip_too_slow(int(pre.matrix.nnz) + m + n, deadline)
+    if too_slow is not None:  # it would end past the limit whatever limit SCIP is given
+        return _build_stopped(pre, hint, "SCIP", since(), why=too_slow)
     var_specs = [(0.0, 1.0, True, 0.0)] * n + [(0.0, 1.0, False, float(c)) for c in coef]  # x, then y
     proto = scip_proto(True, var_specs, covers(), stop=deadline.expired, check_every=_BUILD_CHECK)
     if proto is None:
