@@ -487,6 +487,20 @@ def _read_footer(buf) -> dict:
     return footer
 
 
+def _read_sections(buf, footer: dict, workers: int) -> dict[str, np.ndarray]:
+    """Every section of a ``.cpm`` file, by name."""
+    return {name: _read_section(buf, desc, footer["codec"], footer["_data_end"], workers)
+            for name, desc in footer["sections"].items()}
+
+
+def _read_error(path: Path, exc: Exception) -> CamplaceError:
+    """The one-line error for a ``.cpm`` file that could not be read: corrupt (a bad section,
+    footer or layout) or unreadable (the OS said why)."""
+    if isinstance(exc, OSError):
+        return CamplaceError(f"{path}: cannot read the visibility matrix ({exc.strerror or exc}); {_FIX}")
+    return _corrupt_error(path, exc)
+
+
 def _read_section(buf, desc: dict, codec: str, data_end: int, workers: int) -> np.ndarray:
     dtype = np.dtype(desc["dtype"])
     if dtype.kind not in "uif":
@@ -673,18 +687,12 @@ def load_visibility(path_or_outdir: str | Path, *, workers: int | None = None,
         try:
             _check_memory(path, footer, pattern)
             w = _workers(workers)
-            arrays = {name: _read_section(buf, desc, footer["codec"], footer["_data_end"], w)
-                      for name, desc in footer["sections"].items()}
-            return _from_layout(footer, arrays, w, pattern)
+            return _from_layout(footer, _read_sections(buf, footer, w), w, pattern)
         finally:
             if isinstance(buf, mmap.mmap):
                 buf.close()
-    except _Corrupt as exc:
-        raise _corrupt_error(path, exc) from None
-    except (KeyError, TypeError, ValueError) as exc:
-        raise _corrupt_error(path, exc) from None
-    except OSError as exc:
-        raise CamplaceError(f"{path}: cannot read the visibility matrix ({exc.strerror or exc}); {_FIX}") from None
+    except (_Corrupt, KeyError, TypeError, ValueError, OSError) as exc:
+        raise _read_error(path, exc) from None
 
 
 def load_bits(path_or_outdir: str | Path, *, workers: int | None = None):
@@ -707,19 +715,12 @@ def load_bits(path_or_outdir: str | Path, *, workers: int | None = None):
             buf, footer = _open(path)
             try:
                 if footer["structure"] == "colbits":
-                    w = _workers(workers)
-                    arrays = {name: _read_section(buf, desc, footer["codec"], footer["_data_end"], w)
-                              for name, desc in footer["sections"].items()}
-                    return _colbits(footer, arrays)
+                    return _colbits(footer, _read_sections(buf, footer, _workers(workers)))
             finally:
                 if isinstance(buf, mmap.mmap):
                     buf.close()
-    except _Corrupt as exc:
-        raise _corrupt_error(path, exc) from None
-    except (KeyError, TypeError, ValueError) as exc:
-        raise _corrupt_error(path, exc) from None
-    except OSError as exc:
-        raise CamplaceError(f"{path}: cannot read the visibility matrix ({exc.strerror or exc}); {_FIX}") from None
+    except (_Corrupt, KeyError, TypeError, ValueError, OSError) as exc:
+        raise _read_error(path, exc) from None
     matrix = load_visibility(path, workers=workers, pattern=True)
     if matrix.dtype != np.bool_:
         raise CamplaceError(f"{path}: a graded matrix (values other than 1) has no bit layout; read it with load_visibility")

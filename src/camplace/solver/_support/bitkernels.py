@@ -248,6 +248,22 @@ def _same_row(indptr, indices, data, col_map, r1, r2):  # pragma: no cover - com
 
 
 @numba.njit(**_JIT)
+def renumber_by_first(groups, n_groups):  # pragma: no cover - compiled
+    """Renumber ``groups`` ((m,) int64, values in ``0 .. n_groups - 1``) in place by first
+    occurrence (the group of entry 0 becomes 0, the next new group 1, ...); returns
+    ``(groups, n_groups)``."""
+    new = np.full(n_groups, -1, dtype=np.int64)
+    nxt = 0
+    for i in range(groups.shape[0]):
+        g = groups[i]
+        if new[g] < 0:
+            new[g] = nxt
+            nxt += 1
+        groups[i] = new[g]
+    return groups, n_groups
+
+
+@numba.njit(**_JIT)
 def group_rows(indptr, indices, data, rows, col_map, h):  # pragma: no cover - compiled
     """Group rows with identical mapped column sets (hash buckets, then exact comparison).
 
@@ -282,16 +298,7 @@ def group_rows(indptr, indices, data, rows, col_map, h):  # pragma: no cover - c
                 n_groups += 1
             groups[i] = found
         s = e
-    # renumber by first occurrence
-    new = np.full(n_groups, -1, dtype=np.int64)
-    nxt = 0
-    for i in range(m):
-        g = groups[i]
-        if new[g] < 0:
-            new[g] = nxt
-            nxt += 1
-        groups[i] = new[g]
-    return groups, n_groups
+    return renumber_by_first(groups, n_groups)
 
 
 @numba.njit(**_JIT)
@@ -339,15 +346,7 @@ def group_rows_finish(order, hs, local):  # pragma: no cover - compiled
             groups[order[q]] = n_groups + local[q]
         n_groups += top + 1
         s = e
-    new = np.full(n_groups, -1, dtype=np.int64)
-    nxt = 0
-    for i in range(m):
-        g = groups[i]
-        if new[g] < 0:
-            new[g] = nxt
-            nxt += 1
-        groups[i] = new[g]
-    return groups, n_groups
+    return renumber_by_first(groups, n_groups)
 
 
 @numba.njit(**_JIT)

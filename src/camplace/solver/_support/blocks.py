@@ -22,7 +22,7 @@ from typing import Callable
 
 from camplace._cores import thread_count
 
-__all__ = ["BLOCKS", "cuts", "run_blocks", "threads_for", "PoolProfile"]
+__all__ = ["BLOCKS", "cuts", "work_cuts", "run_blocks", "threads_for", "PoolProfile"]
 
 #: blocks per pass (fixed: results must not depend on the thread count)
 BLOCKS = 64
@@ -39,6 +39,21 @@ def cuts(n: int, blocks: int = BLOCKS, align: int = 1) -> list[int]:
     b = max(1, min(blocks, units))
     out = sorted({min(n, (units * i // b) * align) for i in range(b)} | {n})
     return out if out[0] == 0 else [0, *out]
+
+
+def work_cuts(work, blocks: int = BLOCKS) -> list[int]:
+    """Boundaries ``[0, ..., len(work)]`` of at most ``blocks`` contiguous blocks of about equal
+    total ``work`` ((n,) array_like of non-negative numbers; an item heavier than a block's share is
+    a block of its own): fixed by ``work``, not by the thread count."""
+    import numpy as np
+
+    w = np.asarray(work, dtype=np.float64)
+    n = int(w.size)
+    if n == 0:
+        return [0, 0]
+    cum = np.cumsum(w)
+    targets = cum[-1] * np.arange(1, blocks, dtype=np.float64) / blocks
+    return [int(c) for c in np.unique(np.concatenate([[0], np.searchsorted(cum, targets, side="right"), [n]]))]
 
 
 def threads_for(work: int) -> int:

@@ -27,7 +27,7 @@ import functools
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -337,6 +337,27 @@ def dominated_bitsets(a: sp.csr_matrix, rows: np.ndarray, row_nnz: np.ndarray,
         return out
 
 
+def restore_columns(dominated: np.ndarray, k: int, cover: Callable[[], np.ndarray]) -> tuple[np.ndarray, int]:
+    """The columns kept: all but the dominated ones, and, when fewer than ``k`` are left, the
+    dominated ones observing the most weight (``cover()``: (n,) float64, computed only then; ties
+    to the lower index) until there are ``k``.
+
+    Returns
+    -------
+    keep : (n,) bool
+    restored : int
+        Dominated columns kept to reach ``k``.
+    """
+    keep = ~dominated
+    need = k - int(keep.sum())
+    if need <= 0:
+        return keep, 0
+    cov = cover()
+    cand = np.flatnonzero(dominated)
+    keep[cand[np.lexsort((cand, -cov[cand]))][:need]] = True
+    return keep, need
+
+
 def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True,
              deadline: Deadline | None = None) -> Presolved:
     """Reduce a max-coverage instance without changing its optimum value.
@@ -393,15 +414,8 @@ def presolve(matrix: Any, weights: Any, k: int, *, dominance: bool = True,
             stats["dominance_stopped"] = True
     else:
         dominated = np.zeros(n, dtype=bool)
-    keep = ~dominated
-    restored = 0
-    if int(keep.sum()) < k:
-        cover = np.asarray(as_pattern(a[live_rows]).T @ w[live_rows]).ravel() if live_rows.size else np.zeros(n)
-        cand = np.flatnonzero(dominated)
-        order = cand[np.lexsort((cand, -cover[cand]))]
-        need = k - int(keep.sum())
-        keep[order[:need]] = True
-        restored = need
+    keep, restored = restore_columns(dominated, k, lambda: np.asarray(as_pattern(a[live_rows]).T @ w[live_rows]).ravel()
+                                     if live_rows.size else np.zeros(n))
     columns = np.flatnonzero(keep).astype(np.int64)
     stats["time_dominance_s"] = time.perf_counter() - t1
     stats["cols_dominated"] = int(dominated.sum())

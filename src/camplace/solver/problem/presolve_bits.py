@@ -35,18 +35,19 @@ from camplace._bitops import ctz as _ctz, popcount as _popc, transpose64 as _tra
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
-from camplace.solver._support.blocks import run_blocks
+from camplace.solver._support.bitkernels import renumber_by_first
+from camplace.solver._support.blocks import cuts, run_blocks, work_cuts
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
-from camplace.solver.problem.presolve import Presolved, check_weights
+from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight"]
 
 log = logging.getLogger(__name__)
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
-_BLOCKS = 64  # fixed work blocks (not the thread count: the same results at every count)
-_DOMINANCE_BLOCKS = 8 * _BLOCKS  # the dominance's blocks, run _BLOCKS at a time (the time limit is checked between)
+_BLOCKS = 64  # blocks a round of the dominance runs at once (the time limit is checked between rounds)
+_DOMINANCE_BLOCKS = 8 * _BLOCKS  # the dominance's blocks of equal work
 
 
 @numba.njit(**_JIT)
@@ -65,26 +66,6 @@ def _live_sizes(words, live, lo, hi, size):  # pragma: no cover - compiled
         for w in range(words.shape[1]):
             s += np.int64(_popc(words[j, w] & live[w]))
         size[j] = s
-
-
-@numba.njit(**_JIT)
-def _row_counts(words, w0, w1, counts):  # pragma: no cover - compiled
-    """Columns observing each row of words ``w0:w1`` (all rows): the popcounts of the row words
-    after 64 x 64 bit transposes of the column words (64 columns at a time, their words ``w0:w1``
-    read in order)."""
-    n = words.shape[0]
-    a = np.empty(64, dtype=np.uint64)
-    for c0 in range(0, n, 64):
-        cnt = min(64, n - c0)
-        for wd in range(w0, w1):
-            base = np.int64(wd) << 6
-            for t in range(cnt):
-                a[t] = words[c0 + t, wd]
-            for t in range(cnt, 64):
-                a[t] = 0
-            _transpose64(a)  # a[r]: the columns c0 .. c0 + 63 observing row base + r
-            for r in range(64):
-                counts[base + r] += np.int64(_popc(a[r]))
 
 
 @numba.njit(**_JIT)
@@ -229,15 +210,7 @@ def _group_rows(rb, idx, h):  # pragma: no cover - compiled
                 n_groups += 1
             groups[i] = found
         s = e
-    new = np.full(n_groups, -1, dtype=np.int64)
-    nxt = 0
-    for i in range(m):
-        g = groups[i]
-        if new[g] < 0:
-            new[g] = nxt
-            nxt += 1
-        groups[i] = new[g]
-    return groups, n_groups
+    return renumber_by_first(groups, n_groups)
 
 
 @numba.njit(**_JIT)
@@ -261,30 +234,11 @@ def _gather(rb, sel, nc, cw0, cw1, out):  # pragma: no cover - compiled
                 out[c0 + q, gb] = a[q]
 
 
-def _work_blocks(work: np.ndarray, blocks: int) -> list[tuple[int, int]]:
-    """Contiguous blocks of ``range(len(work))`` of about equal total ``work`` (a single item heavier
-    than a block's share is a block of its own); fixed by ``work``, not by the thread count."""
-    n = int(work.size)
-    if n == 0:
-        return []
-    cum = np.cumsum(work, dtype=np.float64)
-    targets = cum[-1] * np.arange(1, blocks, dtype=np.float64) / blocks
-    cuts = np.unique(np.concatenate([[0], np.searchsorted(cum, targets, side="right"), [n]]))
-    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if b > a]
-
-
-def _blocks(n: int, blocks: int = _BLOCKS) -> list[tuple[int, int]]:
-    parts = max(1, min(blocks, n))
-    return [(n * p // parts, n * (p + 1) // parts) for p in range(parts)]
-
-
-def _run(fn, ranges, workers: int) -> None:
-    """``fn(lo, hi)`` for every non-empty range, on the solver's pool of ``workers`` threads."""
-    ranges = [r for r in ranges if r[1] > r[0]]
-    if not ranges:
-        return
-    with ctrl_c_deferred():  # the ranges of _blocks are contiguous
-        run_blocks(fn, [ranges[0][0], *[r[1] for r in ranges]], workers)
+def _run(fn, bounds: list[int], workers: int) -> None:
+    """``fn(lo, hi)`` for every block of ``bounds`` (:func:`~camplace.solver._support.blocks.cuts`),
+    on the solver's pool of ``workers`` threads."""
+    with ctrl_c_deferred():
+        run_blocks(fn, bounds, workers)
 
 
 def _pack(mask: np.ndarray, n_words: int) -> np.ndarray:
@@ -375,8 +329,8 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
 
     # 1. live rows
     partial = np.zeros((_BLOCKS, nw), dtype=np.uint64)
-    cb = _blocks(n)
-    _run(lambda lo, hi: (_or_columns(words, lo, hi, partial[cb.index((lo, hi))]), release(lo, hi)), cb, workers)
+    cb = cuts(n, _BLOCKS)
+    _run(lambda lo, hi: (_or_columns(words, lo, hi, partial[cb.index(lo)]), release(lo, hi)), cb, workers)
     any_obs = np.bitwise_or.reduce(partial, axis=0) if n else np.zeros(nw, dtype=np.uint64)
     live = any_obs & _pack(w > 0, nw)
     live_mask = np.unpackbits(live.view(np.uint8), bitorder="little", count=m).astype(bool)
@@ -391,8 +345,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     _run(lambda lo, hi: (_live_sizes(words, live, lo, hi, size), release(lo, hi)), cb, workers)
     dominated = np.zeros(n, dtype=bool)
     if dominance and n > k and live_rows.size > 0:
-        row_nnz = np.zeros(nw * 64, dtype=np.int64)  # over all columns, as the CSR presolve counts
-        _run(lambda a, b: (_row_counts(words, a, b, row_nnz), release(0, n)), _blocks(nw), workers)
+        row_nnz = bits.row_counts(workers)  # over all columns, as the CSR presolve counts
         rarest = np.zeros(n, dtype=np.int64)
         _run(lambda lo, hi: (_rarest(words, live, row_nnz, lo, hi, rarest), release(lo, hi)), cb, workers)
         empty = rarest < 0
@@ -412,7 +365,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
         # blocks of about equal work (columns of the group x columns observing its row), not of
         # equal group counts: one rare row observed by many columns is most of the work
         work = np.diff(starts) * np.maximum(row_nnz[grows], 1)
-        gb = _work_blocks(work, _DOMINANCE_BLOCKS)
+        gb = work_cuts(work, _DOMINANCE_BLOCKS)
         order = order.astype(np.int64)
         # each group's candidate dominators: its rarest row's bitset over all columns, by transposes
         # (one pass over the matrix), instead of reading that row's bit in every column per group
@@ -422,36 +375,29 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
             gpos = np.full(m, -1, dtype=np.int64)
             gpos[grows] = np.arange(ng, dtype=np.int64)
             all_cols = np.arange(n, dtype=np.int64)
-            _run(lambda w0, w1: (_row_bits(words, all_cols, gpos, w0, w1, rowsets), release(0, n)), _blocks(nw), workers)
+            _run(lambda w0, w1: (_row_bits(words, all_cols, gpos, w0, w1, rowsets), release(0, n)), cuts(nw, _BLOCKS), workers)
             del gpos, all_cols
         # a first round of _BLOCKS blocks; the rest at once when it would end well inside the time
         # limit at that round's rate, else in rounds with the limit checked between them
         r0, per_block = 0, 0.0
-        while r0 < len(gb):
+        n_blocks = len(gb) - 1
+        while r0 < n_blocks:
             if deadline is not None and deadline.expired():
-                stats["dominance_stopped"] = (f"time limit: {gb[r0][0]} of {ng} rarest-row groups checked (the "
+                stats["dominance_stopped"] = (f"time limit: {gb[r0]} of {ng} rarest-row groups checked (the "
                                               "columns found dominated so far are dropped, the rest kept)")
                 break
             t_round = time.perf_counter()
             left = deadline.remaining() if deadline is not None else None
-            rest = r0 > 0 and (left is None or 2.0 * per_block * (len(gb) - r0) < left)
-            r1 = len(gb) if rest else r0 + _BLOCKS
+            rest = r0 > 0 and (left is None or 2.0 * per_block * (n_blocks - r0) < left)
+            r1 = n_blocks if rest else min(n_blocks, r0 + _BLOCKS)
             _run(lambda g0, g1: _dominated_groups(words, live, size, order, starts, grows, rowsets, g0, g1, dominated)
-                 or release(0, n), gb[r0:r1], workers)
-            per_block = (time.perf_counter() - t_round) / max(1, min(r1, len(gb)) - r0)
+                 or release(0, n), gb[r0:r1 + 1], workers)
+            per_block = (time.perf_counter() - t_round) / max(1, r1 - r0)
             r0 = r1
         rowsets = None
         stats["dominance_method"] = "column bitsets"
-    keep = ~dominated
-    restored = 0
-    if int(keep.sum()) < k:
-        cover = np.array([float(np.sum(w[live_mask & bits.column(j)])) for j in range(n)]) if live_rows.size \
-            else np.zeros(n)
-        cand_cols = np.flatnonzero(dominated)
-        order2 = cand_cols[np.lexsort((cand_cols, -cover[cand_cols]))]
-        need = k - int(keep.sum())
-        keep[order2[:need]] = True
-        restored = need
+    keep, restored = restore_columns(dominated, k, lambda: np.array([float(np.sum(w[live_mask & bits.column(j)]))
+                                                                     for j in range(n)]) if live_rows.size else np.zeros(n))
     columns = np.flatnonzero(keep).astype(np.int64)
     stats["time_dominance_s"] = time.perf_counter() - t1
     stats["cols_dominated"] = int(dominated.sum())
@@ -466,10 +412,10 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
         memory_fallback(OverBudget(need, budget, "the presolve (live rows x kept columns as bitsets)"), None,
                         asked=False, then=None, fix="lower --points or --candidates, or raise --memory-budget-gb")
     rb = np.zeros((live_rows.size, (nc + 63) // 64), dtype=np.uint64)
-    rbk = _blocks(live_rows.size)
+    rbk = cuts(live_rows.size, _BLOCKS)
     pos = np.full(m, -1, dtype=np.int64)
     pos[live_rows] = np.arange(live_rows.size, dtype=np.int64)
-    _run(lambda w0, w1: (_row_bits(words, columns, pos, w0, w1, rb), release(0, n)), _blocks(nw), workers)
+    _run(lambda w0, w1: (_row_bits(words, columns, pos, w0, w1, rb), release(0, n)), cuts(nw, _BLOCKS), workers)
     del pos
     h = np.zeros(live_rows.size, dtype=np.uint64)
     has = np.zeros(live_rows.size, dtype=bool)
@@ -486,7 +432,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     row_groups[orig_rows] = groups
     red = np.zeros((nc, (int(n_groups) + 63) // 64), dtype=np.uint64)
     sel = idx[first]  # each group's first row, as a row of rb
-    _run(lambda cw0, cw1: _gather(rb, sel, nc, cw0, cw1, red), _blocks(rb.shape[1]), workers)
+    _run(lambda cw0, cw1: _gather(rb, sel, nc, cw0, cw1, red), cuts(rb.shape[1], _BLOCKS), workers)
     rb = None  # freed before the reduced instance is made (up to m x n / 8 bytes)
     stats["time_merge_s"] = time.perf_counter() - t2
 
