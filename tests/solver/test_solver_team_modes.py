@@ -261,6 +261,20 @@ def test_team_model_under_a_time_limit_keeps_a_valid_answer(mode) -> None:
     assert res.objective == pytest.approx(want, abs=1e-9)
 
 
+def test_team_model_too_big_under_auto_gives_the_greedy_team() -> None:
+    """The one memory policy: a team model over the budget, not asked for by name, gives way to
+    the greedy team (every constraint met) and the cheap bound, and says so."""
+    q, w, team = _large_team()
+    res = solve(q, w, options=SolveOptions(mode="quality", engine="auto", team=team, memory_budget_bytes=10**6))
+    assert res.status in ("feasible", "optimal") and res.selected
+    assert team.violations(res.selected) == []
+    assert "team model of mode quality needs about" in res.stats["memory_fallback"]
+    assert res.stats["answer"] == "greedy team: the model does not fit in memory"
+    assert res.bound >= res.objective - 1e-9
+    sub = q.toarray()[:, list(res.selected)]
+    assert res.objective == pytest.approx(float(w @ sub.max(axis=1)), abs=1e-9)
+
+
 def test_team_model_too_big_is_a_one_line_error() -> None:
     from camplace.errors import CamplaceError
 

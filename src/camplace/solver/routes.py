@@ -586,15 +586,22 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
                                                        deadline=deadline.share(_TEAM_SEARCH_SHARE),
                                                        max_evals=int(min(5000, max(20, 2e8 / max(q.nnz, 1)))))
         stats["hint_value"] = None if hint is None else value(hint)
-        out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols, conflicts=conflicts,
-                               costs=costs, required_fraction=o.required_fraction, backend=name,
-                               deadline=deadline, hint=hint, **view)
+        try:
+            out = solve_team_model(q, w, team, mode=mode, k=k, fixed=fixed_t, free_cols=free_cols,
+                                   conflicts=conflicts, costs=costs, required_fraction=o.required_fraction, backend=name,
+                                   deadline=deadline, hint=hint, **view)
+        except OverBudget as exc:  # the one memory policy: the greedy team, unless the model was asked for
+            memory_fallback(exc, stats, asked=o.engine in ("mip", "cpsat"),
+                            then=None if hint is None else "the greedy team and a cheap bound")
+            out = EngineOutcome(None, "unknown", math.inf, {"model_build": "over the memory budget"}, engine=name)
         stats.update(out.stats)
         sel, status, bound, engine = out.selected, out.status, out.bound, name
         if hint is not None and status in ("feasible", "unknown", "optimal") and (
                 sel is None or stats["hint_value"] > value(sel) + 1e-12):
             # the model found nothing (time limit while building or solving) or worse: the greedy team
-            stats["answer"] = ("greedy team: " + ("the model found no team in time" if sel is None else
+            stats["answer"] = ("greedy team: " + ("the model found no team in time" if sel is None and
+                                                 out.stats.get("model_build") != "over the memory budget" else
+                                                 "the model does not fit in memory" if sel is None else
                                                  "better than the model's"))
             sel = hint
             if status != "optimal":

@@ -232,14 +232,14 @@ def solve_team_model(
 def _check_memory(q: sp.csr_matrix, w: np.ndarray, mode: str, views: int, min_angle_deg: float | None,
                   pos: np.ndarray | None, pts: np.ndarray | None, fixed: tuple[int, ...], free_cols: np.ndarray,
                   conflicts: np.ndarray, backend: str) -> None:
-    """One-line error before building a quality / multiview team model that would not fit in
-    memory (the size of the k-camera model of :func:`~camplace.solver.engines.mip.mode_models.model_size`;
-    the team rows add a handful)."""
+    """Raise :class:`~camplace.solver._support.memory.OverBudget` before building a quality /
+    multiview team model that would not fit in memory (the size of the k-camera model of
+    :func:`~camplace.solver.engines.mip.mode_models.model_size`; the team rows add a handful); the
+    caller applies the memory policy."""
     budget = memory_budget_bytes()
     qf = q[:, np.asarray(free_cols, dtype=np.int64)].tocsr()
     size = model_size(q, qf, w, w, mode, int(views), min_angle_deg, pos, pts, fixed, np.asarray(free_cols),
                       np.asarray(conflicts, dtype=np.int64).reshape(-1, 2), budget)
     need = model_bytes(backend, *size)
     if need > budget:
-        exc = OverBudget(need, budget, f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} team model of mode {mode}")
-        raise CamplaceError(f"{exc.message}; use fewer candidates / points")
+        raise OverBudget(need, budget, f"the {'SCIP' if backend == 'mip' else 'CP-SAT'} team model of mode {mode}")
