@@ -118,3 +118,34 @@ def test_dominance_stopped_by_the_deadline_keeps_the_optimum() -> None:
         sel = list(pre.original_columns(out.selected))
         assert out.status == "optimal"
         assert mode_value(a, w, sel, mode="maxcover") == pytest.approx(best, rel=1e-12)
+
+
+def test_rarest_row_with_tiers_equals_numpy() -> None:
+    """Each column's rarest live row (fewest observing columns, first index on ties), read through the
+    rarity tiers, against a numpy oracle over rows of widely spread counts (so that every tier, and
+    the fall-back to all live rows, is used)."""
+    from camplace.solver.problem import presolve_bits as pb
+
+    rng = np.random.default_rng(11)
+    m, n = 3000, 150
+    dens = np.linspace(0.0, 0.7, m)[:, None]  # rare rows first, common rows last
+    a = rng.random((m, n)) < dens
+    a[:, 7] = False  # an empty column
+    a[: m // 4, 9] = False
+    a[: m // 2, 9] = False  # a column observing common rows only (no tier met)
+    live_mask = rng.random(m) < 0.9
+    bits = bits_from_csr(sp.csr_matrix(a.astype(np.float32)))
+    nw = bits.words.shape[1]
+    live = pb._pack(live_mask, nw)
+    row_nnz = a.sum(axis=1).astype(np.int64)
+    tiers = pb._rarity_tiers(np.flatnonzero(live_mask).astype(np.int64), row_nnz, nw)
+    assert tiers.shape[0] == 3
+    got = np.zeros(n, dtype=np.int64)
+    pb._rarest(bits.words, live, tiers, row_nnz, 0, n, got)
+    want = np.full(n, -1, dtype=np.int64)
+    for j in range(n):
+        rows = np.flatnonzero(a[:, j] & live_mask)
+        if rows.size:
+            want[j] = rows[np.argmin(row_nnz[rows])]  # argmin: the first of the smallest
+    np.testing.assert_array_equal(got, want)
+    assert want[7] == -1 and want[9] >= m // 2

@@ -69,13 +69,29 @@ def _live_sizes(words, live, lo, hi, size):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _rarest(words, live, row_nnz, lo, hi, out):  # pragma: no cover - compiled
-    """Each column's live row observed by the fewest columns (the first on ties; -1: none)."""
+def _rarest(words, live, tiers, row_nnz, lo, hi, out):  # pragma: no cover - compiled
+    """Each column's live row observed by the fewest columns (the first on ties; -1: none).
+
+    ``tiers`` (t, nw) uint64 are nested masks of the live rows observed by at most a threshold of
+    columns (rising thresholds); a column's rarest row lies in the first tier it meets (every row
+    outside that tier is observed more often than every row inside it, and every row of the
+    rarest count is inside), so only that tier's bits of the column are read. No tier met: all of
+    the column's live rows are read."""
+    nw = words.shape[1]
+    n_tiers = tiers.shape[0]
     for j in range(lo, hi):
+        t_hit = n_tiers
+        for t in range(n_tiers):
+            acc = np.uint64(0)
+            for w in range(nw):
+                acc |= words[j, w] & tiers[t, w]
+            if acc:
+                t_hit = t
+                break
         best = np.int64(-1)
         best_cnt = np.int64(1) << 62
-        for w in range(words.shape[1]):
-            x = words[j, w] & live[w]
+        for w in range(nw):
+            x = words[j, w] & (tiers[t_hit, w] if t_hit < n_tiers else live[w])
             base = np.int64(w) << 6
             while x:
                 i = base + np.int64(_ctz(x))
@@ -84,6 +100,27 @@ def _rarest(words, live, row_nnz, lo, hi, out):  # pragma: no cover - compiled
                     best = i
                 x &= x - np.uint64(1)
         out[j] = best
+
+
+def _rarity_tiers(live_rows: np.ndarray, row_nnz: np.ndarray, nw: int) -> np.ndarray:
+    """(t, nw) uint64: nested masks of the live rows observed by at most the count of the rarest
+    1/256, 1/32 and 1/4 of the live rows (see :func:`_rarest`); thresholds that repeat are kept once."""
+    m_live = live_rows.size
+    if m_live == 0:
+        return np.zeros((0, nw), dtype=np.uint64)
+    counts = row_nnz[live_rows]
+    ranked = np.sort(counts)
+    tiers = []
+    last = None
+    for frac in (1 / 256, 1 / 32, 1 / 4):
+        thr = ranked[min(m_live - 1, int(frac * m_live))]
+        if last is not None and thr == last:
+            continue
+        last = thr
+        mask = np.zeros(nw * 64, dtype=bool)
+        mask[live_rows[counts <= thr]] = True
+        tiers.append(np.packbits(mask, bitorder="little").view(np.uint64))
+    return np.stack(tiers) if tiers else np.zeros((0, nw), dtype=np.uint64)
 
 
 @numba.njit(**_JIT)
@@ -347,7 +384,8 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     if dominance and n > k and live_rows.size > 0:
         row_nnz = bits.row_counts(workers)  # over all columns, as the CSR presolve counts
         rarest = np.zeros(n, dtype=np.int64)
-        _run(lambda lo, hi: (_rarest(words, live, row_nnz, lo, hi, rarest), release(lo, hi)), cb, workers)
+        tiers = _rarity_tiers(live_rows, row_nnz, nw)
+        _run(lambda lo, hi: (_rarest(words, live, tiers, row_nnz, lo, hi, rarest), release(lo, hi)), cb, workers)
         empty = rarest < 0
         if empty.any():  # an empty column: dominated unless it is the first one and no column observes
             first_empty = int(np.flatnonzero(empty)[0])
