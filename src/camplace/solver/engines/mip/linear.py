@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Sequence
 
@@ -215,11 +216,22 @@ def scip_proto(maximize: bool, variables: Iterable[tuple[float, float, bool, flo
     return proto
 
 
+#: models with at least this many nonzeros are solved in a child process when there is a time limit
+#: (:mod:`camplace.solver.engines.mip.scip_process`: SCIP's root LP ignores the clock; the child is
+#: stopped at the limit). Below it SCIP ends its root LP quickly and the child's start-up (about
+#: 0.2 s) would cost more than it saves.
+CHILD_MIN_NONZEROS = 500_000
+
+
 def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_values: Sequence[float] = (), *,
              no_scip: str = "use engine='cpsat'", since: Callable[[], float] | None = None):
     """Solve an ``MPModelProto`` with SCIP: one thread, the hint, the relative gap ``_OPT_TOL`` and
     what is left of ``deadline`` (the one SCIP set-up of the package: the mode models and the
     max-coverage MIP engine both run here).
+
+    With a time limit and at least :data:`CHILD_MIN_NONZEROS` nonzeros, SCIP runs in a child
+    process that is stopped at the limit (plus :func:`~camplace.solver.engines.mip.scip_process.grace_s`);
+    the proto is consumed (cleared) to free its memory.
 
     Parameters
     ----------
@@ -236,15 +248,29 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
 
     Returns
     -------
-    solver : pywraplp.Solver
-    variables : list of pywraplp.Variable
-    code : int
-        ``solver.Solve``'s result status.
-    build_s : float
-        Seconds from ``since``'s start until the solve began.
+    camplace.solver.engines.mip.scip_process.ScipRun
+        Status code, variable values, best bound, nodes, build seconds, and why the child was
+        stopped (None when SCIP answered).
     """
     from ortools.linear_solver import pywraplp
 
+    from camplace.solver.engines.mip.scip_process import ScipRun, solve_in_child
+
+    hint_vars = list(hint_vars)
+    hint_values = [float(v) for v in hint_values]
+    build_s = deadline.elapsed() if since is None else since()
+    rem = deadline.remaining()
+    nnz = sum(len(c.var_index) for c in proto.constraint)
+    if rem is not None and nnz >= CHILD_MIN_NONZEROS:
+        deadline_epoch = time.time() + rem  # before serialising: that time counts too
+        data = proto.SerializeToString()
+        proto.Clear()  # the child holds the model now
+        try:
+            return solve_in_child(data, deadline_epoch, hint_vars, hint_values, _OPT_TOL, build_s)
+        except RuntimeError as exc:
+            if str(exc).startswith("no SCIP"):
+                raise CamplaceError(f"OR-Tools was built without SCIP; {no_scip}") from None
+            raise
     solver = pywraplp.Solver.CreateSolver("SCIP")
     if solver is None:
         raise CamplaceError(f"OR-Tools was built without SCIP; {no_scip}")
@@ -253,16 +279,18 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
         raise RuntimeError(f"SCIP model load failed: {err}")
     solver.SetNumThreads(1)
     variables = solver.variables()
-    if len(hint_vars):
-        solver.SetHint([variables[i] for i in hint_vars], [float(v) for v in hint_values])
-    build_s = deadline.elapsed() if since is None else since()
+    if hint_vars:
+        solver.SetHint([variables[i] for i in hint_vars], hint_values)
     rem = deadline.remaining()
     if rem is not None:
         solver.SetTimeLimit(max(1, int(rem * 1000)))
     params = pywraplp.MPSolverParameters()
     params.SetDoubleParam(pywraplp.MPSolverParameters.RELATIVE_MIP_GAP, _OPT_TOL)
     code = solver.Solve(params)
-    return solver, variables, code, build_s
+    if code in (pywraplp.Solver.OPTIMAL, pywraplp.Solver.FEASIBLE):
+        values = np.array([v.solution_value() for v in variables], dtype=np.float64)
+        return ScipRun(int(code), values, float(solver.Objective().BestBound()), int(solver.nodes()), build_s)
+    return ScipRun(int(code), None, float("nan"), 0, build_s)
 
 
 def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] | None) -> EngineOutcome:
@@ -273,29 +301,30 @@ def _solve_scip(model: LinearModel, deadline: Deadline, hint: dict[int, float] |
                        ((row.lo, row.hi, row.idx.tolist(), row.coef.tolist()) for row in model.rows))
     nnz = sum(row.idx.size for row in model.rows)
     keys = sorted(hint) if hint else []
-    solver, variables, code, build_s = run_scip(proto, deadline, keys, [float(hint[i]) for i in keys] if hint else [],
-                                                no_scip="use engine='cpsat'", since=since)
+    run = run_scip(proto, deadline, keys, [float(hint[i]) for i in keys] if hint else [],
+                   no_scip="use engine='cpsat'", since=since)
     stats: dict[str, Any] = {
         "backend": "SCIP",
         "variables": model.n_vars,
         "constraints": len(model.rows),
         "nonzeros": int(nnz),
-        "time_build_s": build_s,
-        "time_solve_s": since() - build_s,
-        "solver_status": int(code),
+        "time_build_s": run.build_s,
+        "time_solve_s": since() - run.build_s,
+        "solver_status": int(run.code),
     }
-    values = None
-    if code in (pywraplp.Solver.OPTIMAL, pywraplp.Solver.FEASIBLE):
-        values = np.array([v.solution_value() for v in variables], dtype=np.float64)
-        bound = float(solver.Objective().BestBound())
-        stats["nodes"] = int(solver.nodes())
+    if run.stopped:
+        stats["stopped"] = run.stopped
+    values = run.values
+    if values is not None:
+        bound = run.bound
+        stats["nodes"] = run.nodes
     else:
         bound = math.inf if model.maximize else -math.inf
-    if code == pywraplp.Solver.OPTIMAL:
+    if run.code == pywraplp.Solver.OPTIMAL:
         status = "optimal"
-    elif code == pywraplp.Solver.FEASIBLE:
+    elif run.code == pywraplp.Solver.FEASIBLE:
         status = "feasible"
-    elif code == pywraplp.Solver.INFEASIBLE:
+    elif run.code == pywraplp.Solver.INFEASIBLE:
         status = "infeasible"
     else:
         status = "unknown"

@@ -198,25 +198,26 @@ def solve_mip(pre: Presolved, *, deadline: Deadline | None = None) -> EngineOutc
     card.var_index.extend(range(n))
     card.coefficient.extend([1.0] * n)
 
-    solver, variables, code, build_s = run_scip(proto, deadline, range(n), [1.0 if j in hint else 0.0 for j in range(n)],
-                                                no_scip="use engine='cpsat' or 'exact'", since=since)
+    run = run_scip(proto, deadline, range(n), [1.0 if j in hint else 0.0 for j in range(n)],
+                   no_scip="use engine='cpsat' or 'exact'", since=since)
+    code = run.code
 
     stats: dict[str, Any] = {
         "backend": "SCIP",
-        "time_build_s": build_s,
-        "time_solve_s": since() - build_s,
+        "time_build_s": run.build_s,
+        "time_solve_s": since() - run.build_s,
         "objective_scale": scale,
         "variables": int(n + m),
         "constraints": int(m + 1),
         "nonzeros": int(pre.matrix.nnz + m + n),
         "hint_value": _value(pre, hint),
     }
-    has_solution = code in (pywraplp.Solver.OPTIMAL, pywraplp.Solver.FEASIBLE)
-    if has_solution:
-        xs = np.array([variables[j].solution_value() for j in range(n)])
-        sel = _pick_k(xs, k)
-        raw_bound = float(solver.Objective().BestBound()) * scale
-        stats["nodes"] = int(solver.nodes())
+    if run.stopped:
+        stats["stopped"] = run.stopped
+    if run.values is not None:
+        sel = _pick_k(run.values[:n], k)
+        raw_bound = min(run.bound * scale, float(pre.weights.sum()))  # SCIP says 1e20 before its root LP ends
+        stats["nodes"] = run.nodes
     else:
         sel = hint
         raw_bound = float(pre.weights.sum())
