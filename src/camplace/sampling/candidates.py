@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from camplace._io import read_numeric_csv, write_text_atomic
+from camplace._io import csv_text, read_numeric_csv, write_text_atomic
 from camplace.errors import CamplaceError
 from camplace.geometry import look_at
 from camplace.sampling.samplers import sample_positions
@@ -60,16 +59,12 @@ class CandidateSet:
 
     def to_csv(self) -> str:
         """The ``candidates.csv`` text: ``index,x,y,z,aim_x,aim_y,aim_z,r11,...,r33`` (and ``,model`` for a team)."""
-        buf = io.StringIO()
-        buf.write((CSV_HEADER if self.model is None else CSV_HEADER_TEAM) + "\n")
         n = len(self)
-        table = np.column_stack([self.positions, self.aims, self.rotations.reshape(n, 9)])
-        for i, row in enumerate(table):
-            line = f"{i}," + ",".join(repr(float(v)) for v in row)
-            if self.model is not None:
-                line += f",{int(self.model[i])}"
-            buf.write(line + "\n")
-        return buf.getvalue()
+        cols = [np.arange(n), *np.asarray(self.positions, dtype=np.float64).T, *np.asarray(self.aims, dtype=np.float64).T,
+                *np.asarray(self.rotations, dtype=np.float64).reshape(n, 9).T]
+        if self.model is not None:
+            cols.append(np.asarray(self.model, dtype=np.int64))
+        return csv_text(CSV_HEADER if self.model is None else CSV_HEADER_TEAM, cols)
 
     def save(self, path: str | Path) -> None:
         """Write ``candidates.csv`` atomically."""

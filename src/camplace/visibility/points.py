@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from camplace._io import read_numeric_csv, write_text_atomic
+from camplace._io import csv_text, read_numeric_csv, write_text_atomic
 from camplace.errors import CamplaceError
 
 POINTS_HEADER = "index,x,y,z,nx,ny,nz,frame,weight"
@@ -102,14 +101,8 @@ class TargetPoints:
 
     def to_csv(self) -> str:
         """The ``points.csv`` text: ``index,x,y,z,nx,ny,nz,frame,weight``."""
-        buf = io.StringIO()
-        buf.write(POINTS_HEADER + "\n")
-        table = np.column_stack([self.positions, self.normals]).tolist()  # plain Python floats
-        frames = self.frame.tolist()
-        weights = self.weight.tolist()
-        for i, row in enumerate(table):
-            buf.write(f"{i}," + ",".join(repr(v) for v in row) + f",{frames[i]},{weights[i]!r}\n")
-        return buf.getvalue()
+        m = len(self)
+        return csv_text(POINTS_HEADER, [np.arange(m), *self.positions.T, *self.normals.T, self.frame, self.weight])
 
     def save(self, path: str | Path) -> None:
         """Write ``points.csv`` atomically."""
