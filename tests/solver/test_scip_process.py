@@ -90,3 +90,10 @@ def test_a_failing_child_is_an_error_not_an_answer(monkeypatch) -> None:
     monkeypatch.setattr(scip_process, "CHILD_ARGS", ("-c", "import sys; sys.exit('boom')"))
     with pytest.raises(RuntimeError, match="boom"):
         scip_process.solve_in_child(b"", time.time() + 5.0, [], [], 1e-9, 0.0)
+
+
+def test_ctrl_c_in_the_child_stops_the_run(monkeypatch) -> None:
+    """Ctrl-C reaches the whole process group: a child ended by it ends the solve as Ctrl-C does."""
+    monkeypatch.setattr(scip_process, "CHILD_ARGS", ("-c", "import os, signal; os.kill(os.getpid(), signal.SIGINT)"))
+    with pytest.raises(KeyboardInterrupt):
+        scip_process.solve_in_child(b"", time.time() + 5.0, [], [], 1e-9, 0.0)

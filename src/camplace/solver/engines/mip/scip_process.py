@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import time
@@ -113,6 +114,8 @@ def solve_in_child(data: bytes, deadline_epoch: float, hint_vars, hint_values, r
         if proc.poll() is None:  # Ctrl-C or another error while waiting
             proc.kill()
             proc.wait()
+    if proc.returncode in (-signal.SIGINT, 130) or b"KeyboardInterrupt" in err:
+        raise KeyboardInterrupt  # Ctrl-C reached the child too (one process group): the run stops
     if proc.returncode != 0 or not out:
         lines = err.decode("utf-8", "replace").strip().splitlines()
         raise RuntimeError(f"SCIP's process failed (exit {proc.returncode}): {lines[-1] if lines else 'no message'}")
