@@ -28,6 +28,11 @@ if TYPE_CHECKING:
 #: Bumped whenever the meaning of the matrix changes, so cached matrices are not reused.
 ENGINE_VERSION = "4"
 COUNT_KEYS = ("pairs", "in_range", "in_frustum", "facing", "cast", "observed")
+#: occluder triangles of a frame up to which :attr:`VisibilityTask.enclosing_rest` checks it (a
+#: room's walls, floor and ceiling; larger occluders are cast against as they are)
+ENCLOSING_MAX_TRIANGLES = 256
+#: the margin of :attr:`VisibilityTask.enclosing_rest`, relative to the scene's size
+ENCLOSING_TOL = 1e-5
 
 
 def _morton3(cell: np.ndarray) -> np.ndarray:
@@ -243,6 +248,44 @@ class VisibilityTask:
             out[int(f)] = ((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2))
         return out
 
+    @functools.cached_property
+    def enclosing_rest(self) -> dict[int, tuple[np.ndarray, np.ndarray, float]]:
+        """Frames whose occluders cannot block any segment to a supporting row from a camera on
+        the rows' side of every occluder triangle (``f -> (planes, side, scale)``).
+
+        For each frame with at most :data:`ENCLOSING_MAX_TRIANGLES` occluder triangles, every
+        supporting row's segment end (``ends32``) lies strictly on one side of each triangle's
+        plane (``planes`` (t, 4) float64: unit normal and offset; ``side`` (t,) bool: the rows'
+        side, at least ``ENCLOSING_TOL * scale`` from the plane), as inside a room. A segment whose
+        camera is on the same side of every plane, by the same margin, lies in that open
+        half-space intersection and meets no occluder triangle (the margin, 1e-5 of the scene's
+        size, is far above Embree's float32 rounding), so it needs no cast:
+        :func:`_compute_chunk` skips the frame's occluder casts for a chunk whose cameras all
+        pass. Frames that do not qualify are absent.
+        """
+        out: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
+        live = self.live_rows
+        for f, tri in self.rest_triangles.items():
+            tri = np.asarray(tri, dtype=np.float64)
+            if len(tri) == 0 or len(tri) > ENCLOSING_MAX_TRIANGLES:
+                continue
+            rows = live[(self.frame[live] == f) & self.support[live]]
+            if len(rows) == 0:
+                continue
+            ends = self.ends32[rows].astype(np.float64)
+            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            length = np.linalg.norm(nrm, axis=1)
+            if np.any(length <= 0.0):
+                continue  # a degenerate triangle: no plane to be beyond
+            nrm /= length[:, None]
+            planes = np.column_stack([nrm, np.einsum("ij,ij->i", nrm, tri[:, 0])])
+            scale = max(1.0, float(np.abs(tri).max()), float(np.abs(ends).max()))
+            dist = ends @ planes[:, :3].T - planes[:, 3]  # (rows, t)
+            side = dist[0] > 0.0
+            if np.all(np.abs(dist) > ENCLOSING_TOL * scale) and np.all((dist > 0.0) == side):
+                out[int(f)] = (planes, side, scale)
+        return out
+
     def build_scenes(self) -> dict[int, "FrameScenes"]:
         """The Embree scenes of every frame (build once per process)."""
         from camplace.visibility.raycast import RayScene  # Embree: only where scenes are built
@@ -372,6 +415,14 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
         _give_scratch(bufs)
 
 
+def _cameras_enclosed(cam: np.ndarray, planes: np.ndarray, side: np.ndarray, scale: float) -> bool:
+    """Whether every camera ``cam`` (c, 3) float64 is on the rows' ``side`` of every plane, beyond
+    the margin of :attr:`VisibilityTask.enclosing_rest` (scale grown to the cameras' size)."""
+    tol = ENCLOSING_TOL * max(scale, float(np.abs(cam).max()) if len(cam) else 0.0)
+    dist = cam @ planes[:, :3].T - planes[:, 3]  # (c, t)
+    return bool(np.all(np.abs(dist) > tol) and np.all((dist > 0.0) == side))
+
+
 def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int, bufs: dict) -> "ChunkResult":
     """:func:`compute_chunk` with the work arrays ``bufs``."""
     from camplace.visibility import _kernels
@@ -408,10 +459,15 @@ def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start
         kept, group, sizes, per_cam, pos.astype(np.float32), lv["ends32"], origins, directions, slot
     )
     blocked = _scratch(bufs, "blocked", q, np.bool_)
+    enclosing = task.enclosing_rest
+    cam32 = pos.astype(np.float32).astype(np.float64)  # the segments' origins, exactly
     for f in task.scene_triangles:
         for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
             a, b = int(offsets[g]), int(offsets[g + 1])
             if b > a:
+                if g % 2 and f in enclosing and _cameras_enclosed(cam32, *enclosing[f]):
+                    blocked[a:b] = False  # inside the occluders' room with the rows: nothing to hit
+                    continue
                 scene.occluded_dir(origins[a:b], directions[a:b], out=blocked[a:b])
                 counts["cast"] += b - a
     n_obs = q - int(np.count_nonzero(blocked))
