@@ -465,7 +465,7 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     from camplace.robust import robust_stage
 
     return robust_stage(
-        instance, cands, pts, matrix, weights, res, s.robust, s.solve_options, seed=s.seed, cache=s.cache,
+        instance, cands, pts, matrix, weights, res, s.robust, opts, seed=s.seed, cache=s.cache,
         reporter=reporter, timings=timings,
     )
 
