@@ -428,3 +428,106 @@ def test_the_solve_verb_is_registered_by_the_robust_stage_not_patched() -> None:
     camplace.cli.build_parser()
     assert camplace.cli.COMMANDS["solve"] is camplace.robust.cli.cmd_solve
     assert not hasattr(camplace.robust.cli, "wrap_solve")
+
+
+# ---------------------------------------------------------------------------------------------------
+# camera teams (issue 31): the robust solves enforce the team's constraints
+
+
+def _robust_team(cardinality: str = "budget"):
+    """Nine columns: five poses offered with model 0 (cost 1), the first four with model 1 (cost 2, at
+    most 1); budget 4, one camera a pose, a zone holding poses 0 and 1 that needs a camera."""
+    from camplace.solver.problem.team import TeamConstraints
+
+    model = np.array([0] * 5 + [1] * 4, dtype=np.int64)
+    pose = np.r_[np.arange(5), np.arange(4)].astype(np.int64)
+    zone = np.isin(pose, [0, 1])[:, None]
+    return TeamConstraints(model=model, model_names=("wide", "tele"), model_min=(0, 0), model_max=(None, 1),
+                           cost=np.where(model == 0, 1.0, 2.0), budget=4.0, zone_names=("z",), zone_member=zone,
+                           zone_min=(1,), zone_max=(None,), pose=pose, cardinality=cardinality)
+
+
+def _team_ok(sel, k) -> bool:
+    """The constraints of :func:`_robust_team`, checked here (not by TeamConstraints.violations)."""
+    model = [0] * 5 + [1] * 4
+    pose = list(range(5)) + list(range(4))
+    tele = sum(1 for j in sel if model[j] == 1)
+    cost = sum(1.0 if model[j] == 0 else 2.0 for j in sel)
+    return (tele <= 1 and cost <= 4.0 and len({pose[j] for j in sel}) == len(sel)
+            and any(pose[j] in (0, 1) for j in sel) and (k is None or len(sel) <= k) and len(sel) > 0)
+
+
+def _team_stacked(mode: str):
+    rng = np.random.default_rng(11 if mode == "maxcover" else 12)
+    m, n, S = 12, 9, 10
+    stacked = sp.random(S * m, n, density=0.3, random_state=rng, format="csr", dtype=np.float32)
+    stacked.data[:] = 1.0
+    return stacked, rng.uniform(0.1, 1.0, m), S
+
+
+@pytest.mark.parametrize("k", [None, 2])
+@pytest.mark.parametrize("mode", ["maxcover", "multiview"])
+def test_robust_solves_enforce_the_team(mode, k) -> None:
+    """mean and p10 under a team (counts, budget, zone, one camera a pose): the enumerated optimum
+    over the teams, and an answer that is a team."""
+    stacked, w, S = _team_stacked(mode)
+    n = stacked.shape[1]
+    teams = [sel for r in range(1, n + 1) for sel in itertools.combinations(range(n), r) if _team_ok(sel, k)]
+    values = {sel: scenario_values(stacked, w, S, sel, mode=mode, views=2) for sel in teams}
+    opts = SolveOptions(mode=mode, k=k, views=2, time_limit_s=60, team=_robust_team())
+    mean = solve_robust(stacked, w, RobustSpec(*SIGMA, scenarios=S), opts)
+    assert mean.status == "optimal" and _team_ok(mean.selected, k), mean
+    assert mean.objective == pytest.approx(max(np.mean(v) for v in values.values()), rel=1e-9)
+    assert "team" in mean.stats
+    p10 = solve_robust(stacked, w, RobustSpec(*SIGMA, scenarios=S, objective="p10"), opts)
+    best = max(order_p10(v) for v in values.values())
+    assert p10.status == "optimal" and _team_ok(p10.selected, k), p10
+    assert p10.objective == pytest.approx(best, rel=1e-9)
+    assert p10.bound >= best - 1e-12
+    assert p10.stats["team"]["budget"] == 4.0
+
+
+def test_p10_under_a_team_without_the_model_keeps_a_team_and_a_valid_bound() -> None:
+    """The model not built (size limit 0): the incumbent (swaps kept within the team) and the bounds
+    from the mean and the per-scenario team optima, above the enumerated team optimum."""
+    import camplace.robust.p10 as p10mod
+
+    stacked, w, S = _team_stacked("maxcover")
+    n = stacked.shape[1]
+    teams = [sel for r in range(1, n + 1) for sel in itertools.combinations(range(n), r) if _team_ok(sel, None)]
+    best = max(order_p10(scenario_values(stacked, w, S, sel)) for sel in teams)
+    old = p10mod.P10_MODEL_MAX_NNZ
+    p10mod.P10_MODEL_MAX_NNZ = 0
+    try:
+        res = solve_robust(stacked, w, RobustSpec(*SIGMA, scenarios=S, objective="p10"),
+                           SolveOptions(mode="maxcover", k=None, time_limit_s=60, team=_robust_team()),
+                           incumbents=[(0, 5)])  # two cameras at pose 0: not a team, skipped
+        assert "not built" in res.stats["model"] or "not needed" in res.stats["model"]
+    finally:
+        p10mod.P10_MODEL_MAX_NNZ = old
+    assert _team_ok(res.selected, None), res
+    assert res.objective <= best + 1e-12
+    assert res.bound >= best - 1e-12
+
+
+def test_cli_robust_run_and_solve_enforce_the_builtin_team(tmp_path) -> None:
+    """comet-67p-team (two models, a budget, two zones) with a pose error: the robust run's answer and
+    the p10 re-solve of its folder are teams (solution.json's team record: enforced, nothing broken)."""
+    from camplace.runfolder import RunFolder
+    from camplace.solver.problem.team import TeamConstraints
+
+    out = tmp_path / "run"
+    p = _cli("run", "comet-67p-team", "-o", str(out), "--candidates", "30", "--points", "300",
+             "--pose-error", "0.1,5", "--scenarios", "4")
+    assert p.returncode == 0, p.stderr
+    sol = json.loads((out / "solution.json").read_text())
+    assert sol["team"]["enforced"] is True and sol["team"]["broken"] == [], sol["team"]
+    assert "robust" in sol and sol["status"] == "optimal"
+    p = _cli("solve", str(out), "--pose-error", "0.1,5", "--scenarios", "4", "--robust-objective", "p10",
+             "-o", str(tmp_path / "p10.json"))
+    assert p.returncode == 0, p.stderr
+    again = json.loads((tmp_path / "p10.json").read_text())
+    run_folder = RunFolder(out)
+    team = TeamConstraints.from_team(run_folder.instance.team, run_folder.candidates)
+    assert again["selected"] and team.violations(again["selected"]) == [], again["selected"]
+    assert again["stats"]["team"]["budget"] == team.budget

@@ -465,7 +465,7 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     from camplace.robust import robust_stage
 
     return robust_stage(
-        instance, cands, pts, matrix, weights, res, s.robust, s.solve_options, seed=s.seed, cache=s.cache,
+        instance, cands, pts, matrix, weights, res, s.robust, opts, seed=s.seed, cache=s.cache,
         reporter=reporter, timings=timings,
     )
 
@@ -495,12 +495,8 @@ def make_solution(instance, settings: RunSettings, cands: CandidateSet, vis, res
     for note in degenerate:
         log.info("%s", note)
     cameras = [camera_record(instance, cands, j) for j in res.selected]
-    why_not = None
-    if robust_record is not None and not enforced:
-        why_not = "by the robust placement (it chose among every pose x model column; the nominal solve enforced them)"
     team, team_notes = team_record(instance, cameras, enforced=enforced,
-                                   cardinality=res.stats["team"].get("cardinality") if enforced else None,
-                                   why_not=why_not)
+                                   cardinality=res.stats["team"].get("cardinality") if enforced else None)
     for note in team_notes:
         log.warning("%s", note)
     notes = [*instance.warnings, *mode_warnings(instance, s.mode), *degenerate, *team_notes]

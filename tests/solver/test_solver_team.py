@@ -138,14 +138,19 @@ def _constraints(inst) -> TeamConstraints:
         cardinality=inst["cardinality"])
 
 
-def _solve(inst, mode: str, engine: str):
+def _solve(inst, mode: str, engine: str, fmt: str = "csr"):
     k = None if mode == "setcover" else inst["k"]
     frac = inst.get("frac", 1.0) if mode == "setcover" else 1.0
     if engine == "cpsat":
         frac = 1.0  # CP-SAT has no weighted coverage row (a one-line error, tested below)
     opts = SolveOptions(mode=mode, k=k, engine=engine, fixed=inst["fixed"], forbidden=inst["forbidden"],
                         required_fraction=frac, team=_constraints(inst))
-    return solve(sp.csr_matrix(inst["a"]), inst["w"], options=opts)
+    matrix = sp.csr_matrix(inst["a"])
+    if fmt == "bits":  # a binary matrix as column bitsets, as a binary run stores it
+        from camplace.visibility.bits import bits_from_csr
+
+        matrix = bits_from_csr(matrix)
+    return solve(matrix, inst["w"], options=opts)
 
 
 def _agree(inst, mode: str, engine: str) -> None:
@@ -264,12 +269,15 @@ def test_engine_choice_is_recorded() -> None:
         choose_team_engine("exact", 1e9, 20_000, "setcover")
 
 
+@pytest.mark.parametrize("fmt", ["csr", "bits"])
 @pytest.mark.parametrize("patterns", [True, False], ids=["patterns", "whole-team"])
 @settings(max_examples=100, **_SETTINGS)
 @given(inst=team_instances())
-def test_branch_and_bound_matches_oracle(inst, patterns) -> None:
+def test_branch_and_bound_matches_oracle(inst, patterns, fmt) -> None:
     """The large-instance route at small sizes: per-model count patterns (single-model ones by the
-    k-camera engines, mixed ones by the branch and bound), or the branch and bound on the whole team."""
+    k-camera engines, mixed ones by the branch and bound), or the branch and bound on the whole team;
+    on a scipy matrix and on column bitsets (the row lists and the single-model patterns read from
+    the bits, no CSR copy), with the same answer."""
     if inst["k"] is None and inst["cardinality"] == "exact":
         return
     import camplace.solver.engines.team.enumeration as en
@@ -281,7 +289,11 @@ def test_branch_and_bound_matches_oracle(inst, patterns) -> None:
         pt.MAX_PATTERNS = -1
     try:
         want = _oracle(inst, "maxcover")
-        res = _solve(inst, "maxcover", "auto")
+        res = _solve(inst, "maxcover", "auto", fmt)
+        if fmt == "bits":
+            assert res.stats["matrix"] == "column bitsets (no CSR copy)"
+            other = _solve(inst, "maxcover", "auto")
+            assert (res.selected, res.status) == (other.selected, other.status), (res, other, inst)
     finally:
         en.ENUMERATION_LIMIT, pt.MAX_PATTERNS = saved
     assert res.stats["engine_choice"]["engine"] == "bnb"
@@ -293,6 +305,26 @@ def test_branch_and_bound_matches_oracle(inst, patterns) -> None:
     assert res.status == "optimal", (res, want, inst)
     assert _ok(res.selected, inst["fixed"], inst), (res.selected, inst)
     assert res.objective == pytest.approx(want, abs=1e-9), (res, want, inst)
+
+
+@settings(max_examples=150, **_SETTINGS)
+@given(inst=team_instances())
+def test_count_bound_is_at_least_the_best_team(inst) -> None:
+    """The branch and bound's row-free bound (column counts x the largest weight, per model) is never
+    below the enumerated optimum of max coverage under the team's constraints."""
+    from camplace.solver.engines.team.bnb import count_bound
+    from camplace.visibility.bits import bits_from_csr
+
+    if inst["k"] is None and inst["cardinality"] == "exact":
+        return
+    want = _oracle(inst, "maxcover")
+    if want is None:
+        return
+    n = inst["a"].shape[1]
+    free = np.array([j for j in range(n) if j not in inst["fixed"] and j not in inst["forbidden"]], dtype=np.int64)
+    got = count_bound(bits_from_csr(sp.csr_matrix(inst["a"])), inst["w"], _constraints(inst), inst["k"],
+                      inst["fixed"], free)
+    assert got >= want - 1e-12, (got, want, inst)
 
 
 def test_pose_index_matches_position_and_rotation() -> None:

@@ -381,3 +381,48 @@ def test_team_model_build_interrupted_returns_the_greedy_team(mode) -> None:
     assert res.stats["answer"].startswith("greedy team")
     assert res.objective == pytest.approx(res.stats["hint_value"])
     assert math.isfinite(res.bound) and res.bound >= res.objective and 0.0 < res.gap < 1.0
+
+
+@settings(max_examples=200, **_SETTINGS)
+@given(inst=graded_instances("combined"), views=st.integers(2, 3))
+def test_largest_team_and_shared_bound_hold_for_every_team(inst, views) -> None:
+    """``largest_team`` is at least the new cameras of every feasible team, and the shared-sighting
+    bound over the fixed and at most that many allowed columns is at least the multiview optimum
+    (both against the enumeration of every team)."""
+    from camplace.solver.engines.team.greedy import largest_team, shared_bound
+
+    if inst["k"] is None and inst["cardinality"] == "exact":
+        return
+    team = _constraints(inst)
+    fixed = tuple(inst["fixed"])
+    free = _free(inst)
+    n = inst["model"].size
+    allowed = [j for j in range(n) if j not in inst["fixed"] and j not in inst["forbidden"]]
+    teams = [list(fixed) + list(c) for r in range(len(allowed) + 1) for c in itertools.combinations(allowed, r)
+             if _ok(list(fixed) + list(c), fixed, inst)]
+    if not teams:
+        return
+    r = largest_team(team, inst["k"], fixed, free)
+    assert r >= max(len(t) - len(fixed) for t in teams), (r, inst)
+    best = max(_score(inst, t, "multiview", views, None) for t in teams)
+    got = shared_bound(sp.csr_matrix(inst["a"]), inst["w"], team, np.union1d(free, np.asarray(fixed, dtype=np.int64)),
+                       r + len(fixed), views)
+    assert got >= best - 1e-9, (got, best, views, inst)
+
+
+def test_multiview_team_bound_on_the_large_team() -> None:
+    """On the random 1,500 x 80 team (four cameras at most: three of model a and one of b within the
+    budget) the cheap multiview bound is the shared-sighting one, below the column-sum bound and at
+    least the best team the solver finds."""
+    from camplace.solver.engines.team.greedy import largest_team, shared_bound, team_bound
+
+    q, w, team = _large_team()
+    free = np.arange(q.shape[1])
+    assert largest_team(team, None, (), free) == 4  # 3 x cost 1 + 1 x cost 3 <= 8 < 3 + 2 x 3
+    got = team_bound(q, w, team, mode="multiview", k=None, fixed=(), free_cols=free, views=2)
+    col = np.asarray((q > 0).multiply(w[:, None]).sum(axis=0)).ravel()
+    assert got == pytest.approx(shared_bound(q, w, team, free, 4, 2), rel=1e-12)
+    assert got < np.sort(col)[::-1][:4].sum() / 2
+    res = solve(q, w, options=SolveOptions(mode="multiview", engine="auto", team=team, time_limit_s=1.0))
+    if res.selected:
+        assert got >= res.objective - 1e-9 and res.bound <= got + 1e-9

@@ -67,7 +67,7 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     from camplace.robust.stage import check_request, robust_stage, spec_record
     from camplace.runfolder import RunFolder
     from camplace.solver.api import solve
-    from camplace.solver.cli import run_defaults, solve_out
+    from camplace.solver.cli import _with_team, run_defaults, solve_out
     from camplace.solver.options import options_from_args
 
     solve_out(args)
@@ -88,7 +88,8 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     cands, matrix, pts = run_folder.candidates, run_folder.matrix, run_folder.points
     weights = run_folder.weights(event_mode)
     seed = _run_seed(folder, instance.defaults.seed)
-    opts = options_from_args(args, k=int(k))  # passed unchanged to the nominal and the robust solve
+    opts = options_from_args(args, k=int(k))
+    opts = _with_team(folder, opts)  # the instance's team (issue 31): the nominal and the robust solve enforce it
     options = {**opts.record(), "event_mode": event_mode, "source": str(args.source)}
     check_request(spec, opts.mode, opts.min_angle_deg, opts.engine)
     options["robust"] = spec_record(spec)

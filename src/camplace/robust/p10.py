@@ -137,8 +137,12 @@ def _merged_blocks(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int) 
 def _swap_search(
     stacked: sp.csr_matrix, w: np.ndarray, scenarios: int, start: Sequence[int], *, mode: str, views: int,
     fixed: set[int], banned: np.ndarray, conflicts: np.ndarray | None, deadline: float | None,
+    team: Any = None, k: int | None = None,
 ) -> tuple[tuple[int, ...], float, int]:
     """Best-improvement swaps of one camera at a time on the p10 objective (maxcover, multiview).
+
+    With ``team`` (:class:`~camplace.solver.problem.team.TeamConstraints`) a swap is made only to
+    a system that meets it (the best such candidate: candidates are tried in decreasing p10).
 
     For a system minus one camera, the per-scenario value with candidate j added is
     ``base_s + G[j, s]``, ``G = P^T U`` with P the stacked pattern and U the weights of the rows one
@@ -180,6 +184,16 @@ def _swap_search(
                         ok[a] = False
             p10s[~ok] = -np.inf
             j = int(np.argmax(p10s))
+            if team is not None:  # the best swap whose system meets the team's constraints
+                j = -1
+                for c in np.argsort(-p10s, kind="stable").tolist():
+                    if not p10s[c] > best + _TOL * max(1.0, abs(best)):
+                        break
+                    if not team.violations(others + [c], k=k, fixed=sorted(fixed)):
+                        j = c
+                        break
+                if j < 0:
+                    continue
             if p10s[j] > best + _TOL * max(1.0, abs(best)):
                 sel = sorted(others + [j])
                 best = order_p10(scenario_values(stacked, w, scenarios, sel, mode=mode, views=views))
@@ -238,7 +252,10 @@ def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, opti
                mean_bound: float | None) -> SolverResult:
     """:func:`solve_p10` within the memory budget and the thread count of ``options``."""
     mode, engine, time_limit_s = options.mode, options.engine, options.time_limit_s
-    k = int(options.k)
+    team = options.team
+    if options.k is None and team is None:
+        raise CamplaceError("robust objective p10: k (the number of cameras) is required")
+    k = None if options.k is None else int(options.k)
     views = options.views if mode == "multiview" else 2
     fixed, forbidden = options.fixed, options.forbidden
     t0 = time.perf_counter()
@@ -256,9 +273,14 @@ def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, opti
         return order_p10(scenario_values(stacked, w, scenarios, sel, mode=mode, views=views))
 
     stats: dict[str, Any] = {"objective": "p10", "scenarios": int(scenarios), "scenarios_required": int(q_need)}
+    if team is not None:
+        team.check_columns(n)
+        stats["team"] = team.record()
     best_sel: tuple[int, ...] = ()
     best = -math.inf
     for sel in incumbents:
+        if team is not None and team.violations(sel, k=k, fixed=fixed):
+            continue  # not a team: no answer to start from
         v = p10_of(sel)
         if v > best:
             best, best_sel = v, tuple(sorted(int(j) for j in sel))
@@ -274,7 +296,7 @@ def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, opti
         dl = None if time_limit_s is None else t0 + time_limit_s / 5.0
         cf = None if conflicts is None else np.asarray(conflicts, dtype=np.int64).reshape(-1, 2)
         sel2, v2, swaps = _swap_search(stacked, w, scenarios, best_sel, mode=mode, views=views, fixed={int(j) for j in fixed},
-                                       banned=banned, conflicts=cf, deadline=dl)
+                                       banned=banned, conflicts=cf, deadline=dl, team=team, k=k)
         stats["swaps"] = swaps
         if v2 > best:
             best, best_sel = v2, sel2
@@ -284,9 +306,10 @@ def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, opti
     m = len(w)
     from camplace.solver.api import solve as solve_mode
 
-    # each scenario's own problem: fixed / forbidden kept, the other side constraints relaxed
+    # each scenario's own problem: fixed / forbidden and the team kept, the other side constraints relaxed
     scenario_options = SolveOptions(mode=mode, k=k, views=views, fixed=fixed, forbidden=forbidden, time_limit_s=t_share,
-                                    memory_budget_bytes=options.memory_budget_bytes, threads=options.threads)
+                                    memory_budget_bytes=options.memory_budget_bytes, threads=options.threads,
+                                    team=team)
     per_s = []
     for s in range(scenarios):
         r = solve_mode(stacked[s * m:(s + 1) * m], w, options=scenario_options)
@@ -311,8 +334,14 @@ def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, opti
             model.lb[int(x[j])] = 1.0
         for j in forbidden:
             model.ub[int(x[int(j)])] = 0.0
-        free = [int(x[j]) for j in range(n) if j not in fixed_set]
-        model.add_row(free, np.ones(len(free)), k, k)
+        if team is None:
+            free = [int(x[j]) for j in range(n) if j not in fixed_set]
+            model.add_row(free, np.ones(len(free)), k, k)
+        else:  # the team's rows (counts, budget, zones, one camera a pose) in place of sum x = k
+            from camplace.solver.engines.mip.team_model import add_team_rows
+
+            add_team_rows(model, np.asarray(x), np.arange(n, dtype=np.int64),
+                          np.array([j not in fixed_set for j in range(n)]), team, k)
         if conflicts is not None:
             for a, b in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2):
                 model.add_row([int(x[a]), int(x[b])], [1.0, 1.0], hi=1.0)

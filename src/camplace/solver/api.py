@@ -218,6 +218,10 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         if got is not None:
             ctx, w = got
             return _result(ctx, o, w, (), (), np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        team = _team_bits(matrix, weights, o, deadline) if _team_bits_applies(o) else None
+        if team is not None:  # a team's branch and bound read the bits too
+            ctx, w, fixed_t, forbidden_t = team
+            return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
         matrix = matrix.tocsr(np.bool_)  # the other routes read CSR (the bool pattern: 5 bytes a pair)
     q = values_matrix(matrix)
     if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
@@ -282,16 +286,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     conflicts = conflicts[keep_conf]
 
     if o.team is not None:  # a camera team (issue 31): its own route, every constraint enforced
-        o.team.check_columns(n)
-        if mode == "setcover" or (k is None and o.team.cardinality == "budget"):
-            k_team = None
-        else:
-            if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral) or int(k) < 0:
-                raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
-            k_team = int(k)
-            if o.team.cardinality == "exact" and k_team > free_cols.size:
-                raise CamplaceError(f"cannot choose k={k_team} new cameras from {free_cols.size} allowed candidates "
-                                    "(lower k, or forbid/fix fewer cameras)")
+        k_team = _team_k(o, n, free_cols)
         ctx = run_team(q, w, o, k_team, fixed_t, free_cols, conflicts, deadline,
                        k_solver=lambda sub: _solve(q, w, None, None, sub),  # single-model count patterns
                        pos=pos, pts=pts)
@@ -325,6 +320,78 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
                                      deadline)
 
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
+
+
+def _team_k(o: SolveOptions, n: int, free_cols: np.ndarray) -> int | None:
+    """The team's checked new-camera count: None for set cover and for a budget team without k
+    (after :meth:`~camplace.solver.problem.team.TeamConstraints.check_columns` on ``n`` columns)."""
+    o.team.check_columns(n)
+    k, mode = o.k, o.mode
+    if mode == "setcover" or (k is None and o.team.cardinality == "budget"):
+        return None
+    if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral) or int(k) < 0:
+        raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
+    if o.team.cardinality == "exact" and int(k) > free_cols.size:
+        raise CamplaceError(f"cannot choose k={int(k)} new cameras from {free_cols.size} allowed candidates "
+                            "(lower k, or forbid/fix fewer cameras)")
+    return int(k)
+
+
+def _team_bits_applies(o: SolveOptions) -> bool:
+    """A team in max coverage without minimum distance or angle: its branch and bound and count
+    patterns may read a BitMatrix (:func:`_team_bits`)."""
+    return o.team is not None and o.mode == "maxcover" and o.min_distance_m is None and o.min_angle_deg is None
+
+
+def _team_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> tuple | None:
+    """A team on a binary matrix held as column bitsets (:class:`camplace.visibility.bits.BitMatrix`)
+    without a CSR copy, where :func:`~camplace.solver.routes.run_team` chooses the branch and bound:
+    its single-model count patterns are solved on the model's columns of the bits (the bits route,
+    :mod:`camplace.solver.bits_route`), the others by the branch and bound on the bits' row lists.
+
+    Returns
+    -------
+    (EngineOutcome, (m,) float64 weights, fixed, forbidden) or None
+        None when the team's engine is another one (the caller converts the bits to CSR).
+    """
+    m, n = bits.shape
+    if n == 0:
+        raise CamplaceError("the visibility matrix has no candidate columns")
+    w = check_weights(weights, m)
+    fixed_t = index_set(o.fixed, n, "fixed")
+    forbidden_t = index_set(o.forbidden, n, "forbidden")
+    both = sorted(set(fixed_t) & set(forbidden_t))
+    if both:
+        raise CamplaceError(f"candidates {both} are both fixed and forbidden")
+    free = np.ones(n, dtype=bool)
+    free[list(set(fixed_t) | set(forbidden_t))] = False
+    free_cols = np.flatnonzero(free)
+    k_team = _team_k(o, n, free_cols)
+    ctx = run_team(bits, w, o, k_team, fixed_t, free_cols, np.zeros((0, 2), dtype=np.int64), deadline,
+                   k_solver=lambda sub: _bits_columns_solve(bits, w, sub))
+    return None if ctx is None else (ctx, w, fixed_t, forbidden_t)
+
+
+def _bits_columns_solve(bits: Any, w: np.ndarray, sub: SolveOptions) -> SolverResult:
+    """:func:`_solve` of ``sub`` (no team) on the columns of ``bits`` it does not forbid: the
+    bitsets of those columns (a view when they are one range, else a copy of
+    ``columns x ceil(m / 64) x 8`` bytes, checked against the memory budget), so that the bits route
+    applies; ``selected`` mapped back to the columns of ``bits``."""
+    from camplace.visibility.bits import BitMatrix
+
+    m, n = bits.shape
+    allowed = np.setdiff1d(np.arange(n, dtype=np.int64), np.asarray(sub.forbidden, dtype=np.int64))
+    if allowed.size and allowed[-1] - allowed[0] + 1 == allowed.size:
+        words = bits.words[int(allowed[0]):int(allowed[-1]) + 1]  # one range: a view
+    else:
+        need, budget = allowed.size * bits.words.shape[1] * 8, memory_budget_bytes()
+        if need > budget:
+            memory_fallback(OverBudget(need, budget, "the bitsets of one camera model's columns"), None, asked=False,
+                            then=None, fix="use fewer candidates / points")
+        words = bits.words[allowed]
+    local = replace(sub, forbidden=(), fixed=tuple(int(j) for j in np.searchsorted(allowed, sub.fixed)))
+    res = _solve(BitMatrix(words, m), w, None, None, local)
+    return replace(res, selected=tuple(int(allowed[j]) for j in res.selected))
 
 
 def _result(ctx: EngineOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...],

@@ -39,6 +39,7 @@ from camplace.solver.engines.quality.portfolio import quality_engines
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.objectives import cheap_bound, expand_levels, mode_value
 from camplace.solver.problem.presolve import presolve
+from camplace.solver.problem.presolve_bits import covered_weight
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["CoverProblem", "ROUTES", "run_cover", "fixed_base"]
@@ -493,7 +494,7 @@ def choose_team_engine(engine: str, count: float, limit: int, mode: str = "maxco
 def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fixed_t: tuple[int, ...],
              free_cols: np.ndarray, conflicts: np.ndarray, deadline: Deadline,
              k_solver: Callable[[SolveOptions], Any] | None = None, pos: np.ndarray | None = None,
-             pts: np.ndarray | None = None) -> EngineOutcome:
+             pts: np.ndarray | None = None) -> EngineOutcome | None:
     """Solve under :attr:`SolveOptions.team` (:class:`~camplace.solver.problem.team.TeamConstraints`):
     the exact enumeration on small instances, else the team model of
     :mod:`camplace.solver.engines.mip.team_model` with the greedy team of
@@ -502,7 +503,12 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     dominance (a column may be the only one of its model, zone, cost or pose class that meets a
     constraint). Every mode:
     maxcover, quality, multiview (``pos`` (n, 3) and ``pts`` (m, 3), metres, for the minimum
-    angle) and setcover."""
+    angle) and setcover.
+
+    ``q`` may also be a binary matrix held as column bitsets
+    (:class:`camplace.visibility.bits.BitMatrix`, maxcover without conflicts): the branch and bound
+    and its per-model count patterns read the bits; for any other engine the result is None and
+    the caller converts the bits to CSR."""
     from camplace.solver.engines.mip.team_model import solve_team_model
     from camplace.solver.engines.team.enumeration import ENUMERATION_LIMIT, enumerate_teams, team_count
 
@@ -513,13 +519,20 @@ def run_team(q: sp.csr_matrix, w: np.ndarray, o: SolveOptions, k: int | None, fi
     count = team_count(team, k, fixed_t, free_cols)
     name, reason = choose_team_engine(o.engine, count, ENUMERATION_LIMIT, mode, int(np.asarray(conflicts).shape[0]),
                                       angle=mode == "multiview" and o.min_angle_deg is not None)
+    bits = getattr(q, "format", None) == "bits"
+    if bits and name != "bnb":
+        return None
     stats: dict[str, Any] = {"k": k, "team": team.record(),
                              "engine_choice": {"engine": name, "route": "team", "reason": reason}}
+    if bits:
+        stats["matrix"] = "column bitsets (no CSR copy)"
     costs = None if o.costs is None else np.asarray(o.costs, dtype=np.float64)
     maximize = mode != "setcover"
     view = dict(views=int(o.views), min_angle_deg=o.min_angle_deg, pos=pos, pts=pts)
 
     def value(sel: tuple[int, ...]) -> float:
+        if bits:
+            return covered_weight(q, w, sel)
         if maximize:
             return mode_value(q, w, sel, mode=mode, views=int(o.views), min_angle_deg=o.min_angle_deg, positions=pos,
                               points=pts)

@@ -39,7 +39,7 @@ from camplace.solver.engines.mip.mode_models import (BuildTimeout, add_multiview
 from camplace.solver.problem.team import TeamConstraints
 from camplace.solver.result import EngineOutcome
 
-__all__ = ["solve_team_model"]
+__all__ = ["solve_team_model", "add_team_rows"]
 
 
 def _integral(values: np.ndarray) -> bool:
@@ -177,12 +177,58 @@ def solve_team_model(
                 model.add_row(y, wa / wmax, lo=need / wmax * (1 - 1e-12))
         scale = 1.0
     # the team rows
-    nf = len(free_cols)
+    pose_rows = add_team_rows(model, x, cols, np.arange(cols.size) >= nfix, team, k, backend)
+    if pose_rows is not None:
+        stats["pose_rows"] = pose_rows
+    for a_, b_ in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2).tolist():
+        model.add_row([x[pos_of[a_]], x[pos_of[b_]]], [1.0, 1.0], hi=1.0)
+    hint_d = None
+    if hint is not None:
+        hs = set(hint)
+        hint_d = {int(x[i]): (1.0 if int(cols[i]) in hs else 0.0) for i in range(cols.size)}
+    out = solve_model(model, backend, deadline=deadline, hint=hint_d)
+    stats["engine_stats"] = dict(out.stats)
+    if out.values is None:
+        bound = out.bound
+        return EngineOutcome(None, out.status, bound, stats, engine=backend)
+    chosen = tuple(sorted(int(cols[i]) for i in range(cols.size) if out.values[int(x[i])] > 0.5))
+    raw = out.bound if abs(out.bound) < 1e19 else math.copysign(math.inf, out.bound)  # SCIP's "no bound yet" is 1e20
+    bound = raw * scale + const if math.isfinite(raw) else raw
+    return EngineOutcome(chosen, out.status, bound, stats, engine=backend)
+
+
+def add_team_rows(model: LinearModel, x: np.ndarray, cols: np.ndarray, new: np.ndarray, team: TeamConstraints,
+                  k: int | None, backend: str = "mip") -> int | None:
+    """Add the team rows of the module docstring to ``model`` (the one home of them: the team model
+    and the robust p10 model, :mod:`camplace.robust.p10`, both call it).
+
+    Parameters
+    ----------
+    model : LinearModel
+    x : (c,) int
+        The variable of each column of ``cols``.
+    cols : (c,) int64
+        Original columns (fixed ones included).
+    new : (c,) bool
+        The columns the count ``k`` counts (not fixed).
+    team : TeamConstraints
+    k : int or None
+        New cameras (exactly, or at most for cardinality ``budget``); None: no count row.
+    backend : {"mip", "cpsat"}
+        CP-SAT needs whole-number costs and budget (a one-line error otherwise).
+
+    Returns
+    -------
+    int or None
+        Pose rows added (None without the one-camera-per-pose limit).
+    """
+    x = np.asarray(x)
+    xn = x[np.asarray(new, dtype=bool)]
     if k is not None:
         if team.cardinality == "exact":
-            model.add_row(x[nfix:], np.ones(nf), lo=float(k), hi=float(k))
+            model.add_row(xn, np.ones(xn.size), lo=float(k), hi=float(k))
         else:
-            model.add_row(x[nfix:], np.ones(nf), hi=float(k))
+            model.add_row(xn, np.ones(xn.size), hi=float(k))
     cm = team.model[cols]
     for mi, (lo, hi) in enumerate(zip(team.model_min, team.model_max)):
         sel = np.flatnonzero(cm == mi)
@@ -202,31 +248,17 @@ def solve_team_model(
         sel = np.flatnonzero(zm[:, zi])
         if lo > 0 or hi is not None:
             model.add_row(x[sel], np.ones(sel.size), lo=float(lo), hi=math.inf if hi is None else float(hi))
-    if team.pose is not None:
-        pc = team.pose[cols]
-        order = np.argsort(pc, kind="stable")
-        bounds = np.flatnonzero(np.r_[True, np.diff(pc[order]) != 0, True])
-        groups = 0
-        for s, e in zip(bounds[:-1], bounds[1:]):
-            if e - s > 1:
-                model.add_row(x[order[s:e]], np.ones(e - s), hi=1.0)
-                groups += 1
-        stats["pose_rows"] = groups
-    for a_, b_ in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2).tolist():
-        model.add_row([x[pos_of[a_]], x[pos_of[b_]]], [1.0, 1.0], hi=1.0)
-    hint_d = None
-    if hint is not None:
-        hs = set(hint)
-        hint_d = {int(x[i]): (1.0 if int(cols[i]) in hs else 0.0) for i in range(cols.size)}
-    out = solve_model(model, backend, deadline=deadline, hint=hint_d)
-    stats["engine_stats"] = dict(out.stats)
-    if out.values is None:
-        bound = out.bound
-        return EngineOutcome(None, out.status, bound, stats, engine=backend)
-    chosen = tuple(sorted(int(cols[i]) for i in range(cols.size) if out.values[int(x[i])] > 0.5))
-    raw = out.bound if abs(out.bound) < 1e19 else math.copysign(math.inf, out.bound)  # SCIP's "no bound yet" is 1e20
-    bound = raw * scale + const if math.isfinite(raw) else raw
-    return EngineOutcome(chosen, out.status, bound, stats, engine=backend)
+    if team.pose is None:
+        return None
+    pc = team.pose[cols]
+    order = np.argsort(pc, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, np.diff(pc[order]) != 0, True])
+    groups = 0
+    for s, e in zip(bounds[:-1], bounds[1:]):
+        if e - s > 1:
+            model.add_row(x[order[s:e]], np.ones(e - s), hi=1.0)
+            groups += 1
+    return groups
 
 
 def _check_memory(q: sp.csr_matrix, w: np.ndarray, mode: str, views: int, min_angle_deg: float | None,

@@ -2,7 +2,9 @@
 (issue 31).
 
 Works on the free columns' row lists (int32 indices of the CSC matrix, no copy when every column
-is free) with the rows that do not count (covered by a fixed camera, weight 0) weighted 0: the
+is free; of a binary matrix held as column bitsets, :class:`camplace.visibility.bits.BitMatrix`,
+read straight from the bits by :func:`column_rows`: the same ascending lists, no CSR or CSC copy of
+the whole matrix) with the rows that do not count (covered by a fixed camera, weight 0) weighted 0: the
 gains of every column against the uncovered rows are one gather and one segmented sum, in chunks
 with reused buffers. Depth first; at a
 node with ``r`` more cameras possible (the count, the budget at the cheapest allowed costs and the
@@ -11,6 +13,10 @@ still be added, value + weight not yet covered)`` (valid: coverage is submodular
 the allowed columns in decreasing gain, child ``i`` excluding children ``1..i-1``; the loop stops
 at the first child whose bound cannot beat the incumbent. Leaves check the minimums (models,
 zones) and the cardinality. The incumbent starts from a greedy that first fills the minimums.
+
+With an incumbent to beat (a count pattern of :mod:`camplace.solver.engines.team.patterns`) on
+a BitMatrix, :func:`count_bound` (column counts x the largest weight, per model) is tried first:
+when it cannot beat the incumbent, the pattern is proven dominated without reading a row.
 
 No column is dropped by dominance. On the time limit the answer is the incumbent with the largest
 bound of the open nodes (the root's when the search ran out in it).
@@ -21,15 +27,61 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
+from camplace._bitops import ctz as _ctz
+from camplace.solver._support.blocks import cuts, run_blocks
 from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.team import TeamConstraints
 
-__all__ = ["team_branch_and_bound"]
+__all__ = ["team_branch_and_bound", "column_rows", "count_bound"]
 
 _EPS = 1e-12
+_JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
+
+
+@numba.njit(**_JIT)
+def _fill_column_rows(words, cols, indptr, lo, hi, indices):  # pragma: no cover - compiled
+    """Rows of columns ``cols[lo:hi]`` (ascending) into ``indices[indptr[i]:indptr[i + 1]]``."""
+    for i in range(lo, hi):
+        j = cols[i]
+        p = indptr[i]
+        for w in range(words.shape[1]):
+            x = words[j, w]
+            base = np.int64(w) << 6
+            while x:
+                indices[p] = np.int32(base + np.int64(_ctz(x)))
+                p += 1
+                x &= x - np.uint64(1)
+
+
+def column_rows(bits, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The row lists of columns ``cols`` of a BitMatrix, as the CSC matrix of those columns holds them.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n) with ``m < 2**31``.
+    cols : (nf,) int64
+        Columns, in the order wanted.
+
+    Returns
+    -------
+    indptr : (nf + 1,) int64
+    indices : (nnz,) int32
+        Column ``cols[i]``'s rows, ascending, in ``indices[indptr[i]:indptr[i + 1]]`` (4 bytes an
+        observed pair of those columns; the caller checks the memory).
+    """
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    indptr = np.zeros(cols.size + 1, dtype=np.int64)
+    np.cumsum(bits.column_counts[cols], out=indptr[1:])
+    indices = np.empty(int(indptr[-1]), dtype=np.int32)
+    if indices.size:  # disjoint slices of indices per block: the same at every thread count
+        run_blocks(lambda lo, hi: _fill_column_rows(bits.words, cols, indptr, lo, hi, indices), cuts(cols.size))
+    return indptr, indices
 
 
 class _State:
@@ -44,6 +96,76 @@ class _State:
         self.chosen: list[int] = []
 
 
+def _csc_rows(q, fixed: tuple[int, ...], free_cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The free columns' row lists of a scipy matrix (``indptr`` (nf + 1,) int64, ``indices`` int32:
+    no copy when every column is free) and the (m,) bool rows the fixed columns observe."""
+    m, n = q.shape
+    nf = free_cols.size
+    csc = q.tocsc() if sp.issparse(q) else sp.csc_matrix(q)
+    if csc.dtype != np.bool_:
+        csc.eliminate_zeros()  # values in (0, 1]: a stored entry observes
+    base_rows = np.zeros(m, dtype=bool)
+    for f in fixed:
+        base_rows[csc.indices[csc.indptr[f]:csc.indptr[f + 1]]] = True
+    # the free columns' row lists (no copy when every column is free), rows that do not count: weight 0
+    if nf == n and np.array_equal(free_cols, np.arange(n)):
+        indices = csc.indices.astype(np.int32, copy=False)
+        indptr = csc.indptr.astype(np.int64)
+    else:
+        starts = csc.indptr[free_cols].astype(np.int64)
+        lens = csc.indptr[free_cols + 1].astype(np.int64) - starts
+        indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        src = np.repeat(starts - indptr[:-1], lens) + np.arange(int(indptr[-1]), dtype=np.int64)
+        indices = csc.indices[src].astype(np.int32, copy=False)
+        del src
+    return indptr, indices, base_rows
+
+
+def count_bound(bits, w: np.ndarray, team: TeamConstraints, k: int | None, fixed: tuple[int, ...],
+                free_cols: np.ndarray) -> float:
+    """An upper bound on the covered weight of any team from column counts alone (no row is read).
+
+    A column covers at most ``popcount x max(w)``; a team holds at most ``k`` new cameras and at
+    most ``model_max - fixed`` of each model, and its value is at most the fixed cameras' weight
+    plus the sum of its new columns' caps (coverage is subadditive) and at most the total weight.
+    So the bound is that weight plus the ``k`` largest caps among each model's ``model_max -
+    fixed`` largest, capped by the total.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    w : (m,) float64
+    team : TeamConstraints
+    k : int or None
+        New cameras at most (None: no limit but the models').
+    fixed : tuple of int
+    free_cols : (nf,) int64
+
+    Returns
+    -------
+    float
+    """
+    pos = w[w > 0]
+    total = float(pos.sum())
+    if free_cols.size == 0 or pos.size == 0:
+        return total
+    cap = bits.column_counts[free_cols].astype(np.float64) * float(pos.max())
+    fm = team.model[free_cols]
+    fcount = np.bincount(team.model[list(fixed)], minlength=len(team.model_names)) if fixed else None
+    picked = []
+    for mi, hi in enumerate(team.model_max):
+        mine = np.sort(cap[fm == mi])[::-1]
+        if hi is not None:
+            mine = mine[:max(0, int(hi) - (int(fcount[mi]) if fcount is not None else 0))]
+        picked.append(mine)
+    top = np.sort(np.concatenate(picked))[::-1]
+    if k is not None:
+        top = top[:int(k)]
+    base = float(w[bits.union(fixed)].sum()) if fixed else 0.0
+    return min(base + float(top.sum()), total)
+
+
 def team_branch_and_bound(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, k: int | None, fixed: tuple[int, ...],
     free_cols: np.ndarray, deadline: Deadline, incumbent: float = -math.inf,
@@ -52,6 +174,9 @@ def team_branch_and_bound(
 
     With ``incumbent`` (a value some other team reaches) only better teams are looked for: when
     none exists the status is ``"dominated"`` (no selection, bound ``incumbent``).
+
+    ``q`` is the (m, n) scipy matrix (a stored entry observes) or, for a binary matrix, the
+    :class:`camplace.visibility.bits.BitMatrix` (read by :func:`column_rows`).
 
     Returns
     -------
@@ -66,25 +191,20 @@ def team_branch_and_bound(
     fixed = tuple(int(j) for j in fixed)
     free_cols = np.asarray(free_cols, dtype=np.int64)
     nf = free_cols.size
-    csc = q.tocsc() if sp.issparse(q) else sp.csc_matrix(q)
-    if csc.dtype != np.bool_:
-        csc.eliminate_zeros()  # values in (0, 1]: a stored entry observes
-    base_rows = np.zeros(m, dtype=bool)
-    for f in fixed:
-        base_rows[csc.indices[csc.indptr[f]:csc.indptr[f + 1]]] = True
-    base = float(w[base_rows].sum())
-    # the free columns' row lists (no copy when every column is free), rows that do not count: weight 0
-    if nf == n and np.array_equal(free_cols, np.arange(n)):
-        indices = csc.indices.astype(np.int32, copy=False)
-        indptr = csc.indptr.astype(np.int64)
+    if math.isfinite(incumbent) and getattr(q, "format", None) == "bits":
+        cb = count_bound(q, w, team, k, fixed, free_cols)
+        if cb <= incumbent + _EPS:  # no team beats the incumbent: proven before reading any row list
+            return None, "dominated", math.nan, incumbent, {"columns": int(nf), "nodes": 0, "count_bound": cb}
+    if getattr(q, "format", None) == "bits":  # column bitsets: the row lists straight from the bits
+        need, budget = 4 * int(q.column_counts[free_cols].sum()), memory_budget_bytes()
+        if need > budget:
+            memory_fallback(OverBudget(need, budget, "the team branch and bound's row lists"), None, asked=False,
+                            then=None, fix="use engine mip (or fewer candidates / points)")
+        base_rows = q.union(fixed) if fixed else np.zeros(m, dtype=bool)
+        indptr, indices = column_rows(q, free_cols)
     else:
-        starts = csc.indptr[free_cols].astype(np.int64)
-        lens = csc.indptr[free_cols + 1].astype(np.int64) - starts
-        indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
-        src = np.repeat(starts - indptr[:-1], lens) + np.arange(int(indptr[-1]), dtype=np.int64)
-        indices = csc.indices[src].astype(np.int32, copy=False)
-        del src
-    del csc
+        indptr, indices, base_rows = _csc_rows(q, fixed, free_cols)
+    base = float(w[base_rows].sum())
     wa = np.where(base_rows | ~(w > 0), 0.0, w).astype(np.float64)
     seen = np.zeros(m, dtype=bool)
     seen[indices] = True

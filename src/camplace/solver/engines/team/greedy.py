@@ -18,7 +18,8 @@ marginal gains over them, ``r`` the most new cameras a team may hold, capped by 
 allowed column together reaches; for multiview the same on ``f(S) = sum_i w_i min(1, c_i / views)``
 (``c_i`` the chosen observers of row ``i``: at least the objective, submodular), capped by the weight
 of the rows that the fixed cameras and at most ``r`` allowed columns could bring to ``views``
-observers.
+observers, and by :func:`shared_bound` (the weight pairs of columns observe together: a counted
+row is seen by ``views`` chosen cameras, each of which shares it with ``views - 1`` others).
 """
 
 from __future__ import annotations
@@ -31,15 +32,94 @@ import scipy.sparse as sp
 
 from camplace.solver.problem.team import TeamConstraints
 
-__all__ = ["team_greedy", "team_bound", "largest_team"]
+__all__ = ["team_greedy", "team_bound", "largest_team", "shared_bound"]
 
 
 def largest_team(team: TeamConstraints, k: int | None, fixed: tuple[int, ...], free_cols: np.ndarray) -> int:
-    """The most new cameras a feasible team may hold (the count, the models' maxima, the budget)."""
+    """The most new cameras a feasible team may hold: the count, the models' maxima, the budget,
+    and (under a budget) the cheapest free columns taken first within each model's room, which is
+    the cheapest way to hold that many cameras (a partition matroid: the greedy is optimal)."""
     from camplace.solver.engines.team.enumeration import _largest_team
 
+    free_cols = np.asarray(free_cols, dtype=np.int64)
     fixed_cost = float(team.cost[list(fixed)].sum()) if fixed else 0.0
-    return _largest_team(team, k, int(len(free_cols)), fixed_cost, team.cost[np.asarray(free_cols, dtype=np.int64)])
+    top = _largest_team(team, k, int(len(free_cols)), fixed_cost, team.cost[free_cols])
+    if team.budget is None or top == 0:
+        return top
+    room = _model_room(team, fixed)
+    left = float(team.budget) * (1 + 1e-12) + 1e-9 - fixed_cost
+    fc, fm = team.cost[free_cols], team.model[free_cols]
+    held = 0
+    for i in np.argsort(fc, kind="stable").tolist():
+        if held >= top or fc[i] > left:
+            break
+        if room[fm[i]] > 0:
+            room[fm[i]] -= 1
+            left -= float(fc[i])
+            held += 1
+    return held
+
+
+def _model_room(team: TeamConstraints, fixed: tuple[int, ...]) -> np.ndarray:
+    """(models,) int64: new cameras each model may still take (its maximum less the fixed ones)."""
+    nm = len(team.model_names)
+    fm = np.bincount(team.model[list(fixed)], minlength=nm) if fixed else np.zeros(nm, dtype=np.int64)
+    big = np.iinfo(np.int64).max // 4
+    return np.array([big if h is None else max(0, int(h) - int(fm[i])) for i, h in enumerate(team.model_max)],
+                    dtype=np.int64)
+
+
+#: The shared-sighting bound of :func:`shared_bound` is skipped above this many row pair products
+#: (``sum_i deg_i^2``, one multiply-add each) or when its (c, c) float64 matrix is over the memory budget.
+SHARED_MAX_WORK = 50_000_000
+
+
+def shared_bound(q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, cols: np.ndarray, size: int,
+                 views: int) -> float:
+    """An upper bound on multiview (``views >= 2``) of any set of at most ``size`` columns of ``cols``
+    with at most ``model_max`` columns of each model, from the weights two columns see together.
+
+    ``W_ab = sum_i w_i [a and b observe i]`` (``w_i > 0`` only). For a set S and a column a of it,
+    let ``g_a`` be the weight of the rows a observes that ``views - 1`` other columns of S observe
+    too. A row S counts is in ``g_a`` for each of its ``>= views`` observers, so the objective is at
+    most ``sum_{a in S} g_a / views``; and ``g_a <= W_aa`` and ``(views - 1) g_a <= sum_{b in S, b != a}
+    W_ab <=`` the ``size - 1`` largest ``W_ab``. So with ``u_a = min(W_aa, (size - 1 largest W_ab) /
+    (views - 1))`` the bound is the largest sum of ``size`` of the ``u_a`` (at most ``model_max`` of
+    each model) over ``views``. Valid with a minimum angle too (it only removes counted rows).
+
+    Returns ``+inf`` when ``views < 2`` or the work (``sum_i deg_i^2``) is over
+    :data:`SHARED_MAX_WORK` or the (c, c) matrix over the memory budget.
+    """
+    from camplace.solver._support.memory import memory_budget_bytes
+
+    cols = np.asarray(cols, dtype=np.int64)
+    c = cols.size
+    if views < 2 or c == 0:
+        return math.inf
+    if size < views:
+        return 0.0
+    wp = np.maximum(np.asarray(w, dtype=np.float64), 0.0)
+    pat = q[:, cols].tocsr()
+    keep = np.flatnonzero((wp > 0) & (np.diff(pat.indptr) > 0))
+    pat = pat[keep]
+    deg = np.diff(pat.indptr).astype(np.float64)
+    if float(deg @ deg) > SHARED_MAX_WORK or 3 * 8 * c * c > memory_budget_bytes():
+        return math.inf
+    p = sp.csr_matrix((np.ones(pat.nnz), pat.indices, pat.indptr), shape=pat.shape)
+    pw = sp.csr_matrix((np.repeat(wp[keep], np.diff(pat.indptr)), pat.indices, pat.indptr), shape=pat.shape)
+    pair = (p.T @ pw).toarray()  # (c, c): W_ab
+    own = np.diag(pair).copy()
+    np.fill_diagonal(pair, 0.0)
+    r = min(size - 1, c - 1)
+    top = -np.partition(-pair, r - 1, axis=1)[:, :r].sum(axis=1) if r > 0 else np.zeros(c)
+    u = np.minimum(own, top / (views - 1))
+    cm = team.model[cols]
+    picked = []
+    for mi, hi in enumerate(team.model_max):
+        mine = np.sort(u[cm == mi])[::-1]
+        picked.append(mine if hi is None else mine[:int(hi)])
+    best = np.sort(np.concatenate(picked))[::-1][:size]
+    return float(best.sum()) / views
 
 
 def _column_sums(csc: sp.csc_matrix, values: np.ndarray) -> np.ndarray:
@@ -96,7 +176,9 @@ def team_bound(q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, mode: 
         f0 = float(w @ np.minimum(1.0, b / v))
         gains = _column_sums(qf, np.where(b[qf.indices] < views, w[qf.indices] / v, 0.0) * (qf.data > 0))
         top = float(np.sort(gains)[::-1][:r].sum()) if r > 0 else 0.0
-        return min(cap, f0 + top)
+        # the fixed cameras and at most r new ones: a set of at most r + |fixed| allowed columns
+        cols = np.union1d(free_cols, np.asarray(fixed, dtype=np.int64))
+        return min(cap, f0 + top, shared_bound(q, w, team, cols, r + len(fixed), int(views)))
     return math.inf
 
 

@@ -109,17 +109,28 @@ def maximal_patterns(team: TeamConstraints, patterns: list[tuple[int, ...]], ava
     return keep
 
 
+def _covered(q: Any, w: np.ndarray, sel: tuple[int, ...]) -> float:
+    """The covered weight of ``sel`` on a scipy matrix or a BitMatrix (summed the same way)."""
+    if getattr(q, "format", None) == "bits":
+        from camplace.solver.problem.presolve_bits import covered_weight
+
+        return covered_weight(q, w, sel)
+    from camplace.solver.problem.objectives import mode_value
+
+    return mode_value(q, w, sel, mode="maxcover")
+
+
 def solve_by_patterns(
     q: sp.csr_matrix, w: np.ndarray, team: TeamConstraints, *, k: int | None, fixed: tuple[int, ...],
     free_cols: np.ndarray, deadline: Deadline, patterns: list[tuple[int, ...]], k_solver: Callable[[Any], Any],
 ) -> tuple[tuple[int, ...] | None, str, float, float, dict[str, Any]]:
     """The best team over ``patterns`` (module docstring): ``(selected, status, objective, bound, stats)``.
 
-    ``k_solver(options)`` solves the same matrix and weights without a team (the caller's
-    :func:`camplace.solver.api.solve`, passed in: this module does not import the api)."""
+    ``q`` is a scipy matrix or a :class:`camplace.visibility.bits.BitMatrix` (the branch and bound
+    reads either). ``k_solver(options)`` solves the same matrix and weights without a team (the
+    caller's :func:`camplace.solver.api.solve`, passed in: this module does not import the api)."""
     from camplace.solver.engines.team.bnb import team_branch_and_bound
     from camplace.solver.options import SolveOptions
-    from camplace.solver.problem.objectives import mode_value
 
     n = q.shape[1]
     nm = len(team.model_names)
@@ -142,7 +153,7 @@ def solve_by_patterns(
         if sum(c) == 0:
             sel = tuple(sorted(fixed))
             if not team.violations(sel):
-                v = mode_value(q, w, sel, mode="maxcover") if sel else 0.0
+                v = _covered(q, w, sel) if sel else 0.0
                 entry.update(status="optimal", value=v, engine="none")
                 bound = max(bound, v)
                 if v > best_val:
