@@ -192,6 +192,7 @@ RECORD_RUNS: tuple[tuple[str, ...], ...] = (
     ("run", "comet-67p-bunker", "-o", "{tmp}/k6", "--k", "6", "--candidates", "200", "--points", "2000"),
     ("run", "comet-flyby", "-o", "{tmp}/fly", "--candidates", "200", "--points", "2000"),
     ("run", "volcanic-eruption", "-o", "{tmp}/vol", "--candidates", "200", "--points", "2000"),
+    ("run", "comet-67p-team", "-o", "{tmp}/team", "--candidates", "60", "--points", "600"),
 )
 
 
