@@ -1,6 +1,7 @@
 """The k = 3 max-coverage solve's stages alone at 1 and 2 threads, interleaved (issue 29).
 
 Each measurement is a fresh process (``--worker``) that loads a run folder's matrix, runs presolve
+(the bit presolve on a binary folder's column bitsets, as ``camplace run`` does)
 and the exact engine (views = 1) once to warm up and then ``--inner`` more times at ``--threads T``
 (:func:`camplace._cores.set_threads`), and reports per stage: wall seconds, the main thread's CPU
 seconds and the pool's CPU seconds (every worker, and the busiest one:
@@ -42,6 +43,8 @@ def worker(args: argparse.Namespace) -> None:
     except ImportError:  # a tree without the pool (main before issue 29)
         PoolProfile = None
     matrix, weights, _, _ = load_problem(args.folder)
+    if getattr(matrix, "format", None) == "bits":  # a binary run folder: the bit presolve the run uses
+        from camplace.solver.problem.presolve_bits import presolve_bits as presolve
     set_threads(args.threads)
     rec: dict[str, list[float]] = {}
     for it in range(args.inner + 1):
