@@ -26,6 +26,8 @@ import math
 import numba
 import numpy as np
 
+from camplace.visibility.qbytes import quantise
+
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 
@@ -313,6 +315,20 @@ def merge_rows(
                 data[at] = one
             at += 1
         nxt[r] = at
+
+
+@numba.njit(**_JIT)
+def scatter_chunk_quality(rowids, offsets, lcols, col0, values, positions, normals, emitter, cam_pos, fx,
+                          required_px_per_m):  # pragma: no cover - compiled
+    """Write the quantised qualities of a chunk's observed pairs
+    (:class:`camplace.visibility.chunk.ChunkResult`) into ``values`` ((n, m) uint8, only the chunk's
+    columns): :func:`pair_quality` (float32), then :func:`camplace.visibility.qbytes.quantise`."""
+    for t in range(rowids.shape[0]):
+        r = rowids[t]
+        for p in range(offsets[t], offsets[t + 1]):
+            c = col0 + np.int64(lcols[p])
+            v = pair_quality(r, c, positions, normals, emitter, cam_pos, fx, required_px_per_m)
+            values[c, r] = quantise(np.float64(v))
 
 
 @numba.njit(**_JIT)

@@ -349,9 +349,9 @@ def chunk_fx(task: VisibilityTask, col0: int) -> float:
 
 
 def scatter_part_bytes(task: VisibilityTask, values: np.ndarray, part: ChunkResult) -> ChunkResult:
-    """Write a chunk's observed pairs, quantised (:func:`camplace.visibility.qbytes.scatter_chunk_quality`),
+    """Write a chunk's observed pairs, quantised (:func:`camplace.visibility._kernels.scatter_chunk_quality`),
     into the columns ``values`` ((n, m) uint8) and return the chunk's counts with empty pair arrays."""
-    from camplace.visibility.qbytes import scatter_chunk_quality
+    from camplace.visibility._kernels import scatter_chunk_quality
 
     if len(part.rowids):
         emitter = ~np.any(task.normals != 0.0, axis=1)

@@ -17,7 +17,7 @@ differs from the one on the float values by at most ``sum_i w_i / 510`` (``|max 
 max |a - b|``; ``/ 255`` for rows whose only values are below 1 / 510), so the optimum on the
 bytes is within twice that of the float optimum.
 
-The engine fills it chunk by chunk (:func:`scatter_chunk_quality`; a chunk owns a range of
+The engine fills it chunk by chunk (:func:`camplace.visibility._kernels.scatter_chunk_quality`; a chunk owns a range of
 columns, so the result does not depend on the thread count). The kernels are compiled with numba
 (``nogil``: the callers run them on a thread pool).
 """
@@ -33,9 +33,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace._cores import thread_count
-from camplace.visibility._kernels import pair_quality
 
-__all__ = ["ByteMatrix", "quantise", "bytes_from_csr", "scatter_chunk_quality", "QUANT_STEP", "QUANT_ERROR"]
+__all__ = ["ByteMatrix", "quantise", "bytes_from_csr", "QUANT_STEP", "QUANT_ERROR"]
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
@@ -53,20 +52,6 @@ def quantise(v):  # pragma: no cover - compiled
         return np.uint8(0)
     x = math.floor(255.0 * v + 0.5)
     return np.uint8(min(255.0, max(1.0, x)))
-
-
-@numba.njit(**_JIT)
-def scatter_chunk_quality(rowids, offsets, lcols, col0, values, positions, normals, emitter, cam_pos, fx,
-                          required_px_per_m):  # pragma: no cover - compiled
-    """Write the quantised qualities of a chunk's observed pairs
-    (:class:`camplace.visibility.chunk.ChunkResult`) into ``values`` ((n, m) uint8, only the chunk's
-    columns): :func:`camplace.visibility._kernels.pair_quality` as float32, then :func:`quantise`."""
-    for t in range(rowids.shape[0]):
-        r = rowids[t]
-        for p in range(offsets[t], offsets[t + 1]):
-            c = col0 + np.int64(lcols[p])
-            v = pair_quality(r, c, positions, normals, emitter, cam_pos, fx, required_px_per_m)
-            values[c, r] = quantise(np.float64(v))
 
 
 @numba.njit(**_JIT)
