@@ -217,11 +217,14 @@ def binary_quality_warnings(mode: str, matrix) -> list[str]:
     Parameters
     ----------
     mode : str
-    matrix : (m, n) scipy.sparse matrix
+    matrix : (m, n) scipy.sparse matrix or camplace.visibility.qbytes.ByteMatrix
     """
     import numpy as np
 
-    if mode != "quality" or matrix.nnz == 0 or not np.all(matrix.data == 1):
+    if mode != "quality" or matrix.nnz == 0:
+        return []
+    ones = matrix.all_ones() if getattr(matrix, "format", None) == "bytes" else np.all(matrix.data == 1)
+    if not ones:
         return []
     return ["--mode quality on a matrix whose every observed pair has quality 1 (the run's [quality] mode is "
             '"binary"): the objective is the observed weight, exactly as --mode maxcover (run with [quality] '

@@ -99,6 +99,16 @@ def _column_counts(values, lo, hi, out):  # pragma: no cover - compiled
         out[j] = s
 
 
+@numba.njit(**_JIT)
+def _only_ones(values):  # pragma: no cover - compiled
+    """True when every nonzero byte is 255 (every observed value is 1)."""
+    flat = values.reshape(-1)
+    for p in range(flat.shape[0]):
+        if flat[p] != 0 and flat[p] != 255:
+            return False
+    return True
+
+
 def _ranges(total: int, parts: int = 64) -> list[tuple[int, int]]:
     """``parts`` contiguous ranges of ``range(total)`` (fixed by the size, not the thread count)."""
     parts = max(1, min(parts, total))
@@ -160,6 +170,10 @@ class ByteMatrix:
     def nnz(self) -> int:
         """Observed pairs."""
         return int(self.column_counts.sum())
+
+    def all_ones(self) -> bool:
+        """True when every observed value is 1 (byte 255): a binary matrix in effect."""
+        return bool(_only_ones(self.values))
 
     def bits(self):
         """The pattern (nonzero bytes) as :class:`~camplace.visibility.bits.BitMatrix` (``m n / 8``
