@@ -83,12 +83,12 @@ def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
 
 
 def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads: int | None,
-                   graded: bool = False) -> int:
+                   graded: bool = False, mode: str = "maxcover") -> int:
     from camplace._cores import set_threads
     from camplace.visibility.engine import estimate_matrix_bytes
 
     set_threads(threads)
-    return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded))
+    return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded), tree=mode == "quality")
 
 
 def layout_name(layout: str, graded: bool) -> str:
@@ -132,7 +132,7 @@ def main() -> None:
                 continue
             pairs = r["observed"] or 0
             density = pairs / (n_cand * n_pts) if pairs else 0.0
-            est = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded)
+            est = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded, args.mode)
             vs = f"{r['peak'] / base:.2f}" if base else "-"
             bpp = r["peak"] / pairs if pairs else float("nan")
             print(f"{size:>16} {layout_name(r['layout'], args.graded):>6} {r['wall_s']:8.1f} "

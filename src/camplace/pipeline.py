@@ -393,7 +393,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         t0 = time.perf_counter()
         vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
                                dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
-                               scratch=scratch)
+                               scratch=scratch, solve_mode=settings.mode)
         timings["visibility"] = time.perf_counter() - t0
         timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 

@@ -547,7 +547,7 @@ BASE_BYTES = 280 * 2**20
 THREAD_BYTES = 60 * 2**20
 
 
-def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr") -> int:
+def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: bool = True) -> int:
     """Peak bytes of a run with a matrix of this size and density in ``layout``.
 
     ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
@@ -562,14 +562,15 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     budget itself once it knows its size. ``bytes`` (graded, quantised: :mod:`camplace.visibility.qbytes`):
     the matrix is ``C = n_cols * n_rows`` bytes whatever the density, and the solver's quality tree
     adds its inner nodes' table (``(n_cols - 1) x n_rows`` bytes, :func:`camplace.solver.engines.quality.tree.quality_tree_bytes_dense`)
-    and the pattern's column bitsets (``B``, its ordering and the run's summary): ``2 C + B``. All add the per-thread work arrays
+    and the pattern's column bitsets (``B``, its ordering and the run's summary): ``2 C + B``
+    (``C + B`` with ``tree=False``: a run whose solve reads the pattern, e.g. max coverage). All add the per-thread work arrays
     (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
     words = 8 * n_cols * ((n_rows + 63) // 64)
     if layout == "bytes":
         cells = n_rows * n_cols
-        return int(2 * cells + words + 16 * n_rows + fixed)
+        return int((2 if tree else 1) * cells + words + 16 * n_rows + fixed)
     if layout == "bits-disk":
         return int(16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
@@ -591,6 +592,7 @@ def compute_visibility(
     cache_dir: str | Path | None = None,
     layout: str = "auto",
     scratch=None,
+    quality_tree: bool = True,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -623,6 +625,10 @@ def compute_visibility(
     scratch : camplace.visibility.scratch.Scratch or None
         Where column bitsets that do not fit ``memory_budget_bytes`` go (out of core: a file, read
         and written block by block); None: such a matrix is an error before the work.
+    quality_tree : bool
+        Quantised columns only: the run's solve builds the quality tree over them (``--mode
+        quality``), so the memory estimate counts its inner nodes' table too (False: a solve that
+        reads the pattern).
 
     Returns
     -------
@@ -698,7 +704,7 @@ def compute_visibility(
     pilot_layout = "bits" if use_bits else "bytes" if use_bytes else "csr"
     words = values = None
     if use_bytes:
-        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes")  # one byte a cell: known before the work
+        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=quality_tree)  # known before the work
         if need > budget:
             raise CamplaceError(
                 f"visibility: the run would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
