@@ -51,7 +51,7 @@ def test_quantisation_round_trip(seed) -> None:
     assert back.dtype == np.float32 and back.has_canonical_format
     np.testing.assert_array_equal(back.indptr, a.indptr)
     np.testing.assert_array_equal(back.indices, a.indices)
-    np.testing.assert_array_equal(back.data, (want.T[dense > 0].astype(np.float64) * np.float32(1 / 255)).astype(np.float32))
+    np.testing.assert_array_equal(back.data, (want.T[dense > 0] / 255.0).astype(np.float32))
     err = np.abs(back.data.astype(np.float64) - a.data.astype(np.float64))
     big = a.data >= 0.5 / 255
     assert err[big].max() <= QUANT_ERROR + 1e-7  # half a step (plus the float32 of q / 255)
@@ -82,7 +82,7 @@ def test_store_round_trip(tmp_path, codec) -> None:
     np.testing.assert_array_equal(got.values, qb.values)
     users = camplace.load_visibility(path)  # users still get scipy CSR float32
     assert sp.isspmatrix_csr(users) and users.dtype == np.float32
-    want = oracle_bytes(a.toarray()).astype(np.float64) * np.float32(1 / 255)
+    want = oracle_bytes(a.toarray()) / 255.0
     np.testing.assert_array_equal(users.toarray(), want.astype(np.float32))
     # npz and back: the same bytes
     store.save_matrix(tmp_path, qb, fmt="npz")
@@ -135,7 +135,7 @@ def test_engine_columns_are_the_quantised_float_values(tmp_path, min_target_px) 
     np.testing.assert_array_equal(f32.matrix.toarray(), dense)
     got.save(tmp_path / "out")
     np.testing.assert_array_equal(camplace.load_visibility(tmp_path / "out").toarray(),
-                                  (oracle_bytes(dense).astype(np.float64) * np.float32(1 / 255)).astype(np.float32))
+                                  (oracle_bytes(dense) / 255.0).astype(np.float32))
 
 
 def test_bytes_layout_is_refused_for_a_binary_instance() -> None:

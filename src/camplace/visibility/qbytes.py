@@ -70,14 +70,15 @@ def _row_counts(values, lo, hi, counts):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _fill(values, lo, hi, cursor, indices, data, scale):  # pragma: no cover - compiled
+def _fill(values, lo, hi, cursor, indices, data, steps):  # pragma: no cover - compiled
+    """CSR entries of rows ``lo:hi``: column indices and the float32 nearest ``q / steps``."""
     for j in range(values.shape[0]):
         for i in range(lo, hi):
             q = values[j, i]
             if q != 0:
                 at = cursor[i]
                 indices[at] = j
-                data[at] = np.float32(q * scale)
+                data[at] = np.float32(q / steps)
                 cursor[i] = at + 1
 
 
@@ -193,7 +194,7 @@ class ByteMatrix:
         return counts
 
     def tocsr(self, dtype=np.float32, workers: int | None = None) -> sp.csr_matrix:
-        """The canonical scipy CSR matrix of the values ``q / 255`` (float32; bool: the pattern),
+        """The canonical scipy CSR matrix of the values ``q / 255`` (the nearest float32; bool: the pattern),
         int32 indices unless int64 is needed. Needs ``(index bytes + value bytes)`` an observed pair."""
         m, n = self.shape
         counts = self.row_counts(workers)
@@ -204,8 +205,7 @@ class ByteMatrix:
         indices = np.empty(nnz, dtype=idt)
         data = np.empty(nnz, dtype=np.float32)
         cursor = indptr[:-1].copy()
-        _run(lambda lo, hi: _fill(self.values, lo, hi, cursor, indices, data, np.float32(QUANT_STEP)), _ranges(m),
-             workers)
+        _run(lambda lo, hi: _fill(self.values, lo, hi, cursor, indices, data, 255.0), _ranges(m), workers)
         if np.dtype(dtype) == np.bool_:
             data = np.ones(nnz, dtype=np.bool_)
         elif np.dtype(dtype) != np.float32:
