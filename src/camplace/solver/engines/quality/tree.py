@@ -24,6 +24,11 @@
   happens if more than :data:`FRONTIER_MAX` tuples are open (a guard; depth-first keeps far fewer).
 * **Exactness.** Pruning keeps a margin of ``1e-9 * total weight`` (floating-point sums). With
   equal row weights a bound is an integer sum of bytes, scaled once.
+* **Quantised columns** (:func:`solve_quality_tree_dense`, issue 32): when the matrix already is
+  bytes (``values`` (n, m) uint8, a graded run's ``ByteMatrix``), those columns are the leaves as
+  they are and only the inner nodes' table is made ((n - 1) x m bytes): no CSC copy, no rounding
+  of its own, a tuple of leaves' bound is its value (exact for the quantised values), and the
+  incumbent heuristics read the bytes. The search is the same (:func:`_search`).
 """
 
 from __future__ import annotations
