@@ -88,7 +88,8 @@ def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads
     from camplace.visibility.engine import estimate_matrix_bytes
 
     set_threads(threads)
-    return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded), tree=mode == "quality")
+    return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded),
+                                 tree=1.0 if mode == "quality" else 0.0)
 
 
 def layout_name(layout: str, graded: bool) -> str:

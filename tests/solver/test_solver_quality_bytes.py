@@ -105,12 +105,56 @@ def test_solve_on_bytes_equals_enumeration(data, k) -> None:
     assert abs(cover.objective - brute_force_mode(dense, w, k, "maxcover")) <= tol
 
 
+@settings(max_examples=100, **_SETTINGS)
+@given(data=graded(max_n=40), k=st.integers(1, 4), group=st.sampled_from([2, 3, 4, 8, 64]))
+def test_dense_tree_with_a_budgeted_table_equals_enumeration(data, k, group) -> None:
+    """Rows only for the clusters of more than ``group`` columns: the same optimum and bound."""
+    dense, w = data
+    n = dense.shape[1]
+    k = min(k, n, 3 if n > 25 else 4)
+    values = _bytes_of(dense)
+    quant = values.T.astype(np.float64) / 255.0
+    out = qt.solve_quality_tree_dense(values, 1 / 255, w, k, group=group)
+    best = brute_force_mode(quant, w, k, "quality")
+    tol = 1e-9 * max(1.0, float(w.sum()))
+    assert out.status == "optimal" and len(set(out.selected)) == k
+    assert abs(mode_objective(quant, w, out.selected, "quality") - best) <= tol
+    assert abs(out.bound - best) <= tol
+
+
+@pytest.mark.parametrize("checks", [0, 2, 5, 11])
+def test_budgeted_table_interrupted_keeps_a_valid_bound(monkeypatch, checks) -> None:
+    rng = np.random.default_rng(40 + checks)
+    dense = (rng.random((70, 30)) < 0.5) * rng.uniform(0.05, 1.0, (70, 30))
+    w = rng.uniform(0.0, 1.0, 70)
+    values = _bytes_of(dense)
+    best = brute_force_mode(values.T / 255.0, w, 3, "quality")
+    monkeypatch.setattr(qt, "_CHUNK", 1)
+    out = qt.solve_quality_tree_dense(values, 1 / 255, w, 3, deadline=ExpiringDeadline(checks), group=4)
+    assert_ge(out.bound, best, scale=w.sum(), what="bound vs optimum")
+
+
+def test_bytes_route_budgets_the_table(monkeypatch) -> None:
+    """Over the budget for the full table, the route keeps rows for larger clusters only (and says so)."""
+    rng = np.random.default_rng(8)
+    dense = (rng.random((60, 40)) < 0.5) * rng.uniform(0.05, 1.0, (60, 40))
+    w = rng.uniform(0.1, 1.0, 60)
+    qb = bytes_from_csr(sp.csr_matrix(dense))
+    full = qt.quality_tree_bytes_dense(60, 40)
+    monkeypatch.setattr(bytes_route, "memory_budget_bytes", lambda: full - 1)
+    monkeypatch.setattr(bytes_route, "QUALITY_EXACT_MAX_N", 0)
+    res = solve(qb, w, 3, mode="quality")
+    assert res.stats["engine_choice"]["route"] == "quality-bytes" and res.stats["engine_stats"]["table_group"] == 2
+    best = brute_force_mode(qb.values.T / 255.0, w, 3, "quality")
+    assert res.status == "optimal" and abs(res.objective - best) <= 1e-9 * float(w.sum())
+
+
 def test_bytes_route_over_budget_converts(monkeypatch) -> None:
     rng = np.random.default_rng(3)
     dense = (rng.random((50, 12)) < 0.5) * rng.uniform(0.05, 1.0, (50, 12))
     w = rng.uniform(0.1, 1.0, 50)
     qb = bytes_from_csr(sp.csr_matrix(dense))
-    monkeypatch.setattr(bytes_route, "quality_tree_bytes_dense", lambda m, n: 1 << 60)
+    monkeypatch.setattr(bytes_route, "dense_table_group", lambda m, n, budget: None)
     monkeypatch.setattr(bytes_route, "QUALITY_EXACT_MAX_N", 0)
     res = solve(qb, w, 4, mode="quality")
     best = brute_force_mode(qb.values.T / 255.0, w, 4, "quality")

@@ -144,3 +144,21 @@ def test_bytes_layout_is_refused_for_a_binary_instance() -> None:
     cands = make_candidates("uniform", 8, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=4)
     with pytest.raises(CamplaceError, match="binary"):
         compute_visibility(inst, cands, pts, layout="bytes")
+
+
+def test_guard_allows_a_lean_tree_and_stops_below_it() -> None:
+    from camplace.visibility.engine import LEAN_TREE, estimate_matrix_bytes
+
+    inst, pts, cands = _bunker_graded()
+    m, n = len(pts), len(cands)
+    full = estimate_matrix_bytes(m, n, 1.0, "bytes")
+    lean = estimate_matrix_bytes(m, n, 1.0, "bytes", tree=LEAN_TREE)
+    pattern_only = estimate_matrix_bytes(m, n, 1.0, "bytes", tree=0.0)
+    assert pattern_only < lean < full and full - pattern_only == m * n
+    got = compute_visibility(inst, cands, pts, chunk_size=16, memory_budget_bytes=lean)  # the tree keeps less
+    assert got.qbytes is not None
+    with pytest.raises(CamplaceError, match="memory budget") as err:
+        compute_visibility(inst, cands, pts, chunk_size=16, memory_budget_bytes=lean - 1)
+    assert "\n" not in str(err.value)
+    got = compute_visibility(inst, cands, pts, chunk_size=16, memory_budget_bytes=pattern_only, quality_tree=False)
+    assert got.qbytes is not None

@@ -6,7 +6,9 @@ quality ``q * scale``, ``scale = 1 / 255``), without a CSR copy (issue 32).
 minimum-angle constraints, no team) with ``k <= 4`` where :func:`~camplace.solver.choose.choose_engine`
 would run the quantised tree alone (the min-Gram engine does not apply): the tree engine
 (:func:`~camplace.solver.engines.quality.tree.solve_quality_tree_dense`) reads the columns as its
-leaves and adds only its inner nodes' table. The answer is exact for the quantised values: the
+leaves and adds only its inner nodes' table (over the memory budget: rows for the clusters of
+more than 2, 4, ..., 64 cameras only, whichever fits; the smaller clusters' bounds read their
+columns). The answer is exact for the quantised values: the
 objective is ``sum_i w_i max_{j in S} q_ij / 255`` in float64, and the bound an upper bound on the
 same. (For the float qualities the bytes stand for, every value differs by at most 1 / 510, so
 every objective by at most ``sum_i w_i / 510``: see :mod:`camplace.visibility.qbytes`.)
@@ -18,6 +20,7 @@ observed pair, checked against the memory budget first).
 
 from __future__ import annotations
 
+import logging
 import numbers
 from typing import Any
 
@@ -28,12 +31,15 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.choose import EXACT_MAX_K
 from camplace.solver.engines.quality.min_gram import QUALITY_EXACT_MAX_N
-from camplace.solver.engines.quality.tree import quality_tree_bytes_dense, solve_quality_tree_dense
+from camplace.solver.engines.quality.tree import (GROUP_MAX, dense_table_group, quality_tree_bytes_dense,
+                                                  solve_quality_tree_dense)
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["bytes_applies", "bytes_outcome", "bytes_fallback"]
+
+log = logging.getLogger(__name__)
 
 PATTERN_MODES = ("maxcover", "multiview", "setcover")
 
@@ -78,16 +84,21 @@ def bytes_outcome(qbytes, weights: Any, o: SolveOptions, deadline: Deadline):
         raise CamplaceError(f"cannot choose k={k} new cameras from {n} allowed candidates "
                             "(lower k, or forbid/fix fewer cameras)")
     budget = memory_budget_bytes()
-    need = quality_tree_bytes_dense(m, n)
+    group = dense_table_group(m, n, budget)  # the full table when it fits, else rows for larger clusters only
     stats: dict[str, Any] = {"k": k}
-    if need > budget:
+    if group is None:
+        need = quality_tree_bytes_dense(m, n, GROUP_MAX)
         memory_fallback(OverBudget(need, budget, "the quantised tree"), stats, asked=o.engine == "exact",
                         then="converting the matrix for the other engines", fix="use fewer candidates / points")
         return None
+    if group > 1:
+        log.info("quality tree (bytes): the full table (%.2f GiB) is over the memory budget (%.2f GiB): rows for "
+                 "clusters of more than %d cameras only (%.2f GiB)", quality_tree_bytes_dense(m, n) / 2**30,
+                 budget / 2**30, group, quality_tree_bytes_dense(m, n, group) / 2**30)
     stats["engine_choice"] = {"engine": "exact", "route": "quality-bytes",
                               "reason": f"{'requested' if o.engine == 'exact' else 'auto'}: quality without side "
                                         f"constraints, k = {k}: the quantised tree on the stored bytes"}
-    out = solve_quality_tree_dense(qbytes.values, qbytes.scale, w, k, deadline=deadline)
+    out = solve_quality_tree_dense(qbytes.values, qbytes.scale, w, k, deadline=deadline, group=group)
     sel = tuple(sorted(int(j) for j in out.selected))
     top = np.zeros(m, dtype=np.uint8)
     for j in sel:

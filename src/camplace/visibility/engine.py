@@ -547,7 +547,12 @@ BASE_BYTES = 280 * 2**20
 THREAD_BYTES = 60 * 2**20
 
 
-def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: bool = True) -> int:
+#: the quality tree's table when the full one is over the budget, as a share of the matrix bytes
+#: (rows for the clusters of more than 64 cameras only: about n / 40 rows; :mod:`camplace.solver.bytes_route`)
+LEAN_TREE = 1 / 32
+
+
+def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: float = 1.0) -> int:
     """Peak bytes of a run with a matrix of this size and density in ``layout``.
 
     ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
@@ -563,14 +568,15 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     the matrix is ``C = n_cols * n_rows`` bytes whatever the density, and the solver's quality tree
     adds its inner nodes' table (``(n_cols - 1) x n_rows`` bytes, :func:`camplace.solver.engines.quality.tree.quality_tree_bytes_dense`)
     and the pattern's column bitsets (``B``, its ordering and the run's summary): ``2 C + B``
-    (``C + B`` with ``tree=False``: a run whose solve reads the pattern, e.g. max coverage). All add the per-thread work arrays
+    (``(1 + tree) C + B``: ``tree = 0`` for a run whose solve reads the pattern, e.g. max coverage,
+    :data:`LEAN_TREE` when the solver keeps rows for large clusters only). All add the per-thread work arrays
     (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
     words = 8 * n_cols * ((n_rows + 63) // 64)
     if layout == "bytes":
         cells = n_rows * n_cols
-        return int((2 if tree else 1) * cells + words + 16 * n_rows + fixed)
+        return int((1 + float(tree)) * cells + words + 16 * n_rows + fixed)
     if layout == "bits-disk":
         return int(16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
@@ -691,6 +697,8 @@ def compute_visibility(
     # of the work (in process, the other chunks start beside it and are cancelled on a failed check).
 
     def check_pilot(first: ChunkResult, pilot_cols: int) -> None:
+        if pilot_layout == "bytes":  # one byte a cell: checked before the work
+            return
         density = len(first.lcols) / max(1, len(points) * pilot_cols)
         need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout)
         if need > budget:
@@ -704,7 +712,12 @@ def compute_visibility(
     pilot_layout = "bits" if use_bits else "bytes" if use_bytes else "csr"
     words = values = None
     if use_bytes:
-        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=quality_tree)  # known before the work
+        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=1.0 if quality_tree else 0.0)
+        lean = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=LEAN_TREE)
+        if need > budget and quality_tree and lean <= budget:  # the tree will keep rows for large clusters only
+            log.info("visibility: the quality tree's full table would not fit the memory budget (%.2f GiB): it will "
+                     "keep rows for large clusters only", budget / 2**30)
+            need = lean
         if need > budget:
             raise CamplaceError(
                 f"visibility: the run would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "

@@ -50,7 +50,7 @@ from camplace.solver._support.greedy import greedy_swap
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["solve_quality_tree", "solve_quality_tree_dense", "quality_tree_bytes", "quality_tree_bytes_dense",
-           "FRONTIER_MAX"]
+           "dense_table_group", "FRONTIER_MAX", "GROUP_MAX"]
 
 log = logging.getLogger(__name__)
 
@@ -427,10 +427,35 @@ def _pattern_bits_kernel(indptr, indices, data, rowmap, m_live):  # pragma: no c
 # The same search on quantised columns (issue 32): the stored bytes are the tree's leaves.
 
 
-def quality_tree_bytes_dense(m: int, n: int) -> int:
+#: the largest clusters whose bytes a budgeted table leaves out (their bound reads their columns)
+GROUP_MAX = 64
+
+
+def quality_tree_bytes_dense(m: int, n: int, group: int = 1) -> int:
     """Approximate peak working memory of :func:`solve_quality_tree_dense` beside its input: the
-    inner nodes' table ((n - 1) x m bytes), the pattern bitsets and the open tuples."""
-    return (max(n, 1) - 1) * m + n * ((m + 63) // 64) * 8 + 8 * FRONTIER_MAX
+    table of the inner nodes of more than ``group`` columns ((n - 1) x m bytes for ``group = 1``,
+    about ``n / group`` rows otherwise), the pattern bitsets and the open tuples."""
+    stored = max(n, 1) - 1 if group <= 1 else _stored_inner(n, group)
+    return stored * m + n * ((m + 63) // 64) * 8 + 8 * FRONTIER_MAX
+
+
+def _stored_inner(n: int, group: int) -> int:
+    """Inner nodes of the bisection tree over ``n`` columns with more than ``group`` columns."""
+    if n <= group:
+        return 0
+    a, b = n // 2, n - n // 2
+    return 1 + _stored_inner(a, group) + _stored_inner(b, group)
+
+
+def dense_table_group(m: int, n: int, budget: int) -> int | None:
+    """The smallest ``group`` (1, 2, 4, ..., :data:`GROUP_MAX`) whose table fits ``budget`` bytes
+    (:func:`quality_tree_bytes_dense`), or None when none does."""
+    group = 1
+    while group <= GROUP_MAX:
+        if quality_tree_bytes_dense(m, n, group) <= budget:
+            return group
+        group *= 2
+    return None
 
 
 @numba.njit(**_JIT)
@@ -500,9 +525,44 @@ def _bound_equal_d(inner, leaves, slot, nodes, wq):  # pragma: no cover - compil
     return wq[0] * float(s)
 
 
+@numba.njit(**_JIT)
+def _has_group(nodes, slot, n):  # pragma: no cover - compiled
+    """True when a node of the tuple has no row of its own (a small cluster of a budgeted table)."""
+    for q in range(nodes.shape[0]):
+        if slot[nodes[q]] < -n:
+            return True
+    return False
+
+
+@numba.njit(**_JIT)
+def _bound_groups(inner, leaves, slot, nodes, wq, lo, hi, order, n, buf):  # pragma: no cover - compiled
+    """:func:`_bound_d` when some node keeps no row (``slot < -n``): its columns' bytes are read
+    (``order[lo[v]:hi[v]]``) and maxed into ``buf`` ((m,) uint8) with the other nodes' rows."""
+    m = leaves.shape[1]
+    for i in range(m):
+        buf[i] = 0
+    for q in range(nodes.shape[0]):
+        v = nodes[q]
+        s = slot[v]
+        if s >= -n:
+            r = _row_d(inner, leaves, slot, v)
+            for i in range(m):
+                buf[i] = max(buf[i], r[i])
+        else:
+            for p in range(lo[v], hi[v]):
+                r = leaves[order[p]]
+                for i in range(m):
+                    buf[i] = max(buf[i], r[i])
+    t = 0.0
+    for i in range(m):
+        t += wq[i] * buf[i]
+    return t
+
+
 @numba.njit(**_PJIT)
-def _inner_table(leaves, slot, left, right, n_inner):  # pragma: no cover - compiled
-    """(n_inner, m) uint8: per inner node the largest byte of its columns (row by row blocks)."""
+def _inner_table(leaves, slot, left, right, n_inner, lo, hi, order, n):  # pragma: no cover - compiled
+    """(n_inner, m) uint8: per stored inner node the largest byte of its columns (row by row
+    blocks); a node with a child that keeps no row reads its columns."""
     m = leaves.shape[1]
     t = np.empty((n_inner, m), dtype=np.uint8)
     n_nodes = slot.shape[0]
@@ -511,13 +571,20 @@ def _inner_table(leaves, slot, left, right, n_inner):  # pragma: no cover - comp
         i0 = b * block
         i1 = min(m, i0 + block)
         for v in range(n_nodes - 1, -1, -1):  # children are numbered after their parent
-            if left[v] >= 0:
+            if left[v] >= 0 and slot[v] >= 0:
                 a = left[v]
                 c = right[v]
                 sa = slot[a]
                 sc = slot[c]
                 dst = slot[v]
-                if sa >= 0 and sc >= 0:
+                if sa < -n or sc < -n:  # a child without a row: the node's columns
+                    for i in range(i0, i1):
+                        t[dst, i] = 0
+                    for p in range(lo[v], hi[v]):
+                        r = leaves[order[p]]
+                        for i in range(i0, i1):
+                            t[dst, i] = max(t[dst, i], r[i])
+                elif sa >= 0 and sc >= 0:
                     for i in range(i0, i1):
                         t[dst, i] = max(t[sa, i], t[sc, i])
                 elif sa >= 0:
@@ -536,19 +603,32 @@ def _inner_table(leaves, slot, left, right, n_inner):  # pragma: no cover - comp
     return t
 
 
+@numba.njit(**_JIT)
+def _bound_any(inner, leaves, slot, nodes, wq, equal, lo, hi, order, n, buf):  # pragma: no cover - compiled
+    """The bound of a tuple on the split table, whichever kinds of nodes it holds."""
+    if _has_group(nodes, slot, n):
+        return _bound_groups(inner, leaves, slot, nodes, wq, lo, hi, order, n, buf)
+    if equal:
+        return _bound_equal_d(inner, leaves, slot, nodes, wq)
+    return _bound_d(inner, leaves, slot, nodes, wq)
+
+
 @numba.njit(**_PJIT)
-def _expand_d(front, lo, hi, left, right, inner, leaves, slot, wq, equal, best, margin):  # pragma: no cover - compiled
+def _expand_d(front, lo, hi, left, right, inner, leaves, slot, wq, equal, best, margin, order,
+              grouped):  # pragma: no cover - compiled
     """:func:`_expand` on the split table; a tuple of leaves' bound is its exact value (the bytes
-    are the values)."""
+    are the values). ``grouped``: some nodes keep no row (a budgeted table)."""
     f_count, k = front.shape
+    n = leaves.shape[0]
     children = np.zeros((f_count, k + 1, k), dtype=np.int64)
     value = np.full((f_count, k + 1), -np.inf)
     leaf = np.zeros((f_count, k + 1), dtype=np.bool_)
     for f in prange(f_count):
         n_kids = K.split_tuple(front[f], lo, hi, left, right, children[f])
+        buf = np.empty(leaves.shape[1] if grouped else 0, dtype=np.uint8)
         for q in range(n_kids):
             child = children[f, q]
-            b = _bound_equal_d(inner, leaves, slot, child, wq) if equal else _bound_d(inner, leaves, slot, child, wq)
+            b = _bound_any(inner, leaves, slot, child, wq, equal, lo, hi, order, n, buf)
             if b <= best + margin:
                 continue
             value[f, q] = b
@@ -608,7 +688,7 @@ class _DenseColumns:
 
 
 def solve_quality_tree_dense(values: np.ndarray, scale: float, weights: np.ndarray, k: int, *,
-                             deadline: Deadline | None = None) -> EngineOutcome:
+                             deadline: Deadline | None = None, group: int = 1) -> EngineOutcome:
     """:func:`solve_quality_tree` on quantised columns: best ``k`` columns for
     ``sum_i w_i max_{j in S} scale * values[j, i]``.
 
@@ -629,6 +709,10 @@ def solve_quality_tree_dense(values: np.ndarray, scale: float, weights: np.ndarr
     deadline : Deadline, optional
         The solve's deadline; on expiry the incumbent comes back with status "feasible" and a
         valid bound.
+    group : int
+        The table keeps rows for the inner nodes of more than ``group`` columns only (1: every
+        inner node); the bound of a tuple with a smaller cluster reads that cluster's columns
+        (slower, the same bound). :func:`dense_table_group` picks it for a memory budget.
 
     Returns
     -------
@@ -670,20 +754,26 @@ def solve_quality_tree_dense(values: np.ndarray, scale: float, weights: np.ndarr
         lo, hi, left, right = K.tree_shape(n)
         n_nodes = lo.shape[0]
         slot = np.empty(n_nodes, dtype=np.int64)
-        is_inner = left >= 0
-        slot[is_inner] = np.arange(int(is_inner.sum()), dtype=np.int64)
-        slot[~is_inner] = -order[lo[~is_inner]] - 1
-        inner = _inner_table(leaves, slot, left, right, int(is_inner.sum()))
+        is_leaf = left < 0
+        stored = ~is_leaf & (hi - lo > max(1, int(group)))
+        slot[stored] = np.arange(int(stored.sum()), dtype=np.int64)
+        slot[is_leaf] = -order[lo[is_leaf]] - 1
+        slot[~is_leaf & ~stored] = -n - 1  # a small cluster without a row: its bound reads its columns
+        grouped = bool(np.any(~is_leaf & ~stored))
+        inner = _inner_table(leaves, slot, left, right, int(stored.sum()), lo, hi, order, n)
     inner.setflags(write=False)
     positive = wq[w > 0]
     equal = bool(positive.size == m and np.all(wq == wq[0]))
     stats["time_setup_s"] = since()
     stats["table_bytes"] = int(inner.nbytes)
 
-    def expand(tup: np.ndarray, best: float):
-        return _expand_d(tup, lo, hi, left, right, inner, leaves, slot, wq, equal, best, margin)
+    stats["table_group"] = int(group)
 
-    root = _bound_d(inner, leaves, slot, np.zeros(k, dtype=np.int64), wq)
+    def expand(tup: np.ndarray, best: float):
+        return _expand_d(tup, lo, hi, left, right, inner, leaves, slot, wq, equal, best, margin, order, grouped)
+
+    root = _bound_any(inner, leaves, slot, np.zeros(k, dtype=np.int64), wq, equal, lo, hi, order, n,
+                      np.empty(m, dtype=np.uint8))
     best, best_set, bound, status = _search(expand, root, k, lo, order, best, best_set, margin, deadline, stats)
     log.info("quality tree (bytes): k=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", k, m, n,
              status, best, bound, stats["bound_evaluations"], since())
