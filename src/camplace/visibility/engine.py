@@ -715,8 +715,9 @@ def compute_visibility(
         need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=1.0 if quality_tree else 0.0)
         lean = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=LEAN_TREE)
         if need > budget and quality_tree and lean <= budget:  # the tree will keep rows for large clusters only
-            log.info("visibility: the quality tree's full table would not fit the memory budget (%.2f GiB): it will "
-                     "keep rows for large clusters only", budget / 2**30)
+            log.info("visibility: estimated peak %.2f GiB with the quality tree's full table, over the memory budget "
+                     "(%.2f GiB); %.2f GiB with rows for large clusters only (the solver sizes the table to its budget)",
+                     need / 2**30, budget / 2**30, lean / 2**30)
             need = lean
         if need > budget:
             raise CamplaceError(
