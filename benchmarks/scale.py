@@ -14,10 +14,15 @@ and prints per run:
   ratio to the measured peak (target: within 25 %);
 - the objective and status, and the peak's ratio to the baseline's.
 
+With ``--graded`` the instance is a copy of comet-67p-bunker with ``[quality] mode = "graded"``
+(written by ``camplace init`` into a temporary folder): the matrix is then quantised to a byte a
+cell (``[quality] precision = "byte"``, the default), and the baseline is the float32 CSR
+(``CAMPLACE_VISIBILITY_LAYOUT=csr``); use ``--mode quality`` for the graded objective.
+
 Usage::
 
     python benchmarks/scale.py [--sizes 2000x10000,10000x50000] [--k 3] [--mode maxcover]
-                               [--no-baseline] [--dask ADDRESS] [--threads N]
+                               [--no-baseline] [--dask ADDRESS] [--threads N] [--graded]
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ def tree_rss(proc: psutil.Process) -> int:
 
 def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
     out = Path(tempfile.mkdtemp(prefix="camplace-scale-"))
-    cmd = [sys.executable, "-m", "camplace", "run", "comet-67p-bunker", "--candidates", str(n_cand), "--points",
+    cmd = [sys.executable, "-m", "camplace", "run", args.instance, "--candidates", str(n_cand), "--points",
            str(n_pts), "--k", str(args.k), "--mode", args.mode, "--no-cache", "-o", str(out / "run")]
     if args.dask:
         cmd += ["--dask", args.dask]
@@ -77,12 +82,29 @@ def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
             "objective": sol.get("objective"), "status": sol.get("status"), "selected": selected}
 
 
-def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads: int | None) -> int:
+def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads: int | None,
+                   graded: bool = False, mode: str = "maxcover") -> int:
     from camplace._cores import set_threads
     from camplace.visibility.engine import estimate_matrix_bytes
 
     set_threads(threads)
-    return estimate_matrix_bytes(n_pts, n_cand, density, "bits" if layout == "auto" else "csr")
+    return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded),
+                                 tree=1.0 if mode == "quality" else 0.0)
+
+
+def layout_name(layout: str, graded: bool) -> str:
+    """The matrix layout of a run: ``auto`` is column bitsets (binary) or quantised bytes (graded)."""
+    return ("bytes" if graded else "bits") if layout == "auto" else "csr"
+
+
+def graded_instance(folder: Path) -> str:
+    """A copy of comet-67p-bunker with graded quality, written into ``folder``; returns its path."""
+    path = folder / "graded.toml"
+    subprocess.run([sys.executable, "-m", "camplace", "init", "comet-67p-bunker", "-o", str(path)], check=True,
+                   stdout=subprocess.DEVNULL)
+    with open(path, "a") as fh:
+        fh.write('\n[quality]\nmode = "graded"\n')
+    return str(path)
 
 
 def main() -> None:
@@ -93,7 +115,10 @@ def main() -> None:
     ap.add_argument("--no-baseline", action="store_true")
     ap.add_argument("--dask", default=None)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--graded", action="store_true", help="graded quality (quantised bytes against float32 CSR)")
     args = ap.parse_args()
+    args.instance = graded_instance(Path(tempfile.mkdtemp(prefix="camplace-graded-"))) if args.graded else \
+        "comet-67p-bunker"
     print(f"{'size':>16} {'layout':>6} {'wall s':>8} {'peak MB':>9} {'pairs':>12} {'B/pair':>7} {'est MB':>8} "
           f"{'est/peak':>8} {'vs base':>8}  result")
     for size in args.sizes.split(","):
@@ -108,10 +133,10 @@ def main() -> None:
                 continue
             pairs = r["observed"] or 0
             density = pairs / (n_cand * n_pts) if pairs else 0.0
-            est = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads)
+            est = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded, args.mode)
             vs = f"{r['peak'] / base:.2f}" if base else "-"
             bpp = r["peak"] / pairs if pairs else float("nan")
-            print(f"{size:>16} {('bits' if r['layout'] == 'auto' else 'csr'):>6} {r['wall_s']:8.1f} "
+            print(f"{size:>16} {layout_name(r['layout'], args.graded):>6} {r['wall_s']:8.1f} "
                   f"{r['peak'] / 2**20:9.0f} {pairs:12,d} {bpp:7.2f} {est / 2**20:8.0f} {est / r['peak']:8.2f} {vs:>8}  "
                   f"{r['status']} {r['objective']:.6f} {r['selected']}", flush=True)
 

@@ -393,7 +393,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         t0 = time.perf_counter()
         vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
                                dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
-                               scratch=scratch)
+                               scratch=scratch, solve_mode=settings.mode)
         timings["visibility"] = time.perf_counter() - t0
         timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 
@@ -431,9 +431,9 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     instance : Instance
     cands : CandidateSet
     pts : TargetPoints
-    matrix : (m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
-        A binary matrix as column bitsets goes to the solver as it is (no CSR is made for the
-        binary modes the bit presolve takes; the others convert it).
+    matrix : (m, n) scipy.sparse.csr_matrix, camplace.visibility.bits.BitMatrix or camplace.visibility.qbytes.ByteMatrix
+        A binary matrix as column bitsets, a graded one as quantised columns, goes to the solver as
+        it is (no CSR is made for the routes that read them; the others convert it).
     settings : RunSettings
     reporter : Reporter or None
     timings : dict or None
@@ -463,6 +463,9 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     if s.robust is None:
         return res, None
     from camplace.robust import robust_stage
+
+    if getattr(matrix, "format", None) == "bytes":  # the robust stage reads CSR values
+        matrix = matrix.tocsr()
 
     return robust_stage(
         instance, cands, pts, matrix, weights, res, s.robust, opts, seed=s.seed, cache=s.cache,

@@ -152,6 +152,8 @@ CASES = [
     ("frame-time-inf", _set("frames/1/time_s", INF), "frames[1].time_s", "finite"),
     ("frame-pos-typo", _rename("frames/2/position_m", "positon_m"), "frames[2].positon_m", "did you mean 'position_m'?"),
     ("frame-not-table", _set("frames/1", 1.0), "frames[1]", "table"),
+    ("quality-precision", _set("quality", {"mode": "graded", "precision": "float16"}), "quality.precision",
+     "unknown precision"),
 ]
 
 
@@ -179,6 +181,17 @@ def test_valid_dict_parses(valid_data, tmp_path):
     assert inst.frames[1].target_pose.rotation_deg == (0.0, 0.0, 30.0)
     assert inst.frames[2].target_pose.rotation_deg == (0.0, 0.0, 0.0)
     assert inst.defaults.sampler == "chaotic"
+
+
+@pytest.mark.parametrize("precision", [None, "byte", "float32"])
+def test_quality_precision_parses_and_round_trips(valid_data, tmp_path, precision):
+    from camplace.instance import save_instance
+
+    valid_data["quality"] = {"mode": "graded", **({"precision": precision} if precision else {})}
+    inst = parse_instance(valid_data, SRC, tmp_path)
+    assert inst.quality.precision == (precision or "byte")
+    save_instance(inst, tmp_path / "again.toml")
+    assert load_instance(tmp_path / "again.toml").quality == inst.quality
 
 
 def test_defaults_when_run_absent(valid_data, tmp_path):

@@ -142,3 +142,17 @@ def test_dask_run_gives_the_same_bits(problem) -> None:
     assert got.bits is not None and got._matrix is None
     np.testing.assert_array_equal(got.bits.words, ref.bits.words)
     assert got.stats == ref.stats
+
+
+@pytest.mark.slow
+def test_dask_run_gives_the_same_quantised_columns(problem) -> None:
+    import dataclasses
+
+    inst, pts, cands, _ = problem
+    graded = dataclasses.replace(inst, quality=dataclasses.replace(inst.quality, mode="graded"))
+    ref = compute_visibility(graded, cands, pts, chunk_size=16)
+    got = compute_visibility(graded, cands, pts, chunk_size=16, dask_address="local:2")
+    assert got.qbytes is not None and got._matrix is None and ref.qbytes is not None
+    assert ref.qbytes.nnz > 0 and np.unique(ref.qbytes.values).size > 100  # really graded
+    np.testing.assert_array_equal(got.qbytes.values, ref.qbytes.values)
+    assert got.stats == ref.stats

@@ -75,7 +75,7 @@ def test_quality_is_the_documented_formula() -> None:
     inst = dataclasses.replace(inst, quality=dataclasses.replace(inst.quality, mode="graded", max_incidence_deg=80.0))
     pts = make_target_points(inst, 1500, seed=3)
     cands = make_candidates("uniform", 60, inst.volume.min_m, inst.volume.max_m, event_aims(inst), seed=4)
-    m = compute_visibility(inst, cands, pts).matrix.tocoo()
+    m = compute_visibility(inst, cands, pts, layout="csr").matrix.tocoo()  # the float32 values
     p, n = pts.positions[m.row], pts.normals[m.row]
     d = p - cands.positions[m.col]
     dist = np.linalg.norm(d, axis=1)

@@ -65,7 +65,7 @@ def test_resolution_quality_halves_when_distance_doubles() -> None:
     pts = make_target_points(inst, 20000, seed=2)
     d = 5.0
     cams = cameras_at((d, 0, 0), (2 * d, 0, 0))
-    A = compute_visibility(inst, cams, pts).matrix.toarray()
+    A = compute_visibility(inst, cams, pts, layout="csr").matrix.toarray()  # the float32 values
     fx = inst.camera.fx_px
     both = (A[:, 0] > 0) & (A[:, 1] > 0)
     assert both.sum() > 1000
@@ -80,7 +80,7 @@ def test_resolution_quality_halves_when_distance_doubles() -> None:
     # two cameras on one ray through a point: same incidence, distance doubled -> quality halved
     p_idx = int(np.argmax(pts.normals[:, 0]))
     p, n = pts.positions[p_idx], pts.normals[p_idx]
-    B = compute_visibility(inst, cameras_at(tuple(p + 4.0 * n), tuple(p + 8.0 * n)), pts).matrix.toarray()
+    B = compute_visibility(inst, cameras_at(tuple(p + 4.0 * n), tuple(p + 8.0 * n)), pts, layout="csr").matrix.toarray()
     assert B[p_idx, 0] > 0 and B[p_idx, 1] / B[p_idx, 0] == pytest.approx(0.5, rel=1e-5)
 
 

@@ -30,6 +30,7 @@ from camplace.names import ROBUST_OBJECTIVES, SAMPLERS
 from camplace.instance.schema import (
     SCHEMA_VERSION,
     QUALITY_MODES,
+    QUALITY_PRECISIONS,
     CameraModel,
     Emitters,
     Frame,
@@ -73,7 +74,7 @@ _RUN_KEYS = ("candidates", "points", "sampler", "seed", "time_limit_s", "orienta
 _AGENTS_KEYS = ("phases", "phase_starts_s", "speed_m_s", "start_positions_m", "start_time_s")
 _ROBUST_KEYS = ("position_sigma_m", "rotation_sigma_deg", "scenarios", "objective", "eval_scenarios")
 MAX_SCENARIOS = 4096
-_QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light", "min_target_px")
+_QUALITY_KEYS = ("mode", "required_px_per_m", "max_incidence_deg", "require_light", "min_target_px", "precision")
 _EMITTER_KEYS = ("positions_m", "weights", "file")
 MAX_EMITTERS = 10_000_000
 _CAMERA_KEYS = ("sensor_width_mm", "sensor_height_mm", "focal_length_mm", "width_px", "height_px", "near_m", "far_m")
@@ -825,6 +826,10 @@ class _Parser:
                 "quality.mode", f"unknown mode {_show(mode)}" + (f"; did you mean '{close[0]}'?" if close else ""),
                 f"use one of {', '.join(QUALITY_MODES)}",
             )
+        precision = self.string(table, "precision", "quality", default=d.precision)
+        if precision not in QUALITY_PRECISIONS:
+            raise self.error("quality.precision", f"unknown precision {_show(precision)}",
+                             f"use one of {', '.join(QUALITY_PRECISIONS)}")
         light = table.get("require_light", d.require_light)
         if not isinstance(light, bool):
             raise self.error("quality.require_light", f"must be true or false, got {_type_name(light)} {_show(light)}", "write true or false")
@@ -834,6 +839,7 @@ class _Parser:
             max_incidence_deg=self.number(table, "max_incidence_deg", "quality", default=d.max_incidence_deg, gt=0.0, le=90.0),
             require_light=light,
             min_target_px=self.number(table, "min_target_px", "quality", default=d.min_target_px, ge=0.0),
+            precision=precision,
         )
 
     def occluders(self, parent: dict, prefix: str) -> list[Occluder]:

@@ -462,6 +462,7 @@ class Light:
 
 
 QUALITY_MODES = ("binary", "graded")
+QUALITY_PRECISIONS = ("byte", "float32")
 
 
 @dataclass(frozen=True)
@@ -486,6 +487,10 @@ class QualitySpec:
         fewer pixels (the area of the target's convex hull projected by the camera,
         :func:`camplace.visibility.footprint.target_footprint_px`) observes none of that frame's
         target surface points (emitters are not affected).
+    precision : {"byte", "float32"}
+        How a graded matrix is kept: ``byte`` quantises each quality to a byte (value ``q / 255``,
+        within 1 / 510 of the float value; :mod:`camplace.visibility.qbytes`), ``float32`` keeps the
+        float values (8 bytes an observed pair instead of 1 byte a cell). Binary matrices ignore it.
     """
 
     mode: str = "binary"
@@ -493,6 +498,7 @@ class QualitySpec:
     max_incidence_deg: float = 90.0
     require_light: bool = False
     min_target_px: float = 0.0
+    precision: str = "byte"
 
 
 @dataclass(frozen=True)

@@ -134,6 +134,8 @@ def save_instance(instance: Instance, path: str | os.PathLike[str], *, mesh_file
         }
         if q.min_target_px:
             data["quality"]["min_target_px"] = float(q.min_target_px)
+        if q.precision != QualitySpec().precision:
+            data["quality"]["precision"] = q.precision
     if instance.robust is not None:
         r = instance.robust
         data["robust"] = {

@@ -118,7 +118,11 @@ def solve(
     Parameters
     ----------
     matrix : (m, n) scipy.sparse matrix or array_like
-        Observation quality in (0, 1] (> 0 means "observes").
+        Observation quality in (0, 1] (> 0 means "observes"). Also a binary run's column bitsets
+        (``camplace.visibility.bits.BitMatrix``) or a graded run's quantised columns
+        (``camplace.visibility.qbytes.ByteMatrix``: plain quality with the quantised tree on its
+        bytes, exact for the quantised values, see :mod:`camplace.solver.bytes_route`), taken
+        without a CSR copy where the route allows.
     weights : (m,) array_like of float64
         Non-negative point weights.
     k : int, optional
@@ -211,6 +215,14 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     t0 = deadline.start
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
     min_distance_m = o.min_distance_m
+    if getattr(matrix, "format", None) == "bytes":  # a graded matrix quantised to a byte a cell
+        from camplace.solver.bytes_route import bytes_applies, bytes_fallback, bytes_outcome
+
+        got = bytes_outcome(matrix, weights, o, deadline) if bytes_applies(o, matrix.shape[1]) else None
+        if got is not None:
+            ctx, w = got
+            return _result(ctx, o, w, (), (), np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        matrix = bytes_fallback(matrix, o)  # the pattern's bitsets, or CSR float32 values
     if getattr(matrix, "format", None) == "bits":  # a binary matrix as column bitsets
         from camplace.solver.bits_route import bits_applies, bits_outcome
 

@@ -65,7 +65,10 @@ def load_problem(source: Path, pattern: bool = True) -> tuple[Any, Any, Any, Any
     ``visibility.cpm`` or ``visibility.npz``, with ``pattern`` a binary one read as its bool
     pattern (:attr:`RunFolder.pattern`: no float copy; for the modes whose engines read only
     the pattern), or, stored as column bitsets (``colbits``), as those bits
-    (:class:`camplace.visibility.bits.BitMatrix`, which :func:`camplace.solver.api.solve` takes); ``points.csv`` (index,x,y,z,...,weight) must sit beside it; ``candidates.csv``
+    (:class:`camplace.visibility.bits.BitMatrix`, which :func:`camplace.solver.api.solve` takes); a
+    graded matrix stored as quantised columns (``colbytes``) is read as those bytes whatever
+    ``pattern`` (:class:`camplace.visibility.qbytes.ByteMatrix`, which ``solve`` takes for every
+    mode); ``points.csv`` (index,x,y,z,...,weight) must sit beside it; ``candidates.csv``
     (index,x,y,z,...) is optional (positions are then None).
     """
     import numpy as np
@@ -74,12 +77,15 @@ def load_problem(source: Path, pattern: bool = True) -> tuple[Any, Any, Any, Any
 
     run = RunFolder(source)
     matrix = None
-    if pattern:  # a binary matrix stored as column bitsets is read as they are (one bit a cell)
-        from camplace.visibility.store import describe, load_bits
+    path = run.matrix_path
+    if path.suffix == ".cpm":
+        from camplace.visibility.store import describe, load_bits, load_bytes
 
-        path = run.matrix_path
-        if path.suffix == ".cpm" and describe(path).get("structure") == "colbits":
+        structure = describe(path).get("structure")
+        if pattern and structure == "colbits":  # a binary matrix as column bitsets, read as it is (one bit a cell)
             matrix = load_bits(path)
+        elif structure == "colbytes":  # a graded one as quantised columns (one byte a cell): solve takes them
+            matrix = load_bytes(path)
     if matrix is None:
         matrix = run.pattern if pattern else run.matrix
     cols = run.point_columns(["x", "y", "z", "weight"])
@@ -211,11 +217,14 @@ def binary_quality_warnings(mode: str, matrix) -> list[str]:
     Parameters
     ----------
     mode : str
-    matrix : (m, n) scipy.sparse matrix
+    matrix : (m, n) scipy.sparse matrix or camplace.visibility.qbytes.ByteMatrix
     """
     import numpy as np
 
-    if mode != "quality" or matrix.nnz == 0 or not np.all(matrix.data == 1):
+    if mode != "quality" or matrix.nnz == 0:
+        return []
+    ones = matrix.all_ones() if getattr(matrix, "format", None) == "bytes" else np.all(matrix.data == 1)
+    if not ones:
         return []
     return ["--mode quality on a matrix whose every observed pair has quality 1 (the run's [quality] mode is "
             '"binary"): the objective is the observed weight, exactly as --mode maxcover (run with [quality] '

@@ -26,6 +26,8 @@ import math
 import numba
 import numpy as np
 
+from camplace.visibility.qbytes import quantise
+
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 
@@ -270,6 +272,24 @@ def compact(kept, per_cam, slot, blocked, live_rows, row_cursor, rowids, offsets
 
 
 @numba.njit(**_JIT)
+def pair_quality(r, col, positions, normals, emitter, cam_pos, fx, required_px_per_m):  # pragma: no cover - compiled
+    """The graded observation quality of row ``r`` seen from camera ``col``, float32:
+    ``min(1, fx / (d * required_px_per_m)) * cos(theta)`` (``cos(theta) = 1`` for emitters), floored
+    at the smallest normal float32."""
+    tiny = np.float32(1.1754944e-38)
+    dx = positions[r, 0] - cam_pos[col, 0]
+    dy = positions[r, 1] - cam_pos[col, 1]
+    dz = positions[r, 2] - cam_pos[col, 2]
+    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if emitter[r]:
+        cos_t = 1.0
+    else:
+        cos_t = -(dx * normals[r, 0] + dy * normals[r, 1] + dz * normals[r, 2]) / max(dist, 1e-300)
+    v32 = np.float32(min(1.0, fx / (dist * required_px_per_m)) * cos_t)
+    return v32 if v32 > tiny else tiny
+
+
+@numba.njit(**_JIT)
 def merge_rows(
     rowids, offsets, lcols, col0, row_lo, row_hi, nxt, indices, data,
     graded, positions, normals, emitter, cam_pos, fx, required_px_per_m,
@@ -278,36 +298,37 @@ def merge_rows(
     ``row_lo:row_hi`` to a CSR under construction, with their observation quality.
 
     ``nxt[r]`` is the next free slot of row r in ``indices`` / ``data``. The quality is 1, or
-    with ``graded`` ``min(1, fx / (d * required_px_per_m)) * cos(theta)`` (``cos(theta) = 1``
-    for emitters), floored at the smallest normal float32.
+    with ``graded`` :func:`pair_quality`.
     """
-    tiny = np.float32(1.1754944e-38)
     one = np.float32(1.0)
     for t in range(rowids.shape[0]):
         r = rowids[t]
         if r < row_lo or r >= row_hi:
             continue
         at = nxt[r]
-        px, py, pz = positions[r, 0], positions[r, 1], positions[r, 2]
-        nx, ny, nz = normals[r, 0], normals[r, 1], normals[r, 2]
         for x in range(offsets[t], offsets[t + 1]):
             col = col0 + lcols[x]
             indices[at] = col
             if graded:
-                dx = px - cam_pos[col, 0]
-                dy = py - cam_pos[col, 1]
-                dz = pz - cam_pos[col, 2]
-                dist = math.sqrt(dx * dx + dy * dy + dz * dz)
-                if emitter[r]:
-                    cos_t = 1.0
-                else:
-                    cos_t = -(dx * nx + dy * ny + dz * nz) / max(dist, 1e-300)
-                v32 = np.float32(min(1.0, fx / (dist * required_px_per_m)) * cos_t)
-                data[at] = v32 if v32 > tiny else tiny
+                data[at] = pair_quality(r, col, positions, normals, emitter, cam_pos, fx, required_px_per_m)
             else:
                 data[at] = one
             at += 1
         nxt[r] = at
+
+
+@numba.njit(**_JIT)
+def scatter_chunk_quality(rowids, offsets, lcols, col0, values, positions, normals, emitter, cam_pos, fx,
+                          required_px_per_m):  # pragma: no cover - compiled
+    """Write the quantised qualities of a chunk's observed pairs
+    (:class:`camplace.visibility.chunk.ChunkResult`) into ``values`` ((n, m) uint8, only the chunk's
+    columns): :func:`pair_quality` (float32), then :func:`camplace.visibility.qbytes.quantise`."""
+    for t in range(rowids.shape[0]):
+        r = rowids[t]
+        for p in range(offsets[t], offsets[t + 1]):
+            c = col0 + np.int64(lcols[p])
+            v = pair_quality(r, c, positions, normals, emitter, cam_pos, fx, required_px_per_m)
+            values[c, r] = quantise(np.float64(v))
 
 
 @numba.njit(**_JIT)

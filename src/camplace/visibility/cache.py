@@ -45,6 +45,8 @@ def task_key(task) -> str:
     }
     if task.min_target_px > 0:  # only when set: the keys of matrices without it stay as they were
         scalars["min_target_px"] = task.min_target_px
+    if task.quantised:  # a graded matrix kept as bytes (float32 entries keep their keys)
+        scalars["quantised"] = "byte"
     h.update(json.dumps(scalars, sort_keys=True).encode())
     for name in ("positions", "normals", "frame", "active", "eps_m", "cam_positions", "cam_rotations", "K"):
         a = np.ascontiguousarray(getattr(task, name))
@@ -67,19 +69,22 @@ def entry_path(cache_dir: Path, key: str) -> Path:
     return Path(cache_dir) / "visibility" / f"{key}.cpm"
 
 
-def load(cache_dir: Path, key: str, shape: tuple[int, int], bits: bool = False) -> tuple[sp.csr_matrix, dict] | None:
+def load(cache_dir: Path, key: str, shape: tuple[int, int], bits: bool = False,
+         quantised: bool = False) -> tuple[sp.csr_matrix, dict] | None:
     """The cached matrix and stats, or None on a miss or an unreadable entry (then removed).
 
     With ``bits`` the matrix comes back as column bitsets
-    (:class:`~camplace.visibility.bits.BitMatrix`, binary instances)."""
-    from camplace.visibility.store import load_bits, load_visibility, read_meta
+    (:class:`~camplace.visibility.bits.BitMatrix`, binary instances); with ``quantised`` as
+    quantised columns (:class:`~camplace.visibility.qbytes.ByteMatrix`, graded instances kept as
+    bytes)."""
+    from camplace.visibility.store import load_bits, load_bytes, load_visibility, read_meta
 
     path = entry_path(cache_dir, key)
     if not path.exists():
         return None
     try:
         stats = read_meta(path).get("stats", {})
-        matrix = load_bits(path) if bits else load_visibility(path)
+        matrix = load_bits(path) if bits else load_bytes(path) if quantised else load_visibility(path)
         if matrix.shape != shape:
             raise CamplaceError(f"shape {matrix.shape}, expected {shape}")
     except CamplaceError as exc:  # any unreadable entry is a miss

@@ -134,6 +134,9 @@ class VisibilityTask:
     min_target_px : float
         ``[quality] min_target_px`` (0: none); applied by the engine after assembly
         (:func:`camplace.visibility.engine.drop_small_views`), here for the cache key.
+    quantised : bool
+        A graded matrix kept as bytes (``[quality] precision = "byte"``,
+        :mod:`camplace.visibility.qbytes`); for the cache key.
     cam_model : (n,) int16 or None
         A team's camera model of each candidate, non-decreasing (columns grouped by model); None:
         every candidate has the intrinsics ``K``, ``width_px``, ... above.
@@ -161,6 +164,7 @@ class VisibilityTask:
     support: np.ndarray
     support_tol: np.ndarray
     min_target_px: float = 0.0
+    quantised: bool = False
     cam_model: np.ndarray | None = None
     models: tuple = ()
 

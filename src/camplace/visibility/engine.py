@@ -71,6 +71,10 @@ class VisibilityMatrix:
     bits : camplace.visibility.bits.BitMatrix or None
         A binary matrix as column bitsets (one bit a cell; see :mod:`camplace.visibility.bits`),
         what the solver reads for the binary modes; None for a graded matrix.
+    qbytes : camplace.visibility.qbytes.ByteMatrix or None
+        A graded matrix quantised to a byte a cell, column by column (``[quality] precision =
+        "byte"``; :mod:`camplace.visibility.qbytes`), what the solver reads; ``matrix`` is then
+        its CSR float32 values ``q / 255``, made on first use.
     points : TargetPoints
         The m rows.
     stats : dict
@@ -83,11 +87,12 @@ class VisibilityMatrix:
     """
 
     def __init__(self, matrix: sp.csr_matrix | None = None, points: TargetPoints | None = None, stats: dict | None = None,
-                 store_path: Path | None = None, timings_s: dict | None = None, bits=None):
-        if matrix is None and bits is None:
-            raise ValueError("VisibilityMatrix needs a matrix or bits")
+                 store_path: Path | None = None, timings_s: dict | None = None, bits=None, qbytes=None):
+        if matrix is None and bits is None and qbytes is None:
+            raise ValueError("VisibilityMatrix needs a matrix, bits or bytes")
         self._matrix = matrix
         self.bits = bits
+        self.qbytes = qbytes
         self.points = points
         self.stats = {} if stats is None else stats
         self.store_path = store_path
@@ -96,13 +101,16 @@ class VisibilityMatrix:
     @property
     def matrix(self) -> sp.csr_matrix:
         if self._matrix is None:
-            self._matrix = self.bits.tocsr()
+            self._matrix = (self.bits if self.bits is not None else self.qbytes).tocsr()
         return self._matrix
 
     @property
     def pattern(self):
-        """What the solver reads: :attr:`bits` when held, else :attr:`matrix`."""
-        return self.bits if self.bits is not None else self._matrix
+        """What the solver reads: :attr:`bits` or :attr:`qbytes` when held, else :attr:`matrix`."""
+        for held in (self.bits, self.qbytes):
+            if held is not None:
+                return held
+        return self._matrix
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -123,7 +131,8 @@ class VisibilityMatrix:
 
         # the same meta as the cache entry (the pair counts), so a written file equals a linked one
         counts = {k: self.stats[k] for k in COUNT_KEYS if k in self.stats}
-        source = self.bits if (self.bits is not None and matrix_format == "cpm") else self.matrix
+        held = self.bits if self.bits is not None else self.qbytes
+        source = held if (held is not None and matrix_format == "cpm") else self.matrix
         return save_matrix(Path(outdir), source, fmt=matrix_format, link_from=self.store_path,
                            meta={"stats": counts} if counts else None)
 
@@ -198,8 +207,11 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     return out
 
 
-def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTask, dict[int, FrameScenes]]:
-    """The picklable task for (instance, candidates, points) and the frame scenes built for it."""
+def make_task(instance, candidates, points: TargetPoints,
+              quantised: bool | None = None) -> tuple[VisibilityTask, dict[int, FrameScenes]]:
+    """The picklable task for (instance, candidates, points) and the frame scenes built for it
+    (``quantised``: a graded matrix kept as bytes; default: as the instance's ``[quality]
+    precision`` says)."""
     cam = instance.camera
     q = instance.quality
     frames = [int(f) for f in np.unique(points.frame)]
@@ -237,9 +249,16 @@ def make_task(instance, candidates, points: TargetPoints) -> tuple[VisibilityTas
         support=support,
         support_tol=tol,
         min_target_px=float(getattr(q, "min_target_px", 0.0)),
+        quantised=bool(quantised if quantised is not None else byte_precision(instance)),
         **team_intrinsics(instance, candidates),
     )
     return task, scenes
+
+
+def byte_precision(instance) -> bool:
+    """True when the instance's matrix is graded and kept as bytes (``[quality] precision = "byte"``)."""
+    q = instance.quality
+    return q.mode == "graded" and getattr(q, "precision", "byte") == "byte"
 
 
 def team_intrinsics(instance, candidates) -> dict:
@@ -289,8 +308,7 @@ def assemble(task: VisibilityTask, parts: list[ChunkResult], workers: int | None
     workers = max(1, min(thread_count(workers), m))
     emitter = ~np.any(task.normals != 0.0, axis=1)
     # every chunk holds one camera model: its fx grades its pairs
-    fxs = [float(task.intrinsics(p.col0, p.col0 + 1)[0][0, 0]) if task.cam_model is not None else float(task.K[0, 0])
-           for p in parts]
+    fxs = [chunk_fx(task, int(p.col0)) for p in parts]
     bounds = [0, *np.searchsorted(indptr, [nnz * (t + 1) / workers for t in range(workers - 1)]), m]
 
     def merge(t: int) -> None:
@@ -322,6 +340,32 @@ def scatter_part(words: np.ndarray, part: ChunkResult) -> ChunkResult:
         scatter_chunk(part.rowids, part.offsets, part.lcols, int(part.col0), words)
     return ChunkResult(part.col0, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8),
                        {**part.counts})
+
+
+def chunk_fx(task: VisibilityTask, col0: int) -> float:
+    """The focal length (pixels) that grades the pairs of the chunk starting at column ``col0``
+    (every chunk holds one camera model)."""
+    return float(task.intrinsics(col0, col0 + 1)[0][0, 0]) if task.cam_model is not None else float(task.K[0, 0])
+
+
+def scatter_part_bytes(task: VisibilityTask, values: np.ndarray, part: ChunkResult) -> ChunkResult:
+    """Write a chunk's observed pairs, quantised (:func:`camplace.visibility._kernels.scatter_chunk_quality`),
+    into the columns ``values`` ((n, m) uint8) and return the chunk's counts with empty pair arrays."""
+    from camplace.visibility._kernels import scatter_chunk_quality
+
+    if len(part.rowids):
+        emitter = ~np.any(task.normals != 0.0, axis=1)
+        scatter_chunk_quality(part.rowids, part.offsets, part.lcols, int(part.col0), values, task.positions,
+                              task.normals, emitter, task.cam_positions, chunk_fx(task, int(part.col0)),
+                              task.required_px_per_m)
+    return ChunkResult(part.col0, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8),
+                       {**part.counts})
+
+
+def compute_chunk_bytes(task: VisibilityTask, scenes, start: int, stop: int, values: np.ndarray) -> ChunkResult:
+    """:func:`compute_chunk` of candidates ``start:stop`` written, quantised, straight into
+    ``values`` (only these columns). Returns the counts."""
+    return scatter_part_bytes(task, values, compute_chunk(task, scenes, start, stop))
 
 
 def compute_chunk_bits(task: VisibilityTask, scenes, start: int, stop: int, words: np.ndarray) -> ChunkResult:
@@ -371,6 +415,35 @@ def drop_small_views_bits(instance, candidates, points: TargetPoints, bits, coun
                 release_columns(bits.words, int(j), int(j) + 1)
     bits.__dict__.pop("column_counts", None)
     n_drop = int(before.sum() - bits.column_counts.sum())
+    if n_drop:
+        log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
+                 n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
+    return {**counts, "observed": int(counts["observed"]) - n_drop}
+
+
+def drop_small_views_bytes(instance, candidates, points: TargetPoints, qbytes, counts: dict) -> dict:
+    """:func:`drop_small_views` on a :class:`~camplace.visibility.qbytes.ByteMatrix`, in place.
+
+    Returns
+    -------
+    dict
+        ``counts`` with ``observed`` lowered by the pairs dropped.
+    """
+    from camplace.visibility.footprint import small_views
+
+    frames = [int(f) for f in np.unique(points.frame)]
+    small = small_views(instance, candidates.positions, candidates.rotations, frames,
+                        models=getattr(candidates, "model", None))  # (n, n_frames)
+    if small is None or not small.any():
+        return counts
+    before = qbytes.column_counts.copy()
+    surface = ~points.is_emitter
+    for f in frames:
+        rows = np.flatnonzero(surface & (points.frame == f))
+        for j in np.flatnonzero(small[:, f]):
+            qbytes.values[j, rows] = 0
+    qbytes.__dict__.pop("column_counts", None)
+    n_drop = int(before.sum() - qbytes.column_counts.sum())
     if n_drop:
         log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
                  n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
@@ -474,7 +547,12 @@ BASE_BYTES = 280 * 2**20
 THREAD_BYTES = 60 * 2**20
 
 
-def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr") -> int:
+#: the quality tree's table when the full one is over the budget, as a share of the matrix bytes
+#: (rows for the clusters of more than 64 cameras only: about n / 40 rows; :mod:`camplace.solver.bytes_route`)
+LEAN_TREE = 1 / 32
+
+
+def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: float = 1.0) -> int:
     """Peak bytes of a run with a matrix of this size and density in ``layout``.
 
     ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
@@ -486,11 +564,19 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     more ``B``: ``2 B``. ``bits-disk`` (out of core, :mod:`camplace.visibility.scratch`): the
     bitsets are in a scratch file and only the pages of the chunks in flight are resident; the
     presolve's reduced instance must still fit in memory, and the presolve checks it against the
-    budget itself once it knows its size. All add the per-thread work arrays
+    budget itself once it knows its size. ``bytes`` (graded, quantised: :mod:`camplace.visibility.qbytes`):
+    the matrix is ``C = n_cols * n_rows`` bytes whatever the density, and the solver's quality tree
+    adds its inner nodes' table (``(n_cols - 1) x n_rows`` bytes, :func:`camplace.solver.engines.quality.tree.quality_tree_bytes_dense`)
+    and the pattern's column bitsets (``B``, its ordering and the run's summary): ``2 C + B``
+    (``(1 + tree) C + B``: ``tree = 0`` for a run whose solve reads the pattern, e.g. max coverage,
+    :data:`LEAN_TREE` when the solver keeps rows for large clusters only). All add the per-thread work arrays
     (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
     words = 8 * n_cols * ((n_rows + 63) // 64)
+    if layout == "bytes":
+        cells = n_rows * n_cols
+        return int((1 + float(tree)) * cells + words + 16 * n_rows + fixed)
     if layout == "bits-disk":
         return int(16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
@@ -512,6 +598,7 @@ def compute_visibility(
     cache_dir: str | Path | None = None,
     layout: str = "auto",
     scratch=None,
+    quality_tree: bool = True,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -534,25 +621,34 @@ def compute_visibility(
     cache_dir : path or None
         Reuse / store the matrix in this cache folder (see :mod:`camplace.visibility.cache`);
         None disables the cache.
-    layout : {"auto", "bits", "csr"}
+    layout : {"auto", "bits", "bytes", "csr"}
         ``auto``: a binary instance's matrix as column bitsets (:attr:`VisibilityMatrix.bits`,
         one bit a cell, each chunk scattered into them as it finishes: no float CSR is made), a
-        graded one as float32 CSR; ``csr``: float32 CSR always (``bits`` is refused for a graded
-        instance).
+        graded one as quantised columns (:attr:`VisibilityMatrix.qbytes`, one byte a cell, filled
+        the same way) when its ``[quality] precision`` is ``byte`` (the default), else as float32
+        CSR; ``csr``: float32 CSR always (``bits`` is refused for a graded instance, ``bytes``
+        for a binary one).
     scratch : camplace.visibility.scratch.Scratch or None
         Where column bitsets that do not fit ``memory_budget_bytes`` go (out of core: a file, read
         and written block by block); None: such a matrix is an error before the work.
+    quality_tree : bool
+        Quantised columns only: the run's solve builds the quality tree over them (``--mode
+        quality``), so the memory estimate counts its inner nodes' table too (False: a solve that
+        reads the pattern).
 
     Returns
     -------
     VisibilityMatrix
     """
-    if layout not in ("auto", "bits", "csr"):
-        raise CamplaceError(f"visibility layout: unknown {layout!r} (use auto, bits or csr)")
+    if layout not in ("auto", "bits", "bytes", "csr"):
+        raise CamplaceError(f"visibility layout: unknown {layout!r} (use auto, bits, bytes or csr)")
     graded = instance.quality.mode == "graded"
     if layout == "bits" and graded:
         raise CamplaceError("visibility layout bits: the instance's [quality] mode is graded (its values need csr)")
+    if layout == "bytes" and not graded:
+        raise CamplaceError("visibility layout bytes: the instance's [quality] mode is binary (use bits)")
     use_bits = layout == "bits" or (layout == "auto" and not graded)
+    use_bytes = layout == "bytes" or (layout == "auto" and byte_precision(instance))
     n_cand = len(candidates)
     model = getattr(candidates, "model", None)
     if getattr(instance, "team", None) is not None and model is not None and len(model) and np.any(np.diff(model) < 0):
@@ -570,10 +666,15 @@ def compute_visibility(
 
             return VisibilityMatrix(bits=BitMatrix(vis.bits.words[back], len(points)), points=points, stats=vis.stats,
                                     timings_s=vis.timings_s)
+        if vis.qbytes is not None:
+            from camplace.visibility.qbytes import ByteMatrix
+
+            return VisibilityMatrix(qbytes=ByteMatrix(vis.qbytes.values[back]), points=points, stats=vis.stats,
+                                    timings_s=vis.timings_s)
         matrix = vis.matrix[:, back].tocsr()
         matrix.sort_indices()
         return VisibilityMatrix(matrix=matrix, points=points, stats=vis.stats, timings_s=vis.timings_s)
-    task, scenes = make_task(instance, candidates, points)
+    task, scenes = make_task(instance, candidates, points, quantised=use_bytes)
     if chunk_size is None:
         chunk_size = default_chunk_size(task)
     key = None
@@ -581,12 +682,12 @@ def compute_visibility(
     if cache_dir is not None:
         key = cache.task_key(task)
         t0 = time.perf_counter()
-        hit = cache.load(Path(cache_dir), key, (len(points), n_cand), bits=use_bits)
+        hit = cache.load(Path(cache_dir), key, (len(points), n_cand), bits=use_bits, quantised=use_bytes)
         timings["cache.load"] = time.perf_counter() - t0
         if hit is not None:
             if progress is not None:
                 progress(n_cand)
-            held = {"bits": hit[0]} if use_bits else {"matrix": hit[0]}
+            held = {"bits": hit[0]} if use_bits else {"qbytes": hit[0]} if use_bytes else {"matrix": hit[0]}
             return VisibilityMatrix(**held, points=points, stats={**hit[1], "cache": "hit"},
                                     store_path=cache.entry_path(Path(cache_dir), key), timings_s=timings)
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
@@ -596,6 +697,8 @@ def compute_visibility(
     # of the work (in process, the other chunks start beside it and are cancelled on a failed check).
 
     def check_pilot(first: ChunkResult, pilot_cols: int) -> None:
+        if pilot_layout == "bytes":  # one byte a cell: checked before the work
+            return
         density = len(first.lcols) / max(1, len(points) * pilot_cols)
         need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout)
         if need > budget:
@@ -606,8 +709,25 @@ def compute_visibility(
             )
 
     parts: list[ChunkResult] = []
-    pilot_layout = "bits" if use_bits else "csr"
-    words = None
+    pilot_layout = "bits" if use_bits else "bytes" if use_bytes else "csr"
+    words = values = None
+    if use_bytes:
+        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=1.0 if quality_tree else 0.0)
+        lean = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes", tree=LEAN_TREE)
+        if need > budget and quality_tree and lean <= budget:  # the tree will keep rows for large clusters only
+            log.info("visibility: estimated peak %.2f GiB with the quality tree's full table, over the memory budget "
+                     "(%.2f GiB); %.2f GiB with rows for large clusters only (the solver sizes the table to its budget)",
+                     need / 2**30, budget / 2**30, lean / 2**30)
+            need = lean
+        if need > budget:
+            raise CamplaceError(
+                f"visibility: the run would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
+                f"candidates, one byte a cell for the matrix and as much for the quality tree), over the memory "
+                f"budget of {budget / 2**30:.1f} GiB (lower --points or --candidates, raise --memory-budget-gb, or "
+                f"set [quality] precision = \"float32\" for a sparse matrix)")
+        log.info("visibility: quantised columns %.1f MiB, estimated peak %.2f GiB", len(points) * n_cand / 2**20,
+                 need / 2**30)
+        values = np.zeros((n_cand, len(points)), dtype=np.uint8)
     if use_bits:
         from camplace.visibility.bits import bit_words
 
@@ -645,19 +765,26 @@ def compute_visibility(
             if words is not None:
                 parts[0] = scatter_part(words, parts[0])
                 release_columns(words, a0, b0)
+            if values is not None:
+                parts[0] = scatter_part_bytes(task, values, parts[0])
             if progress is not None:
                 progress(b0 - a0)
         rest = ranges[1:]
         parts += compute_chunks_dask(task, [a for a, _ in rest], chunk_size, dask_address, progress=progress,
                                      stops=[b for _, b in rest] if task.cam_model is not None else None,
                                      words=words)
+        if values is not None:  # the pair lists as they came back, quantised into the columns
+            parts = [scatter_part_bytes(task, values, p) for p in parts]
     else:
         workers = thread_count(workers)
 
         plan = chunk_plan(n_cand, chunk_size, workers) if task.cam_model is None else team_chunk_plan(task, chunk_size, workers)
         pool = ThreadPoolExecutor(max_workers=workers)
         try:
-            if words is None:
+            if values is not None:  # the pilot keeps its pairs for the check; the others are written on their threads
+                futures = [pool.submit(compute_chunk, task, scenes, *plan[0])] if plan else []
+                futures += [pool.submit(compute_chunk_bytes, task, scenes, a, b, values) for a, b in plan[1:]]
+            elif words is None:
                 futures = [pool.submit(compute_chunk, task, scenes, a, b) for a, b in plan]
             else:  # the pilot keeps its pairs for the check; the others are scattered on their threads
                 futures = [pool.submit(compute_chunk, task, scenes, *plan[0])] if plan else []
@@ -669,22 +796,31 @@ def compute_visibility(
                     if words is not None:
                         parts[0] = scatter_part(words, parts[0])
                         release_columns(words, a, b)
+                    if values is not None:
+                        parts[0] = scatter_part_bytes(task, values, parts[0])
                 if progress is not None:
                     progress(b - a)
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
-    bits = None
-    if words is not None:
+    bits = qbytes = None
+    if words is not None or values is not None:
         from camplace.visibility.bits import BitMatrix
+        from camplace.visibility.qbytes import ByteMatrix
 
         total = dict.fromkeys(COUNT_KEYS, 0)
         for part in parts:
             for k in COUNT_KEYS:
                 total[k] += part.counts[k]
         parts.clear()
-        matrix, bits = None, BitMatrix(words, len(points))
-        if task.min_target_px > 0:
-            total = drop_small_views_bits(instance, candidates, points, bits, total)
+        matrix = None
+        if words is not None:
+            bits = BitMatrix(words, len(points))
+            if task.min_target_px > 0:
+                total = drop_small_views_bits(instance, candidates, points, bits, total)
+        else:
+            qbytes = ByteMatrix(values)
+            if task.min_target_px > 0:
+                total = drop_small_views_bytes(instance, candidates, points, qbytes, total)
     else:
         matrix, total = assemble(task, parts)
         parts.clear()
@@ -693,12 +829,13 @@ def compute_visibility(
     store_path = None
     if key is not None:
         t0 = time.perf_counter()
-        store_path = cache.store(Path(cache_dir), key, bits if bits is not None else matrix, total)
+        store_path = cache.store(Path(cache_dir), key, bits if bits is not None else qbytes if qbytes is not None
+                                 else matrix, total)
         timings["cache.store"] = time.perf_counter() - t0
         total = {**total, "cache": "miss"}
     log.info(
         "visibility: %d pairs, %d in range, %d in frustum, %d facing, %d observed",
         total["pairs"], total["in_range"], total["in_frustum"], total["facing"], total["observed"],
     )
-    return VisibilityMatrix(matrix=matrix, bits=bits, points=points, stats=total, store_path=store_path,
+    return VisibilityMatrix(matrix=matrix, bits=bits, qbytes=qbytes, points=points, stats=total, store_path=store_path,
                             timings_s=timings)

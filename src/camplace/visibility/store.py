@@ -37,6 +37,11 @@ Structure (the sparsity pattern):
   Values are always ``ones``. Written for a binary run's matrix whatever its density (it is what
   the solver reads; :func:`load_bits` returns it without a CSR copy, :func:`load_visibility`
   converts it to CSR). Files of the other structures stay readable by both.
+- ``colbytes`` (graded matrices quantised to a byte, :mod:`camplace.visibility.qbytes`): section
+  ``colbytes``, uint8, n * m bytes: column j's bytes at ``j * m``, row i at ``j * m + i``; a byte
+  q stands for the quality q / 255 (0: not observed). Values are always ``byte255``. Written for a
+  graded run with ``[quality] precision = "byte"`` (:func:`load_bytes` returns it as it is,
+  :func:`load_visibility` converts it to CSR float32 values q / 255).
 - ``csr``: section ``counts`` (entries per row, the narrowest unsigned type that holds the
   largest) and ``indices`` (column of every entry, row by row, ascending within a row, the
   narrowest unsigned type that holds n - 1).
@@ -86,6 +91,7 @@ __all__ = [
     "convert_matrix",
     "as_pattern_if_binary",
     "load_bits",
+    "load_bytes",
     "load_visibility",
     "matrix_path",
     "read_meta",
@@ -265,6 +271,26 @@ def _is_bits(matrix) -> bool:
     return getattr(matrix, "format", None) == "bits"
 
 
+def _is_bytes(matrix) -> bool:
+    return getattr(matrix, "format", None) == "bytes"
+
+
+def _colbytes(footer: dict, arrays: dict[str, np.ndarray]):
+    """The :class:`~camplace.visibility.qbytes.ByteMatrix` of a ``colbytes`` file, checked."""
+    from camplace.visibility.qbytes import ByteMatrix
+
+    m, n = footer["shape"]
+    if footer["values"] != "byte255":
+        raise _Corrupt(f"colbytes with values {footer['values']!r}")
+    values = arrays["colbytes"]
+    if values.size != n * m:
+        raise _Corrupt(f"colbytes section holds {values.size} bytes, expected {n * m}")
+    out = ByteMatrix(values.reshape(n, m))
+    if out.nnz != footer["nnz"]:
+        raise _Corrupt(f"{out.nnz} entries, the footer says {footer['nnz']}")
+    return out
+
+
 def _colbits(footer: dict, arrays: dict[str, np.ndarray]):
     """The :class:`~camplace.visibility.bits.BitMatrix` of a ``colbits`` file, checked."""
     from camplace.visibility.bits import BitMatrix, bit_words
@@ -290,6 +316,9 @@ def _from_layout(footer: dict, arrays: dict[str, np.ndarray], workers: int, patt
         if footer["values"] != "ones":
             raise _Corrupt(f"colbits with values {footer['values']!r}")
         return _colbits(footer, arrays).tocsr(np.bool_ if pattern else np.float32, workers)
+    if footer["structure"] == "colbytes":
+        matrix = _colbytes(footer, arrays).tocsr(np.float32, workers)
+        return as_pattern_if_binary(matrix) if pattern else matrix
     idt = index_dtype((m, n), nnz)
     with ThreadPoolExecutor(max_workers=1) as side:
         # the all-ones values are allocated (page faults, 4 bytes a pair, or 1 for a pattern) beside
@@ -553,7 +582,8 @@ def save_visibility(path: str | Path, matrix, *, codec: str = "zstd", level: int
     matrix : (m, n) sparse or dense, or camplace.visibility.bits.BitMatrix
         Written as canonical CSR float32 (see :func:`canonical_csr`); values round-trip exactly.
         A :class:`~camplace.visibility.bits.BitMatrix` is written as its column bitsets
-        (structure ``colbits``) without a CSR copy.
+        (structure ``colbits``), a :class:`~camplace.visibility.qbytes.ByteMatrix` as its bytes
+        (structure ``colbytes``), without a CSR copy.
     codec : {"zstd", "none"}
     level : int
         zstd level (1 is fast; higher is smaller and slower to write, as fast to read).
@@ -574,6 +604,8 @@ def save_visibility(path: str | Path, matrix, *, codec: str = "zstd", level: int
     workers = _workers(workers)
     if _is_bits(matrix):
         structure, values, sections = "colbits", "ones", [("colbits", matrix.words, 0)]
+    elif _is_bytes(matrix):
+        structure, values, sections = "colbytes", "byte255", [("colbytes", matrix.values.reshape(-1), 0)]
     else:
         matrix = canonical_csr(matrix)
         structure, values, sections = _layout(matrix, workers)
@@ -727,6 +759,37 @@ def load_bits(path_or_outdir: str | Path, *, workers: int | None = None):
     return bits_from_csr(matrix, workers)
 
 
+def load_bytes(path_or_outdir: str | Path, *, workers: int | None = None):
+    """A graded visibility matrix quantised to bytes (:class:`~camplace.visibility.qbytes.ByteMatrix`).
+
+    A ``colbytes`` file is read as it is (one byte a cell); a file of another structure, or a
+    ``.npz``, is read as CSR and quantised (:func:`camplace.visibility.qbytes.bytes_from_csr`).
+
+    Raises
+    ------
+    CamplaceError
+        One line naming the file when it is missing, corrupt, or holds values outside [0, 1].
+    """
+    from camplace.visibility.qbytes import bytes_from_csr
+
+    path = matrix_path(path_or_outdir)
+    try:
+        if _is_store(path):
+            buf, footer = _open(path)
+            try:
+                if footer["structure"] == "colbytes":
+                    return _colbytes(footer, _read_sections(buf, footer, _workers(workers)))
+            finally:
+                if isinstance(buf, mmap.mmap):
+                    buf.close()
+    except (_Corrupt, KeyError, TypeError, ValueError, OSError) as exc:
+        raise _read_error(path, exc) from None
+    try:
+        return bytes_from_csr(load_visibility(path, workers=workers), workers)
+    except ValueError as exc:
+        raise CamplaceError(f"{path}: {exc}; read it with load_visibility") from None
+
+
 def as_pattern_if_binary(matrix: sp.csr_matrix) -> sp.csr_matrix:
     """A canonical CSR matrix whose every value is 1 with bool data (its pattern, sharing the index
     arrays); any other matrix unchanged."""
@@ -816,7 +879,7 @@ def save_matrix(outdir: str | Path, matrix, *, fmt: str = "cpm", link_from: str 
     outdir = Path(outdir)
     if fmt == "npz":
         dst = outdir / NPZ_NAME
-        m = canonical_csr(matrix.tocsr() if _is_bits(matrix) else matrix)
+        m = canonical_csr(matrix.tocsr() if _is_bits(matrix) or _is_bytes(matrix) else matrix)
         write_with_atomic(dst, lambda p: sp.save_npz(p, m, compressed=True))
     else:
         dst = outdir / MATRIX_NAME

@@ -75,7 +75,8 @@ def summarise(matrix, weights: np.ndarray, selected: Sequence[int], frame: np.nd
     matrix : (m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
         Any values; an entry counts as observed (stored zeros do not occur in camplace's matrices).
         Column bitsets are read word by word (the useful columns) and the selected columns alone
-        are unpacked, without a CSR copy.
+        are unpacked, without a CSR copy; quantised columns (``ByteMatrix``) through their
+        pattern's bitsets.
     weights : (m,) float64
         The solver's row weights: columns count as useful when they observe a row of positive weight.
     selected : sequence of int
@@ -90,6 +91,8 @@ def summarise(matrix, weights: np.ndarray, selected: Sequence[int], frame: np.nd
     -------
     MatrixSummary
     """
+    if getattr(matrix, "format", None) == "bytes":  # quantised columns: the figures read the pattern
+        matrix = matrix.bits()
     if getattr(matrix, "format", None) == "bits":
         return _summarise_bits(matrix, weights, selected, frame, frame_weight, n_frames)
     m, n = matrix.shape

@@ -24,6 +24,11 @@
   happens if more than :data:`FRONTIER_MAX` tuples are open (a guard; depth-first keeps far fewer).
 * **Exactness.** Pruning keeps a margin of ``1e-9 * total weight`` (floating-point sums). With
   equal row weights a bound is an integer sum of bytes, scaled once.
+* **Quantised columns** (:func:`solve_quality_tree_dense`, issue 32): when the matrix already is
+  bytes (``values`` (n, m) uint8, a graded run's ``ByteMatrix``), those columns are the leaves as
+  they are and only the inner nodes' table is made ((n - 1) x m bytes): no CSC copy, no rounding
+  of its own, a tuple of leaves' bound is its value (exact for the quantised values), and the
+  incumbent heuristics read the bytes. The search is the same (:func:`_search`).
 """
 
 from __future__ import annotations
@@ -44,7 +49,8 @@ from camplace.solver._support.frontier import best_leaf, push_chunks
 from camplace.solver._support.greedy import greedy_swap
 from camplace.solver.result import EngineOutcome
 
-__all__ = ["solve_quality_tree", "quality_tree_bytes", "FRONTIER_MAX"]
+__all__ = ["solve_quality_tree", "solve_quality_tree_dense", "quality_tree_bytes", "quality_tree_bytes_dense",
+           "dense_table_group", "FRONTIER_MAX", "GROUP_MAX"]
 
 log = logging.getLogger(__name__)
 
@@ -330,11 +336,29 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
     stats["time_setup_s"] = since()
     stats["table_bytes"] = int(table.nbytes)
 
-    # Depth-first over chunks: pop the top chunk, expand it in parallel, push its surviving
-    # children as chunks in increasing bound order (the most promising on top).
+    def expand(tup: np.ndarray, best: float):
+        return _expand(tup, lo, hi, left, right, table, wq, equal, best, margin, qc.indptr, qc.indices, qc.data, w,
+                       order)
+
+    best, best_set, bound, status = _search(expand, _bound(table, np.zeros(k, dtype=np.int64), wq), k, lo, order,
+                                            best, best_set, margin, deadline, stats)
+    log.info("quality tree: k=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", k, m_live, n,
+             status, best, bound, stats["bound_evaluations"], since())
+    return EngineOutcome(selected=best_set, status=status, bound=float(bound), stats=stats)
+
+
+def _search(expand, root_bound: float, k: int, lo: np.ndarray, order: np.ndarray, best: float, best_set: tuple,
+            margin: float, deadline: Deadline, stats: dict[str, Any]) -> tuple[float, tuple, float, str]:
+    """Depth-first over chunks of node tuples: pop the top chunk, expand it in parallel
+    (``expand(tuples, best)`` -> children, value, leaf as :func:`_expand`), push its surviving
+    children as chunks in increasing bound order (the most promising on top).
+
+    Returns (best value, best set, bound, status); fills ``stats``."""
+    since = stopwatch(deadline)
+    t0 = since()
     root = np.zeros((1, k), dtype=np.int64)
     stack_t: list[np.ndarray] = [root]
-    stack_b: list[np.ndarray] = [np.array([_bound(table, root[0], wq)])]
+    stack_b: list[np.ndarray] = [np.array([root_bound])]
     evaluated = exact_evals = chunks = 0
     n_open = peak = 1
     status = "optimal"
@@ -353,8 +377,7 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
             continue
         chunks += 1
         with ctrl_c_deferred():
-            children, value, leaf = _expand(tup, lo, hi, left, right, table, wq, equal, best, margin,
-                                            qc.indptr, qc.indices, qc.data, w, order)
+            children, value, leaf = expand(tup, best)
         made = np.isfinite(value)
         evaluated += int(made.sum())
         exact_evals += int((leaf & made).sum())
@@ -369,10 +392,8 @@ def solve_quality_tree(matrix: sp.spmatrix, weights: np.ndarray, k: int, *,
     if bound <= best + margin:
         status, bound = "optimal", best
     stats.update({"bound_evaluations": evaluated, "exact_evaluations": exact_evals, "chunks": chunks,
-                  "peak_open": int(peak), "time_search_s": since() - stats["time_setup_s"]})
-    log.info("quality tree: k=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", k, m_live, n,
-             status, best, bound, evaluated, since())
-    return EngineOutcome(selected=best_set, status=status, bound=float(bound), stats=stats)
+                  "peak_open": int(peak), "time_search_s": since() - t0})
+    return best, best_set, bound, status
 
 
 @numba.njit(**_JIT)
@@ -400,3 +421,360 @@ def _pattern_bits_kernel(indptr, indices, data, rowmap, m_live):  # pragma: no c
             if r >= 0 and data[p] > 0:
                 out[j, r >> 6] |= np.uint64(1) << np.uint64(r & 63)
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The same search on quantised columns (issue 32): the stored bytes are the tree's leaves.
+
+
+#: the largest clusters whose bytes a budgeted table leaves out (their bound reads their columns)
+GROUP_MAX = 64
+
+
+def quality_tree_bytes_dense(m: int, n: int, group: int = 1) -> int:
+    """Approximate peak working memory of :func:`solve_quality_tree_dense` beside its input: the
+    table of the inner nodes of more than ``group`` columns ((n - 1) x m bytes for ``group = 1``,
+    about ``n / group`` rows otherwise), the pattern bitsets and the open tuples."""
+    stored = max(n, 1) - 1 if group <= 1 else _stored_inner(n, group)
+    return stored * m + n * ((m + 63) // 64) * 8 + 8 * FRONTIER_MAX
+
+
+def _stored_inner(n: int, group: int) -> int:
+    """Inner nodes of the bisection tree over ``n`` columns with more than ``group`` columns."""
+    if n <= group:
+        return 0
+    a, b = n // 2, n - n // 2
+    return 1 + _stored_inner(a, group) + _stored_inner(b, group)
+
+
+def dense_table_group(m: int, n: int, budget: int) -> int | None:
+    """The smallest ``group`` (1, 2, 4, ..., :data:`GROUP_MAX`) whose table fits ``budget`` bytes
+    (:func:`quality_tree_bytes_dense`), or None when none does."""
+    group = 1
+    while group <= GROUP_MAX:
+        if quality_tree_bytes_dense(m, n, group) <= budget:
+            return group
+        group *= 2
+    return None
+
+
+@numba.njit(**_JIT)
+def _row_d(inner, leaves, slot, v):  # pragma: no cover - compiled
+    """Node ``v``'s bytes: an inner node's row of ``inner``, a leaf's column of ``leaves``."""
+    s = slot[v]
+    if s >= 0:
+        return inner[s]
+    return leaves[-s - 1]
+
+
+@numba.njit(**_JIT)
+def _bound_d(inner, leaves, slot, nodes, wq):  # pragma: no cover - compiled
+    """:func:`_bound` on the split table (rows from :func:`_row_d`)."""
+    k = nodes.shape[0]
+    m = leaves.shape[1]
+    s = 0.0
+    ra = _row_d(inner, leaves, slot, nodes[0])
+    if k == 1:
+        for i in range(m):
+            s += wq[i] * ra[i]
+        return s
+    rb = _row_d(inner, leaves, slot, nodes[1])
+    if k == 2:
+        for i in range(m):
+            s += wq[i] * max(ra[i], rb[i])
+        return s
+    rc = _row_d(inner, leaves, slot, nodes[2])
+    if k == 3:
+        for i in range(m):
+            s += wq[i] * max(ra[i], max(rb[i], rc[i]))
+        return s
+    rd = _row_d(inner, leaves, slot, nodes[3])
+    if k == 4:
+        for i in range(m):
+            s += wq[i] * max(max(ra[i], rd[i]), max(rb[i], rc[i]))
+        return s
+    for i in range(m):
+        x = ra[i]
+        for q in range(1, k):
+            x = max(x, _row_d(inner, leaves, slot, nodes[q])[i])
+        s += wq[i] * x
+    return s
+
+
+@numba.njit(**_JIT)
+def _bound_equal_d(inner, leaves, slot, nodes, wq):  # pragma: no cover - compiled
+    """:func:`_bound_equal` on the split table: every row weighs ``wq[0]``."""
+    k = nodes.shape[0]
+    m = leaves.shape[1]
+    s = 0
+    ra = _row_d(inner, leaves, slot, nodes[0])
+    if k == 1:
+        for i in range(m):
+            s += np.int64(ra[i])
+    elif k == 2:
+        rb = _row_d(inner, leaves, slot, nodes[1])
+        for i in range(m):
+            s += np.int64(max(ra[i], rb[i]))
+    elif k == 3:
+        rb = _row_d(inner, leaves, slot, nodes[1])
+        rc = _row_d(inner, leaves, slot, nodes[2])
+        for i in range(m):
+            s += np.int64(max(ra[i], max(rb[i], rc[i])))
+    else:
+        return _bound_d(inner, leaves, slot, nodes, wq)
+    return wq[0] * float(s)
+
+
+@numba.njit(**_JIT)
+def _has_group(nodes, slot, n):  # pragma: no cover - compiled
+    """True when a node of the tuple has no row of its own (a small cluster of a budgeted table)."""
+    for q in range(nodes.shape[0]):
+        if slot[nodes[q]] < -n:
+            return True
+    return False
+
+
+@numba.njit(**_JIT)
+def _bound_groups(inner, leaves, slot, nodes, wq, lo, hi, order, n, buf):  # pragma: no cover - compiled
+    """:func:`_bound_d` when some node keeps no row (``slot < -n``): its columns' bytes are read
+    (``order[lo[v]:hi[v]]``) and maxed into ``buf`` ((m,) uint8) with the other nodes' rows."""
+    m = leaves.shape[1]
+    for i in range(m):
+        buf[i] = 0
+    for q in range(nodes.shape[0]):
+        v = nodes[q]
+        s = slot[v]
+        if s >= -n:
+            r = _row_d(inner, leaves, slot, v)
+            for i in range(m):
+                buf[i] = max(buf[i], r[i])
+        else:
+            for p in range(lo[v], hi[v]):
+                r = leaves[order[p]]
+                for i in range(m):
+                    buf[i] = max(buf[i], r[i])
+    t = 0.0
+    for i in range(m):
+        t += wq[i] * buf[i]
+    return t
+
+
+@numba.njit(**_PJIT)
+def _inner_table(leaves, slot, left, right, n_inner, lo, hi, order, n):  # pragma: no cover - compiled
+    """(n_inner, m) uint8: per stored inner node the largest byte of its columns (row by row
+    blocks); a node with a child that keeps no row reads its columns."""
+    m = leaves.shape[1]
+    t = np.empty((n_inner, m), dtype=np.uint8)
+    n_nodes = slot.shape[0]
+    block = 4096
+    for b in prange((m + block - 1) // block):
+        i0 = b * block
+        i1 = min(m, i0 + block)
+        for v in range(n_nodes - 1, -1, -1):  # children are numbered after their parent
+            if left[v] >= 0 and slot[v] >= 0:
+                a = left[v]
+                c = right[v]
+                sa = slot[a]
+                sc = slot[c]
+                dst = slot[v]
+                if sa < -n or sc < -n:  # a child without a row: the node's columns
+                    for i in range(i0, i1):
+                        t[dst, i] = 0
+                    for p in range(lo[v], hi[v]):
+                        r = leaves[order[p]]
+                        for i in range(i0, i1):
+                            t[dst, i] = max(t[dst, i], r[i])
+                elif sa >= 0 and sc >= 0:
+                    for i in range(i0, i1):
+                        t[dst, i] = max(t[sa, i], t[sc, i])
+                elif sa >= 0:
+                    lc = -sc - 1
+                    for i in range(i0, i1):
+                        t[dst, i] = max(t[sa, i], leaves[lc, i])
+                elif sc >= 0:
+                    la = -sa - 1
+                    for i in range(i0, i1):
+                        t[dst, i] = max(leaves[la, i], t[sc, i])
+                else:
+                    la = -sa - 1
+                    lc = -sc - 1
+                    for i in range(i0, i1):
+                        t[dst, i] = max(leaves[la, i], leaves[lc, i])
+    return t
+
+
+@numba.njit(**_JIT)
+def _bound_any(inner, leaves, slot, nodes, wq, equal, lo, hi, order, n, buf):  # pragma: no cover - compiled
+    """The bound of a tuple on the split table, whichever kinds of nodes it holds."""
+    if _has_group(nodes, slot, n):
+        return _bound_groups(inner, leaves, slot, nodes, wq, lo, hi, order, n, buf)
+    if equal:
+        return _bound_equal_d(inner, leaves, slot, nodes, wq)
+    return _bound_d(inner, leaves, slot, nodes, wq)
+
+
+@numba.njit(**_PJIT)
+def _expand_d(front, lo, hi, left, right, inner, leaves, slot, wq, equal, best, margin, order,
+              grouped):  # pragma: no cover - compiled
+    """:func:`_expand` on the split table; a tuple of leaves' bound is its exact value (the bytes
+    are the values). ``grouped``: some nodes keep no row (a budgeted table)."""
+    f_count, k = front.shape
+    n = leaves.shape[0]
+    children = np.zeros((f_count, k + 1, k), dtype=np.int64)
+    value = np.full((f_count, k + 1), -np.inf)
+    leaf = np.zeros((f_count, k + 1), dtype=np.bool_)
+    for f in prange(f_count):
+        n_kids = K.split_tuple(front[f], lo, hi, left, right, children[f])
+        buf = np.empty(leaves.shape[1] if grouped else 0, dtype=np.uint8)
+        for q in range(n_kids):
+            child = children[f, q]
+            b = _bound_any(inner, leaves, slot, child, wq, equal, lo, hi, order, n, buf)
+            if b <= best + margin:
+                continue
+            value[f, q] = b
+            leaf[f, q] = K.all_leaves(child, lo, hi)
+    return children, value, leaf
+
+
+@numba.njit(**_PJIT)
+def _gains_d(leaves, wq, cur):  # pragma: no cover - compiled
+    """(n,) float64: ``sum_i wq_i max(0, q_ji - cur_i)`` for every column j (bytes)."""
+    n, m = leaves.shape
+    out = np.zeros(n)
+    for j in prange(n):
+        s = 0.0
+        row = leaves[j]
+        for i in range(m):
+            d = np.int64(row[i]) - np.int64(cur[i])
+            if d > 0:
+                s += wq[i] * d
+        out[j] = s
+    return out
+
+
+@numba.njit(**_PJIT)
+def _pack_d(leaves):  # pragma: no cover - compiled
+    """(n, ceil(m / 64)) uint64: the nonzero bytes of every column as a bitset."""
+    n, m = leaves.shape
+    out = np.zeros((n, (m + 63) // 64), dtype=np.uint64)
+    for j in prange(n):
+        for i in range(m):
+            if leaves[j, i] != 0:
+                out[j, i >> 6] |= np.uint64(1) << np.uint64(i & 63)
+    return out
+
+
+class _DenseColumns:
+    """Column access on quantised columns for the incumbent heuristics."""
+
+    def __init__(self, leaves: np.ndarray, wq: np.ndarray, margin: float) -> None:
+        self.leaves, self.wq, self.margin = leaves, wq, margin
+
+    def state(self, sel: list[int]) -> np.ndarray:
+        cur = np.zeros(self.leaves.shape[1], dtype=np.uint8)
+        for j in sel:
+            np.maximum(cur, self.leaves[j], out=cur)
+        return cur
+
+    def value(self, sel: list[int]) -> float:
+        return float(self.wq @ self.state(sel).astype(np.float64))
+
+    def gains(self, sel: list[int]) -> np.ndarray:
+        with ctrl_c_deferred():
+            return _gains_d(self.leaves, self.wq, self.state(sel))
+
+    def greedy_swap(self, start: list[int], k: int, deadline: Deadline) -> list[int]:
+        return greedy_swap(self.gains, start, k, self.margin, _SWAP_ROUNDS, deadline.expired)
+
+
+def solve_quality_tree_dense(values: np.ndarray, scale: float, weights: np.ndarray, k: int, *,
+                             deadline: Deadline | None = None, group: int = 1) -> EngineOutcome:
+    """:func:`solve_quality_tree` on quantised columns: best ``k`` columns for
+    ``sum_i w_i max_{j in S} scale * values[j, i]``.
+
+    The columns are the tree's leaves as they are (no copy); only the inner nodes' table is made
+    ((n - 1) x m bytes). Bounds are exact sums of the same bytes, so a tuple of leaves' bound is
+    its value and no rounding enters: the answer is exact for the quantised values.
+
+    Parameters
+    ----------
+    values : (n, m) uint8, C-contiguous
+        Column ``j``'s bytes in ``values[j]`` (0: not observed).
+    scale : float
+        The value of one step of a byte (1 / 255 for :mod:`camplace.visibility.qbytes`).
+    weights : (m,) float64
+        Non-negative row weights.
+    k : int
+        Columns to choose (1 <= k).
+    deadline : Deadline, optional
+        The solve's deadline; on expiry the incumbent comes back with status "feasible" and a
+        valid bound.
+    group : int
+        The table keeps rows for the inner nodes of more than ``group`` columns only (1: every
+        inner node); the bound of a tuple with a smaller cluster reads that cluster's columns
+        (slower, the same bound). :func:`dense_table_group` picks it for a memory budget.
+
+    Returns
+    -------
+    EngineOutcome
+        ``selected`` are column indices; ``bound`` an upper bound on the optimum.
+    """
+    deadline = as_deadline(deadline)
+    since = stopwatch(deadline)
+    values = np.ascontiguousarray(values, dtype=np.uint8)
+    n, m = values.shape
+    w = np.asarray(weights, dtype=np.float64)
+    if k < 1:
+        raise ValueError("k must be >= 1")
+    wq = w * float(scale)
+    margin = _MARGIN * float(w.sum())
+    leaves = values if not values.flags.writeable else values.view()
+    leaves.setflags(write=False)  # one numba type for the leaves and the inner table
+    cols = _DenseColumns(leaves, wq, margin)
+    if n <= k:
+        sel = list(range(n))
+        return EngineOutcome(selected=tuple(sel), status="optimal", bound=cols.value(sel) if n else 0.0,
+                             stats={"trivial": True})
+    stats: dict[str, Any] = {}
+    single = cols.gains([])
+    best_set = tuple(sorted(cols.greedy_swap([int(np.argmax(single))], k, deadline)))
+    best = cols.value(list(best_set))
+    stats["initial_incumbent"] = best
+    stats["time_incumbent_s"] = since()
+    if deadline.expired():  # no time for the tree: every point gets its best quality
+        top = np.zeros(m, dtype=np.uint8)
+        for j in range(n):
+            np.maximum(top, leaves[j], out=top)
+        bound = float(wq @ top.astype(np.float64))
+        status = "optimal" if bound <= best + margin else "feasible"
+        return EngineOutcome(selected=best_set, status=status, bound=best if status == "optimal" else bound,
+                             stats=stats)
+    with ctrl_c_deferred():
+        order = K.bisection_order(_pack_d(leaves))
+        lo, hi, left, right = K.tree_shape(n)
+        n_nodes = lo.shape[0]
+        slot = np.empty(n_nodes, dtype=np.int64)
+        is_leaf = left < 0
+        stored = ~is_leaf & (hi - lo > max(1, int(group)))
+        slot[stored] = np.arange(int(stored.sum()), dtype=np.int64)
+        slot[is_leaf] = -order[lo[is_leaf]] - 1
+        slot[~is_leaf & ~stored] = -n - 1  # a small cluster without a row: its bound reads its columns
+        grouped = bool(np.any(~is_leaf & ~stored))
+        inner = _inner_table(leaves, slot, left, right, int(stored.sum()), lo, hi, order, n)
+    inner.setflags(write=False)
+    positive = wq[w > 0]
+    equal = bool(positive.size == m and np.all(wq == wq[0]))
+    stats["time_setup_s"] = since()
+    stats["table_bytes"] = int(inner.nbytes)
+
+    stats["table_group"] = int(group)
+
+    def expand(tup: np.ndarray, best: float):
+        return _expand_d(tup, lo, hi, left, right, inner, leaves, slot, wq, equal, best, margin, order, grouped)
+
+    root = _bound_any(inner, leaves, slot, np.zeros(k, dtype=np.int64), wq, equal, lo, hi, order, n,
+                      np.empty(m, dtype=np.uint8))
+    best, best_set, bound, status = _search(expand, root, k, lo, order, best, best_set, margin, deadline, stats)
+    log.info("quality tree (bytes): k=%d on %dx%d, %s value %.9g bound %.9g, %d bound evaluations, %.3f s", k, m, n,
+             status, best, bound, stats["bound_evaluations"], since())
+    return EngineOutcome(selected=best_set, status=status, bound=float(bound), stats=stats)
