@@ -18,6 +18,12 @@ over the columns, in parallel batches, here best-first), with the angle added to
   angle; a node repeated in the tuple provides pairs only if its own cone is at least the angle
   wide. Leaves (single cameras) decide doubtful blocks row by row, so a tuple of leaves gets its
   exact value.
+* **Balls.** Where blocks are wide (comet-flyby: blocks 5-55 m across seen from 20-50 m, so even
+  a single camera's cone is about 20 degrees wide), the cone refinement tests the doubtful rows
+  one by one against a ball around each node's camera positions: from a point, a node's cameras
+  lie within ``asin(radius / distance)`` of the direction to the ball's centre, so two nodes
+  whose centres are closer than the angle less both arcs make no pair there (the poses of one
+  position: radius 0, never a pair among themselves).
 * **Bound steps.** A child tuple gets the count bound first (rows ``views`` of its cameras may
   observe, angles ignored: :func:`~camplace.solver.engines.angle._kernels.count_shortfall`), which prunes
   most losers without reading a cone; a survivor whose nodes all hold camera pairs making the
@@ -103,7 +109,7 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
     levels = max(1, min(int(views), int(k)))
     bits = words * 8 * (2 * int(n_cols) + levels * nodes)
-    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS) + 32 * (int(n_cols) + int(n_fixed))
+    cones = nodes * words * 8 + nodes * 32 * (1 + max(1, numba.config.NUMBA_NUM_THREADS)) + 32 * (int(n_cols) + int(n_fixed))
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
     frontier = (int(open_tuples) + (k + 1) * _BATCH) * _tuple_bytes(k)
@@ -351,6 +357,7 @@ class _Tree:
         self.fpos = np.ascontiguousarray(pos[fixed]).reshape(-1, 3)
         with ctrl_c_deferred():
             AK.node_cones(self.campos, slot, self.left, self.right, centers, radius, self.cones)
+            self.balls = AK.node_balls(self.campos, self.lo, self.hi)
             lap("cones")
             self.fbits = K.build_bits(q.indptr, q.indices, q.data, rows, fmap, fixed.size)
             self.fcones = np.empty((fixed.size, n_words, 4), dtype=np.int16)
@@ -390,7 +397,8 @@ class _Tree:
                 tup, tup_bound, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
-                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE, rest)
+                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE, rest, self.balls, self.blocks[0],
+                self.blocks[1])
         self._learn(refined, cut)
         return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle), int(n_back)
 
