@@ -273,15 +273,26 @@ def _ball_arc(bx, by, bz, rho, centers, radius, wd):  # pragma: no cover - compi
 
 
 @numba.njit(**_JIT)
-def _ball_bits(x, wd, ax, ay, az, arc_a, bx, by, bz, arc_b, pts, theta):  # pragma: no cover - compiled
+def _ball_bits(x, wd, ax, ay, az, arc_a, bx, by, bz, arc_b, pts, theta, centers, radius):  # pragma: no cover - compiled
     """The bits of ``x`` (rows of word ``wd``) where a camera within ``arc_a`` of the direction to
     ``(ax, ay, az)`` and one within ``arc_b`` of the direction to ``(bx, by, bz)`` may make the angle
     ``theta`` (radians): the rows whose directions to the two centres are at least ``theta - arc_a -
     arc_b`` apart (less a margin for rounding). Every row where such a pair makes the angle is
-    kept (triangle inequality on the sphere of directions)."""
+    kept (triangle inequality on the sphere of directions). When, from the block's centre, the two
+    centres are that far apart plus both their parallaxes over the block's sphere, every row is
+    kept without a look at the rows (the common case where the angle hardly binds)."""
     lim = theta - arc_a - arc_b - _ALPHA_PAD
     if lim <= 0.0:
         return x
+    cx, cy, cz, rb = centers[wd, 0], centers[wd, 1], centers[wd, 2], max(radius[wd], 0.0)
+    ux, uy, uz = ax - cx, ay - cy, az - cz
+    vx, vy, vz = bx - cx, by - cy, bz - cz
+    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    nv = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if nu > rb * (1.0 + 1e-9) and nv > rb * (1.0 + 1e-9):
+        far = lim + math.asin(min(1.0, rb / nu)) + math.asin(min(1.0, rb / nv)) + _ALPHA_PAD
+        if far < math.pi and ux * vx + uy * vy + uz * vz <= math.cos(far) * nu * nv:
+            return x  # from every point of the block the centres are at least lim apart
     cl = math.cos(lim)
     out = np.uint64(0)
     base = wd << 6
@@ -389,7 +400,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                                                        radius, ww),
                                              balls[vb, 0], balls[vb, 1], balls[vb, 2],
                                              _ball_arc(balls[vb, 0], balls[vb, 1], balls[vb, 2], balls[vb, 3], centers,
-                                                       radius, ww), pts, theta)
+                                                       radius, ww), pts, theta, centers, radius)
                 for f in range(r):
                     x = xa & fbits[f, ww] & ~ph
                     if x:
@@ -404,7 +415,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                             ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2],
                                              _ball_arc(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
                                                        radius, ww),
-                                             fpos[f, 0], fpos[f, 1], fpos[f, 2], 0.0, pts, theta)
+                                             fpos[f, 0], fpos[f, 1], fpos[f, 2], 0.0, pts, theta, centers, radius)
             if views > 2 and ph:
                 acc[0] = ~np.uint64(0)
                 for t in range(1, views + 1):
