@@ -544,3 +544,123 @@ def test_grouped_two_view_counter_with_a_repeated_node_equals_numpy(seed) -> Non
                                 scratch, scratch.copy())
     assert got == full
 
+
+
+# ---- ball refinement (issue 30): rows tested one by one against balls around a node's cameras ---
+
+
+def _aims_instance(m: int, n_pos: int, seed: int, aims: int = 3):
+    """comet-flyby's structure in small: ``aims`` poses at every position (they never make an
+    angle with each other), positions along a path past a unit sphere of points; a pose observes
+    the facing points within 50 degrees of its aim (towards the centre, turned by up to 35 degrees)."""
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(m, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    path = np.stack([np.linspace(-4.0, 4.0, n_pos), np.full(n_pos, 2.5), rng.uniform(-0.5, 0.5, n_pos)], axis=1)
+    path += rng.normal(scale=0.2, size=path.shape)
+    pos = np.repeat(path, aims, axis=0)
+    aim = -pos / np.linalg.norm(pos, axis=1, keepdims=True) + rng.uniform(-0.6, 0.6, size=pos.shape)
+    aim /= np.linalg.norm(aim, axis=1, keepdims=True)
+    ray = pts[:, None, :] - pos[None, :, :]  # camera -> point
+    dist = np.linalg.norm(ray, axis=2)
+    facing = np.einsum("id,ijd->ij", pts, -ray) > 0
+    seen = facing & (np.einsum("jd,ijd->ij", aim, ray) / dist >= np.cos(np.radians(50.0)))
+    w = rng.integers(1, 4, size=m).astype(float) if seed % 2 else rng.uniform(0.1, 1.0, size=m)
+    return seen.astype(float), w, pos, pts
+
+
+def _captured_tree(monkeypatch, dense, w, pos, pts, fixed=()):
+    """Run the angle engine briefly (plain layout) and return its ``_Tree`` and the search rows."""
+    got = {}
+
+    class Keep(ae._Tree):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            got["tree"] = self
+
+    monkeypatch.setattr(ae, "_Tree", Keep)
+    monkeypatch.setattr(ae, "_PAIRS_MIN_SHARE", 2.0)  # the plain layout: a bit row is a matrix row
+    n = dense.shape[1]
+    fixed = np.asarray(fixed, dtype=np.int64)
+    free = np.setdiff1d(np.arange(n), fixed)
+    ae.solve_angle(sp.csr_matrix(dense), w, 3, 2, 20.0, pos, pts, fixed, free, deadline=Deadline(None),
+                   budget_bytes=1 << 30)
+    return got["tree"]
+
+
+def _tuple_bound(tree, nodes, balls: bool) -> float:
+    from camplace.solver.engines.angle import _kernels as AK
+
+    possible, always, self_ok = tree.tables
+    k = len(nodes)
+    sf = AK.angle_shortfall(tree.levels, tree.cones, np.asarray(nodes, dtype=np.int64), k, 2, tree.lo, tree.campos,
+                            tree.fbits, tree.fcones, tree.fpos, tree.fpair, tree.lw, tree.planes, tree.mask, np.inf,
+                            np.zeros(3, dtype=np.uint64), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64),
+                            tree.pw, False, tree.pts, possible, always, self_ok, 20.0, tree.cos_t,
+                            tree.balls if balls else np.zeros((0, 4)), tree.blocks[0], tree.blocks[1])
+    return tree.total - sf
+
+
+@pytest.mark.parametrize("seed,fixed", [(0, ()), (1, ()), (2, (4,)), (3, ())])
+def test_ball_refinement_bounds_every_choice_of_a_node_tuple(monkeypatch, seed, fixed) -> None:
+    """For every tuple of three tree nodes, the refined bound (cones, then rows against the
+    nodes' balls) is at least the enumerated value of every choice of three distinct cameras,
+    one per node (on the engine's rows, fixed cameras added); it is never above the bound from
+    the cones alone and below it on some tuples (the balls do something)."""
+    dense, w, pos, pts = _aims_instance(220, 5, seed)
+    tree = _captured_tree(monkeypatch, dense, w, pos, pts, fixed)
+    good = _pair_ok(dense, pos, pts, 20.0)
+    obs = dense > 0
+    lw = tree.lw
+    # the bit rows' matrix rows (plain layout): each bit row's point is a matrix row's (points are distinct)
+    where = {tuple(p): i for i, p in enumerate(pts)}
+    brow = np.array([where.get(tuple(tree.pts[b]), -1) if lw[b] > 0 else -1 for b in range(lw.size)])
+    assert (brow[lw > 0] >= 0).all()
+    n_nodes = tree.lo.shape[0]
+    tighter = 0
+    for nodes in itertools.combinations_with_replacement(range(n_nodes), 3):
+        members = [tree.cols_ord[tree.lo[v]:tree.hi[v]] for v in nodes]
+        best = -np.inf
+        for choice in itertools.product(*members):
+            if len(set(choice)) < 3:
+                continue
+            cols = list(choice) + list(fixed)
+            ok = (obs[brow][:, cols].sum(axis=1) >= 2) & good[brow][:, cols][:, :, cols].any(axis=(1, 2))
+            best = max(best, float(lw[ok & (lw > 0)].sum()))
+        if best == -np.inf:
+            continue
+        with_balls, cones_only = _tuple_bound(tree, nodes, True), _tuple_bound(tree, nodes, False)
+        tol = 1e-9 * max(1.0, float(lw.sum()))
+        assert with_balls >= best - tol, (nodes, with_balls, best)
+        assert with_balls <= cones_only + tol
+        tighter += with_balls < cones_only - tol
+    assert tighter > 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_angle_engine_with_poses_at_one_position_equals_enumeration(seed) -> None:
+    """Three poses per position along a path (the comet-flyby structure the balls are for)."""
+    dense, w, pos, pts = _aims_instance(260, 6, seed)
+    fixed = (3,) if seed == 2 else ()
+    k = 2 if fixed else 3
+    best, _ = _enumerate(dense, w, pos, pts, k, 2, 20.0, fixed)
+    res = solve(sp.csr_matrix(dense), w, k, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts,
+                fixed=fixed, engine="exact")
+    assert res.status == "optimal" and res.objective == pytest.approx(best, rel=1e-9)
+    assert _value(dense, w, pos, pts, res.selected, 2, 20.0) == pytest.approx(best, rel=1e-9)
+
+
+@pytest.mark.parametrize("checks", [0, 1, 2, 4, 7])
+def test_angle_engine_with_poses_at_one_position_interrupted_keeps_a_valid_bound(monkeypatch, checks) -> None:
+    dense, w, pos, pts = _aims_instance(300, 8, 5)
+    best, _ = _enumerate(dense, w, pos, pts, 3, 2, 20.0)
+    solve_deadline(monkeypatch, ExpiringDeadline(checks))
+    monkeypatch.setattr(ae, "_BATCH", 4)
+    monkeypatch.setattr(ae, "_BATCH_MIN", 1)
+    monkeypatch.setattr(ae, "_CHUNK", 2)
+    res = solve(dense, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, engine="exact")
+    v = _value(dense, w, pos, pts, res.selected, 2, 20.0)
+    assert res.objective == pytest.approx(v, rel=1e-9)
+    assert res.bound >= best * (1 - 1e-9) and best >= v * (1 - 1e-9)
+    if res.status == "optimal":
+        assert v == pytest.approx(best, rel=1e-9)

@@ -161,3 +161,67 @@ def test_warm_start_keeps_the_minimum_distance(full_search_interrupted) -> None:
     d = np.linalg.norm(pos[sel][:, None, :] - pos[sel][None, :, :], axis=-1)
     assert (d[np.triu_indices(3, 1)] >= 2.0).all()
     assert got.bound >= got.objective
+
+
+def test_spread_subset_keeps_every_pose_of_every_fourth_position() -> None:
+    rng = np.random.default_rng(2)
+    path = rng.uniform(-5.0, 5.0, size=(40, 3))
+    pos = np.repeat(path, 3, axis=0)  # three poses a position
+    free = np.setdiff1d(np.arange(120), [7, 8, 50])
+    got = routes.spread_subset(free, pos, 4)
+    ranks = {tuple(p): r for r, p in enumerate(sorted(map(tuple, path)))}
+    want = [c for c in free if ranks[tuple(pos[c])] % 4 == 0]
+    assert got.tolist() == want
+    assert 30 <= got.size <= 30  # 10 positions of 3 poses
+
+
+def _poses_instance(n_pos: int, m: int, seed: int):
+    """Three poses at each of ``n_pos`` positions past a unit sphere of points."""
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(m, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    path = np.stack([np.linspace(-4.0, 4.0, n_pos), np.full(n_pos, 2.5), np.zeros(n_pos)], axis=1)
+    pos = np.repeat(path + rng.normal(scale=0.3, size=path.shape), 3, axis=0)
+    aim = -pos / np.linalg.norm(pos, axis=1, keepdims=True) + rng.uniform(-0.6, 0.6, size=pos.shape)
+    aim /= np.linalg.norm(aim, axis=1, keepdims=True)
+    ray = pts[:, None, :] - pos[None, :, :]
+    seen = (np.einsum("id,ijd->ij", pts, -ray) > 0) & (
+        np.einsum("jd,ijd->ij", aim, ray) / np.linalg.norm(ray, axis=2) >= np.cos(np.radians(45.0)))
+    return sp.csr_matrix(seen.astype(np.float32)), rng.uniform(0.5, 1.5, m), pos, pts
+
+
+def test_angle_warm_start_from_spread_positions_is_never_worse(monkeypatch) -> None:
+    """Multiview with a minimum angle: the warm start solves every fourth position (all its
+    poses); with the full search given no time, the answer is still at least the optimum of that
+    subset (enumerated, angles from arctan2), and the full search's bound stays valid."""
+    import itertools
+
+    from tests.solver._oracle import mode_objective
+
+    q, w, pos, pts = _poses_instance(48, 150, 4)
+    run = routes.ROUTES["angle"]
+
+    def interrupted(p, choice):
+        if p.free_cols.size > 100:
+            p.deadline = Deadline(0.0)
+        return run(p, choice)
+
+    monkeypatch.setitem(routes.ROUTES, "angle", interrupted)
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 100)
+    got = solve(q, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, time_limit_s=30.0)
+    warm = got.stats["warm_start"]
+    sub = routes.spread_subset(np.arange(q.shape[1]), pos, routes.WARM_SHRINK)
+    assert warm["columns"] == sub.size == 36 and warm["status"] == "optimal"
+    obs = q.toarray()[:, sub] > 0
+    u = pos[sub][None, :, :] - pts[:, None, :]
+    ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(u[:, :, None, :], u[:, None, :, :]), axis=3),
+                                np.einsum("iad,ibd->iab", u, u)))
+    good = (ang >= 20.0) & obs[:, :, None] & obs[:, None, :]
+    best_sub = max(float(w[good[:, c][:, :, c].any(axis=(1, 2))].sum())
+                   for c in map(list, itertools.combinations(range(sub.size), 3)))
+    assert best_sub > 0
+    assert got.objective >= best_sub - 1e-12
+    dense = q.toarray()
+    assert got.objective == pytest.approx(mode_objective(dense, w, tuple(got.selected), "multiview", 2, 20.0, pos, pts),
+                                          abs=1e-12)
+    assert got.bound >= got.objective

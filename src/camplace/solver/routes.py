@@ -369,7 +369,12 @@ WARM_SHARE = 0.3
 def warm_subset(p: CoverProblem) -> np.ndarray:
     """The free candidates of the warm start's smaller solve: the ``1 / WARM_SHRINK`` observing the
     most weight (``p.resid_w`` times the matrix values, a heuristic ranking; ties: the lower index),
-    sorted original column indices."""
+    sorted original column indices; with a minimum angle, those at every ``WARM_SHRINK``-th
+    position instead (:func:`spread_subset`)."""
+    if p.angle_ok and p.pos is not None:
+        spread = spread_subset(p.free_cols, p.pos, WARM_SHRINK)
+        if spread.size >= p.k:
+            return spread
     wr = np.where(p.resid_w > 0, p.resid_w, 0.0)
     if p.resid.dtype.kind == "f" and p.resid.dtype != wr.dtype:
         wr = wr.astype(p.resid.dtype)  # a ranking: no float64 copy of a float32 matrix
@@ -377,6 +382,30 @@ def warm_subset(p: CoverProblem) -> np.ndarray:
     size = max(p.k, -(-p.free_cols.size // WARM_SHRINK))
     top = np.lexsort((np.arange(p.free_cols.size), -colw))[:size]
     return np.sort(p.free_cols[top])
+
+
+def spread_subset(free_cols: np.ndarray, pos: np.ndarray, shrink: int) -> np.ndarray:
+    """Every pose of every ``shrink``-th distinct position of the free candidates (positions in
+    lexicographic order, the first kept): a thinner sample of the same spread, as a run with
+    fewer candidate positions would draw. The heaviest columns crowd where the target passes
+    closest, where pairs seldom make a minimum angle (comet-flyby at 2,000 positions: their warm
+    start 0.5123 against 0.5275 from the engine's own greedy).
+
+    Parameters
+    ----------
+    free_cols : (f,) int64
+        Free candidates (original column indices).
+    pos : (n, 3) float64
+        Positions of all candidates.
+    shrink : int
+
+    Returns
+    -------
+    (s,) int64
+        Sorted original column indices, at least one position's poses.
+    """
+    _, group = np.unique(pos[free_cols], axis=0, return_inverse=True)
+    return np.sort(free_cols[group.ravel() % shrink == 0])
 
 
 def _warm_started(p: CoverProblem) -> EngineOutcome:

@@ -230,8 +230,88 @@ def _pair_bits(x, exact, c1, i1, c2, i2, wd, possible, always, pa, pb, pts, thet
 
 
 @numba.njit(**_JIT)
+def node_balls(campos, lo, hi):  # pragma: no cover - compiled
+    """(N, 4) float64: a ball (centre, radius) around the camera positions of every tree node
+    (columns ``lo[v]:hi[v]`` of ``campos``, tree order); radius 0 for a single camera, else padded
+    so that it is never too small."""
+    n_nodes = lo.shape[0]
+    out = np.zeros((n_nodes, 4))
+    for v in range(n_nodes):
+        a, b = lo[v], hi[v]
+        for d in range(3):
+            mn = campos[a, d]
+            mx = campos[a, d]
+            for c in range(a + 1, b):
+                mn = min(mn, campos[c, d])
+                mx = max(mx, campos[c, d])
+            out[v, d] = 0.5 * (mn + mx)
+        if b - a == 1:
+            for d in range(3):
+                out[v, d] = campos[a, d]
+            continue
+        r2 = 0.0
+        for c in range(a, b):
+            dx, dy, dz = campos[c, 0] - out[v, 0], campos[c, 1] - out[v, 1], campos[c, 2] - out[v, 2]
+            r2 = max(r2, dx * dx + dy * dy + dz * dz)
+        out[v, 3] = math.sqrt(r2) * (1.0 + 1e-9) + 1e-12
+    return out
+
+
+@numba.njit(inline="always", **_JIT)
+def _ball_arc(bx, by, bz, rho, centers, radius, wd):  # pragma: no cover - compiled
+    """Radians within which, from any point of block ``wd`` (bounding sphere ``centers[wd]``,
+    ``radius[wd]``), the direction to any camera of a ball (centre, radius ``rho``) lies around the
+    direction to the ball's centre: ``asin(rho / d)`` with ``d`` the least distance from the block's
+    sphere to the centre (``pi`` when they meet; 0 for a single camera)."""
+    if rho <= 0.0:
+        return 0.0
+    dx, dy, dz = bx - centers[wd, 0], by - centers[wd, 1], bz - centers[wd, 2]
+    d = math.sqrt(dx * dx + dy * dy + dz * dz) - max(radius[wd], 0.0)
+    if d <= rho * (1.0 + 1e-9):
+        return math.pi
+    return math.asin(rho / d) + _ALPHA_PAD
+
+
+@numba.njit(**_JIT)
+def _ball_bits(x, wd, ax, ay, az, arc_a, bx, by, bz, arc_b, pts, theta, centers, radius):  # pragma: no cover - compiled
+    """The bits of ``x`` (rows of word ``wd``) where a camera within ``arc_a`` of the direction to
+    ``(ax, ay, az)`` and one within ``arc_b`` of the direction to ``(bx, by, bz)`` may make the angle
+    ``theta`` (radians): the rows whose directions to the two centres are at least ``theta - arc_a -
+    arc_b`` apart (less a margin for rounding). Every row where such a pair makes the angle is
+    kept (triangle inequality on the sphere of directions). When, from the block's centre, the two
+    centres are that far apart plus both their parallaxes over the block's sphere, every row is
+    kept without a look at the rows (the common case where the angle hardly binds)."""
+    lim = theta - arc_a - arc_b - _ALPHA_PAD
+    if lim <= 0.0:
+        return x
+    cx, cy, cz, rb = centers[wd, 0], centers[wd, 1], centers[wd, 2], max(radius[wd], 0.0)
+    ux, uy, uz = ax - cx, ay - cy, az - cz
+    vx, vy, vz = bx - cx, by - cy, bz - cz
+    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    nv = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if nu > rb * (1.0 + 1e-9) and nv > rb * (1.0 + 1e-9):
+        far = lim + math.asin(min(1.0, rb / nu)) + math.asin(min(1.0, rb / nv)) + _ALPHA_PAD
+        if far < math.pi and ux * vx + uy * vy + uz * vz <= math.cos(far) * nu * nv:
+            return x  # from every point of the block the centres are at least lim apart
+    cl = math.cos(lim)
+    out = np.uint64(0)
+    base = wd << 6
+    while x:
+        t = _ctz(x)
+        r = base + t
+        ux, uy, uz = ax - pts[r, 0], ay - pts[r, 1], az - pts[r, 2]
+        vx, vy, vz = bx - pts[r, 0], by - pts[r, 1], bz - pts[r, 2]
+        uv = ux * vx + uy * vy + uz * vz
+        if uv <= cl * math.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz)):
+            out |= np.uint64(1) << t
+        x &= x - np.uint64(1)
+    return out
+
+
+@numba.njit(**_JIT)
 def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes, last_mask,
-                    need, acc, gnode, gcnt, pw, exact, pts, possible, always, self_ok, theta_deg, cos_t):  # pragma: no cover - compiled
+                    need, acc, gnode, gcnt, pw, exact, pts, possible, always, self_ok, theta_deg, cos_t, balls,
+                    centers, radius):  # pragma: no cover - compiled
     """Weight of the rows a node tuple cannot make count (stops once it reaches ``need``).
 
     A row counts when at least ``views`` chosen cameras (the tuple's and the fixed ones) observe it
@@ -267,12 +347,23 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
         :func:`angle_tables` of the minimum angle.
     theta_deg, cos_t : float
         The minimum angle in degrees, and its cosine.
+    balls : (N, 4) float64
+        A ball around each node's camera positions (:func:`node_balls`; (0, 4): not used). Where
+        two nodes' cones are mixed on a block, the rows are tested one by one against the balls
+        (:func:`_ball_bits`): a node of cameras standing close together (the aims of one
+        position, neighbouring positions) is a narrow cone from every single point, however wide
+        the block. A repeated node whose ball is narrower than the angle from all of a block
+        gives no pair there.
+    centers : (W, 3) float64, radius : (W,) float64
+        The blocks' bounding spheres (radius < 0: empty block).
     """
     n_words = levels.shape[2]
     n_levels = levels.shape[0]
     n_planes = planes.shape[0]
     r = fbits.shape[0]
     ng = group_tuple(nodes, k, gnode, gcnt)
+    use_balls = balls.shape[0] > 0
+    theta = math.radians(theta_deg)
     total = 0.0
     for wd in range(n_words):
         if pw <= wd < 2 * pw:
@@ -288,18 +379,43 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                 if gcnt[a] >= 2 and n_levels >= 2:
                     x = levels[1, va, ww] & ~ph
                     if x and self_ok[cones[va, ww, 3]]:
+                        if use_balls and 2.0 * _ball_arc(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3],
+                                                         centers, radius, ww) < theta - _ALPHA_PAD:
+                            x = np.uint64(0)  # every two cameras of the node closer than the angle here
                         ph |= x
                 for b in range(a + 1, ng):
                     vb = gnode[b]
                     x = xa & levels[0, vb, ww] & ~ph
                     if x:
-                        ph |= _pair_bits(x, exact, cones, va, cones, vb, ww, possible, always, campos[lo[va]],
-                                         campos[lo[vb]], pts, theta_deg, cos_t)
+                        if exact or not use_balls:
+                            ph |= _pair_bits(x, exact, cones, va, cones, vb, ww, possible, always, campos[lo[va]],
+                                             campos[lo[vb]], pts, theta_deg, cos_t)
+                            continue
+                        st = _pair_state(cones, va, cones, vb, ww, possible, always)
+                        if st == 2:
+                            ph |= x
+                        elif st == 1:
+                            ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2],
+                                             _ball_arc(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
+                                                       radius, ww),
+                                             balls[vb, 0], balls[vb, 1], balls[vb, 2],
+                                             _ball_arc(balls[vb, 0], balls[vb, 1], balls[vb, 2], balls[vb, 3], centers,
+                                                       radius, ww), pts, theta, centers, radius)
                 for f in range(r):
                     x = xa & fbits[f, ww] & ~ph
                     if x:
-                        ph |= _pair_bits(x, exact, cones, va, fcones, f, ww, possible, always, campos[lo[va]],
-                                         fpos[f], pts, theta_deg, cos_t)
+                        if exact or not use_balls:
+                            ph |= _pair_bits(x, exact, cones, va, fcones, f, ww, possible, always, campos[lo[va]],
+                                             fpos[f], pts, theta_deg, cos_t)
+                            continue
+                        st = _pair_state(cones, va, fcones, f, ww, possible, always)
+                        if st == 2:
+                            ph |= x
+                        elif st == 1:
+                            ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2],
+                                             _ball_arc(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
+                                                       radius, ww),
+                                             fpos[f, 0], fpos[f, 1], fpos[f, 2], 0.0, pts, theta, centers, radius)
             if views > 2 and ph:
                 acc[0] = ~np.uint64(0)
                 for t in range(1, views + 1):
@@ -413,7 +529,7 @@ def _level(nodes, k, lo, hi):  # pragma: no cover - compiled
 @numba.njit(**_PJIT)
 def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
            best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t, dirs, par, refine,
-           sample, rest):  # pragma: no cover - compiled
+           sample, rest, balls, centers, radius):  # pragma: no cover - compiled
     """Refine (if it is due) and split every tuple of ``front`` (F, k + 1) once and bound the children.
 
     A tuple's last entry says whether its bound already holds the angle (1) or is the count
@@ -443,6 +559,8 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
         One tuple in ``sample`` gets it anyway (so the caller can judge the levels).
     rest : float
         The largest bound left in the open set (-inf if none).
+    balls, centers, radius
+        See :func:`angle_shortfall` (the refinement tests rows against the nodes' balls).
 
     Returns
     -------
@@ -488,7 +606,7 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
             if refine[lvl] or f % sample == 0:
                 sf = angle_shortfall(levels, cones, tup, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
                                      mask, total - beat, acc, gnode, gcnt, pw, False, pts, possible, always, self_ok,
-                                     theta_deg, cos_t)
+                                     theta_deg, cos_t, balls, centers, radius)
                 cut[f] = min(1.0, max(0.0, bound - (total - sf)) / max(bound - beat, 1e-300))
                 bound = min(bound, total - sf)
                 if bound <= beat:
@@ -525,7 +643,7 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
             elif is_leaf:
                 sf = angle_shortfall(levels, cones, child, k, views, lo, campos, fbits, fcones, fpos, fpair, w, planes,
                                      mask, total - beat, acc, gnode, gcnt, pw, True, pts, possible, always, self_ok,
-                                     theta_deg, cos_t)
+                                     theta_deg, cos_t, balls, centers, radius)
                 children[f, q, k] = 1
             b = min(wcap, total - sf)
             if b <= beat:

@@ -18,6 +18,12 @@ over the columns, in parallel batches, here best-first), with the angle added to
   angle; a node repeated in the tuple provides pairs only if its own cone is at least the angle
   wide. Leaves (single cameras) decide doubtful blocks row by row, so a tuple of leaves gets its
   exact value.
+* **Balls.** Where blocks are wide (comet-flyby: blocks 5-55 m across seen from 20-50 m, so even
+  a single camera's cone is about 20 degrees wide), the cone refinement tests the doubtful rows
+  one by one against a ball around each node's camera positions: from a point, a node's cameras
+  lie within ``asin(radius / distance)`` of the direction to the ball's centre, so two nodes
+  whose centres are closer than the angle less both arcs make no pair there (the poses of one
+  position: radius 0, never a pair among themselves).
 * **Bound steps.** A child tuple gets the count bound first (rows ``views`` of its cameras may
   observe, angles ignored: :func:`~camplace.solver.engines.angle._kernels.count_shortfall`), which prunes
   most losers without reading a cone; a survivor whose nodes all hold camera pairs making the
@@ -87,6 +93,9 @@ _FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not ru
 _REFINE_MIN_CUT = 0.3  # cone refinement of a tuple level stays on while it removes this share of the margins ...
 _REFINE_TRIALS = 2000  # ... judged after this many tries ...
 _REFINE_SAMPLE = 32  # ... and tried on 1 in this many tuples of a level where it is off
+#: the bisection order also parts cameras by position (thermometer codes of this many bits over
+#: the widest span of the camera positions; 0: bitsets only)
+_POSITION_BITS = 1024
 _DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
 
 
@@ -94,7 +103,8 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     """Working memory of :func:`solve_angle` for ``rows`` countable rows and ``n_cols`` columns.
 
     The opposite-pairs layout can hold up to twice as many bit rows as countable rows; counted
-    here: the column bitsets and their ordered copy, ``min(views, k)`` level bitsets and an 8-byte
+    here: the column bitsets and their ordered copy (and, while the order is made, a copy with
+    the positions' thermometer codes), ``min(views, k)`` level bitsets and an 8-byte
     cone per tree node and 64-row block (and a float64 working copy per thread), the points of the
     layout, the pair matching's row bitsets and ``open_tuples`` open tuples of the search (which
     stops there, with a valid bound).
@@ -102,8 +112,8 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     words = (2 * int(rows) + 127) // 64 + 2
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
     levels = max(1, min(int(views), int(k)))
-    bits = words * 8 * (2 * int(n_cols) + levels * nodes)
-    cones = nodes * words * 8 + nodes * 32 * max(1, numba.config.NUMBA_NUM_THREADS) + 32 * (int(n_cols) + int(n_fixed))
+    bits = words * 8 * (2 * int(n_cols) + levels * nodes) + int(n_cols) * 3 * (_POSITION_BITS // 8 + 8) * 2
+    cones = nodes * words * 8 + nodes * 32 * (1 + max(1, numba.config.NUMBA_NUM_THREADS)) + 32 * (int(n_cols) + int(n_fixed))
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
     frontier = (int(open_tuples) + (k + 1) * _BATCH) * _tuple_bytes(k)
@@ -186,6 +196,23 @@ def _pairs_layout(match, wu_unit: float | None, seen: np.ndarray, pts: np.ndarra
     if wu_unit is not None:
         w = np.round(w)
     return _Layout(rows, w, pw)
+
+
+def _with_position_bits(bits: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """The column bitsets (n, W) with the columns' positions (n, 3) appended as thermometer codes
+    (a run of ones as long as the coordinate, :data:`_POSITION_BITS` for the widest span), so that
+    the Hamming distance of the bisection order also parts cameras standing far apart: the tree's
+    nodes then hold cameras close together, whose balls are narrow (only the order changes; every
+    bound stays valid for any tree)."""
+    lo = xyz.min(axis=0)
+    span = float((xyz.max(axis=0) - lo).max())
+    if span <= 0:
+        return bits
+    lev = np.floor((xyz - lo) * (_POSITION_BITS / span)).astype(np.int64)  # 0 .. _POSITION_BITS
+    n_axis = (int(lev.max()) + 64) // 64  # words per axis
+    therm = np.arange(64 * n_axis)[None, :]
+    extra = [np.packbits(therm < lev[:, d : d + 1], axis=1, bitorder="little").view(np.uint64) for d in range(3)]
+    return np.ascontiguousarray(np.concatenate([bits, *extra], axis=1))
 
 
 def _sphere_directions(p: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -331,7 +358,7 @@ class _Tree:
         with ctrl_c_deferred():
             bits = K.build_bits(q.indptr, q.indices, q.data, rows, col_map, cols.size)
             lap("bits")
-            perm = K.bisection_order(bits)
+            perm = K.bisection_order(_with_position_bits(bits, pos[cols]) if _POSITION_BITS else bits)
             lap("order")
             self.lo, self.hi, self.left, self.right, self.levels = K.build_tree(np.ascontiguousarray(bits[perm]),
                                                                                 min(views, k))
@@ -351,6 +378,7 @@ class _Tree:
         self.fpos = np.ascontiguousarray(pos[fixed]).reshape(-1, 3)
         with ctrl_c_deferred():
             AK.node_cones(self.campos, slot, self.left, self.right, centers, radius, self.cones)
+            self.balls = AK.node_balls(self.campos, self.lo, self.hi)
             lap("cones")
             self.fbits = K.build_bits(q.indptr, q.indices, q.data, rows, fmap, fixed.size)
             self.fcones = np.empty((fixed.size, n_words, 4), dtype=np.int16)
@@ -390,7 +418,8 @@ class _Tree:
                 tup, tup_bound, self.lo, self.hi, self.left, self.right, self.levels, self.cones, self.views, self.campos,
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
-                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE, rest)
+                self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE, rest, self.balls, self.blocks[0],
+                self.blocks[1])
         self._learn(refined, cut)
         return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle), int(n_back)
 
