@@ -2,6 +2,6 @@
 
 import sys
 
-from camplace.cli import main
+from camplace.cli import console
 
-sys.exit(main())
+sys.exit(console())
