@@ -149,3 +149,18 @@ def test_rarest_row_with_tiers_equals_numpy() -> None:
             want[j] = rows[np.argmin(row_nnz[rows])]  # argmin: the first of the smallest
     np.testing.assert_array_equal(got, want)
     assert want[7] == -1 and want[9] >= m // 2
+
+
+def test_presolve_bits_on_arrays_faulted_in_by_the_workers(monkeypatch) -> None:
+    """Every working array as an anonymous mapping whose pages the block workers fault in (the path
+    of large matrices, forced here on small ones): the same reduced instance as the CSR presolve."""
+    from camplace.visibility import store
+
+    monkeypatch.setattr(store, "_POPULATE_MIN_BYTES", 0)
+    for a, w, k in _cases():
+        ref = presolve(a, w, k)
+        for workers in (1, 2):
+            got = presolve_bits(bits_from_csr(a), w, k, workers=workers)
+            np.testing.assert_array_equal(got.columns, ref.columns)
+            np.testing.assert_array_equal(got.row_groups, ref.row_groups)
+            np.testing.assert_array_equal(got.bits, ref.bits)

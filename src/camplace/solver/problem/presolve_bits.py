@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import functools
 import logging
+import mmap
 import time
-from typing import Any
+from typing import Any, Callable
 
 import numba
 import numpy as np
@@ -278,6 +279,25 @@ def _run(fn, bounds: list[int], workers: int) -> None:
         run_blocks(fn, bounds, workers)
 
 
+def _fresh_rows(rows: int, cols: int) -> tuple[np.ndarray, Callable[[int, int], None]]:
+    """(rows, cols) uint64 zeros whose pages the workers fault in for the rows they fill, and the
+    ``touch(r0, r1)`` that does it for rows ``r0:r1`` (one ``madvise`` per block instead of a page
+    fault per 4 KiB, which on this VM made the merge's transposes 2-3 times slower on a fresh array:
+    :func:`camplace.visibility.store.first_touch_empty`)."""
+    from camplace.visibility.store import first_touch_empty, populate
+
+    flat = first_touch_empty(rows * cols, np.uint64)
+    if not isinstance(flat.base, mmap.mmap):  # a small array: np.empty (an anonymous mapping is zeros)
+        flat[:] = 0
+    return flat.reshape(rows, cols), lambda r0, r1: populate(flat, r0 * cols, r1 * cols)
+
+
+def _block_rows(sorted_rows: np.ndarray, w0: int, w1: int) -> tuple[int, int]:
+    """The output rows ``r0:r1`` a block of row words ``w0:w1`` writes: the positions of the
+    ``sorted_rows`` (ascending) in ``[64 w0, 64 w1)``."""
+    return int(np.searchsorted(sorted_rows, 64 * w0)), int(np.searchsorted(sorted_rows, 64 * w1))
+
+
 def _pack(mask: np.ndarray, n_words: int) -> np.ndarray:
     out = np.zeros(n_words * 8, dtype=np.uint8)
     packed = np.packbits(np.asarray(mask, dtype=bool), bitorder="little")
@@ -409,11 +429,12 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
         # (one pass over the matrix), instead of reading that row's bit in every column per group
         rowsets = np.zeros((0, 1), dtype=np.uint64)
         if ng * ((n + 63) // 64) * 8 <= memory_budget_bytes() // 4:
-            rowsets = np.zeros((ng, (n + 63) // 64), dtype=np.uint64)
+            rowsets, touch = _fresh_rows(ng, (n + 63) // 64)
             gpos = np.full(m, -1, dtype=np.int64)
             gpos[grows] = np.arange(ng, dtype=np.int64)
             all_cols = np.arange(n, dtype=np.int64)
-            _run(lambda w0, w1: (_row_bits(words, all_cols, gpos, w0, w1, rowsets), release(0, n)), cuts(nw, _BLOCKS), workers)
+            _run(lambda w0, w1: (touch(*_block_rows(grows, w0, w1)), _row_bits(words, all_cols, gpos, w0, w1, rowsets),
+                                 release(0, n)), cuts(nw, _BLOCKS), workers)
             del gpos, all_cols
         # a first round of _BLOCKS blocks; the rest at once when it would end well inside the time
         # limit at that round's rate, else in rounds with the limit checked between them
@@ -449,11 +470,12 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     if need > budget:  # nothing to fall back to: a one-line error (the one memory policy)
         memory_fallback(OverBudget(need, budget, "the presolve (live rows x kept columns as bitsets)"), None,
                         asked=False, then=None, fix="lower --points or --candidates, or raise --memory-budget-gb")
-    rb = np.zeros((live_rows.size, (nc + 63) // 64), dtype=np.uint64)
+    rb, touch = _fresh_rows(live_rows.size, (nc + 63) // 64)
     rbk = cuts(live_rows.size, _BLOCKS)
     pos = np.full(m, -1, dtype=np.int64)
     pos[live_rows] = np.arange(live_rows.size, dtype=np.int64)
-    _run(lambda w0, w1: (_row_bits(words, columns, pos, w0, w1, rb), release(0, n)), cuts(nw, _BLOCKS), workers)
+    _run(lambda w0, w1: (touch(*_block_rows(live_rows, w0, w1)), _row_bits(words, columns, pos, w0, w1, rb),
+                         release(0, n)), cuts(nw, _BLOCKS), workers)
     del pos
     h = np.zeros(live_rows.size, dtype=np.uint64)
     has = np.zeros(live_rows.size, dtype=bool)
@@ -468,9 +490,10 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     counts = np.bincount(groups, minlength=n_groups).astype(np.int64)
     row_groups = np.full(m, -1, dtype=np.int64)
     row_groups[orig_rows] = groups
-    red = np.zeros((nc, (int(n_groups) + 63) // 64), dtype=np.uint64)
+    red, touch = _fresh_rows(nc, (int(n_groups) + 63) // 64)
     sel = idx[first]  # each group's first row, as a row of rb
-    _run(lambda cw0, cw1: _gather(rb, sel, nc, cw0, cw1, red), cuts(rb.shape[1], _BLOCKS), workers)
+    _run(lambda cw0, cw1: (touch(64 * cw0, min(nc, 64 * cw1)), _gather(rb, sel, nc, cw0, cw1, red)),
+         cuts(rb.shape[1], _BLOCKS), workers)
     rb = None  # freed before the reduced instance is made (up to m x n / 8 bytes)
     stats["time_merge_s"] = time.perf_counter() - t2
 
