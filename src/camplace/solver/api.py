@@ -244,14 +244,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
                             fix="pass the float32 matrix (load_visibility without pattern=True)")
         q = float_values(q)
     m, n = q.shape
-    if n == 0:
-        raise CamplaceError("the visibility matrix has no candidate columns")
-    w = check_weights(weights, m)
-    fixed_t = index_set(o.fixed, n, "fixed")
-    forbidden_t = index_set(o.forbidden, n, "forbidden")
-    both = sorted(set(fixed_t) & set(forbidden_t))
-    if both:
-        raise CamplaceError(f"candidates {both} are both fixed and forbidden")
+    w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
     pos = None
     if positions is not None:
         pos = coords(positions, n, "positions", "camera positions")
@@ -334,6 +327,20 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
 
 
+def _checked_columns(weights: Any, o: SolveOptions, m: int, n: int) -> tuple[np.ndarray, tuple[int, ...], tuple[int, ...]]:
+    """The weights ((m,) float64) and the fixed and forbidden columns of an (m, n) matrix, checked:
+    a one-line error for no columns, bad weights, bad indices or a column both fixed and forbidden."""
+    if n == 0:
+        raise CamplaceError("the visibility matrix has no candidate columns")
+    w = check_weights(weights, m)
+    fixed_t = index_set(o.fixed, n, "fixed")
+    forbidden_t = index_set(o.forbidden, n, "forbidden")
+    both = sorted(set(fixed_t) & set(forbidden_t))
+    if both:
+        raise CamplaceError(f"candidates {both} are both fixed and forbidden")
+    return w, fixed_t, forbidden_t
+
+
 def _team_k(o: SolveOptions, n: int, free_cols: np.ndarray) -> int | None:
     """The team's checked new-camera count: None for set cover and for a budget team without k
     (after :meth:`~camplace.solver.problem.team.TeamConstraints.check_columns` on ``n`` columns)."""
@@ -367,14 +374,7 @@ def _team_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> 
         None when the team's engine is another one (the caller converts the bits to CSR).
     """
     m, n = bits.shape
-    if n == 0:
-        raise CamplaceError("the visibility matrix has no candidate columns")
-    w = check_weights(weights, m)
-    fixed_t = index_set(o.fixed, n, "fixed")
-    forbidden_t = index_set(o.forbidden, n, "forbidden")
-    both = sorted(set(fixed_t) & set(forbidden_t))
-    if both:
-        raise CamplaceError(f"candidates {both} are both fixed and forbidden")
+    w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
     free = np.ones(n, dtype=bool)
     free[list(set(fixed_t) | set(forbidden_t))] = False
     free_cols = np.flatnonzero(free)

@@ -116,13 +116,16 @@ def _from_csr(indptr, indices, lo, hi, words):  # pragma: no cover - compiled
             words[indices[t], w] |= b
 
 
-def _word_ranges(n_words: int, parts: int) -> list[tuple[int, int]]:
-    """``parts`` contiguous ranges of words (fixed by the sizes, not the thread count)."""
-    parts = max(1, min(parts, n_words))
-    return [(n_words * p // parts, n_words * (p + 1) // parts) for p in range(parts)]
+def part_ranges(total: int, parts: int = 64) -> list[tuple[int, int]]:
+    """``parts`` contiguous ranges of ``range(total)`` (words, columns or rows; fixed by the size,
+    not the thread count)."""
+    parts = max(1, min(parts, total))
+    return [(total * p // parts, total * (p + 1) // parts) for p in range(parts)]
 
 
-def _run(fn, ranges, workers: int) -> None:
+def run_ranges(fn, ranges, workers: int | None = None) -> None:
+    """``fn(lo, hi)`` for every range, on ``workers`` threads (default: the allowed cores)."""
+    workers = thread_count(workers)
     if workers > 1 and len(ranges) > 1:
         with ThreadPoolExecutor(max_workers=workers) as pool:
             list(pool.map(lambda r: fn(*r), ranges))
@@ -176,10 +179,8 @@ class BitMatrix:
     def column_counts(self) -> np.ndarray:
         """(n,) int64: rows each column observes."""
         out = np.zeros(self.shape[1], dtype=np.int64)
-        n = self.shape[1]
-        parts = max(1, min(64, n))
-        _run(lambda lo, hi: (_column_counts(self.words, lo, hi, out), self.release_columns(lo, hi)),
-             [(n * p // parts, n * (p + 1) // parts) for p in range(parts)], thread_count())
+        run_ranges(lambda lo, hi: (_column_counts(self.words, lo, hi, out), self.release_columns(lo, hi)),
+                   part_ranges(self.shape[1]))
         return out
 
     @property
@@ -191,8 +192,8 @@ class BitMatrix:
         """(m,) int64: candidates observing each row."""
         m = self.shape[0]
         counts = np.zeros(bit_words(m) * 64, dtype=np.int64)
-        _run(lambda a, b: (_row_counts(self.words, a, b, counts), self.release_columns(0, self.shape[1])),
-             _word_ranges(self.words.shape[1], 64),
+        run_ranges(lambda a, b: (_row_counts(self.words, a, b, counts), self.release_columns(0, self.shape[1])),
+             part_ranges(self.words.shape[1], 64),
              thread_count(workers))
         return counts[:m]
 
@@ -220,7 +221,7 @@ class BitMatrix:
         indices = np.empty(nnz, dtype=idt)
         cursor = np.zeros(bit_words(m) * 64, dtype=np.int64)
         cursor[:m] = indptr[:-1]
-        _run(lambda a, b: _fill_indices(self.words, a, b, cursor, indices), _word_ranges(self.words.shape[1], 64),
+        run_ranges(lambda a, b: _fill_indices(self.words, a, b, cursor, indices), part_ranges(self.words.shape[1], 64),
              thread_count(workers))
         data = np.ones(nnz, dtype=dtype)
         out = sp.csr_matrix((data, indices, indptr.astype(idt)), shape=(m, n), copy=False)
@@ -255,6 +256,6 @@ def bits_from_csr(matrix, workers: int | None = None) -> BitMatrix:
     m, n = a.shape
     words = np.zeros((n, bit_words(m)), dtype=np.uint64)
     # rows in blocks of 64 (whole words), so no two threads write one word
-    blocks = _word_ranges(bit_words(m), 64)
-    _run(lambda a0, b0: _from_csr(a.indptr, a.indices, 64 * a0, min(m, 64 * b0), words), blocks, thread_count(workers))
+    blocks = part_ranges(bit_words(m), 64)
+    run_ranges(lambda a0, b0: _from_csr(a.indptr, a.indices, 64 * a0, min(m, 64 * b0), words), blocks, thread_count(workers))
     return BitMatrix(words, m)

@@ -385,6 +385,25 @@ def release_columns(words: np.ndarray, start: int, stop: int) -> None:
     release_pages(words, start * row, stop * row)
 
 
+def _small_views(instance, candidates, points: TargetPoints) -> tuple[list[int], np.ndarray | None]:
+    """The frames of ``points`` and which candidates see each frame's target smaller than
+    ``[quality] min_target_px`` ((n, n_frames) bool), or None when none does (rule 6)."""
+    from camplace.visibility.footprint import small_views
+
+    frames = [int(f) for f in np.unique(points.frame)]
+    small = small_views(instance, candidates.positions, candidates.rotations, frames,
+                        models=getattr(candidates, "model", None))
+    return frames, (small if small is not None and small.any() else None)
+
+
+def _dropped(instance, counts: dict, n_drop: int, small: np.ndarray, frames: list[int]) -> dict:
+    """``counts`` with ``observed`` lowered by the ``n_drop`` pairs rule 6 dropped (logged)."""
+    if n_drop:
+        log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
+                 n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
+    return {**counts, "observed": int(counts["observed"]) - n_drop}
+
+
 def drop_small_views_bits(instance, candidates, points: TargetPoints, bits, counts: dict) -> dict:
     """:func:`drop_small_views` on a :class:`~camplace.visibility.bits.BitMatrix`, in place.
 
@@ -394,12 +413,9 @@ def drop_small_views_bits(instance, candidates, points: TargetPoints, bits, coun
         ``counts`` with ``observed`` lowered by the pairs dropped.
     """
     from camplace.visibility.bits import pack_rows
-    from camplace.visibility.footprint import small_views
 
-    frames = [int(f) for f in np.unique(points.frame)]
-    small = small_views(instance, candidates.positions, candidates.rotations, frames,
-                        models=getattr(candidates, "model", None))  # (n, n_frames)
-    if small is None or not small.any():
+    frames, small = _small_views(instance, candidates, points)
+    if small is None:
         return counts
     before = bits.column_counts.copy()
     surface = ~points.is_emitter
@@ -415,10 +431,7 @@ def drop_small_views_bits(instance, candidates, points: TargetPoints, bits, coun
                 release_columns(bits.words, int(j), int(j) + 1)
     bits.__dict__.pop("column_counts", None)
     n_drop = int(before.sum() - bits.column_counts.sum())
-    if n_drop:
-        log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
-                 n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
-    return {**counts, "observed": int(counts["observed"]) - n_drop}
+    return _dropped(instance, counts, n_drop, small, frames)
 
 
 def drop_small_views_bytes(instance, candidates, points: TargetPoints, qbytes, counts: dict) -> dict:
@@ -429,12 +442,8 @@ def drop_small_views_bytes(instance, candidates, points: TargetPoints, qbytes, c
     dict
         ``counts`` with ``observed`` lowered by the pairs dropped.
     """
-    from camplace.visibility.footprint import small_views
-
-    frames = [int(f) for f in np.unique(points.frame)]
-    small = small_views(instance, candidates.positions, candidates.rotations, frames,
-                        models=getattr(candidates, "model", None))  # (n, n_frames)
-    if small is None or not small.any():
+    frames, small = _small_views(instance, candidates, points)
+    if small is None:
         return counts
     before = qbytes.column_counts.copy()
     surface = ~points.is_emitter
@@ -444,10 +453,7 @@ def drop_small_views_bytes(instance, candidates, points: TargetPoints, qbytes, c
             qbytes.values[j, rows] = 0
     qbytes.__dict__.pop("column_counts", None)
     n_drop = int(before.sum() - qbytes.column_counts.sum())
-    if n_drop:
-        log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
-                 n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
-    return {**counts, "observed": int(counts["observed"]) - n_drop}
+    return _dropped(instance, counts, n_drop, small, frames)
 
 
 _DROP_BLOCK_PAIRS = 1 << 22  # pairs examined at once by drop_small_views
@@ -472,12 +478,8 @@ def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_
     -------
     (m, n) scipy.sparse.csr_matrix, dict
     """
-    from camplace.visibility.footprint import small_views
-
-    frames = [int(f) for f in np.unique(points.frame)]
-    small = small_views(instance, candidates.positions, candidates.rotations, frames,
-                        models=getattr(candidates, "model", None))  # (n, n_frames)
-    if small is None or not small.any():
+    frames, small = _small_views(instance, candidates, points)
+    if small is None:
         return matrix, counts
     m = matrix.shape[0]
     surface = ~points.is_emitter
@@ -496,9 +498,7 @@ def drop_small_views(instance, candidates, points: TargetPoints, matrix: sp.csr_
     np.cumsum(row_counts, out=indptr[1:])
     out = sp.csr_matrix((matrix.data[keep], matrix.indices[keep], indptr), shape=matrix.shape, copy=False)
     out.has_sorted_indices = True
-    log.info("visibility: %d pairs dropped by [quality] min_target_px = %g (%d of %d camera-frame views too small)",
-             n_drop, instance.quality.min_target_px, int(small[:, frames].sum()), small[:, frames].size)
-    return out, {**counts, "observed": int(counts["observed"]) - n_drop}
+    return out, _dropped(instance, counts, n_drop, small, frames)
 
 
 def default_chunk_size(task: VisibilityTask) -> int:

@@ -26,13 +26,12 @@ from __future__ import annotations
 
 import functools
 import math
-from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
 import scipy.sparse as sp
 
-from camplace._cores import thread_count
+from camplace.visibility.bits import part_ranges, run_ranges
 
 __all__ = ["ByteMatrix", "quantise", "bytes_from_csr", "QUANT_STEP", "QUANT_ERROR"]
 
@@ -110,22 +109,6 @@ def _only_ones(values):  # pragma: no cover - compiled
     return True
 
 
-def _ranges(total: int, parts: int = 64) -> list[tuple[int, int]]:
-    """``parts`` contiguous ranges of ``range(total)`` (fixed by the size, not the thread count)."""
-    parts = max(1, min(parts, total))
-    return [(total * p // parts, total * (p + 1) // parts) for p in range(parts)]
-
-
-def _run(fn, ranges, workers: int | None = None) -> None:
-    workers = thread_count(workers)
-    if workers > 1 and len(ranges) > 1:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(lambda r: fn(*r), ranges))
-    else:
-        for r in ranges:
-            fn(*r)
-
-
 class ByteMatrix:
     """An (m, n) quality matrix quantised to a byte a cell, stored column by column (see the module
     docstring).
@@ -164,7 +147,7 @@ class ByteMatrix:
     def column_counts(self) -> np.ndarray:
         """(n,) int64: rows each column observes."""
         out = np.zeros(self.shape[1], dtype=np.int64)
-        _run(lambda lo, hi: _column_counts(self.values, lo, hi, out), _ranges(self.shape[1]))
+        run_ranges(lambda lo, hi: _column_counts(self.values, lo, hi, out), part_ranges(self.shape[1]))
         return out
 
     @property
@@ -183,14 +166,14 @@ class ByteMatrix:
 
         m, n = self.shape
         words = np.zeros((n, bit_words(m)), dtype=np.uint64)
-        _run(lambda lo, hi: _pack(self.values, lo, hi, words), _ranges(n))
+        run_ranges(lambda lo, hi: _pack(self.values, lo, hi, words), part_ranges(n))
         return BitMatrix(words, m)
 
     def row_counts(self, workers: int | None = None) -> np.ndarray:
         """(m,) int64: candidates observing each row."""
         m = self.shape[0]
         counts = np.zeros(m, dtype=np.int64)
-        _run(lambda lo, hi: _row_counts(self.values, lo, hi, counts), _ranges(m), workers)
+        run_ranges(lambda lo, hi: _row_counts(self.values, lo, hi, counts), part_ranges(m), workers)
         return counts
 
     def tocsr(self, dtype=np.float32, workers: int | None = None) -> sp.csr_matrix:
@@ -205,7 +188,7 @@ class ByteMatrix:
         indices = np.empty(nnz, dtype=idt)
         data = np.empty(nnz, dtype=np.float32)
         cursor = indptr[:-1].copy()
-        _run(lambda lo, hi: _fill(self.values, lo, hi, cursor, indices, data, 255.0), _ranges(m), workers)
+        run_ranges(lambda lo, hi: _fill(self.values, lo, hi, cursor, indices, data, 255.0), part_ranges(m), workers)
         if np.dtype(dtype) == np.bool_:
             data = np.ones(nnz, dtype=np.bool_)
         elif np.dtype(dtype) != np.float32:
@@ -232,5 +215,5 @@ def bytes_from_csr(matrix, workers: int | None = None) -> ByteMatrix:
     m, n = a.shape
     values = np.zeros((n, m), dtype=np.uint8)
     # rows in ranges: every thread writes its own rows of every column
-    _run(lambda lo, hi: _quantise_csr(a.indptr, a.indices, a.data, lo, hi, values), _ranges(m), workers)
+    run_ranges(lambda lo, hi: _quantise_csr(a.indptr, a.indices, a.data, lo, hi, values), part_ranges(m), workers)
     return ByteMatrix(values)
