@@ -399,8 +399,9 @@ def team_branch_and_bound(
             cb = min(value + og[pos] + float(rest[rest > 0].sum()), total)
             if cb <= best_val + _EPS:
                 break
-            if timed_out[0]:
-                open_bound[0] = max(open_bound[0], cb)
+            if timed_out[0] or deadline.expired():  # before the child's gains: a pruned child costs them too
+                timed_out[0] = True
+                open_bound[0] = max(open_bound[0], cb)  # the siblings' bounds do not rise past it
                 break
             rows = col_rows(i)
             saved = unc_w[rows].copy()
