@@ -216,3 +216,47 @@ def test_a_matrix_too_big_for_memory_stops_before_allocating(tmp_path: Path, mon
     monkeypatch.setattr(store, "_physical_memory_bytes", lambda: 1000)
     with pytest.raises(CamplaceError, match="needs about .* GiB, over this machine's"):
         store.load_visibility(path)
+
+
+def _resident_bytes(array: np.ndarray) -> int:
+    """Bytes of ``array``'s pages present in memory (``/proc/self/pagemap``: bit 63 of each page's
+    entry)."""
+    page = os.sysconf("SC_PAGE_SIZE")
+    addr = array.__array_interface__["data"][0]
+    first, last = addr // page, (addr + array.nbytes - 1) // page
+    with open("/proc/self/pagemap", "rb") as fh:
+        fh.seek(first * 8)
+        entries = np.frombuffer(fh.read((last - first + 1) * 8), dtype=np.uint64)
+    return int(np.count_nonzero(entries >> np.uint64(63))) * page
+
+
+@pytest.mark.skipif(not Path("/proc/self/pagemap").exists(), reason="needs Linux /proc")
+def test_first_touch_arrays_are_faulted_in_by_populate_alone() -> None:
+    """A first-touch array is an anonymous mapping without pages (numpy 2 hides the mapping behind a
+    memoryview: populate and the presolve's zero fill must still find it); populate faults in
+    exactly the range asked for."""
+    from camplace.visibility.scratch import mapping_of
+    from camplace.visibility.store import first_touch_empty, populate
+
+    n = 16 << 20  # 16 MiB of uint8: above the mapping threshold
+    a = first_touch_empty(n, np.uint8)
+    assert mapping_of(a) is not None and mapping_of(a[5:]) is not None
+    assert mapping_of(np.empty(10)) is None
+    assert _resident_bytes(a) < (1 << 20)
+    populate(a, 0, n // 2)
+    got = _resident_bytes(a)
+    if got < (1 << 20):
+        pytest.skip("the kernel lacks MADV_POPULATE_WRITE")
+    assert n // 2 <= got <= n // 2 + (2 << 20)  # a transparent huge page may round it up
+    assert int(a.max()) == 0
+
+
+def test_presolve_rows_are_not_zeroed_by_the_main_thread(monkeypatch) -> None:
+    """The presolve's fresh row arrays stay unfaulted until the workers populate their blocks."""
+    from camplace.solver.problem import presolve_bits as pb
+
+    rows, touch = pb._fresh_rows(4096, 512)  # 16 MiB
+    if Path("/proc/self/pagemap").exists():
+        assert _resident_bytes(rows) < (1 << 20)
+    touch(0, 8)
+    assert not rows[:8].any()

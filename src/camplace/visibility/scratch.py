@@ -110,14 +110,23 @@ class Scratch:
             self.path = None
 
 
+def mapping_of(array: np.ndarray) -> mmap.mmap | None:
+    """The memory mapping an array was made on (``np.frombuffer`` of an ``mmap``: a scratch file's
+    array, :func:`camplace.visibility.store.first_touch_empty`'s), None for any other array.
+    numpy 2 keeps a ``memoryview`` of the buffer as the array's base, so the chain of bases is
+    followed through it."""
+    base = array.base
+    while base is not None and not isinstance(base, mmap.mmap):
+        base = base.obj if isinstance(base, memoryview) else getattr(base, "base", None)
+    return base
+
+
 def release_pages(array: np.ndarray, lo: int, hi: int) -> None:
     """Drop the pages of bytes ``lo:hi`` of a file-backed array from this process's memory
     (``MADV_DONTNEED``; its data stays in the file). A no-op for any array that is not a
     :meth:`Scratch.array` (anonymous memory would lose its data)."""
-    base = array.base
-    while base is not None and not isinstance(base, mmap.mmap):
-        base = getattr(base, "base", None) if not isinstance(base, memoryview) else base.obj
-    if not isinstance(base, mmap.mmap) or _SHARED.get(id(base)) is not base or not hasattr(base, "madvise"):
+    base = mapping_of(array)
+    if base is None or _SHARED.get(id(base)) is not base or not hasattr(base, "madvise"):
         return
     a = (lo + _PAGE - 1) // _PAGE * _PAGE
     b = hi // _PAGE * _PAGE

@@ -68,7 +68,7 @@ import scipy.sparse as sp
 
 from camplace._cores import thread_count
 from camplace.errors import CamplaceError
-from camplace.visibility.scratch import release_pages
+from camplace.visibility.scratch import mapping_of, release_pages
 
 HEAD_MAGIC = b"CAMPLMX1"
 TAIL_MAGIC = b"CAMPLEND"
@@ -158,8 +158,8 @@ def populate(array: np.ndarray, lo: int, hi: int) -> None:
     0.4-0.7 s for 332 MB by page faults, 0.1 s populated). A no-op for other arrays and where the
     kernel lacks ``MADV_POPULATE_WRITE`` (the pages then fault in as they are written).
     """
-    buf = array.base
-    if not isinstance(buf, mmap.mmap) or hi <= lo:
+    buf = mapping_of(array)
+    if buf is None or hi <= lo:
         return
     page = mmap.PAGESIZE
     start = (int(lo) * array.itemsize) // page * page

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import mmap
 import time
 from typing import Any, Callable
 
@@ -284,10 +283,11 @@ def _fresh_rows(rows: int, cols: int) -> tuple[np.ndarray, Callable[[int, int], 
     ``touch(r0, r1)`` that does it for rows ``r0:r1`` (one ``madvise`` per block instead of a page
     fault per 4 KiB, which on this VM made the merge's transposes 2-3 times slower on a fresh array:
     :func:`camplace.visibility.store.first_touch_empty`)."""
+    from camplace.visibility.scratch import mapping_of
     from camplace.visibility.store import first_touch_empty, populate
 
     flat = first_touch_empty(rows * cols, np.uint64)
-    if not isinstance(flat.base, mmap.mmap):  # a small array: np.empty (an anonymous mapping is zeros)
+    if mapping_of(flat) is None:  # a small array: np.empty (an anonymous mapping is zeros)
         flat[:] = 0
     return flat.reshape(rows, cols), lambda r0, r1: populate(flat, r0 * cols, r1 * cols)
 
