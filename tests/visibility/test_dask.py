@@ -156,3 +156,26 @@ def test_dask_run_gives_the_same_quantised_columns(problem) -> None:
     assert ref.qbytes.nnz > 0 and np.unique(ref.qbytes.values).size > 100  # really graded
     np.testing.assert_array_equal(got.qbytes.values, ref.qbytes.values)
     assert got.stats == ref.stats
+
+
+def test_a_worker_hands_back_byte_columns_not_pairs(problem) -> None:
+    """The worker entry of a graded run returns its chunk's quantised columns (one byte a cell),
+    equal to the in-process matrix's, for a chunk that does not start at column 0; the client
+    copies such blocks in without ever holding the chunk's pair list."""
+    import dataclasses
+
+    from camplace.visibility import distributed as dist
+
+    inst, pts, cands, _ = problem
+    graded = dataclasses.replace(inst, quality=dataclasses.replace(inst.quality, mode="graded"))
+    ref = compute_visibility(graded, cands, pts, chunk_size=16)
+    task, _ = make_task(graded, cands, pts)
+    block, counts = dist.run_chunk_bytes(task, 37, 81)
+    assert block.dtype == np.uint8 and block.shape == (44, len(pts))
+    np.testing.assert_array_equal(block, ref.qbytes.values[37:81])
+    assert np.count_nonzero(block) > 0 and counts["observed"] == np.count_nonzero(block)
+    values = np.zeros_like(ref.qbytes.values)
+    got = dist._store_block(values, 37, 81, block, counts)
+    np.testing.assert_array_equal(values[37:81], block)
+    assert not values[:37].any() and not values[81:].any()
+    assert got.col0 == 37 and len(got.rowids) == 0 and got.counts == counts

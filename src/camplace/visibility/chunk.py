@@ -514,3 +514,33 @@ def _arena_empty(n: int, dtype) -> np.ndarray:
         start = 0
     arena.used = start + nbytes
     return arena.slab[start:start + nbytes].view(dtype)
+
+
+def chunk_fx(task: VisibilityTask, col0: int) -> float:
+    """The focal length (pixels) that grades the pairs of the chunk starting at column ``col0``
+    (every chunk holds one camera model)."""
+    return float(task.intrinsics(col0, col0 + 1)[0][0, 0]) if task.cam_model is not None else float(task.K[0, 0])
+
+
+def scatter_part_bytes(task: VisibilityTask, values: np.ndarray, part: ChunkResult, origin: int = 0) -> ChunkResult:
+    """Write a chunk's observed pairs, quantised (:func:`camplace.visibility._kernels.scatter_chunk_quality`),
+    into the columns ``values`` and return the chunk's counts with empty pair arrays.
+
+    Parameters
+    ----------
+    task : VisibilityTask
+    values : (c, m) uint8
+        Quantised columns; row ``j`` is candidate ``origin + j`` (the whole matrix with
+        ``origin = 0``, a Dask worker's block of the chunk's own columns with ``origin = part.col0``).
+    part : ChunkResult
+    origin : int
+    """
+    from camplace.visibility._kernels import scatter_chunk_quality
+
+    if len(part.rowids):
+        emitter = ~np.any(task.normals != 0.0, axis=1)
+        scatter_chunk_quality(part.rowids, part.offsets, part.lcols, int(part.col0) - origin, values, task.positions,
+                              task.normals, emitter, task.cam_positions[origin:], chunk_fx(task, int(part.col0)),
+                              task.required_px_per_m)
+    return ChunkResult(part.col0, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8),
+                       {**part.counts})

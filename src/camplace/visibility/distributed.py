@@ -54,6 +54,19 @@ def run_chunk_bits(task, start: int, stop: int):
     return block, part.counts
 
 
+def run_chunk_bytes(task, start: int, stop: int):
+    """Worker entry point for a graded matrix quantised to bytes: candidates ``start:stop`` of
+    ``task`` as quantised columns ((stop - start, m) uint8, see :mod:`camplace.visibility.qbytes`)
+    and the chunk's counts. One byte a cell goes back to the client, never a pair list or floats."""
+    import numpy as np
+
+    from camplace.visibility.chunk import scatter_part_bytes
+
+    part = run_chunk(task, start, stop)
+    block = np.zeros((stop - start, len(task.positions)), dtype=np.uint8)
+    return block, scatter_part_bytes(task, block, part, origin=start).counts
+
+
 def connect(address: str):
     """A Dask client for ``address``: a scheduler address (``tcp://host:8786``) or ``local:N``.
 
@@ -91,6 +104,7 @@ def compute_chunks_dask(
     progress: Callable[[int], None] | None = None,
     stops: list[int] | None = None,
     words=None,
+    values=None,
 ) -> list:
     """Compute the chunks starting at ``starts`` on a Dask cluster; results in the order of ``starts``.
 
@@ -112,7 +126,12 @@ def compute_chunks_dask(
         A binary matrix's column bitsets: the workers hand back bit-packed column blocks, copied
         into ``words`` as they arrive (and released on the cluster); the results are then the
         chunks' counts with empty pair arrays.
+    values : (n, m) uint8 array or None
+        A graded matrix's quantised columns: the workers hand back byte column blocks, copied into
+        ``values`` as they arrive (the same results as with ``words``).
     """
+    if words is not None and values is not None:
+        raise ValueError("compute_chunks_dask: words or values, not both")
     if not starts:
         return []
     distributed = _import_distributed()
@@ -125,7 +144,7 @@ def compute_chunks_dask(
         remote_task = client.scatter(task, broadcast=True, hash=False)
         futures = {}
         end = {s: (stops[i] if stops is not None else min(s + chunk_size, n)) for i, s in enumerate(starts)}
-        entry = run_chunk if words is None else run_chunk_bits
+        entry = run_chunk_bits if words is not None else run_chunk_bytes if values is not None else run_chunk
         for s in starts:
             fut = client.submit(entry, remote_task, s, end[s], pure=False, retries=5)
             futures[fut] = s
@@ -134,17 +153,8 @@ def compute_chunks_dask(
             s = futures.pop(fut)
             got = fut.result()
             fut.release()
-            if words is not None:
-                import numpy as np
-
-                from camplace.visibility.chunk import ChunkResult
-
-                block, counts = got
-                words[s:end[s]] = block
-                from camplace.visibility.scratch import release_pages
-
-                release_pages(words, s * words.shape[1] * 8, end[s] * words.shape[1] * 8)  # out of core: to disk
-                got = ChunkResult(s, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)
+            if words is not None or values is not None:
+                got = _store_block(words if words is not None else values, s, end[s], *got)
             results[s] = got
             if progress is not None:
                 progress(end[s] - s)
@@ -154,3 +164,18 @@ def compute_chunks_dask(
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def _store_block(columns, start: int, stop: int, block, counts: dict):
+    """Copy a worker's column block into rows ``start:stop`` of ``columns`` (bitsets or bytes;
+    a scratch file's pages are then dropped from memory) and return the chunk's counts as a
+    :class:`~camplace.visibility.chunk.ChunkResult` with empty pair arrays."""
+    import numpy as np
+
+    from camplace.visibility.chunk import ChunkResult
+    from camplace.visibility.scratch import release_pages
+
+    columns[start:stop] = block
+    row = columns.shape[1] * columns.itemsize
+    release_pages(columns, start * row, stop * row)  # out of core: to disk
+    return ChunkResult(start, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)

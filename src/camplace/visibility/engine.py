@@ -51,7 +51,8 @@ from camplace.errors import CamplaceError
 from camplace.visibility.points import TargetPoints
 from camplace.visibility.raycast import RayScene
 from camplace.visibility import cache
-from camplace.visibility.chunk import COUNT_KEYS, ChunkResult, FrameScenes, VisibilityTask, compute_chunk
+from camplace.visibility.chunk import (COUNT_KEYS, ChunkResult, FrameScenes, VisibilityTask, chunk_fx, compute_chunk,
+                                       scatter_part_bytes)
 from camplace.visibility.distributed import compute_chunks_dask
 from camplace.visibility.store import first_touch_empty, populate
 
@@ -338,26 +339,6 @@ def scatter_part(words: np.ndarray, part: ChunkResult) -> ChunkResult:
 
     if len(part.rowids):
         scatter_chunk(part.rowids, part.offsets, part.lcols, int(part.col0), words)
-    return ChunkResult(part.col0, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8),
-                       {**part.counts})
-
-
-def chunk_fx(task: VisibilityTask, col0: int) -> float:
-    """The focal length (pixels) that grades the pairs of the chunk starting at column ``col0``
-    (every chunk holds one camera model)."""
-    return float(task.intrinsics(col0, col0 + 1)[0][0, 0]) if task.cam_model is not None else float(task.K[0, 0])
-
-
-def scatter_part_bytes(task: VisibilityTask, values: np.ndarray, part: ChunkResult) -> ChunkResult:
-    """Write a chunk's observed pairs, quantised (:func:`camplace.visibility._kernels.scatter_chunk_quality`),
-    into the columns ``values`` ((n, m) uint8) and return the chunk's counts with empty pair arrays."""
-    from camplace.visibility._kernels import scatter_chunk_quality
-
-    if len(part.rowids):
-        emitter = ~np.any(task.normals != 0.0, axis=1)
-        scatter_chunk_quality(part.rowids, part.offsets, part.lcols, int(part.col0), values, task.positions,
-                              task.normals, emitter, task.cam_positions, chunk_fx(task, int(part.col0)),
-                              task.required_px_per_m)
     return ChunkResult(part.col0, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8),
                        {**part.counts})
 
@@ -772,9 +753,7 @@ def compute_visibility(
         rest = ranges[1:]
         parts += compute_chunks_dask(task, [a for a, _ in rest], chunk_size, dask_address, progress=progress,
                                      stops=[b for _, b in rest] if task.cam_model is not None else None,
-                                     words=words)
-        if values is not None:  # the pair lists as they came back, quantised into the columns
-            parts = [scatter_part_bytes(task, values, p) for p in parts]
+                                     words=words, values=values)
     else:
         workers = thread_count(workers)
 
