@@ -355,6 +355,17 @@ def run(
         return run_settings(instance, settings, outdir=outdir, reporter=reporter)
 
 
+def _solver_warm_up(instance, settings: RunSettings):
+    """What the visibility stage's waiting thread can do for the solve: load the kernels of plain
+    max coverage on column bitsets (:func:`camplace.solver.bits_route.load_kernels`) when the
+    matrix is binary, the run has no team and no robust stage; else None."""
+    if instance.quality.mode == "graded" or getattr(instance, "team", None) is not None or settings.robust is not None:
+        return None
+    from camplace.solver.bits_route import load_kernels
+
+    return lambda: load_kernels(settings.solve_options)
+
+
 def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None = None,
                  reporter: Reporter | None = None) -> Solution:
     """The pipeline as a sequence of stages: sampling, visibility, solve, the solution, the folder.
@@ -393,7 +404,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         t0 = time.perf_counter()
         vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
                                dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
-                               scratch=scratch, solve_mode=settings.mode)
+                               scratch=scratch, solve_mode=settings.mode, idle=_solver_warm_up(instance, settings))
         timings["visibility"] = time.perf_counter() - t0
         timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 

@@ -495,6 +495,16 @@ def team_chunk_plan(task: VisibilityTask, chunk_size: int, workers: int) -> list
     return plan
 
 
+def _while_waiting(idle: Callable[[], object]) -> None:
+    """Run :func:`compute_visibility`'s ``idle`` work; an error there is logged, not raised."""
+    t0 = time.perf_counter()
+    try:
+        idle()
+    except Exception as exc:  # noqa: BLE001 - optional work: the matrix does not depend on it
+        log.debug("visibility: the idle work failed (%s: %s); going on", type(exc).__name__, exc)
+    log.debug("visibility: idle work took %.3f s while the chunks were cast", time.perf_counter() - t0)
+
+
 def chunk_plan(n_candidates: int, chunk_size: int, workers: int) -> list[tuple[int, int]]:
     """Candidate ranges ``(start, stop)`` for the thread pool, in column order.
 
@@ -580,6 +590,7 @@ def compute_visibility(
     layout: str = "auto",
     scratch=None,
     quality_tree: bool = True,
+    idle: Callable[[], object] | None = None,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -616,6 +627,11 @@ def compute_visibility(
         Quantised columns only: the run's solve builds the quality tree over them (``--mode
         quality``), so the memory estimate counts its inner nodes' table too (False: a solve that
         reads the pattern).
+    idle : callable or None
+        Called once by this thread while the worker threads cast the chunks (after the first one),
+        for work that would otherwise wait for the matrix (the pipeline loads the solver's
+        kernels there); not called on a cache hit or a Dask cluster. Its errors are logged and
+        ignored: it must not change the matrix.
 
     Returns
     -------
@@ -779,6 +795,8 @@ def compute_visibility(
                         parts[0] = scatter_part_bytes(task, values, parts[0])
                 if progress is not None:
                     progress(b - a)
+                if i == 0 and idle is not None and len(plan) > 1:
+                    _while_waiting(idle)
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
     bits = qbytes = None
