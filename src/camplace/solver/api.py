@@ -71,7 +71,7 @@ from camplace.names import MODES
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import NearCandidates, greedy
 from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes, memory_fallback
-from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
+from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.mip.mode_models import check_setcover_memory
 from camplace.solver.engines.setcover.mode import setcover
 from camplace.solver.options import SolveOptions
@@ -86,8 +86,6 @@ __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
 log = logging.getLogger(__name__)
 
 _OPT_TOL = 1e-9
-_CAP_SHARE = 0.05  # multiview: share of the time limit kept for the opposite-pairs bound ...
-_CAP_MAX_S = 2.0  # ... at most this many seconds (a matching stopped early is still a valid bound)
 _CONFLICT_PAIR_BYTES = 200  # a conflicting pair: its array row, the greedy's adjacency sets, temporaries
 
 
@@ -313,16 +311,13 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
             )
         # multiview with fewer cameras than 2 x views: opposite points cap the bound when the search
         # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
-        cap = mode == "multiview" and k + len(fixed_t) < 2 * views
-        inner = deadline
-        if cap and deadline.limit is not None:
-            inner = deadline.shortened(min(_CAP_SHARE * deadline.limit, _CAP_MAX_S))
+        cap = mode == "multiview" and cap_applies(k + len(fixed_t), views)
+        inner = cap_deadline(deadline) if cap else deadline
         ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, o,
                                      inner, stats={"k": k}))
         searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
         if cap and ctx.selected is not None and ctx.status != "optimal" and not searched and not deadline.expired():
-            ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
-                                     deadline)
+            ctx = cap_bound(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64), deadline)
 
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
 
@@ -441,17 +436,6 @@ def _result(ctx: EngineOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[i
         selected=sel, status=status, objective=float(objective), bound=float(bound), gap=float(gap),
         engine=name, time_s=elapsed, stats=jsonable(stats),
     )
-
-
-def _opposite_pair_cap(
-    ctx: EngineOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
-    cameras: int, allowed: np.ndarray, deadline: Deadline,
-) -> EngineOutcome:
-    """Tighten an unproven multiview bound with :func:`~camplace.solver.engines.bitset.pair_cap.opposite_pair_bound`."""
-    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, deadline=deadline)
-    cap_stats["bound_before"] = float(ctx.bound)
-    ctx.stats["opposite_pairs"] = cap_stats
-    return replace(ctx, bound=cap) if cap < ctx.bound else ctx
 
 
 def _spaced_fallback(

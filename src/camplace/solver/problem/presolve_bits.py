@@ -42,7 +42,8 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
-__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight"]
+__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight", "views_weight", "row_counts_of",
+           "row_bitsets", "layout_bits"]
 
 log = logging.getLogger(__name__)
 
@@ -272,6 +273,18 @@ def _gather(rb, sel, nc, cw0, cw1, out):  # pragma: no cover - compiled
                 out[c0 + q, gb] = a[q]
 
 
+@numba.njit(**_JIT)
+def _count_rows(words, columns, w0, w1, counts):  # pragma: no cover - compiled
+    """``counts[i] +=`` the columns of ``columns`` observing row i, for the rows of words ``w0:w1``."""
+    for wd in range(w0, w1):
+        base = np.int64(wd) << 6
+        for c in range(columns.shape[0]):
+            x = words[columns[c], wd]
+            while x:
+                counts[base + np.int64(_ctz(x))] += 1
+                x &= x - np.uint64(1)
+
+
 def _run(fn, bounds: list[int], workers: int) -> None:
     """``fn(lo, hi)`` for every block of ``bounds`` (:func:`~camplace.solver._support.blocks.cuts`),
     on the solver's pool of ``workers`` threads."""
@@ -315,7 +328,15 @@ def presolve_bits_bytes(m: int, n: int) -> int:
 class BitPresolved(Presolved):
     """A :class:`Presolved` made from column bitsets: :attr:`bits` is built by the presolve;
     :attr:`matrix` and :attr:`source` (the reduced CSR pattern, rows and columns in reduced
-    order) are made from the bits on first use."""
+    order) are made from the bits on first use. :attr:`origin` is the BitMatrix it was made from
+    (the original rows and columns, not copied): the readers of original rows (the bitset
+    engine's opposite-pairs layout) take it instead of :attr:`source`, whose rows are the reduced
+    ones."""
+
+    @property
+    def origin(self):
+        """The :class:`camplace.visibility.bits.BitMatrix` presolved (None when not set)."""
+        return self.__dict__.get("origin")
 
     @property
     def source(self):  # type: ignore[override]
@@ -346,6 +367,112 @@ def covered_weight(bits, weights: np.ndarray, selected) -> float:
     w = np.asarray(weights, dtype=np.float64)
     covered = bits.union(list(selected)) if len(selected) else np.zeros(bits.shape[0], dtype=bool)
     return float(np.sum(w[covered], dtype=np.float64))
+
+
+def views_weight(bits, weights: np.ndarray, selected, views: int) -> float:
+    """``sum_i w_i [at least views selected columns observe i]`` of a BitMatrix (the multiview
+    objective without a minimum angle, summed as
+    :func:`camplace.solver.problem.objectives.mode_value` sums it: the same float64 number).
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    weights : (m,) float64
+    selected : sequence of int
+        Columns (duplicates count once).
+    views : int
+
+    Returns
+    -------
+    float
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    count = np.zeros(bits.shape[0], dtype=np.int64)
+    for j in sorted({int(j) for j in selected}):
+        count += bits.column(j)
+    return float(w[count >= int(views)].sum())
+
+
+def row_counts_of(bits, columns: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """(m,) int64: how many of ``columns`` ((c,) int64, distinct) observe each row of a BitMatrix
+    (all columns: :meth:`~camplace.visibility.bits.BitMatrix.row_counts`)."""
+    m, n = bits.shape
+    columns = np.asarray(columns, dtype=np.int64)
+    if columns.size == n:
+        return bits.row_counts(workers)
+    counts = np.zeros(bits.words.shape[1] * 64, dtype=np.int64)
+    _run(lambda w0, w1: _count_rows(bits.words, columns, w0, w1, counts), cuts(bits.words.shape[1], _BLOCKS),
+         thread_count(workers))
+    return counts[:m]
+
+
+def row_bitsets(bits, rows: np.ndarray, columns: np.ndarray, extra: int = 0, workers: int | None = None) -> np.ndarray:
+    """Row bitsets of a BitMatrix over some of its columns (a transposition, 64 x 64 bits at a time).
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    rows : (r,) int64
+        Distinct rows, in output order.
+    columns : (c,) int64
+        Columns, in bit order: bit t of a row's bitset is column ``columns[t]``.
+    extra : int
+        Zero rows added after the ``r`` rows.
+    workers : int, optional
+
+    Returns
+    -------
+    (r + extra, ceil(c / 64)) uint64
+        ``r * ceil(c / 64) * 8`` bytes (and the extra rows); the caller checks the budget.
+    """
+    m, n = bits.shape
+    rows = np.asarray(rows, dtype=np.int64)
+    columns = np.asarray(columns, dtype=np.int64)
+    out = np.zeros((rows.size + int(extra), (columns.size + 63) // 64), dtype=np.uint64)
+    pos = np.full(m, -1, dtype=np.int64)
+    pos[rows] = np.arange(rows.size, dtype=np.int64)
+    release = getattr(bits, "release_columns", None) or (lambda lo, hi: None)
+    _run(lambda w0, w1: (_row_bits(bits.words, columns, pos, w0, w1, out), release(0, n)),
+         cuts(bits.words.shape[1], _BLOCKS), thread_count(workers))
+    return out
+
+
+def layout_bits(bits, rows: np.ndarray, col_map: np.ndarray, n_cols: int, workers: int | None = None) -> np.ndarray:
+    """Column bitsets over a list of rows of a BitMatrix: what
+    :func:`camplace.solver._support.parkernels.build_bits` makes of the matrix's CSR.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    rows : (L,) int64
+        The row of each output bit; a row may repeat, -1 is an empty bit (padding).
+    col_map : (n,) int64
+        Output column of each column, -1 to leave it out.
+    n_cols : int
+        Output columns.
+    workers : int, optional
+
+    Returns
+    -------
+    (n_cols, ceil(L / 64)) uint64
+        Bit t of column c: ``rows[t] >= 0`` and column ``j`` with ``col_map[j] == c`` observes
+        row ``rows[t]``. Working memory: the distinct rows' bitsets over the output columns
+        (``u * ceil(n_cols / 64) * 8`` bytes) and the output.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    col_map = np.asarray(col_map, dtype=np.int64)
+    mapped = np.flatnonzero(col_map >= 0)
+    columns = np.empty(n_cols, dtype=np.int64)
+    columns[col_map[mapped]] = mapped
+    uniq = np.unique(rows[rows >= 0])
+    rb = row_bitsets(bits, uniq, columns, extra=1, workers=workers)  # the last row stays zero: the padding's
+    sel = np.where(rows >= 0, np.searchsorted(uniq, rows), uniq.size).astype(np.int64)
+    out = np.zeros((n_cols, (rows.size + 63) // 64), dtype=np.uint64)
+    _run(lambda cw0, cw1: _gather(rb, sel, n_cols, cw0, cw1, out), cuts(rb.shape[1], _BLOCKS), thread_count(workers))
+    return out
 
 
 def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers: int | None = None,
@@ -505,4 +632,5 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     out = BitPresolved(weights=wsum, counts=counts, columns=columns, row_groups=row_groups, k=int(k),
                        shape_in=(int(m), int(n)), weight_unit=unit, source=None, stats=stats)
     out.__dict__["bits"] = red
+    out.__dict__["origin"] = bits
     return out

@@ -80,6 +80,7 @@ from camplace.solver._support.memory import memory_budget_bytes
 from camplace.solver.engines.bitset.pair_cap import match_opposite
 from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve import Presolved
+from camplace.solver.problem.presolve_bits import layout_bits
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["solve_bitset", "bitset_bytes", "BITSET_MAX_K"]
@@ -260,8 +261,17 @@ def _dfs_roots(roots, lo, hi, left, right, levels, views, w, planes, mask, total
 
 
 def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str, Any]):
-    """Rows and weights of the opposite-pairs layout of ``pre``, or None when it would not pay."""
-    a, _, col_map = pre.source
+    """Rows and weights of the opposite-pairs layout of ``pre``, or None when it would not pay.
+
+    The layout reads the original rows: of ``pre.source``'s CSR, or, for a presolve of column
+    bitsets, of the BitMatrix itself (``pre.origin``, transposed; no CSR is made)."""
+    origin = getattr(pre, "origin", None)
+    if origin is not None:
+        a = origin
+        col_map = np.full(a.shape[1], -1, dtype=np.int64)
+        col_map[pre.columns] = np.arange(pre.columns.size, dtype=np.int64)
+    else:
+        a, _, col_map = pre.source
     g = pre.row_groups
     live = g >= 0
     if pre.weight_unit is not None:
@@ -279,7 +289,7 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
         return None
     rows, lw, pw = match.layout(unit=pre.weight_unit)
     # Rarely observed rows first: a tuple that cannot win misses most there, so its sum stops early.
-    seen = np.diff(a.indptr)
+    seen = a.row_counts() if origin is not None else np.diff(a.indptr)
     n_pairs = int(np.count_nonzero(rows[: 64 * pw] >= 0))
     o = np.argsort(seen[rows[:n_pairs]] + seen[rows[64 * pw : 64 * pw + n_pairs]], kind="stable")
     rows[:n_pairs], rows[64 * pw : 64 * pw + n_pairs], lw[:n_pairs] = (
@@ -290,8 +300,11 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
     if need > memory_budget_bytes():
         stats["opposite_pairs"]["skipped"] = f"layout bitsets need {need / 2**30:.1f} GiB"
         return None
-    with ctrl_c_deferred():
-        bits = P.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
+    if origin is not None:
+        bits = layout_bits(origin, rows, col_map, pre.shape[1])
+    else:
+        with ctrl_c_deferred():
+            bits = P.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
     return bits, lw, pw, _last_mask(rows.size)
 
 

@@ -1,0 +1,162 @@
+"""Multiview on column bitsets (issue 32): the bits route's answer is the CSR route's and the
+enumerated optimum, its helpers equal the CSR kernels they replace, and no CSR is made."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import camplace.solver.bits_route as bits_route
+from camplace.solver._support import bitkernels as K
+from camplace.solver._support import parkernels as P
+from camplace.solver.api import solve
+from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bound
+from camplace.solver.problem.objectives import mode_value, selected_row_stats
+from camplace.solver.problem.presolve_bits import layout_bits, row_bitsets, row_counts_of, views_weight
+from camplace.solver.result import EngineOutcome
+from camplace.visibility.bits import BitMatrix, bits_from_csr
+from tests.solver.test_solver_pair_cap import circle
+
+
+def _matrices():
+    """(csr, weights): random densities, row counts on and off word boundaries, opposite points."""
+    rng = np.random.default_rng(32)
+    for m, n, dens in [(1, 2, 0.5), (63, 5, 0.4), (64, 70, 0.3), (130, 129, 0.2), (200, 9, 0.6), (50, 7, 0.0)]:
+        a = (rng.random((m, n)) < dens).astype(np.float32)
+        w = rng.random(m)
+        w[::4] = 0.0
+        yield sp.csr_matrix(a), w
+    c = circle(90, 11)
+    c[rng.random(c.shape) < 0.1] = 0.0
+    yield sp.csr_matrix(c), np.where(rng.random(90) < 0.2, 0.0, 0.5)
+
+
+def test_row_helpers_equal_the_csr_kernels() -> None:
+    """row_counts_of / row_bitsets / layout_bits of the bits equal selected_row_stats / row_bits /
+    build_bits of the CSR (column subsets, repeated rows and padding included)."""
+    rng = np.random.default_rng(1)
+    for a, _ in _matrices():
+        m, n = a.shape
+        bits = bits_from_csr(a)
+        for cols in (np.arange(n), np.sort(rng.choice(n, size=max(1, n // 2), replace=False))):
+            cols = cols.astype(np.int64)
+            chosen = np.zeros(n, dtype=bool)
+            chosen[cols] = True
+            seen, _ = K.selected_row_stats(a.indptr, a.indices, a.data, chosen)
+            for workers in (1, 2):
+                np.testing.assert_array_equal(row_counts_of(bits, cols, workers), seen)
+            col_map = np.full(n, -1, dtype=np.int64)
+            col_map[cols] = np.arange(cols.size)
+            rows = rng.permutation(m)[: max(1, m // 2)].astype(np.int64)
+            np.testing.assert_array_equal(row_bitsets(bits, rows, cols),
+                                          K.row_bits(a.indptr, a.indices, a.data, rows, col_map, cols.size))
+            layout = np.concatenate([rows, rows[::-1], np.full(3, -1), rng.integers(0, m, size=70)]).astype(np.int64)
+            for workers in (1, 2):
+                np.testing.assert_array_equal(layout_bits(bits, layout, col_map, cols.size, workers),
+                                              P.build_bits(a.indptr, a.indices, a.data, layout, col_map, cols.size))
+
+
+def test_match_opposite_on_bits_equals_csr() -> None:
+    for a, w in _matrices():
+        n = a.shape[1]
+        bits = bits_from_csr(a)
+        for views, columns, seed in [(1, None, None), (2, None, 0), (2, list(range(0, n, 2)), None), (3, None, 5)]:
+            ref = match_opposite(a, w, views, columns=columns, order_seed=seed)
+            got = match_opposite(bits, w, views, columns=columns, order_seed=seed)
+            np.testing.assert_array_equal(got.pairs, ref.pairs)
+            assert got.amount.tobytes() == ref.amount.tobytes()
+            np.testing.assert_array_equal(got.rows, ref.rows)
+            assert got.residual.tobytes() == ref.residual.tobytes()
+            assert got.countable == ref.countable
+        assert opposite_pair_bound(bits, w, 2, 3)[0] == opposite_pair_bound(a, w, 2, 3)[0]
+
+
+def test_views_weight_is_mode_value() -> None:
+    rng = np.random.default_rng(3)
+    for a, w in _matrices():
+        n = a.shape[1]
+        bits = bits_from_csr(a)
+        for views in (1, 2, 3):
+            for sel in ([0], [0, 0], list(rng.choice(n, size=min(n, 4), replace=False))):
+                assert views_weight(bits, w, sel, views) == mode_value(a, w, sel, mode="multiview", views=views)
+
+
+def _brute(dense: np.ndarray, w: np.ndarray, k: int, views: int) -> float:
+    return max(float(w[(dense[:, list(c)] > 0).sum(axis=1) >= views].sum())
+               for c in itertools.combinations(range(dense.shape[1]), k))
+
+
+def _no_csr(monkeypatch) -> None:
+    def refuse(self, *args, **kwargs):
+        raise AssertionError("the multiview bits route made a CSR copy")
+
+    monkeypatch.setattr(BitMatrix, "tocsr", refuse)
+
+
+@pytest.mark.parametrize("views", [1, 2, 3])
+@pytest.mark.parametrize("k", [1, 2, 3, 4])
+def test_multiview_on_bits_equals_csr_and_enumeration(views: int, k: int, monkeypatch) -> None:
+    """Random instances and half circles (the opposite-pairs layout, k < 2 views), weights with
+    zeros, equal weights (integer arithmetic) too: the same selection, status, objective and
+    bound as the CSR route, the optimum by enumeration, and no tocsr on the way."""
+    rng = np.random.default_rng(10 * views + k)
+    cases = []
+    for _ in range(2):
+        dense = (rng.random((120, 11)) < rng.choice([0.2, 0.5])).astype(np.float32)
+        cases.append((dense, np.where(rng.random(120) < 0.2, 0.0, rng.random(120))))
+    c = circle(70, 10)
+    c[rng.random(c.shape) < 0.1] = 0.0
+    cases.append((c, np.where(rng.random(70) < 0.2, 0.0, 0.25)))
+    layouts = set()
+    for dense, w in cases:
+        ref = solve(sp.csr_matrix(dense), w, k, mode="multiview", views=views)
+        with monkeypatch.context() as mp:
+            _no_csr(mp)
+            got = solve(bits_from_csr(sp.csr_matrix(dense)), w, k, mode="multiview", views=views)
+        assert got.stats["matrix"] == "column bitsets (no CSR copy)"
+        assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective,
+                                                                         ref.bound)
+        assert got.status == "optimal"
+        assert got.objective == pytest.approx(_brute(dense, w, k, views), rel=1e-12, abs=1e-12)
+        layouts.add(got.stats["engine_stats"].get("search"))
+    if 1 < views and k < 2 * views and k > 1:
+        assert "opposite pairs" in layouts  # the half circles took the opposite-pairs layout on the bits
+
+
+def test_multiview_bits_caps_an_unproven_bound_as_the_csr_route(monkeypatch) -> None:
+    """An engine stopped with a loose bound: the bits route caps it with the opposite pairs matched
+    on the bits, to the CSR route's bound (here the optimum), keeping 5 % of the limit for it."""
+    dense = circle(40, 12)
+    w = np.full(40, 0.025)
+    best = max(itertools.combinations(range(12), 3), key=lambda c: mode_value(dense, w, c, mode="multiview", views=2))
+    seen = {}
+
+    def loose(pre, views, deadline, start=None):
+        seen["limit"] = deadline.limit
+        return EngineOutcome(best, "feasible", 1.0, {}, engine="exact")  # no column dropped: reduced = original
+
+    monkeypatch.setattr(bits_route, "solve_bitset", loose)
+    _no_csr(monkeypatch)
+    res = solve(bits_from_csr(sp.csr_matrix(dense)), w, 3, mode="multiview", views=2, time_limit_s=10.0)
+    assert seen["limit"] == pytest.approx(9.5)
+    assert res.stats["opposite_pairs"]["bound_before"] == 1.0
+    assert res.status == "optimal" and res.bound == pytest.approx(0.5) and res.objective == pytest.approx(0.5)
+    cap = res.stats["opposite_pairs"]
+    assert cap["countable"] - cap["matched"] == opposite_pair_bound(dense, w, 2, 3)[0]  # the CSR matching's bound
+
+
+def test_multiview_bits_off_its_routes_goes_through_csr() -> None:
+    """k = 5 (the large-k engines) and a fixed camera are not the bits route's: the CSR conversion
+    gives the CSR route's answer."""
+    rng = np.random.default_rng(5)
+    dense = (rng.random((80, 9)) < 0.4).astype(np.float32)
+    w = rng.random(80)
+    a = sp.csr_matrix(dense)
+    for kw in (dict(k=5), dict(k=2, fixed=[1])):
+        ref = solve(a, w, mode="multiview", views=2, **kw)
+        got = solve(bits_from_csr(a), w, mode="multiview", views=2, **kw)
+        assert "matrix" not in got.stats
+        assert (got.selected, got.status, got.objective) == (ref.selected, ref.status, ref.objective)
