@@ -160,3 +160,46 @@ def test_multiview_bits_off_its_routes_goes_through_csr() -> None:
         got = solve(bits_from_csr(a), w, mode="multiview", views=2, **kw)
         assert "matrix" not in got.stats
         assert (got.selected, got.status, got.objective) == (ref.selected, ref.status, ref.objective)
+
+
+def test_column_weights_equal_the_csr_product() -> None:
+    """The warm start's ranking: the same float64 numbers as the CSR route's ``resid.T @ w`` on the
+    bool pattern."""
+    from camplace.solver.problem.presolve_bits import column_weights
+
+    for a, w in _matrices():
+        bits = bits_from_csr(a)
+        ref = np.asarray(bits.tocsr(np.bool_).T @ w).ravel()
+        for workers in (1, 2):
+            assert column_weights(bits, w, workers).tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("views, k", [(2, 3), (2, 2), (3, 4), (1, 2)])
+def test_multiview_bits_warm_start_as_the_csr_route(views: int, k: int, monkeypatch) -> None:
+    """With a time limit and more than WARM_MIN_COLS columns (lowered to 8 here; a limit the solve
+    does not reach, so nothing depends on timing) both routes solve the heaviest quarter first,
+    nested (40 -> 10 -> 3 columns): the same rungs and the same answer."""
+    import camplace.solver.routes as routes
+
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 8)
+    monkeypatch.setattr(bits_route, "WARM_MIN_COLS", 8)
+    rng = np.random.default_rng(views * 7 + k)
+    dense = (rng.random((150, 40)) < 0.3).astype(np.float32)
+    w = np.where(rng.random(150) < 0.2, 0.0, rng.random(150))
+    ref = solve(sp.csr_matrix(dense), w, k, mode="multiview", views=views, time_limit_s=1000.0)
+    with monkeypatch.context() as mp:
+        _no_csr(mp)
+        got = solve(bits_from_csr(sp.csr_matrix(dense)), w, k, mode="multiview", views=views, time_limit_s=1000.0)
+    assert got.stats["matrix"] == "column bitsets (no CSR copy)"
+    assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective, ref.bound)
+
+    def rungs(stats):
+        out = []
+        while stats:
+            out.append({key: stats[key] for key in ("columns", "status", "objective", "engine")})
+            stats = stats.get("inner")
+        return out
+
+    assert rungs(got.stats["warm_start"]) == rungs(ref.stats["warm_start"])
+    assert [r["columns"] for r in rungs(got.stats["warm_start"])] == [10, max(k, 3)]
+    assert got.objective == pytest.approx(_brute(dense, w, k, views), rel=1e-12, abs=1e-12)

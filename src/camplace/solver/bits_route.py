@@ -46,8 +46,10 @@ from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, views_weight
+from camplace.solver.problem.presolve_bits import column_weights, covered_weight, presolve_bits, views_weight
 from camplace.solver.result import EngineOutcome
+from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK
+from camplace.visibility.bits import BitMatrix
 
 __all__ = ["bits_applies", "bits_outcome"]
 
@@ -127,34 +129,88 @@ def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) 
 
 def _multiview(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) -> EngineOutcome | None:
     """``k`` columns maximising the weight of rows observed by at least ``o.views`` of them: the
-    CSR route's :func:`camplace.solver.routes._multiview` and the opposite-pairs cap of
-    :func:`camplace.solver.api.solve`, on the bits. None off the multiview route, or when the
-    bitset engine's working memory (estimated on the reduced instance) is over the budget."""
+    CSR route's :func:`camplace.solver.routes.run_cover` (multiview route, warm start included)
+    and the opposite-pairs cap of :func:`camplace.solver.api.solve`, on the bits. None off the
+    multiview route, or when the bitset engine's working memory (estimated on the reduced
+    instance) is over the budget."""
+    views = int(o.views)
+    cap = cap_applies(k, views)
+    inner = cap_deadline(deadline) if cap else deadline  # leaves the cap its share of the limit
+    got = _multiview_search(bits, w, k, o, inner)
+    if got is None:
+        return None
+    searched = got.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
+    if cap and got.selected is not None and got.status != "optimal" and not searched and not deadline.expired():
+        got = cap_bound(got, bits, w, views, k, None, deadline)
+    return got
+
+
+def _multiview_search(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline, warm: bool = True,
+                      start: tuple[int, ...] | None = None) -> EngineOutcome | None:
+    """The multiview route on ``bits``: with ``warm``, warm-started as
+    :func:`camplace.solver.routes.run_cover` warm-starts it (more than ``WARM_MIN_COLS`` columns,
+    k <= ``WARM_MAX_K``, a time limit); then the bit presolve without dominance and the bitset
+    engine, from ``start`` (k original columns) when given."""
     n = bits.shape[1]
+    if warm and k <= WARM_MAX_K and n > WARM_MIN_COLS and deadline.limit is not None:
+        return _warm_started(bits, w, k, o, deadline)
     views = int(o.views)
     budget = memory_budget_bytes()
     choice = choose_engine(problem_sizes(bits, k, n, 0, 0, "multiview"), o, budget)
     if choice.route != "multiview":
         return None
-    cap = cap_applies(k, views)
-    inner = cap_deadline(deadline) if cap else deadline  # leaves the cap its share of the limit
     stats = _choice_stats(k, choice)
-    pre = presolve_bits(bits, w, k, dominance=False, deadline=inner)  # dominance: one view only
+    pre = presolve_bits(bits, w, k, dominance=False, deadline=deadline)  # dominance: one view only
     mp, np_ = pre.shape
     need = bitset_bytes(mp, np_, min(views, k), k)
     if need > budget:  # the CSR route makes the same estimate and falls back to the general model
         log.info("multiview on bits: the bitset engine needs %.3g GiB (budget %.3g GiB): the CSR route",
                  need / 2**30, budget / 2**30)
         return None
-    out = solve_bitset(pre, views=views, deadline=inner)
+    out = solve_bitset(pre, views=views, deadline=deadline, start=None if start is None else pre.reduced_columns(start))
     sel = tuple(int(j) for j in pre.original_columns(out.selected)) if out.selected else None
     stats.update({"rows_after": mp, "cols_after": np_, "presolve": dict(pre.stats), "engine_stats": dict(out.stats)})
-    got = EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=choice.engine,
-                        objective=views_weight(bits, w, sel, views) if sel else 0.0)
-    searched = out.stats.get("search") == "opposite pairs"  # already bounded by them
-    if cap and sel is not None and got.status != "optimal" and not searched and not deadline.expired():
-        got = cap_bound(got, bits, w, views, k, None, deadline)
-    return got
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=choice.engine,
+                         objective=views_weight(bits, w, sel, views) if sel else 0.0)
+
+
+def _warm_started(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) -> EngineOutcome | None:
+    """:func:`camplace.solver.routes._warm_started` on bits: solve the ``1 / WARM_SHRINK`` of the
+    columns observing the most weight first (within ``WARM_SHARE`` of the time left; the same
+    columns as :func:`camplace.solver.routes.warm_subset` picks, their weights summed in the same
+    order), offer its answer to the full search as the first incumbent and keep the better.
+
+    The subset's bitsets are a copy (``columns x ceil(m / 64) x 8`` bytes, checked against the
+    memory budget: over it, no warm start)."""
+    m, n = bits.shape
+    colw = column_weights(bits, w)  # weights >= 0 (checked): the CSR route's ranking
+    size = max(k, -(-n // WARM_SHRINK))
+    cols = np.sort(np.lexsort((np.arange(n), -colw))[:size])
+    need, budget = cols.size * bits.words.shape[1] * 8, memory_budget_bytes()
+    if need > budget:
+        log.info("multiview on bits: no warm start (the subset's bitsets need %.3g GiB)", need / 2**30)
+        return _multiview_search(bits, w, k, o, deadline, warm=False)
+    sub = BitMatrix(bits.words[cols], m)
+    got = _multiview_search(sub, w, k, o, deadline.share(WARM_SHARE))
+    del sub
+    got_sel = None if got is None or got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
+    warm: dict[str, Any] = {}
+    if got is not None:
+        warm = {"columns": int(cols.size), "status": got.status, "objective": float(got.objective),
+                "engine": got.engine, "time_s": deadline.elapsed()}
+        if "warm_start" in got.stats:
+            warm["inner"] = got.stats["warm_start"]
+    out = _multiview_search(bits, w, k, o, deadline, warm=False, start=got_sel)
+    if out is None:
+        return None
+    if warm:
+        out.stats["warm_start"] = warm
+    if got_sel is not None and (out.selected is None or got.objective > out.objective):
+        warm["kept"] = True  # the full search found nothing better within the limit
+        status = "optimal" if out.status == "optimal" and out.bound <= got.objective else "feasible"
+        out = EngineOutcome(got_sel, status, max(out.bound, got.objective), out.stats, engine=out.engine,
+                            objective=got.objective)
+    return out
 
 
 def _choice_stats(k: int, choice) -> dict[str, Any]:

@@ -424,6 +424,14 @@ def _dfs_stack(k: int, n: int) -> int:
     return (k + 1) * (k * max(1, math.ceil(math.log2(max(n, 2)))) + 1)
 
 
+def _row_entries(bits: np.ndarray, m: int) -> np.ndarray:
+    """(m,) int64: the columns of column bitsets ``bits`` ((n, ceil(m / 64)) uint64) observing each row."""
+    out = np.zeros(m, dtype=np.int64)
+    for c in range(bits.shape[0]):
+        out += np.unpackbits(bits[c].view(np.uint8), bitorder="little", count=m)
+    return out
+
+
 def solve_bitset(pre: Presolved, *, views: int = 1, deadline: Deadline | None = None,
                  start: tuple[int, ...] | None = None) -> EngineOutcome:
     """Choose ``pre.k`` columns maximising the weight of rows observed by at least ``views`` of them.
@@ -457,7 +465,7 @@ def solve_bitset(pre: Presolved, *, views: int = 1, deadline: Deadline | None = 
     if m == 0 or n <= k:
         sel = tuple(range(min(k, n)))
         # n == k: every column is chosen, so a row's views are its entries in the reduced matrix
-        value = float(pre.weights[np.diff(pre.matrix.indptr) >= views].sum()) if n <= k else 0.0
+        value = float(pre.weights[_row_entries(pre.bits, m) >= views].sum()) if n <= k else 0.0
         return EngineOutcome(selected=sel, status="optimal", bound=value, stats={"trivial": True})
 
     st = _State(pre, views)
