@@ -14,8 +14,8 @@ from camplace.solver._support import bitkernels as K
 from camplace.solver._support import parkernels as P
 from camplace.solver.api import solve
 from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bound
-from camplace.solver.problem.objectives import mode_value, selected_row_stats
-from camplace.solver.problem.presolve_bits import layout_bits, row_bitsets, row_counts_of, views_weight
+from camplace.solver.problem.objectives import bits_views_value, mode_value
+from camplace.solver.problem.presolve_bits import layout_bits, row_bitsets, row_counts_of
 from camplace.solver.result import EngineOutcome
 from camplace.visibility.bits import BitMatrix, bits_from_csr
 from tests.solver.test_solver_pair_cap import circle
@@ -74,14 +74,14 @@ def test_match_opposite_on_bits_equals_csr() -> None:
         assert opposite_pair_bound(bits, w, 2, 3)[0] == opposite_pair_bound(a, w, 2, 3)[0]
 
 
-def test_views_weight_is_mode_value() -> None:
+def test_bits_views_value_is_mode_value() -> None:
     rng = np.random.default_rng(3)
     for a, w in _matrices():
         n = a.shape[1]
         bits = bits_from_csr(a)
         for views in (1, 2, 3):
             for sel in ([0], [0, 0], list(rng.choice(n, size=min(n, 4), replace=False))):
-                assert views_weight(bits, w, sel, views) == mode_value(a, w, sel, mode="multiview", views=views)
+                assert bits_views_value(bits, w, sel, views) == mode_value(a, w, sel, mode="multiview", views=views)
 
 
 def _brute(dense: np.ndarray, w: np.ndarray, k: int, views: int) -> float:
@@ -203,3 +203,96 @@ def test_multiview_bits_warm_start_as_the_csr_route(views: int, k: int, monkeypa
     assert rungs(got.stats["warm_start"]) == rungs(ref.stats["warm_start"])
     assert [r["columns"] for r in rungs(got.stats["warm_start"])] == [10, max(k, 3)]
     assert got.objective == pytest.approx(_brute(dense, w, k, views), rel=1e-12, abs=1e-12)
+
+
+# ---- multiview with a minimum angle on bits ---------------------------------------------------
+
+
+def test_angle_kernels_on_bits_equal_the_csr_kernels() -> None:
+    """row_status_bits / gains_bits give the CSR kernels' numbers (gains to the last bit: the same
+    chunks, summed in the same order)."""
+    from camplace.solver.engines.angle import _kernels as AK
+
+    rng = np.random.default_rng(4)
+    for a, w in _matrices():
+        m, n = a.shape
+        bits = bits_from_csr(a)
+        pos, pts = rng.normal(size=(n, 3)) * 4.0, rng.normal(size=(m, 3))
+        for sel in ([0], list(range(min(n, 3))), list(rng.choice(n, size=min(n, 5), replace=False))):
+            sel = np.unique(np.asarray(sel, dtype=np.int64))
+            for views, theta in [(2, 30.0), (3, 12.5), (2, 0.0)]:
+                c1, o1 = AK.row_status(a.indptr, a.indices, a.data, sel, pos, pts, views, theta)
+                c2, o2 = AK.row_status_bits(bits.words, m, sel, pos, pts, views, theta)
+                np.testing.assert_array_equal(c2, c1)
+                np.testing.assert_array_equal(o2, o1)
+                g1 = AK.gains(a.indptr, a.indices, a.data, w, sel, pos, pts, views, theta, c1, o1, 4)
+                g2 = AK.gains_bits(bits.words, m, w, sel, pos, pts, views, theta, c1, o1, 4)
+                assert g2.tobytes() == g1.tobytes()
+
+
+def _angle_cases(seed: int):
+    """Random patterns with random positions, and cameras around a sphere (opposite points: the
+    pairs layout); weights with zeros, equal weights too."""
+    from tests.solver.test_solver_angle import _sphere_instance
+
+    rng = np.random.default_rng(seed)
+    dense = (rng.random((110, 10)) < 0.5).astype(np.float32)
+    yield dense, np.where(rng.random(110) < 0.2, 0.0, rng.random(110)), rng.normal(size=(10, 3)) * 3.0, rng.normal(
+        size=(110, 3))
+    dense, w, pos, pts = _sphere_instance(150, 11, seed)
+    w[::6] = 0.0
+    yield dense, w, pos, pts
+
+
+@pytest.mark.parametrize("views, k, angle", [(2, 2, 20.0), (2, 3, 35.0), (3, 3, 12.5), (2, 4, 50.0), (3, 4, 25.0)])
+def test_min_angle_on_bits_equals_csr_and_enumeration(views: int, k: int, angle: float, monkeypatch) -> None:
+    """The angle engine on the bitsets: the CSR route's selection, status, objective and bound
+    (its incumbent's gains bit-equal), the enumerated optimum, and no CSR made."""
+    from tests.solver._oracle import brute_force_mode
+
+    for dense, w, pos, pts in _angle_cases(views * 10 + k):
+        ref = solve(sp.csr_matrix(dense), w, k, mode="multiview", views=views, min_angle_deg=angle, positions=pos,
+                    points=pts)
+        with monkeypatch.context() as mp:
+            _no_csr(mp)
+            got = solve(bits_from_csr(sp.csr_matrix(dense)), w, k, mode="multiview", views=views, min_angle_deg=angle,
+                        positions=pos, points=pts)
+        assert got.stats["matrix"] == "column bitsets (no CSR copy)"
+        assert got.stats["engine_choice"]["route"] == "angle"
+        assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective,
+                                                                         ref.bound)
+        assert got.status == "optimal"
+        best = brute_force_mode(dense, w, k, "multiview", views=views, min_angle_deg=angle, pos=pos, pts=pts)
+        assert got.objective == pytest.approx(best, rel=1e-9, abs=1e-12)
+        assert got.objective == mode_value(dense, w, got.selected, mode="multiview", views=views, min_angle_deg=angle,
+                                           positions=pos, points=pts)
+
+
+def test_min_angle_on_bits_warm_start_as_the_csr_route(monkeypatch) -> None:
+    """With a time limit and more than WARM_MIN_COLS columns (lowered to 8): both routes solve every
+    fourth position's poses first (spread_subset), then the whole: the same rungs and answer."""
+    import camplace.solver.routes as routes
+    from tests.solver.test_solver_angle import _sphere_instance
+
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 8)
+    monkeypatch.setattr(bits_route, "WARM_MIN_COLS", 8)
+    dense, w, pos, pts = _sphere_instance(160, 24, 3)
+    pos[1::2] = pos[0::2]  # two poses a position
+    ref = solve(sp.csr_matrix(dense), w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts,
+                time_limit_s=1000.0)
+    with monkeypatch.context() as mp:
+        _no_csr(mp)
+        got = solve(bits_from_csr(sp.csr_matrix(dense)), w, 3, mode="multiview", views=2, min_angle_deg=20.0,
+                    positions=pos, points=pts, time_limit_s=1000.0)
+    assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective, ref.bound)
+    keys = ("columns", "status", "objective", "engine")
+    assert {key: got.stats["warm_start"][key] for key in keys} == {key: ref.stats["warm_start"][key] for key in keys}
+    assert got.stats["warm_start"]["columns"] == 6  # every fourth of the 12 positions, both poses
+
+
+def test_min_angle_on_bits_needs_positions() -> None:
+    from camplace.errors import CamplaceError
+
+    a = sp.csr_matrix(np.ones((4, 3), dtype=np.float32))
+    with pytest.raises(CamplaceError, match="min_angle_deg needs camera positions"):
+        solve(bits_from_csr(a), np.ones(4), 2, mode="multiview", min_angle_deg=10.0)

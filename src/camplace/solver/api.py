@@ -224,7 +224,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     if getattr(matrix, "format", None) == "bits":  # a binary matrix as column bitsets
         from camplace.solver.bits_route import bits_applies, bits_outcome
 
-        got = bits_outcome(matrix, weights, o, deadline) if bits_applies(o) else None
+        got = bits_outcome(matrix, weights, o, deadline, positions, points) if bits_applies(o) else None
         if got is not None:
             ctx, w = got
             return _result(ctx, o, w, (), (), np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)

@@ -20,7 +20,7 @@ team constraints, on the routes of :func:`~camplace.solver.choose.choose_engine`
 
 The objective is summed as :func:`~camplace.solver.problem.objectives.mode_value` sums it
 (:func:`~camplace.solver.problem.presolve_bits.covered_weight`,
-:func:`~camplace.solver.problem.presolve_bits.views_weight`), so without a time limit the answer
+:func:`~camplace.solver.problem.objectives.bits_views_value`), so without a time limit the answer
 is the CSR route's. With one, the CSR route first solves a quarter of the candidates when there
 are more than :data:`camplace.solver.routes.WARM_MIN_COLS` (its warm start); this route does not
 (the engines' own greedy gives the first incumbent). Any other case (another engine choice, the
@@ -32,23 +32,26 @@ from __future__ import annotations
 
 import logging
 import numbers
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.choose import choose_engine, problem_sizes
+from camplace.solver.engines.angle.search import solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
+from camplace.solver.problem.checks import coords
+from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import column_weights, covered_weight, presolve_bits, views_weight
+from camplace.solver.problem.presolve_bits import column_weights, covered_weight, presolve_bits
 from camplace.solver.result import EngineOutcome
-from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK
+from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, spread_subset
 from camplace.visibility.bits import BitMatrix
 
 __all__ = ["bits_applies", "bits_outcome"]
@@ -57,17 +60,18 @@ log = logging.getLogger(__name__)
 
 
 def bits_applies(o: SolveOptions) -> bool:
-    """True for plain max coverage or multiview without a minimum angle (no fixed, forbidden,
-    distance, angle or team).
+    """True for plain max coverage or multiview (with or without a minimum angle), without fixed,
+    forbidden, distance or team constraints (a minimum angle in multiview only).
 
     ``quality`` on a binary matrix is plain max coverage too: every value is 1, so
     ``max_{j in S} Q_ij`` is 1 exactly when some chosen camera observes row i, and the two
     objectives are the same number."""
     return (o.mode in ("maxcover", "quality", "multiview") and not o.fixed and not o.forbidden
-            and o.min_distance_m is None and o.min_angle_deg is None and getattr(o, "team", None) is None)
+            and o.min_distance_m is None and (o.min_angle_deg is None or o.mode == "multiview")
+            and getattr(o, "team", None) is None)
 
 
-def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
+def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline, positions: Any = None, points: Any = None):
     """Solve plain max coverage or multiview on column bitsets.
 
     Parameters
@@ -78,6 +82,10 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     o : SolveOptions
         Checked options with :func:`bits_applies`.
     deadline : Deadline
+    positions : (n, 3) array_like, optional
+        Camera positions (metres; multiview with a minimum angle needs them).
+    points : (m, 3) array_like, optional
+        Point positions (metres; the same).
 
     Returns
     -------
@@ -99,7 +107,14 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
         raise CamplaceError(f"cannot choose k={k} new cameras from {n} allowed candidates "
                             "(lower k, or forbid/fix fewer cameras)")
     if o.mode == "multiview":
-        got = _multiview(bits, w, k, o, deadline)
+        pos = pts = None
+        if o.min_angle_deg is not None:
+            if positions is None or points is None:
+                raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions "
+                                    "(points (m, 3))")
+            pos = coords(positions, n, "positions", "camera positions")
+            pts = coords(points, m, "points", "point positions")
+        got = _multiview(_Views(bits, w, k, o, pos, pts), deadline)
     else:
         got = _maxcover(bits, w, k, o, deadline)
     return None if got is None else (got, w)
@@ -127,40 +142,72 @@ def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) 
                          objective=objective)
 
 
-def _multiview(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) -> EngineOutcome | None:
-    """``k`` columns maximising the weight of rows observed by at least ``o.views`` of them: the
-    CSR route's :func:`camplace.solver.routes.run_cover` (multiview route, warm start included)
-    and the opposite-pairs cap of :func:`camplace.solver.api.solve`, on the bits. None off the
-    multiview route, or when the bitset engine's working memory (estimated on the reduced
-    instance) is over the budget."""
-    views = int(o.views)
-    cap = cap_applies(k, views)
+@dataclass(frozen=True)
+class _Views:
+    """One multiview problem on bits: the matrix, the checked weights, k, the options and, with a
+    minimum angle, the checked camera (n, 3) and point (m, 3) positions."""
+
+    bits: Any
+    w: np.ndarray
+    k: int
+    o: SolveOptions
+    pos: np.ndarray | None
+    pts: np.ndarray | None
+
+    @property
+    def angle(self) -> bool:
+        return self.o.min_angle_deg is not None
+
+    def columns(self, cols: np.ndarray) -> "_Views":
+        """The same problem on the columns ``cols`` (their bitsets copied)."""
+        return replace(self, bits=BitMatrix(self.bits.words[cols], self.bits.shape[0]),
+                       pos=None if self.pos is None else self.pos[cols])
+
+    def value(self, sel: tuple[int, ...] | None) -> float:
+        """The objective of ``sel`` (:func:`~camplace.solver.problem.objectives.mode_value`'s number)."""
+        if not sel:
+            return 0.0
+        return bits_views_value(self.bits, self.w, sel, int(self.o.views), self.o.min_angle_deg, self.pos, self.pts)
+
+
+def _multiview(p: _Views, deadline: Deadline) -> EngineOutcome | None:
+    """``k`` columns maximising the weight of rows observed by at least ``o.views`` of them (and,
+    with a minimum angle, by two making it): the CSR route's :func:`camplace.solver.routes.run_cover`
+    (the multiview or angle route, warm start included) and the opposite-pairs cap of
+    :func:`camplace.solver.api.solve`, on the bits. None off those routes, or when the engine's
+    working memory is over the budget (the CSR route then falls back as before)."""
+    views = int(p.o.views)
+    cap = cap_applies(p.k, views)
     inner = cap_deadline(deadline) if cap else deadline  # leaves the cap its share of the limit
-    got = _multiview_search(bits, w, k, o, inner)
+    got = _search(p, inner)
     if got is None:
         return None
     searched = got.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
     if cap and got.selected is not None and got.status != "optimal" and not searched and not deadline.expired():
-        got = cap_bound(got, bits, w, views, k, None, deadline)
+        got = cap_bound(got, p.bits, p.w, views, p.k, None, deadline)
     return got
 
 
-def _multiview_search(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline, warm: bool = True,
-                      start: tuple[int, ...] | None = None) -> EngineOutcome | None:
-    """The multiview route on ``bits``: with ``warm``, warm-started as
-    :func:`camplace.solver.routes.run_cover` warm-starts it (more than ``WARM_MIN_COLS`` columns,
-    k <= ``WARM_MAX_K``, a time limit); then the bit presolve without dominance and the bitset
-    engine, from ``start`` (k original columns) when given."""
-    n = bits.shape[1]
-    if warm and k <= WARM_MAX_K and n > WARM_MIN_COLS and deadline.limit is not None:
-        return _warm_started(bits, w, k, o, deadline)
-    views = int(o.views)
-    budget = memory_budget_bytes()
-    choice = choose_engine(problem_sizes(bits, k, n, 0, 0, "multiview"), o, budget)
-    if choice.route != "multiview":
+def _search(p: _Views, deadline: Deadline, warm: bool = True,
+            start: tuple[int, ...] | None = None) -> EngineOutcome | None:
+    """The route on ``p.bits``: with ``warm``, warm-started as :func:`camplace.solver.routes.run_cover`
+    warm-starts it (more than ``WARM_MIN_COLS`` columns, k <= ``WARM_MAX_K``, a time limit); then
+    the engine (:func:`_bitset` or :func:`_angle`), from ``start`` (k original columns) when given."""
+    n = p.bits.shape[1]
+    if warm and p.k <= WARM_MAX_K and n > WARM_MIN_COLS and deadline.limit is not None:
+        return _warm_started(p, deadline)
+    choice = choose_engine(problem_sizes(p.bits, p.k, n, 0, 0, "multiview"), p.o, memory_budget_bytes())
+    if choice.route != ("angle" if p.angle else "multiview"):
         return None
+    return (_angle if p.angle else _bitset)(p, choice, deadline, start)
+
+
+def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:
+    """:func:`camplace.solver.routes._multiview` on bits: the bit presolve without dominance, then
+    the bitset engine with ``views``; None when the engine's estimate is over the budget."""
+    k, views, budget = p.k, int(p.o.views), memory_budget_bytes()
     stats = _choice_stats(k, choice)
-    pre = presolve_bits(bits, w, k, dominance=False, deadline=deadline)  # dominance: one view only
+    pre = presolve_bits(p.bits, p.w, k, dominance=False, deadline=deadline)  # dominance: one view only
     mp, np_ = pre.shape
     need = bitset_bytes(mp, np_, min(views, k), k)
     if need > budget:  # the CSR route makes the same estimate and falls back to the general model
@@ -171,28 +218,48 @@ def _multiview_search(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: De
     sel = tuple(int(j) for j in pre.original_columns(out.selected)) if out.selected else None
     stats.update({"rows_after": mp, "cols_after": np_, "presolve": dict(pre.stats), "engine_stats": dict(out.stats)})
     return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=choice.engine,
-                         objective=views_weight(bits, w, sel, views) if sel else 0.0)
+                         objective=p.value(sel))
 
 
-def _warm_started(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) -> EngineOutcome | None:
-    """:func:`camplace.solver.routes._warm_started` on bits: solve the ``1 / WARM_SHRINK`` of the
-    columns observing the most weight first (within ``WARM_SHARE`` of the time left; the same
-    columns as :func:`camplace.solver.routes.warm_subset` picks, their weights summed in the same
-    order), offer its answer to the full search as the first incumbent and keep the better.
+def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:
+    """:func:`camplace.solver.routes._angle` on bits: the angle engine reading the bitsets; None when
+    it does not fit in the memory budget."""
+    assert p.pos is not None and p.pts is not None and p.o.min_angle_deg is not None
+    n = p.bits.shape[1]
+    stats = _choice_stats(p.k, choice)
+    try:
+        out = solve_angle(p.bits, p.w, p.k, int(p.o.views), float(p.o.min_angle_deg), p.pos, p.pts,
+                          np.zeros(0, dtype=np.int64), np.arange(n, dtype=np.int64), deadline=deadline,
+                          budget_bytes=memory_budget_bytes(), start=start)
+    except OverBudget as exc:
+        log.info("multiview on bits: %s: the CSR route", exc.message)
+        return None
+    sel = tuple(sorted(int(j) for j in out.selected))
+    stats["engine_stats"] = dict(out.stats)
+    return EngineOutcome(sel, out.status, float(out.bound), stats, engine="exact", objective=p.value(sel))
+
+
+def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
+    """:func:`camplace.solver.routes._warm_started` on bits: solve the columns
+    :func:`camplace.solver.routes.warm_subset` picks first (with a minimum angle every pose of every
+    ``WARM_SHRINK``-th position, else the ``1 / WARM_SHRINK`` observing the most weight, their
+    weights summed in the CSR route's order) within ``WARM_SHARE`` of the time left, offer its
+    answer to the full search as the first incumbent and keep the better.
 
     The subset's bitsets are a copy (``columns x ceil(m / 64) x 8`` bytes, checked against the
     memory budget: over it, no warm start)."""
-    m, n = bits.shape
-    colw = column_weights(bits, w)  # weights >= 0 (checked): the CSR route's ranking
-    size = max(k, -(-n // WARM_SHRINK))
-    cols = np.sort(np.lexsort((np.arange(n), -colw))[:size])
-    need, budget = cols.size * bits.words.shape[1] * 8, memory_budget_bytes()
+    m, n = p.bits.shape
+    k = p.k
+    cols = spread_subset(np.arange(n, dtype=np.int64), p.pos, WARM_SHRINK) if p.angle else np.zeros(0, dtype=np.int64)
+    if cols.size < k:
+        colw = column_weights(p.bits, p.w)  # weights >= 0 (checked): the CSR route's ranking
+        size = max(k, -(-n // WARM_SHRINK))
+        cols = np.sort(np.lexsort((np.arange(n), -colw))[:size])
+    need, budget = cols.size * p.bits.words.shape[1] * 8, memory_budget_bytes()
     if need > budget:
         log.info("multiview on bits: no warm start (the subset's bitsets need %.3g GiB)", need / 2**30)
-        return _multiview_search(bits, w, k, o, deadline, warm=False)
-    sub = BitMatrix(bits.words[cols], m)
-    got = _multiview_search(sub, w, k, o, deadline.share(WARM_SHARE))
-    del sub
+        return _search(p, deadline, warm=False)
+    got = _search(p.columns(cols), deadline.share(WARM_SHARE))
     got_sel = None if got is None or got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
     warm: dict[str, Any] = {}
     if got is not None:
@@ -200,7 +267,7 @@ def _warm_started(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadli
                 "engine": got.engine, "time_s": deadline.elapsed()}
         if "warm_start" in got.stats:
             warm["inner"] = got.stats["warm_start"]
-    out = _multiview_search(bits, w, k, o, deadline, warm=False, start=got_sel)
+    out = _search(p, deadline, warm=False, start=got_sel)
     if out is None:
         return None
     if warm:

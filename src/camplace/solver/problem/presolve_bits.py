@@ -42,7 +42,7 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
-__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight", "views_weight", "column_weights",
+__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight", "column_weights",
            "row_counts_of", "row_bitsets", "layout_bits"]
 
 log = logging.getLogger(__name__)
@@ -382,31 +382,6 @@ def covered_weight(bits, weights: np.ndarray, selected) -> float:
     w = np.asarray(weights, dtype=np.float64)
     covered = bits.union(list(selected)) if len(selected) else np.zeros(bits.shape[0], dtype=bool)
     return float(np.sum(w[covered], dtype=np.float64))
-
-
-def views_weight(bits, weights: np.ndarray, selected, views: int) -> float:
-    """``sum_i w_i [at least views selected columns observe i]`` of a BitMatrix (the multiview
-    objective without a minimum angle, summed as
-    :func:`camplace.solver.problem.objectives.mode_value` sums it: the same float64 number).
-
-    Parameters
-    ----------
-    bits : camplace.visibility.bits.BitMatrix
-        (m, n).
-    weights : (m,) float64
-    selected : sequence of int
-        Columns (duplicates count once).
-    views : int
-
-    Returns
-    -------
-    float
-    """
-    w = np.asarray(weights, dtype=np.float64)
-    count = np.zeros(bits.shape[0], dtype=np.int64)
-    for j in sorted({int(j) for j in selected}):
-        count += bits.column(j)
-    return float(w[count >= int(views)].sum())
 
 
 def column_weights(bits, weights: np.ndarray, workers: int | None = None) -> np.ndarray:
