@@ -296,3 +296,58 @@ def test_min_angle_on_bits_needs_positions() -> None:
     a = sp.csr_matrix(np.ones((4, 3), dtype=np.float32))
     with pytest.raises(CamplaceError, match="min_angle_deg needs camera positions"):
         solve(bits_from_csr(a), np.ones(4), 2, mode="multiview", min_angle_deg=10.0)
+
+
+# ---- set cover on bits ------------------------------------------------------------------------
+
+
+def test_rows_csr_is_the_pattern_slice() -> None:
+    from camplace.solver.problem.presolve import as_pattern
+    from camplace.solver.problem.presolve_bits import rows_csr
+
+    rng = np.random.default_rng(8)
+    for a, _ in _matrices():
+        m, n = a.shape
+        bits = bits_from_csr(a)
+        for cols in (np.arange(n), np.sort(rng.choice(n, size=max(1, n // 2), replace=False))):
+            rows = np.flatnonzero(rng.random(m) < 0.6)
+            ref = as_pattern(a)[:, cols].tocsr()[rows]
+            for workers in (1, 2):
+                got = rows_csr(bits, rows, cols.astype(np.int64), workers)
+                assert got.shape == ref.shape and got.has_canonical_format
+                for x, y in ((got.indptr, ref.indptr), (got.indices, ref.indices), (got.data, ref.data)):
+                    assert x.dtype == y.dtype
+                    np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("case", range(6))
+def test_setcover_on_bits_equals_csr_and_enumeration(case: int, monkeypatch) -> None:
+    """Costs, fixed and forbidden cameras, partial covers, uncoverable rows and zero weights: the
+    CSR route's answer and coverage figures, the enumerated minimum cost, and no tocsr."""
+    rng = np.random.default_rng(100 + case)
+    m, n = 90, 10
+    dense = (rng.random((m, n)) < 0.25).astype(np.float32)
+    dense[:3] = 0.0  # uncoverable rows
+    w = np.where(rng.random(m) < 0.15, 0.0, rng.random(m))
+    costs = rng.integers(1, 4, size=n).astype(float) if case % 2 else None
+    fixed = (1,) if case in (2, 3) else ()
+    forbidden = (4, 7) if case in (3, 4) else ()
+    frac = 0.8 if case >= 4 else 1.0
+    kw = dict(mode="setcover", costs=costs, fixed=fixed, forbidden=forbidden, required_fraction=frac, iterations=2000)
+    ref = solve(sp.csr_matrix(dense), w, **kw)
+    with monkeypatch.context() as mp:
+        _no_csr(mp)
+        got = solve(bits_from_csr(sp.csr_matrix(dense)), w, **kw)
+    assert got.stats["matrix"] == "column bitsets (the rows to cover as CSR)"
+    assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective, ref.bound)
+    for key in ("uncoverable_points", "uncoverable_weight", "coverable_weight", "covered_weight", "covered_fraction"):
+        assert got.stats[key] == ref.stats[key]
+    # enumeration: the cheapest set of new cameras reaching the required weight
+    c = np.ones(n) if costs is None else costs
+    free = [j for j in range(n) if j not in fixed and j not in forbidden]
+    obs = dense > 0
+    coverable = (w > 0) & obs[:, list(fixed) + free].any(axis=1)
+    target = frac * float(w[coverable].sum())
+    best = min(float(sum(c[j] for j in new)) for r in range(len(free) + 1) for new in itertools.combinations(free, r)
+               if float(w[(w > 0) & obs[:, list(fixed) + list(new)].any(axis=1)].sum()) >= target * (1 - 1e-12))
+    assert got.status == "optimal" and got.objective == pytest.approx(best)

@@ -232,6 +232,9 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         if team is not None:  # a team's branch and bound read the bits too
             ctx, w, fixed_t, forbidden_t = team
             return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        if o.mode == "setcover" and o.min_distance_m is None and o.team is None:  # counts from the bits
+            ctx, w, fixed_t, forbidden_t = _setcover_bits(matrix, weights, o, deadline)
+            return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
         matrix = matrix.tocsr(np.bool_)  # the other routes read CSR (the bool pattern: 5 bytes a pair)
     q = values_matrix(matrix)
     if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
@@ -377,6 +380,26 @@ def _team_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> 
     ctx = run_team(bits, w, o, k_team, fixed_t, free_cols, np.zeros((0, 2), dtype=np.int64), deadline,
                    k_solver=lambda sub: _bits_columns_solve(bits, w, sub))
     return None if ctx is None else (ctx, w, fixed_t, forbidden_t)
+
+
+def _setcover_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> tuple:
+    """Set cover (no minimum distance, no team) on a binary matrix held as column bitsets: the
+    coverable and fixed-covered rows counted from the bits, and only the rows left to cover made
+    into the CSR pattern the search reads (:func:`~camplace.solver.engines.setcover.mode.setcover`),
+    instead of the whole matrix's CSR and its float64 pattern.
+
+    Returns
+    -------
+    (EngineOutcome, (m,) float64 weights, fixed, forbidden)
+    """
+    m, n = bits.shape
+    w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
+    free = np.ones(n, dtype=bool)
+    free[list(set(fixed_t) | set(forbidden_t))] = False
+    ctx = setcover(bits, w, o.costs, o.required_fraction, fixed_t, np.flatnonzero(free), np.zeros((0, 2), dtype=np.int64),
+                   o.engine, deadline, o.search_seed, o.iterations)
+    ctx.stats["matrix"] = "column bitsets (the rows to cover as CSR)"
+    return ctx, w, fixed_t, forbidden_t
 
 
 def _bits_columns_solve(bits: Any, w: np.ndarray, sub: SolveOptions) -> SolverResult:

@@ -2,8 +2,8 @@
 visibility stage made it (:class:`camplace.visibility.bits.BitMatrix`, one bit a cell), without a
 CSR copy.
 
-:func:`bits_outcome` takes the cases without fixed, forbidden, minimum-distance, minimum-angle or
-team constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that read bits:
+:func:`bits_outcome` takes the cases without fixed, forbidden, minimum-distance or team
+constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that read bits:
 
 ``maxcover`` (and ``quality``, the same objective on a binary matrix)
     plain max coverage (``exact`` for k <= 4 under ``auto``): the presolve of
@@ -17,6 +17,11 @@ team constraints, on the routes of :func:`~camplace.solver.choose.choose_engine`
     :func:`~camplace.solver.problem.presolve_bits.layout_bits`), and, for fewer cameras than
     ``2 * views``, an unproven bound capped by the opposite pairs matched on the bits
     (:func:`~camplace.solver.engines.bitset.pair_cap.cap_bound`), as the CSR route does.
+``multiview`` with ``min_angle_deg``
+    the ``angle`` route (``exact`` for k <= 4):
+    :func:`~camplace.solver.engines.angle.search.solve_angle` on the BitMatrix (its row passes read
+    the bits, its gains summed in the CSR kernel's order), and the same cap. No float32 copy is
+    made either (the CSR route makes one: 4 bytes a pair more).
 
 The objective is summed as :func:`~camplace.solver.problem.objectives.mode_value` sums it
 (:func:`~camplace.solver.problem.presolve_bits.covered_weight`,

@@ -43,7 +43,7 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes, mem
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight", "column_weights",
-           "row_counts_of", "row_bitsets", "layout_bits"]
+           "row_counts_of", "row_bitsets", "layout_bits", "rows_csr", "rows_csr_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -300,6 +300,30 @@ def _column_weights(words, wr, lo, hi, out):  # pragma: no cover - compiled
         out[j] = s
 
 
+@numba.njit(**_JIT)
+def _row_lengths(rb, lo, hi, out):  # pragma: no cover - compiled
+    """Set bits of rows ``lo:hi`` of row bitsets ``rb``."""
+    for i in range(lo, hi):
+        s = np.int64(0)
+        for w in range(rb.shape[1]):
+            s += np.int64(_popc(rb[i, w]))
+        out[i] = s
+
+
+@numba.njit(**_JIT)
+def _row_indices(rb, indptr, lo, hi, indices):  # pragma: no cover - compiled
+    """CSR column indices (ascending) of rows ``lo:hi`` of row bitsets ``rb``."""
+    for i in range(lo, hi):
+        p = indptr[i]
+        for w in range(rb.shape[1]):
+            x = rb[i, w]
+            base = np.int64(w) << 6
+            while x:
+                indices[p] = base + np.int64(_ctz(x))
+                p += 1
+                x &= x - np.uint64(1)
+
+
 def _run(fn, bounds: list[int], workers: int) -> None:
     """``fn(lo, hi)`` for every block of ``bounds`` (:func:`~camplace.solver._support.blocks.cuts`),
     on the solver's pool of ``workers`` threads."""
@@ -441,6 +465,52 @@ def row_bitsets(bits, rows: np.ndarray, columns: np.ndarray, extra: int = 0, wor
     _run(lambda w0, w1: (_row_bits(bits.words, columns, pos, w0, w1, out), release(0, n)),
          cuts(bits.words.shape[1], _BLOCKS), thread_count(workers))
     return out
+
+
+def rows_csr(bits, rows: np.ndarray, columns: np.ndarray, workers: int | None = None) -> sp.csr_matrix:
+    """Some rows and columns of a BitMatrix as the canonical CSR pattern :func:`camplace.solver.problem.presolve.as_pattern`
+    makes (float64 ones, int32 indices, sorted): ``as_pattern(csr)[rows][:, columns]`` without the
+    whole matrix's CSR.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    rows : (r,) int64
+        Distinct rows, in output order.
+    columns : (c,) int64
+        Columns, ascending: output column t is ``columns[t]``.
+    workers : int, optional
+
+    Returns
+    -------
+    (r, c) scipy.sparse.csr_matrix of float64
+        Made through the rows' bitsets (``r * ceil(c / 64) * 8`` bytes, freed before return) and
+        holding 12 bytes an observed pair; the caller checks the budget (:func:`rows_csr_bytes`).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    columns = np.asarray(columns, dtype=np.int64)
+    r, c = rows.size, columns.size
+    rb = row_bitsets(bits, rows, columns, workers=workers)
+    workers = thread_count(workers)
+    lengths = np.zeros(r, dtype=np.int64)
+    blocks = cuts(r, _BLOCKS)
+    _run(lambda lo, hi: _row_lengths(rb, lo, hi, lengths), blocks, workers)
+    indptr = np.zeros(r + 1, dtype=np.int64)
+    np.cumsum(lengths, out=indptr[1:])
+    nnz = int(indptr[-1])
+    idt = np.int32 if max(r, c, nnz) < 2**31 - 1 else np.int64
+    indices = np.empty(nnz, dtype=idt)
+    _run(lambda lo, hi: _row_indices(rb, indptr, lo, hi, indices), blocks, workers)
+    rb = None  # freed before the caller goes on
+    out = sp.csr_matrix((np.ones(nnz), indices, indptr.astype(idt)), shape=(r, c), copy=False)
+    out.has_canonical_format = True
+    return out
+
+
+def rows_csr_bytes(r: int, c: int, nnz: int) -> int:
+    """Peak bytes of :func:`rows_csr`: the rows' bitsets beside the CSR being filled."""
+    return int(r * ((c + 63) // 64) * 8 + 12 * nnz + 16 * (r + 1))
 
 
 def layout_bits(bits, rows: np.ndarray, col_map: np.ndarray, n_cols: int, workers: int | None = None) -> np.ndarray:
