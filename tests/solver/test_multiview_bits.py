@@ -351,3 +351,27 @@ def test_setcover_on_bits_equals_csr_and_enumeration(case: int, monkeypatch) -> 
     best = min(float(sum(c[j] for j in new)) for r in range(len(free) + 1) for new in itertools.combinations(free, r)
                if float(w[(w > 0) & obs[:, list(fixed) + list(new)].any(axis=1)].sum()) >= target * (1 - 1e-12))
     assert got.status == "optimal" and got.objective == pytest.approx(best)
+
+
+def test_layout_bits_over_the_budget(monkeypatch) -> None:
+    """The transposed layout over the budget: the bitset engine keeps the plain layout (same
+    optimum, the skip recorded); the angle engine's OverBudget sends the solve to the CSR route."""
+    import camplace.solver.problem.presolve_bits as pb
+    from tests.solver.test_solver_angle import _sphere_instance
+
+    dense = circle(70, 10)
+    w = np.full(70, 0.5)
+    ref = solve(sp.csr_matrix(dense), w, 3, mode="multiview", views=2)
+    monkeypatch.setattr(pb, "layout_bits_bytes", lambda *a: 1 << 62)
+    with pytest.raises(Exception, match="layout's row bitsets"):
+        layout_bits(bits_from_csr(sp.csr_matrix(dense)), np.arange(3), np.arange(10), 10)
+    got = solve(bits_from_csr(sp.csr_matrix(dense)), w, 3, mode="multiview", views=2)
+    assert got.stats["matrix"] == "column bitsets (no CSR copy)"
+    assert "layout's row bitsets" in got.stats["engine_stats"]["opposite_pairs"]["skipped"]
+    assert got.status == ref.status == "optimal" and got.objective == ref.objective
+    dense, w, pos, pts = _sphere_instance(150, 11, 2)
+    kw = dict(mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts)
+    ref = solve(sp.csr_matrix(dense), w, 3, **kw)
+    got = solve(bits_from_csr(sp.csr_matrix(dense)), w, 3, **kw)
+    assert "matrix" not in got.stats  # the CSR route
+    assert (got.selected, got.status, got.objective) == (ref.selected, ref.status, ref.objective)

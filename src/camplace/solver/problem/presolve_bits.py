@@ -43,7 +43,8 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes, mem
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight", "column_weights",
-           "row_counts_of", "row_bitsets", "layout_bits", "rows_csr", "rows_csr_bytes"]
+           "row_counts_of", "row_bitsets", "layout_bits", "layout_bits_bytes", "rows_csr",
+           "rows_csr_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -513,6 +514,12 @@ def rows_csr_bytes(r: int, c: int, nnz: int) -> int:
     return int(r * ((c + 63) // 64) * 8 + 12 * nnz + 16 * (r + 1))
 
 
+def layout_bits_bytes(u: int, n_cols: int, length: int) -> int:
+    """Peak bytes of :func:`layout_bits`: ``u`` distinct rows' bitsets over ``n_cols`` columns and
+    the output (``n_cols`` columns over ``length`` bits)."""
+    return int((u + 1) * ((n_cols + 63) // 64) * 8 + n_cols * ((length + 63) // 64) * 8)
+
+
 def layout_bits(bits, rows: np.ndarray, col_map: np.ndarray, n_cols: int, workers: int | None = None) -> np.ndarray:
     """Column bitsets over a list of rows of a BitMatrix: what
     :func:`camplace.solver._support.parkernels.build_bits` makes of the matrix's CSR.
@@ -534,7 +541,13 @@ def layout_bits(bits, rows: np.ndarray, col_map: np.ndarray, n_cols: int, worker
     (n_cols, ceil(L / 64)) uint64
         Bit t of column c: ``rows[t] >= 0`` and column ``j`` with ``col_map[j] == c`` observes
         row ``rows[t]``. Working memory: the distinct rows' bitsets over the output columns
-        (``u * ceil(n_cols / 64) * 8`` bytes) and the output.
+        (``u * ceil(n_cols / 64) * 8`` bytes) and the output (:func:`layout_bits_bytes`).
+
+    Raises
+    ------
+    OverBudget
+        When that is over :func:`~camplace.solver._support.memory.memory_budget_bytes` (before
+        allocating).
     """
     rows = np.asarray(rows, dtype=np.int64)
     col_map = np.asarray(col_map, dtype=np.int64)
@@ -542,6 +555,9 @@ def layout_bits(bits, rows: np.ndarray, col_map: np.ndarray, n_cols: int, worker
     columns = np.empty(n_cols, dtype=np.int64)
     columns[col_map[mapped]] = mapped
     uniq = np.unique(rows[rows >= 0])
+    need, budget = layout_bits_bytes(uniq.size, n_cols, rows.size), memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, "the layout's row bitsets (transposed from the column bitsets)")
     rb = row_bitsets(bits, uniq, columns, extra=1, workers=workers)  # the last row stays zero: the padding's
     sel = np.where(rows >= 0, np.searchsorted(uniq, rows), uniq.size).astype(np.int64)
     out = np.zeros((n_cols, (rows.size + 63) // 64), dtype=np.uint64)

@@ -76,7 +76,7 @@ from camplace.solver._support.blocks import run_blocks
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.greedy import greedy_swap
-from camplace.solver._support.memory import memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.engines.bitset.pair_cap import match_opposite
 from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve import Presolved
@@ -301,7 +301,11 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
         stats["opposite_pairs"]["skipped"] = f"layout bitsets need {need / 2**30:.1f} GiB"
         return None
     if origin is not None:
-        bits = layout_bits(origin, rows, col_map, pre.shape[1])
+        try:
+            bits = layout_bits(origin, rows, col_map, pre.shape[1])
+        except OverBudget as exc:  # the plain layout instead (valid, only less tight)
+            stats["opposite_pairs"]["skipped"] = exc.message
+            return None
     else:
         with ctrl_c_deferred():
             bits = P.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
