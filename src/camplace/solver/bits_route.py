@@ -26,11 +26,14 @@ constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that
 The objective is summed as :func:`~camplace.solver.problem.objectives.mode_value` sums it
 (:func:`~camplace.solver.problem.presolve_bits.covered_weight`,
 :func:`~camplace.solver.problem.objectives.bits_views_value`), so without a time limit the answer
-is the CSR route's. With one, the CSR route first solves a quarter of the candidates when there
-are more than :data:`camplace.solver.routes.WARM_MIN_COLS` (its warm start); this route does not
-(the engines' own greedy gives the first incumbent). Any other case (another engine choice, the
-bitset engine over the memory budget) returns None and :func:`camplace.solver.api.solve` converts
-the bits to a bool CSR pattern (5 bytes an observed pair) and goes on as before.
+is the CSR route's. With a time limit, multiview (with or without the angle) is warm-started as
+the CSR route warm-starts it (:func:`_warm_started`: the same subset of the columns solved first,
+its bitsets copied); plain max coverage on bits is not (the engines' own greedy gives its first
+incumbent, as before). Any other case
+(another engine choice, an engine over the memory budget) returns None and
+:func:`camplace.solver.api.solve` converts the bits to a bool CSR pattern (5 bytes an observed
+pair) and goes on as before. Set cover on bits is
+:func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``).
 """
 
 from __future__ import annotations

@@ -38,6 +38,11 @@ def setcover(
     Without minimum-distance conflicts: :func:`camplace.solver.engines.setcover.local_search.solve_cover`
     (reductions, local search, Lagrangian bound, then SCIP / CP-SAT with the local-search cover as
     hint and cutoff where it applies). With conflicts: the SCIP / CP-SAT model directly.
+
+    ``q`` is the (m, n) CSR matrix, or a binary matrix as column bitsets
+    (:class:`camplace.visibility.bits.BitMatrix`): then the coverable and fixed-covered rows are
+    counted from the bits and only the rows left to cover become the CSR pattern the search reads
+    (:func:`_bits_rows`: the same arrays as the CSR route's), not the whole matrix's pattern.
     """
     m, n = q.shape
     if engine == "exact":
