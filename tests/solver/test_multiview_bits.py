@@ -375,3 +375,19 @@ def test_layout_bits_over_the_budget(monkeypatch) -> None:
     got = solve(bits_from_csr(sp.csr_matrix(dense)), w, 3, **kw)
     assert "matrix" not in got.stats  # the CSR route
     assert (got.selected, got.status, got.objective) == (ref.selected, ref.status, ref.objective)
+
+
+@pytest.mark.parametrize("kw, matrix", [
+    (dict(mode="multiview"), "column bitsets (no CSR copy)"),
+    (dict(mode="multiview", min_angle_deg=20.0), "column bitsets (no CSR copy)"),
+    (dict(mode="setcover", k=None), "column bitsets (the rows to cover as CSR)"),
+])
+def test_binary_run_solves_on_the_bits(kw, matrix, monkeypatch) -> None:
+    """A binary instance's run hands its bitsets (and, for the angle, the candidates' and points'
+    positions) to the solver, which takes the bits route: no tocsr on the way."""
+    import camplace
+
+    _no_csr(monkeypatch)
+    sol = camplace.run("comet-67p-bunker", candidates=60, points=500, time_limit_s=30, cache=False, **kw)
+    assert sol.solver_stats["matrix"] == matrix
+    assert sol.status in ("optimal", "feasible") and sol.selected
