@@ -71,7 +71,7 @@ from camplace.names import MODES
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import NearCandidates, greedy
 from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes, memory_fallback
-from camplace.solver.engines.bitset.pair_cap import opposite_pair_bound
+from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.mip.mode_models import check_setcover_memory
 from camplace.solver.engines.setcover.mode import setcover
 from camplace.solver.options import SolveOptions
@@ -86,8 +86,6 @@ __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
 log = logging.getLogger(__name__)
 
 _OPT_TOL = 1e-9
-_CAP_SHARE = 0.05  # multiview: share of the time limit kept for the opposite-pairs bound ...
-_CAP_MAX_S = 2.0  # ... at most this many seconds (a matching stopped early is still a valid bound)
 _CONFLICT_PAIR_BYTES = 200  # a conflicting pair: its array row, the greedy's adjacency sets, temporaries
 
 
@@ -226,13 +224,16 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     if getattr(matrix, "format", None) == "bits":  # a binary matrix as column bitsets
         from camplace.solver.bits_route import bits_applies, bits_outcome
 
-        got = bits_outcome(matrix, weights, o, deadline) if bits_applies(o) else None
+        got = bits_outcome(matrix, weights, o, deadline, positions, points) if bits_applies(o) else None
         if got is not None:
             ctx, w = got
             return _result(ctx, o, w, (), (), np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
         team = _team_bits(matrix, weights, o, deadline) if _team_bits_applies(o) else None
         if team is not None:  # a team's branch and bound read the bits too
             ctx, w, fixed_t, forbidden_t = team
+            return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        if o.mode == "setcover" and o.min_distance_m is None and o.team is None:  # counts from the bits
+            ctx, w, fixed_t, forbidden_t = _setcover_bits(matrix, weights, o, deadline)
             return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
         matrix = matrix.tocsr(np.bool_)  # the other routes read CSR (the bool pattern: 5 bytes a pair)
     q = values_matrix(matrix)
@@ -313,16 +314,13 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
             )
         # multiview with fewer cameras than 2 x views: opposite points cap the bound when the search
         # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
-        cap = mode == "multiview" and k + len(fixed_t) < 2 * views
-        inner = deadline
-        if cap and deadline.limit is not None:
-            inner = deadline.shortened(min(_CAP_SHARE * deadline.limit, _CAP_MAX_S))
+        cap = mode == "multiview" and cap_applies(k + len(fixed_t), views)
+        inner = cap_deadline(deadline) if cap else deadline
         ctx = run_cover(CoverProblem(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, free_cols, conflicts, o,
                                      inner, stats={"k": k}))
         searched = ctx.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
         if cap and ctx.selected is not None and ctx.status != "optimal" and not searched and not deadline.expired():
-            ctx = _opposite_pair_cap(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64),
-                                     deadline)
+            ctx = cap_bound(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64), deadline)
 
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
 
@@ -384,6 +382,26 @@ def _team_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> 
     return None if ctx is None else (ctx, w, fixed_t, forbidden_t)
 
 
+def _setcover_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> tuple:
+    """Set cover (no minimum distance, no team) on a binary matrix held as column bitsets: the
+    coverable and fixed-covered rows counted from the bits, and only the rows left to cover made
+    into the CSR pattern the search reads (:func:`~camplace.solver.engines.setcover.mode.setcover`),
+    instead of the whole matrix's CSR and its float64 pattern.
+
+    Returns
+    -------
+    (EngineOutcome, (m,) float64 weights, fixed, forbidden)
+    """
+    m, n = bits.shape
+    w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
+    free = np.ones(n, dtype=bool)
+    free[list(set(fixed_t) | set(forbidden_t))] = False
+    ctx = setcover(bits, w, o.costs, o.required_fraction, fixed_t, np.flatnonzero(free), np.zeros((0, 2), dtype=np.int64),
+                   o.engine, deadline, o.search_seed, o.iterations)
+    ctx.stats["matrix"] = "column bitsets (the rows to cover as CSR)"
+    return ctx, w, fixed_t, forbidden_t
+
+
 def _bits_columns_solve(bits: Any, w: np.ndarray, sub: SolveOptions) -> SolverResult:
     """:func:`_solve` of ``sub`` (no team) on the columns of ``bits`` it does not forbid: the
     bitsets of those columns (a view when they are one range, else a copy of
@@ -441,17 +459,6 @@ def _result(ctx: EngineOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[i
         selected=sel, status=status, objective=float(objective), bound=float(bound), gap=float(gap),
         engine=name, time_s=elapsed, stats=jsonable(stats),
     )
-
-
-def _opposite_pair_cap(
-    ctx: EngineOutcome, q: sp.csr_matrix, w: np.ndarray, views: int,
-    cameras: int, allowed: np.ndarray, deadline: Deadline,
-) -> EngineOutcome:
-    """Tighten an unproven multiview bound with :func:`~camplace.solver.engines.bitset.pair_cap.opposite_pair_bound`."""
-    cap, cap_stats = opposite_pair_bound(q, w, views, cameras, columns=allowed, deadline=deadline)
-    cap_stats["bound_before"] = float(ctx.bound)
-    ctx.stats["opposite_pairs"] = cap_stats
-    return replace(ctx, bound=cap) if cap < ctx.bound else ctx
 
 
 def _spaced_fallback(

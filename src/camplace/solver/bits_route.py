@@ -1,50 +1,86 @@
-"""Plain max coverage straight from column bitsets: the binary run's matrix as the visibility stage
-made it (:class:`camplace.visibility.bits.BitMatrix`, one bit a cell), without a CSR copy.
+"""Max coverage and multiview straight from column bitsets: the binary run's matrix as the
+visibility stage made it (:class:`camplace.visibility.bits.BitMatrix`, one bit a cell), without a
+CSR copy.
 
-:func:`bits_outcome` takes the cases the bit presolve covers: ``maxcover`` without fixed,
-forbidden, minimum-distance or minimum-angle constraints, on the route
-:func:`~camplace.solver.choose.choose_engine` gives plain max coverage (``exact`` for k <= 4 under
-``auto``). It presolves with :func:`~camplace.solver.problem.presolve_bits.presolve_bits` (the same
-reduced instance as the CSR presolve) and runs the same max-coverage engines; the objective is
-summed as :func:`~camplace.solver.problem.objectives.mode_value` sums it, so the answer is the
-CSR route's. Any other case returns None and :func:`camplace.solver.api.solve` converts the bits
-to a bool CSR pattern (5 bytes an observed pair) and goes on as before.
+:func:`bits_outcome` takes the cases without fixed, forbidden, minimum-distance or team
+constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that read bits:
+
+``maxcover`` (and ``quality``, the same objective on a binary matrix)
+    plain max coverage (``exact`` for k <= 4 under ``auto``): the presolve of
+    :func:`~camplace.solver.problem.presolve_bits.presolve_bits` (the same reduced instance as the
+    CSR presolve), then the same max-coverage engines.
+``multiview``
+    the ``multiview`` route (the bitset engine, ``exact`` for k <= 4): the bit presolve without
+    column dominance (dropping dead rows and merging identical ones keeps every column's view
+    counts; dominance keeps only coverage), :func:`~camplace.solver.engines.bitset.search.solve_bitset`
+    with ``views`` (its opposite-pairs layout transposed from the bits,
+    :func:`~camplace.solver.problem.presolve_bits.layout_bits`), and, for fewer cameras than
+    ``2 * views``, an unproven bound capped by the opposite pairs matched on the bits
+    (:func:`~camplace.solver.engines.bitset.pair_cap.cap_bound`), as the CSR route does.
+``multiview`` with ``min_angle_deg``
+    the ``angle`` route (``exact`` for k <= 4):
+    :func:`~camplace.solver.engines.angle.search.solve_angle` on the BitMatrix (its row passes read
+    the bits, its gains summed in the CSR kernel's order), and the same cap. No float32 copy is
+    made either (the CSR route makes one: 4 bytes a pair more).
+
+The objective is summed as :func:`~camplace.solver.problem.objectives.mode_value` sums it
+(:func:`~camplace.solver.problem.presolve_bits.covered_weight`,
+:func:`~camplace.solver.problem.objectives.bits_views_value`), so without a time limit the answer
+is the CSR route's. With a time limit, multiview (with or without the angle) is warm-started as
+the CSR route warm-starts it (:func:`_warm_started`: the same subset of the columns solved first,
+its bitsets copied); plain max coverage on bits is not (the engines' own greedy gives its first
+incumbent, as before). Any other case
+(another engine choice, an engine over the memory budget) returns None and
+:func:`camplace.solver.api.solve` converts the bits to a bool CSR pattern (5 bytes an observed
+pair) and goes on as before. Set cover on bits is
+:func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``).
 """
 
 from __future__ import annotations
 
 import logging
 import numbers
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.choose import choose_engine, problem_sizes
+from camplace.solver.engines.angle.search import solve_angle
+from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
+from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
+from camplace.solver.problem.checks import coords
+from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits
+from camplace.solver.problem.presolve_bits import column_weights, covered_weight, presolve_bits
 from camplace.solver.result import EngineOutcome
+from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, spread_subset
+from camplace.visibility.bits import BitMatrix
 
 __all__ = ["bits_applies", "bits_outcome", "load_kernels"]
 
+log = logging.getLogger(__name__)
+
 
 def bits_applies(o: SolveOptions) -> bool:
-    """True when the options are plain max coverage (no fixed, forbidden, distance, angle or team).
+    """True for plain max coverage or multiview (with or without a minimum angle), without fixed,
+    forbidden, distance or team constraints (a minimum angle in multiview only).
 
     ``quality`` on a binary matrix is plain max coverage too: every value is 1, so
     ``max_{j in S} Q_ij`` is 1 exactly when some chosen camera observes row i, and the two
     objectives are the same number."""
-    return (o.mode in ("maxcover", "quality") and not o.fixed and not o.forbidden and o.min_distance_m is None
-            and o.min_angle_deg is None and getattr(o, "team", None) is None)
+    return (o.mode in ("maxcover", "quality", "multiview") and not o.fixed and not o.forbidden
+            and o.min_distance_m is None and (o.min_angle_deg is None or o.mode == "multiview")
+            and getattr(o, "team", None) is None)
 
 
-def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
-    """Solve plain max coverage on column bitsets.
+def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline, positions: Any = None, points: Any = None):
+    """Solve plain max coverage or multiview on column bitsets.
 
     Parameters
     ----------
@@ -54,11 +90,16 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     o : SolveOptions
         Checked options with :func:`bits_applies`.
     deadline : Deadline
+    positions : (n, 3) array_like, optional
+        Camera positions (metres; multiview with a minimum angle needs them).
+    points : (m, 3) array_like, optional
+        Point positions (metres; the same).
 
     Returns
     -------
     (EngineOutcome, (m,) float64 weights) or None
-        None when the engine choice is not plain max coverage (large k, the general model).
+        None when the engine choice is not one this route runs (large k, the general model) or
+        the bitset engine would not fit in the memory budget.
     """
     m, n = bits.shape
     if n == 0:
@@ -73,15 +114,30 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     if k > n:
         raise CamplaceError(f"cannot choose k={k} new cameras from {n} allowed candidates "
                             "(lower k, or forbid/fix fewer cameras)")
+    if o.mode == "multiview":
+        pos = pts = None
+        if o.min_angle_deg is not None:
+            if positions is None or points is None:
+                raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions "
+                                    "(points (m, 3))")
+            pos = coords(positions, n, "positions", "camera positions")
+            pts = coords(points, m, "points", "point positions")
+        got = _multiview(_Views(bits, w, k, o, pos, pts), deadline)
+    else:
+        got = _maxcover(bits, w, k, o, deadline)
+    return None if got is None else (got, w)
+
+
+def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) -> EngineOutcome | None:
+    """Plain max coverage of ``k`` columns (quality solved as maxcover); None off the maxcover route."""
+    n = bits.shape[1]
     budget = memory_budget_bytes()
     asked = o.mode
     o = replace(o, mode="maxcover")  # quality of a binary matrix: the same objective (see bits_applies)
     choice = choose_engine(problem_sizes(bits, k, n, 0, 0, "maxcover"), o, budget)
     if choice.route != "maxcover":
         return None
-    stats: dict[str, Any] = {"k": k, "engine_choice": {"engine": choice.engine, "route": choice.route,
-                                                       "reason": choice.reason}}
-    stats.update(choice.stats)
+    stats = _choice_stats(k, choice)
     if asked != "maxcover":
         stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
     pre = presolve_bits(bits, w, k, deadline=deadline.share(0.5))  # at least half the time left to the search
@@ -91,7 +147,154 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline):
     stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
                   "engine_stats": dict(out.stats)})
     return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=name,
-                         objective=objective), w
+                         objective=objective)
+
+
+@dataclass(frozen=True)
+class _Views:
+    """One multiview problem on bits: the matrix, the checked weights, k, the options and, with a
+    minimum angle, the checked camera (n, 3) and point (m, 3) positions."""
+
+    bits: Any
+    w: np.ndarray
+    k: int
+    o: SolveOptions
+    pos: np.ndarray | None
+    pts: np.ndarray | None
+
+    @property
+    def angle(self) -> bool:
+        return self.o.min_angle_deg is not None
+
+    def columns(self, cols: np.ndarray) -> "_Views":
+        """The same problem on the columns ``cols`` (their bitsets copied)."""
+        return replace(self, bits=BitMatrix(self.bits.words[cols], self.bits.shape[0]),
+                       pos=None if self.pos is None else self.pos[cols])
+
+    def value(self, sel: tuple[int, ...] | None) -> float:
+        """The objective of ``sel`` (:func:`~camplace.solver.problem.objectives.mode_value`'s number)."""
+        if not sel:
+            return 0.0
+        return bits_views_value(self.bits, self.w, sel, int(self.o.views), self.o.min_angle_deg, self.pos, self.pts)
+
+
+def _multiview(p: _Views, deadline: Deadline) -> EngineOutcome | None:
+    """``k`` columns maximising the weight of rows observed by at least ``o.views`` of them (and,
+    with a minimum angle, by two making it): the CSR route's :func:`camplace.solver.routes.run_cover`
+    (the multiview or angle route, warm start included) and the opposite-pairs cap of
+    :func:`camplace.solver.api.solve`, on the bits. None off those routes, or when the engine's
+    working memory is over the budget (the CSR route then falls back as before)."""
+    views = int(p.o.views)
+    cap = cap_applies(p.k, views)
+    inner = cap_deadline(deadline) if cap else deadline  # leaves the cap its share of the limit
+    got = _search(p, inner)
+    if got is None:
+        return None
+    searched = got.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
+    if cap and got.selected is not None and got.status != "optimal" and not searched and not deadline.expired():
+        got = cap_bound(got, p.bits, p.w, views, p.k, None, deadline)
+    return got
+
+
+def _search(p: _Views, deadline: Deadline, warm: bool = True,
+            start: tuple[int, ...] | None = None) -> EngineOutcome | None:
+    """The route on ``p.bits``: with ``warm``, warm-started as :func:`camplace.solver.routes.run_cover`
+    warm-starts it (more than ``WARM_MIN_COLS`` columns, k <= ``WARM_MAX_K``, a time limit); then
+    the engine (:func:`_bitset` or :func:`_angle`), from ``start`` (k original columns) when given."""
+    n = p.bits.shape[1]
+    if warm and p.k <= WARM_MAX_K and n > WARM_MIN_COLS and deadline.limit is not None:
+        return _warm_started(p, deadline)
+    choice = choose_engine(problem_sizes(p.bits, p.k, n, 0, 0, "multiview"), p.o, memory_budget_bytes())
+    if choice.route != ("angle" if p.angle else "multiview"):
+        return None
+    return (_angle if p.angle else _bitset)(p, choice, deadline, start)
+
+
+def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:
+    """:func:`camplace.solver.routes._multiview` on bits: the bit presolve without dominance, then
+    the bitset engine with ``views``; None when the engine's estimate is over the budget."""
+    k, views, budget = p.k, int(p.o.views), memory_budget_bytes()
+    stats = _choice_stats(k, choice)
+    pre = presolve_bits(p.bits, p.w, k, dominance=False, deadline=deadline)  # dominance: one view only
+    mp, np_ = pre.shape
+    need = bitset_bytes(mp, np_, min(views, k), k)
+    if need > budget:  # the CSR route makes the same estimate and falls back to the general model
+        log.info("multiview on bits: the bitset engine needs %.3g GiB (budget %.3g GiB): the CSR route",
+                 need / 2**30, budget / 2**30)
+        return None
+    out = solve_bitset(pre, views=views, deadline=deadline, start=None if start is None else pre.reduced_columns(start))
+    sel = tuple(int(j) for j in pre.original_columns(out.selected)) if out.selected else None
+    stats.update({"rows_after": mp, "cols_after": np_, "presolve": dict(pre.stats), "engine_stats": dict(out.stats)})
+    return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=choice.engine,
+                         objective=p.value(sel))
+
+
+def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:
+    """:func:`camplace.solver.routes._angle` on bits: the angle engine reading the bitsets; None when
+    it does not fit in the memory budget."""
+    assert p.pos is not None and p.pts is not None and p.o.min_angle_deg is not None
+    n = p.bits.shape[1]
+    stats = _choice_stats(p.k, choice)
+    try:
+        out = solve_angle(p.bits, p.w, p.k, int(p.o.views), float(p.o.min_angle_deg), p.pos, p.pts,
+                          np.zeros(0, dtype=np.int64), np.arange(n, dtype=np.int64), deadline=deadline,
+                          budget_bytes=memory_budget_bytes(), start=start)
+    except OverBudget as exc:
+        log.info("multiview on bits: %s: the CSR route", exc.message)
+        return None
+    sel = tuple(sorted(int(j) for j in out.selected))
+    stats["engine_stats"] = dict(out.stats)
+    return EngineOutcome(sel, out.status, float(out.bound), stats, engine="exact", objective=p.value(sel))
+
+
+def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
+    """:func:`camplace.solver.routes._warm_started` on bits: solve the columns
+    :func:`camplace.solver.routes.warm_subset` picks first (with a minimum angle every pose of every
+    ``WARM_SHRINK``-th position, else the ``1 / WARM_SHRINK`` observing the most weight, their
+    weights summed in the CSR route's order) within ``WARM_SHARE`` of the time left, offer its
+    answer to the full search as the first incumbent and keep the better.
+
+    The subset's bitsets are a copy (``columns x ceil(m / 64) x 8`` bytes, checked against the
+    memory budget: over it, no warm start)."""
+    m, n = p.bits.shape
+    k = p.k
+    cols = spread_subset(np.arange(n, dtype=np.int64), p.pos, WARM_SHRINK) if p.angle else np.zeros(0, dtype=np.int64)
+    if cols.size < k:
+        colw = column_weights(p.bits, p.w)  # weights >= 0 (checked): the CSR route's ranking
+        size = max(k, -(-n // WARM_SHRINK))
+        cols = np.sort(np.lexsort((np.arange(n), -colw))[:size])
+    need, budget = cols.size * p.bits.words.shape[1] * 8, memory_budget_bytes()
+    if need > budget:
+        log.info("multiview on bits: no warm start (the subset's bitsets need %.3g GiB)", need / 2**30)
+        return _search(p, deadline, warm=False)
+    got = _search(p.columns(cols), deadline.share(WARM_SHARE))
+    got_sel = None if got is None or got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
+    warm: dict[str, Any] = {}
+    if got is not None:
+        warm = {"columns": int(cols.size), "status": got.status, "objective": float(got.objective),
+                "engine": got.engine, "time_s": deadline.elapsed()}
+        if "warm_start" in got.stats:
+            warm["inner"] = got.stats["warm_start"]
+    out = _search(p, deadline, warm=False, start=got_sel)
+    if out is None:
+        return None
+    if warm:
+        out.stats["warm_start"] = warm
+    if got_sel is not None and (out.selected is None or got.objective > out.objective):
+        warm["kept"] = True  # the full search found nothing better within the limit
+        status = "optimal" if out.status == "optimal" and out.bound <= got.objective else "feasible"
+        out = EngineOutcome(got_sel, status, max(out.bound, got.objective), out.stats, engine=out.engine,
+                            objective=got.objective)
+    return out
+
+
+def _choice_stats(k: int, choice) -> dict[str, Any]:
+    """The result's first stats: ``k``, the engine choice and its own figures, and the layout."""
+    stats: dict[str, Any] = {"k": k, "engine_choice": {"engine": choice.engine, "route": choice.route,
+                                                       "reason": choice.reason},
+                             "matrix": "column bitsets (no CSR copy)"}
+    stats.update(choice.stats)
+    return stats
 
 
 #: :func:`load_kernels` solves a random instance of this many rows and columns (density 0.3,
@@ -113,19 +316,19 @@ def load_kernels(o: SolveOptions) -> bool:
     Parameters
     ----------
     o : SolveOptions
-        The run's options: nothing is done unless they take :func:`bits_applies`'s route with the
-        exact engine (``auto`` or ``exact``, 1 <= k <= 4).
+        The run's options: nothing is done unless they are plain max coverage on
+        :func:`bits_applies`'s route with the exact engine (``auto`` or ``exact``, 1 <= k <= 4).
 
     Returns
     -------
     bool
         True when the kernels were called.
     """
-    from camplace.solver.engines.bitset.search import solve_bitset
     from camplace.visibility.bits import BitMatrix, bit_words
 
     k = o.k
-    if (not bits_applies(o) or o.engine not in ("auto", "exact") or isinstance(k, bool)
+    if (not bits_applies(o) or o.mode not in ("maxcover", "quality") or o.engine not in ("auto", "exact")
+            or isinstance(k, bool)
             or not isinstance(k, numbers.Integral) or not 1 <= int(k) <= 4):
         return False
     rng = np.random.default_rng(0)

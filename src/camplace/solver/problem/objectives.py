@@ -19,7 +19,7 @@ from camplace.solver.engines.angle._kernels import selected_pattern
 from camplace.solver.problem.checks import coords, values_matrix
 from camplace.solver.problem.presolve import as_pattern, check_weights
 
-__all__ = ["mode_value", "angle_ok_pairs", "cheap_bound", "expand_bytes", "expand_levels", "coverage_weight", "selected_row_stats"]
+__all__ = ["mode_value", "angle_ok_pairs", "angle_paired", "bits_views_value", "cheap_bound", "expand_bytes", "expand_levels", "coverage_weight", "selected_row_stats"]
 
 
 def angle_ok_pairs(pt: np.ndarray, cams: np.ndarray, min_angle_deg: float) -> np.ndarray:
@@ -80,16 +80,66 @@ def mode_value(
             seen = selected_pattern(q.indptr, q.indices, data, rows, np.asarray(cols, dtype=np.int64), n)
         pos = coords(positions, n, "positions", "camera positions")[cols]
         pts = coords(points, m, "points", "point positions")[rows]
-        paired = np.zeros(rows.size, dtype=bool)
-        for a in range(len(cols)):  # the rule of angle_ok_pairs, for every row and pair of cameras at once
-            da = _unit_rays(pts, pos[a])
-            for b in range(a + 1, len(cols)):
-                db = _unit_rays(pts, pos[b])
-                dot = da[:, 0] * db[:, 0] + da[:, 1] * db[:, 1] + da[:, 2] * db[:, 2]
-                ang = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
-                paired |= seen[:, a] & seen[:, b] & (ang >= float(min_angle_deg))
-        ok[rows] = paired
+        ok[rows] = angle_paired(seen, pos, pts, float(min_angle_deg))
     return float(w[ok].sum())
+
+
+def angle_paired(seen: np.ndarray, pos: np.ndarray, pts: np.ndarray, min_angle_deg: float) -> np.ndarray:
+    """(r,) bool: rows where two of the cameras observing them make the angle (the rule of
+    :func:`angle_ok_pairs`, for every row and pair of cameras at once).
+
+    Parameters
+    ----------
+    seen : (r, s) bool
+        Which of the ``s`` cameras observe each of the ``r`` rows.
+    pos : (s, 3) float64
+        The cameras' positions.
+    pts : (r, 3) float64
+        The rows' points.
+    min_angle_deg : float
+    """
+    paired = np.zeros(seen.shape[0], dtype=bool)
+    for a in range(pos.shape[0]):
+        da = _unit_rays(pts, pos[a])
+        for b in range(a + 1, pos.shape[0]):
+            db = _unit_rays(pts, pos[b])
+            dot = da[:, 0] * db[:, 0] + da[:, 1] * db[:, 1] + da[:, 2] * db[:, 2]
+            ang = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
+            paired |= seen[:, a] & seen[:, b] & (ang >= float(min_angle_deg))
+    return paired
+
+
+def bits_views_value(bits: Any, weights: np.ndarray, selected: Sequence[int], views: int,
+                     min_angle_deg: float | None = None, positions: np.ndarray | None = None,
+                     points: np.ndarray | None = None) -> float:
+    """:func:`mode_value` of ``multiview`` on a binary matrix held as column bitsets
+    (:class:`camplace.visibility.bits.BitMatrix`): the same float64 number, read from the
+    selected columns' bits.
+
+    Parameters
+    ----------
+    bits : BitMatrix
+        (m, n).
+    weights : (m,) float64
+        Checked weights.
+    selected : sequence of int
+    views : int
+    min_angle_deg : float, optional
+    positions : (n, 3) float64, optional
+        Checked camera positions (with the angle).
+    points : (m, 3) float64, optional
+        Checked point positions (with the angle).
+    """
+    cols = sorted({int(j) for j in selected})
+    if not cols:
+        return 0.0
+    seen_all = np.stack([bits.column(j) for j in cols], axis=1)  # (m, s) bool
+    ok = seen_all.sum(axis=1) >= int(views)
+    if min_angle_deg is not None:
+        rows = np.flatnonzero(ok)
+        ok[rows] = angle_paired(seen_all[rows], np.asarray(positions)[cols], np.asarray(points)[rows],
+                                float(min_angle_deg))
+    return float(np.asarray(weights, dtype=np.float64)[ok].sum())
 
 
 def _unit_rays(pts: np.ndarray, cam: np.ndarray) -> np.ndarray:

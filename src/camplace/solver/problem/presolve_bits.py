@@ -41,7 +41,9 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
-__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight"]
+__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight", "column_weights",
+           "row_counts_of", "row_bitsets", "layout_bits", "layout_bits_bytes", "rows_csr",
+           "rows_csr_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -271,6 +273,57 @@ def _gather(rb, sel, nc, cw0, cw1, out):  # pragma: no cover - compiled
                 out[c0 + q, gb] = a[q]
 
 
+@numba.njit(**_JIT)
+def _count_rows(words, columns, w0, w1, counts):  # pragma: no cover - compiled
+    """``counts[i] +=`` the columns of ``columns`` observing row i, for the rows of words ``w0:w1``."""
+    for wd in range(w0, w1):
+        base = np.int64(wd) << 6
+        for c in range(columns.shape[0]):
+            x = words[columns[c], wd]
+            while x:
+                counts[base + np.int64(_ctz(x))] += 1
+                x &= x - np.uint64(1)
+
+
+@numba.njit(**_JIT)
+def _column_weights(words, wr, lo, hi, out):  # pragma: no cover - compiled
+    """``out[j] = sum of wr[i]`` over the rows i column j observes (rows in ascending order, as
+    scipy's CSC product sums them), for columns ``lo:hi``."""
+    for j in range(lo, hi):
+        s = 0.0
+        for wd in range(words.shape[1]):
+            x = words[j, wd]
+            base = np.int64(wd) << 6
+            while x:
+                s += wr[base + np.int64(_ctz(x))]
+                x &= x - np.uint64(1)
+        out[j] = s
+
+
+@numba.njit(**_JIT)
+def _row_lengths(rb, lo, hi, out):  # pragma: no cover - compiled
+    """Set bits of rows ``lo:hi`` of row bitsets ``rb``."""
+    for i in range(lo, hi):
+        s = np.int64(0)
+        for w in range(rb.shape[1]):
+            s += np.int64(_popc(rb[i, w]))
+        out[i] = s
+
+
+@numba.njit(**_JIT)
+def _row_indices(rb, indptr, lo, hi, indices):  # pragma: no cover - compiled
+    """CSR column indices (ascending) of rows ``lo:hi`` of row bitsets ``rb``."""
+    for i in range(lo, hi):
+        p = indptr[i]
+        for w in range(rb.shape[1]):
+            x = rb[i, w]
+            base = np.int64(w) << 6
+            while x:
+                indices[p] = base + np.int64(_ctz(x))
+                p += 1
+                x &= x - np.uint64(1)
+
+
 def _run(fn, bounds: list[int], workers: int) -> None:
     """``fn(lo, hi)`` for every block of ``bounds`` (:func:`~camplace.solver._support.blocks.cuts`),
     on the solver's pool of ``workers`` threads."""
@@ -315,7 +368,15 @@ def presolve_bits_bytes(m: int, n: int) -> int:
 class BitPresolved(Presolved):
     """A :class:`Presolved` made from column bitsets: :attr:`bits` is built by the presolve;
     :attr:`matrix` and :attr:`source` (the reduced CSR pattern, rows and columns in reduced
-    order) are made from the bits on first use."""
+    order) are made from the bits on first use. :attr:`origin` is the BitMatrix it was made from
+    (the original rows and columns, not copied): the readers of original rows (the bitset
+    engine's opposite-pairs layout) take it instead of :attr:`source`, whose rows are the reduced
+    ones."""
+
+    @property
+    def origin(self):
+        """The :class:`camplace.visibility.bits.BitMatrix` presolved (None when not set)."""
+        return self.__dict__.get("origin")
 
     @property
     def source(self):  # type: ignore[override]
@@ -346,6 +407,162 @@ def covered_weight(bits, weights: np.ndarray, selected) -> float:
     w = np.asarray(weights, dtype=np.float64)
     covered = bits.union(list(selected)) if len(selected) else np.zeros(bits.shape[0], dtype=bool)
     return float(np.sum(w[covered], dtype=np.float64))
+
+
+def column_weights(bits, weights: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """(n,) float64: the weight each column of a BitMatrix observes, ``sum_i w_i [j observes i]``,
+    summed over the rows in ascending order: the same numbers as ``csr.T @ w`` of the matrix's
+    CSR (scipy sums each column's rows in that order)."""
+    m, n = bits.shape
+    wr = np.zeros(bits.words.shape[1] * 64, dtype=np.float64)
+    wr[:m] = weights
+    out = np.zeros(n, dtype=np.float64)
+    release = getattr(bits, "release_columns", None) or (lambda lo, hi: None)
+    _run(lambda lo, hi: (_column_weights(bits.words, wr, lo, hi, out), release(lo, hi)), cuts(n, _BLOCKS),
+         thread_count(workers))
+    return out
+
+
+def row_counts_of(bits, columns: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """(m,) int64: how many of ``columns`` ((c,) int64, distinct) observe each row of a BitMatrix
+    (all columns: :meth:`~camplace.visibility.bits.BitMatrix.row_counts`)."""
+    m, n = bits.shape
+    columns = np.asarray(columns, dtype=np.int64)
+    if columns.size == n:
+        return bits.row_counts(workers)
+    counts = np.zeros(bits.words.shape[1] * 64, dtype=np.int64)
+    _run(lambda w0, w1: _count_rows(bits.words, columns, w0, w1, counts), cuts(bits.words.shape[1], _BLOCKS),
+         thread_count(workers))
+    return counts[:m]
+
+
+def row_bitsets(bits, rows: np.ndarray, columns: np.ndarray, extra: int = 0, workers: int | None = None) -> np.ndarray:
+    """Row bitsets of a BitMatrix over some of its columns (a transposition, 64 x 64 bits at a time).
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    rows : (r,) int64
+        Distinct rows, in output order.
+    columns : (c,) int64
+        Columns, in bit order: bit t of a row's bitset is column ``columns[t]``.
+    extra : int
+        Zero rows added after the ``r`` rows.
+    workers : int, optional
+
+    Returns
+    -------
+    (r + extra, ceil(c / 64)) uint64
+        ``r * ceil(c / 64) * 8`` bytes (and the extra rows); the caller checks the budget.
+    """
+    m, n = bits.shape
+    rows = np.asarray(rows, dtype=np.int64)
+    columns = np.asarray(columns, dtype=np.int64)
+    out = np.zeros((rows.size + int(extra), (columns.size + 63) // 64), dtype=np.uint64)
+    pos = np.full(m, -1, dtype=np.int64)
+    pos[rows] = np.arange(rows.size, dtype=np.int64)
+    release = getattr(bits, "release_columns", None) or (lambda lo, hi: None)
+    _run(lambda w0, w1: (_row_bits(bits.words, columns, pos, w0, w1, out), release(0, n)),
+         cuts(bits.words.shape[1], _BLOCKS), thread_count(workers))
+    return out
+
+
+def rows_csr(bits, rows: np.ndarray, columns: np.ndarray, workers: int | None = None) -> sp.csr_matrix:
+    """Some rows and columns of a BitMatrix as the canonical CSR pattern :func:`camplace.solver.problem.presolve.as_pattern`
+    makes (float64 ones, int32 indices, sorted): ``as_pattern(csr)[rows][:, columns]`` without the
+    whole matrix's CSR.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    rows : (r,) int64
+        Distinct rows, in output order.
+    columns : (c,) int64
+        Columns, ascending: output column t is ``columns[t]``.
+    workers : int, optional
+
+    Returns
+    -------
+    (r, c) scipy.sparse.csr_matrix of float64
+        Made through the rows' bitsets (``r * ceil(c / 64) * 8`` bytes, freed before return) and
+        holding 12 bytes an observed pair; the caller checks the budget (:func:`rows_csr_bytes`).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    columns = np.asarray(columns, dtype=np.int64)
+    r, c = rows.size, columns.size
+    rb = row_bitsets(bits, rows, columns, workers=workers)
+    workers = thread_count(workers)
+    lengths = np.zeros(r, dtype=np.int64)
+    blocks = cuts(r, _BLOCKS)
+    _run(lambda lo, hi: _row_lengths(rb, lo, hi, lengths), blocks, workers)
+    indptr = np.zeros(r + 1, dtype=np.int64)
+    np.cumsum(lengths, out=indptr[1:])
+    nnz = int(indptr[-1])
+    idt = np.int32 if max(r, c, nnz) < 2**31 - 1 else np.int64
+    indices = np.empty(nnz, dtype=idt)
+    _run(lambda lo, hi: _row_indices(rb, indptr, lo, hi, indices), blocks, workers)
+    rb = None  # freed before the caller goes on
+    out = sp.csr_matrix((np.ones(nnz), indices, indptr.astype(idt)), shape=(r, c), copy=False)
+    out.has_canonical_format = True
+    return out
+
+
+def rows_csr_bytes(r: int, c: int, nnz: int) -> int:
+    """Peak bytes of :func:`rows_csr`: the rows' bitsets beside the CSR being filled."""
+    return int(r * ((c + 63) // 64) * 8 + 12 * nnz + 16 * (r + 1))
+
+
+def layout_bits_bytes(u: int, n_cols: int, length: int) -> int:
+    """Peak bytes of :func:`layout_bits`: ``u`` distinct rows' bitsets over ``n_cols`` columns and
+    the output (``n_cols`` columns over ``length`` bits)."""
+    return int((u + 1) * ((n_cols + 63) // 64) * 8 + n_cols * ((length + 63) // 64) * 8)
+
+
+def layout_bits(bits, rows: np.ndarray, col_map: np.ndarray, n_cols: int, workers: int | None = None) -> np.ndarray:
+    """Column bitsets over a list of rows of a BitMatrix: what
+    :func:`camplace.solver._support.parkernels.build_bits` makes of the matrix's CSR.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    rows : (L,) int64
+        The row of each output bit; a row may repeat, -1 is an empty bit (padding).
+    col_map : (n,) int64
+        Output column of each column, -1 to leave it out.
+    n_cols : int
+        Output columns.
+    workers : int, optional
+
+    Returns
+    -------
+    (n_cols, ceil(L / 64)) uint64
+        Bit t of column c: ``rows[t] >= 0`` and column ``j`` with ``col_map[j] == c`` observes
+        row ``rows[t]``. Working memory: the distinct rows' bitsets over the output columns
+        (``u * ceil(n_cols / 64) * 8`` bytes) and the output (:func:`layout_bits_bytes`).
+
+    Raises
+    ------
+    OverBudget
+        When that is over :func:`~camplace.solver._support.memory.memory_budget_bytes` (before
+        allocating).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    col_map = np.asarray(col_map, dtype=np.int64)
+    mapped = np.flatnonzero(col_map >= 0)
+    columns = np.empty(n_cols, dtype=np.int64)
+    columns[col_map[mapped]] = mapped
+    uniq = np.unique(rows[rows >= 0])
+    need, budget = layout_bits_bytes(uniq.size, n_cols, rows.size), memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, "the layout's row bitsets (transposed from the column bitsets)")
+    rb = row_bitsets(bits, uniq, columns, extra=1, workers=workers)  # the last row stays zero: the padding's
+    sel = np.where(rows >= 0, np.searchsorted(uniq, rows), uniq.size).astype(np.int64)
+    out = np.zeros((n_cols, (rows.size + 63) // 64), dtype=np.uint64)
+    _run(lambda cw0, cw1: _gather(rb, sel, n_cols, cw0, cw1, out), cuts(rb.shape[1], _BLOCKS), thread_count(workers))
+    return out
 
 
 def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers: int | None = None,
@@ -505,4 +722,5 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     out = BitPresolved(weights=wsum, counts=counts, columns=columns, row_groups=row_groups, k=int(k),
                        shape_in=(int(m), int(n)), weight_unit=unit, source=None, stats=stats)
     out.__dict__["bits"] = red
+    out.__dict__["origin"] = bits
     return out

@@ -807,3 +807,111 @@ def selected_pattern(indptr, indices, data, rows, cols, n):  # pragma: no cover 
             if t >= 0 and data[p] > 0:
                 out[i, t] = True
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# the same per-row passes on column bitsets (a binary matrix as camplace.visibility.bits.BitMatrix
+# holds it: words (n, ceil(m / 64)) uint64, bit i % 64 of word i // 64 = row i)
+# ----------------------------------------------------------------------------------------------
+
+
+@numba.njit(**_JIT)
+def row_status_bits(words, m, sel, pos, pts, views, theta_deg):  # pragma: no cover - compiled
+    """:func:`row_status` of column bitsets: ``sel`` ascending and distinct (the observers of a row
+    are then listed in the order the CSR kernel lists them, so every angle test is the same).
+    Reads ``m x len(sel)`` bits instead of every observed pair."""
+    cos_t = math.cos(math.radians(theta_deg))
+    count = np.zeros(m, dtype=np.int64)
+    ok = np.zeros(m, dtype=np.bool_)
+    obs = np.empty(sel.shape[0], dtype=np.int64)
+    for r in range(m):
+        wd = r >> 6
+        bit = np.uint64(1) << np.uint64(r & 63)
+        c = 0
+        for t in range(sel.shape[0]):
+            if words[sel[t], wd] & bit:
+                obs[c] = sel[t]
+                c += 1
+        count[r] = c
+        if c < views or c < 2:
+            continue
+        found = False
+        for a in range(c):
+            for b in range(a + 1, c):
+                if angle_ok(pts[r], pos[obs[a]], pos[obs[b]], theta_deg, cos_t):
+                    found = True
+                    break
+            if found:
+                break
+        ok[r] = found
+    return count, ok
+
+
+@numba.njit(**_PJIT)
+def gains_bits(words, m, w, sel, pos, pts, views, theta_deg, count, ok, n_chunks):  # pragma: no cover - compiled
+    """:func:`gains` of column bitsets, the same float64 numbers: each row's selected observers
+    (``sel`` ascending and distinct), unit rays and "already paired" flag first, then per column
+    the weights of the rows it would complete, summed per chunk of ``ceil(m / n_chunks)`` rows in
+    row order and the chunks added in order, as :func:`gains` sums them."""
+    cos_t = math.cos(math.radians(theta_deg))
+    n = words.shape[0]
+    n_words = words.shape[1]
+    s = sel.shape[0]
+    where = np.full(n, -1, dtype=np.int64)
+    for t in range(s):
+        where[sel[t]] = t
+    step = (m + n_chunks - 1) // n_chunks
+    u = np.zeros((m, max(s, 1), 3))
+    c_row = np.zeros(m, dtype=np.int64)
+    paired = np.zeros(m, dtype=np.bool_)
+    active = np.zeros(n_words, dtype=np.uint64)
+    for wd in prange(n_words):
+        acc = np.uint64(0)
+        for r in range(wd * 64, min(m, wd * 64 + 64)):
+            if ok[r] or w[r] <= 0 or count[r] == 0 or count[r] + 1 < views:
+                continue
+            acc |= np.uint64(1) << np.uint64(r & 63)
+            bit = np.uint64(1) << np.uint64(r & 63)
+            px, py, pz = pts[r, 0], pts[r, 1], pts[r, 2]
+            c = 0
+            for t in range(s):
+                if words[sel[t], wd] & bit:
+                    j = sel[t]
+                    dx, dy, dz = pos[j, 0] - px, pos[j, 1] - py, pos[j, 2] - pz
+                    nd = max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-300)
+                    u[r, c, 0], u[r, c, 1], u[r, c, 2] = dx / nd, dy / nd, dz / nd
+                    c += 1
+            c_row[r] = c
+            p_ok = False
+            for a in range(c):
+                for b in range(a + 1, c):
+                    if u[r, a, 0] * u[r, b, 0] + u[r, a, 1] * u[r, b, 1] + u[r, a, 2] * u[r, b, 2] <= cos_t:
+                        p_ok = True
+            paired[r] = p_ok
+        active[wd] = acc
+    out = np.zeros(n)
+    for x in prange(n):
+        if where[x] >= 0:
+            continue
+        part = np.zeros(n_chunks)
+        for wd in range(n_words):
+            bits = words[x, wd] & active[wd]
+            while bits:
+                r = (wd << 6) + np.int64(_ctz(bits))
+                bits &= bits - np.uint64(1)
+                ch = r // step
+                if paired[r]:
+                    part[ch] += w[r]
+                    continue
+                px, py, pz = pts[r, 0], pts[r, 1], pts[r, 2]
+                dx, dy, dz = pos[x, 0] - px, pos[x, 1] - py, pos[x, 2] - pz
+                lim = cos_t * math.sqrt(dx * dx + dy * dy + dz * dz)
+                for a in range(c_row[r]):
+                    if dx * u[r, a, 0] + dy * u[r, a, 1] + dz * u[r, a, 2] <= lim:
+                        part[ch] += w[r]
+                        break
+        tot = 0.0
+        for ch in range(n_chunks):
+            tot += part[ch]
+        out[x] = tot
+    return out

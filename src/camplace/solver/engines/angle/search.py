@@ -68,6 +68,7 @@ from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.memory import OverBudget
 from camplace.solver.engines.angle import _kernels as AK
 from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bytes
+from camplace.solver.problem.presolve_bits import column_weights, layout_bits, row_counts_of
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["angle_bytes", "greedy_angle", "solve_angle"]
@@ -249,10 +250,68 @@ def _blocks(rows: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return lp, centers, radius
 
 
+class _Rows:
+    """The per-row passes the engine makes over the matrix, on a canonical CSR matrix (its row
+    lists) or on a binary matrix held as column bitsets (:class:`camplace.visibility.bits.BitMatrix`,
+    no CSR made): the same numbers either way (the bit kernels list each row's observers in the
+    CSR order and sum in its order)."""
+
+    def __init__(self, q: Any) -> None:
+        self.q = q
+        self.bits = getattr(q, "format", None) == "bits"
+        self.shape = q.shape
+
+    def row_status(self, sel: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int,
+                   theta_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`~camplace.solver.engines.angle._kernels.row_status` of the cameras ``sel``."""
+        q = self.q
+        sel = np.unique(np.asarray(sel, dtype=np.int64))
+        with ctrl_c_deferred():
+            if self.bits:
+                return AK.row_status_bits(q.words, q.shape[0], sel, pos, pts, views, theta_deg)
+            return AK.row_status(q.indptr, q.indices, q.data, sel, pos, pts, views, theta_deg)
+
+    def gains(self, wu: np.ndarray, sel: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int, theta_deg: float,
+              count: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """:func:`~camplace.solver.engines.angle._kernels.gains` of the cameras ``sel``."""
+        q = self.q
+        sel = np.unique(np.asarray(sel, dtype=np.int64))
+        with ctrl_c_deferred():
+            if self.bits:
+                return AK.gains_bits(q.words, q.shape[0], wu, sel, pos, pts, views, theta_deg, count, ok, 4)
+            return AK.gains(q.indptr, q.indices, q.data, wu, sel, pos, pts, views, theta_deg, count, ok, 4)
+
+    def column_weights(self, rows: np.ndarray, w_rows: np.ndarray) -> np.ndarray:
+        """(n,) float64: per column, the summed ``w_rows`` of the ``rows`` (ascending) it observes."""
+        q = self.q
+        if self.bits:
+            wz = np.zeros(q.shape[0])
+            wz[rows] = w_rows
+            return column_weights(q, wz)  # the other rows add 0.0: the same sums
+        with ctrl_c_deferred():
+            return AK.column_weights(q.indptr, q.indices, q.data, rows, w_rows, q.shape[1])
+
+    def seen(self, allowed: np.ndarray) -> np.ndarray:
+        """(m,) int64: the ``allowed`` ((n,) bool) columns observing each row."""
+        q = self.q
+        if self.bits:
+            return row_counts_of(q, np.flatnonzero(allowed))
+        with ctrl_c_deferred():
+            return K.selected_row_stats(q.indptr, q.indices, q.data, allowed)[0]
+
+    def build_bits(self, rows: np.ndarray, col_map: np.ndarray, n_cols: int) -> np.ndarray:
+        """Column bitsets over ``rows`` (-1: padding) of the mapped columns: ``(n_cols, ceil(len(rows) / 64))``."""
+        q = self.q
+        if self.bits:
+            return layout_bits(q, rows, col_map, n_cols)
+        with ctrl_c_deferred():
+            return K.build_bits(q.indptr, q.indices, q.data, rows, col_map, n_cols)
+
+
 class _Incumbent:
     """Greedy + 1-swap with exact angles on the original matrix (weights zero off the search rows)."""
 
-    def __init__(self, q: sp.csr_matrix, wu: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int,
+    def __init__(self, q: _Rows, wu: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int,
                  theta_deg: float, fixed: np.ndarray, free: np.ndarray, margin: float, stop: Deadline) -> None:
         self.q, self.wu, self.pos, self.pts = q, wu, pos, pts
         self.views, self.theta_deg, self.fixed, self.margin = views, theta_deg, fixed, margin
@@ -267,23 +326,18 @@ class _Incumbent:
         return self.stop.expired()
 
     def _state(self, sel: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        a = self.q
         s = np.asarray(sorted(set(sel) | set(self.fixed.tolist())), dtype=np.int64)
-        with ctrl_c_deferred():
-            return AK.row_status(a.indptr, a.indices, a.data, s, self.pos, self.pts, self.views, self.theta_deg)
+        return self.q.row_status(s, self.pos, self.pts, self.views, self.theta_deg)
 
     def value(self, sel: list[int]) -> float:
         _, ok = self._state(sel)
         return float(self.wu[ok].sum())
 
     def gain(self, sel: list[int]) -> np.ndarray:
-        a = self.q
         count, ok = self._state(sel)
         s = np.asarray(sorted(set(sel) | set(self.fixed.tolist())), dtype=np.int64)
         self.calls += 1
-        with ctrl_c_deferred():
-            g = AK.gains(a.indptr, a.indices, a.data, self.wu, s, self.pos, self.pts, self.views, self.theta_deg,
-                         count, ok, 4)
+        g = self.q.gains(self.wu, s, self.pos, self.pts, self.views, self.theta_deg, count, ok)
         g[~self.allowed] = -np.inf
         return g
 
@@ -342,7 +396,7 @@ class _Tree:
         Records the time of each setup step.
     """
 
-    def __init__(self, q: sp.csr_matrix, pos: np.ndarray, pts: np.ndarray, layout: _Layout, free: np.ndarray,
+    def __init__(self, q: _Rows, pos: np.ndarray, pts: np.ndarray, layout: _Layout, free: np.ndarray,
                  fixed: np.ndarray, colw: np.ndarray, k: int, views: int, theta_deg: float, integer: bool,
                  lap: Any) -> None:
         n = q.shape[1]
@@ -355,9 +409,9 @@ class _Tree:
         cols = np.sort(useful)
         col_map = np.full(n, -1, dtype=np.int64)
         col_map[cols] = np.arange(cols.size)
+        bits = q.build_bits(rows, col_map, cols.size)
+        lap("bits")
         with ctrl_c_deferred():
-            bits = K.build_bits(q.indptr, q.indices, q.data, rows, col_map, cols.size)
-            lap("bits")
             perm = K.bisection_order(_with_position_bits(bits, pos[cols]) if _POSITION_BITS else bits)
             lap("order")
             self.lo, self.hi, self.left, self.right, self.levels = K.build_tree(np.ascontiguousarray(bits[perm]),
@@ -380,7 +434,7 @@ class _Tree:
             AK.node_cones(self.campos, slot, self.left, self.right, centers, radius, self.cones)
             self.balls = AK.node_balls(self.campos, self.lo, self.hi)
             lap("cones")
-            self.fbits = K.build_bits(q.indptr, q.indices, q.data, rows, fmap, fixed.size)
+            self.fbits = q.build_bits(rows, fmap, fixed.size)
             self.fcones = np.empty((fixed.size, n_words, 4), dtype=np.int16)
             none = np.full(fixed.size, -1, dtype=np.int64)
             AK.node_cones(self.fpos, np.arange(fixed.size, dtype=np.int64), none, none, centers, radius, self.fcones)
@@ -461,8 +515,8 @@ def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_
     fixed = np.asarray(fixed, dtype=np.int64)
     free = np.asarray(free, dtype=np.int64)
     wu = np.where(w > 0, w, 0.0)
-    with ctrl_c_deferred():
-        colw = AK.column_weights(q.indptr, q.indices, q.data, np.arange(q.shape[0], dtype=np.int64), wu, q.shape[1])
+    q = _Rows(q)
+    colw = q.column_weights(np.arange(q.shape[0], dtype=np.int64), wu)
     inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline)
     inc.run(k, colw)
     return inc.best_set
@@ -487,8 +541,12 @@ def solve_angle(
 
     Parameters
     ----------
-    q : (m, n) scipy.sparse.csr_matrix
-        Canonical visibility (> 0 observes).
+    q : (m, n) scipy.sparse.csr_matrix or BitMatrix
+        Canonical visibility (> 0 observes), or a binary matrix as column bitsets
+        (:class:`camplace.visibility.bits.BitMatrix`): its passes then read the bits (row states
+        of the chosen cameras from their bits, gains and column weights column by column, the
+        layout's bitsets and the opposite pairs transposed), no CSR is made, and the answer is
+        the same.
     w : (m,) float64
         Point weights.
     k : int
@@ -529,6 +587,8 @@ def solve_angle(
     since = stopwatch(deadline)
     total = None if deadline.limit is None else deadline.remaining()  # the steps' shares are of this
     inc_stop = deadline.share(_INCUMBENT_SHARE)
+    matrix = q
+    q = _Rows(q)
     m, n = q.shape
     fixed = np.asarray(fixed, dtype=np.int64)
     free = np.asarray(free, dtype=np.int64)
@@ -541,15 +601,14 @@ def solve_angle(
         stats["times_s"][what] = now - last[0]
         last[0] = now
     # rows the fixed cameras already make count: a constant
-    with ctrl_c_deferred():
-        _, ok_fixed = AK.row_status(q.indptr, q.indices, q.data, fixed, pos, pts, views, theta_deg)
-        allowed = np.zeros(n, dtype=bool)
-        allowed[fixed] = True
-        allowed[free] = True
-        seen, _ = K.selected_row_stats(q.indptr, q.indices, q.data, allowed)
-        only_free = np.zeros(n, dtype=bool)
-        only_free[free] = True
-        seen_free, _ = K.selected_row_stats(q.indptr, q.indices, q.data, only_free)
+    _, ok_fixed = q.row_status(fixed, pos, pts, views, theta_deg)
+    allowed = np.zeros(n, dtype=bool)
+    allowed[fixed] = True
+    allowed[free] = True
+    seen = q.seen(allowed)
+    only_free = np.zeros(n, dtype=bool)
+    only_free[free] = True
+    seen_free = seen if fixed.size == 0 else q.seen(only_free)  # no fixed camera: the same columns
     const = float(w[ok_fixed].sum())
     lap("rows")
     search = np.flatnonzero((w > 0) & ~ok_fixed & (seen >= views) & (seen_free > 0))
@@ -569,8 +628,7 @@ def solve_angle(
     if search.size == 0 or k + fixed.size < views:
         return EngineOutcome(tuple(int(j) for j in free[:k]), "optimal", const, dict(stats, trivial=True))
 
-    with ctrl_c_deferred():
-        colw = AK.column_weights(q.indptr, q.indices, q.data, search, wu[search], n)
+    colw = q.column_weights(search, wu[search])
     inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, inc_stop)
     lap("column_weights")
     start_ok = start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all()
@@ -597,7 +655,7 @@ def solve_angle(
     if k + fixed.size < 2 * views:
         wm = np.zeros(m)
         wm[search] = wu[search]
-        match = match_opposite(q, wm, views, columns=np.flatnonzero(allowed),
+        match = match_opposite(matrix, wm, views, columns=np.flatnonzero(allowed),
                                deadline=Deadline(None) if total is None else deadline.within(_PAIRS_TIME_SHARE * total))
         share = match.matched / match.countable if match.countable > 0 else 0.0
         stats["opposite_pairs"] = dict(match.stats, matched_share=share)

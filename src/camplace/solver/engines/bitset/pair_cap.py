@@ -37,12 +37,16 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import memory_budget_bytes
 from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve import canonical_csr, check_weights
+from camplace.solver.problem.presolve_bits import row_bitsets, row_counts_of
 
-__all__ = ["OppositePairs", "match_opposite", "opposite_pair_bound", "opposite_pair_bytes"]
+__all__ = ["OppositePairs", "match_opposite", "opposite_pair_bound", "opposite_pair_bytes", "cap_applies", "cap_deadline",
+           "cap_bound"]
 
 log = logging.getLogger(__name__)
 
 _BATCH = 2048  # rows matched between two deadline checks
+_CAP_SHARE = 0.05  # multiview: share of the time limit kept for the opposite-pairs bound ...
+_CAP_MAX_S = 2.0  # ... at most this many seconds (a matching stopped early is still a valid bound)
 
 
 def opposite_pair_bytes(m: int, n: int) -> int:
@@ -133,7 +137,9 @@ def match_opposite(
     Parameters
     ----------
     matrix : (m, n) scipy.sparse matrix or array_like
-        Visibility (> 0 means observes).
+        Visibility (> 0 means observes), or a binary matrix as column bitsets
+        (:class:`camplace.visibility.bits.BitMatrix`: its row bitsets are transposed from the
+        columns, no CSR is made).
     weights : (m,) array_like of float64
         Non-negative point weights.
     views : int
@@ -152,16 +158,20 @@ def match_opposite(
         With ``stats["skipped"]`` and no pairs if the row bitsets would not fit in memory.
     """
     t0 = time.perf_counter()
-    a = canonical_csr(matrix)
+    bits = getattr(matrix, "format", None) == "bits"
+    a = matrix if bits else canonical_csr(matrix)
     m, n = a.shape
     w = check_weights(weights, m)
     col_map = np.full(n, -1, dtype=np.int64)
-    cols = np.arange(n) if columns is None else np.unique(np.asarray(columns, dtype=np.int64))
+    cols = np.arange(n, dtype=np.int64) if columns is None else np.unique(np.asarray(columns, dtype=np.int64))
     col_map[cols] = np.arange(cols.size)
     # Observers per row among the allowed columns; rows seen fewer than `views` times never count.
-    allowed = np.zeros(n, dtype=bool)
-    allowed[cols] = True
-    seen, _ = _bk.selected_row_stats(a.indptr, a.indices, kernel_data(a), allowed)
+    if bits:
+        seen = row_counts_of(a, cols)
+    else:
+        allowed = np.zeros(n, dtype=bool)
+        allowed[cols] = True
+        seen, _ = _bk.selected_row_stats(a.indptr, a.indices, kernel_data(a), allowed)
     rows = np.flatnonzero((seen >= views) & (w > 0))
     countable = float(w[rows].sum())
     stats: dict[str, Any] = {"rows": int(rows.size), "checks": 0, "complete": False}
@@ -175,8 +185,11 @@ def match_opposite(
         rows = rows[np.argsort(-w[rows], kind="stable")]  # heaviest first: they gain most from a partner
     else:
         rows = rows[np.random.default_rng(order_seed).permutation(rows.size)]
-    with ctrl_c_deferred():
-        bits = _bk.row_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, cols.size)
+    if bits:  # the transposition of the column bitsets, no CSR
+        bits = row_bitsets(a, rows, cols)
+    else:
+        with ctrl_c_deferred():
+            bits = _bk.row_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, cols.size)
     r = rows.size
     rem = w[rows].astype(np.float64)
     nxt = np.arange(1, r + 1, dtype=np.int64)
@@ -216,7 +229,7 @@ def opposite_pair_bound(
     Parameters
     ----------
     matrix : (m, n) scipy.sparse matrix or array_like
-        Visibility (> 0 means observes).
+        Visibility (> 0 means observes), or column bitsets (see :func:`match_opposite`).
     weights : (m,) array_like of float64
         Non-negative point weights.
     views : int
@@ -246,3 +259,46 @@ def opposite_pair_bound(
     res = match_opposite(matrix, weights, views, columns=columns, deadline=deadline)
     stats = dict(res.stats, countable=res.countable, matched=res.matched)
     return (math.inf if "skipped" in res.stats else res.bound), stats
+
+
+def cap_applies(cameras: int, views: int) -> bool:
+    """Multiview with fewer cameras (new and fixed) than ``2 * views``: an unproven answer's bound
+    is tightened by :func:`opposite_pair_bound` (:func:`cap_bound`)."""
+    return int(cameras) < 2 * int(views)
+
+
+def cap_deadline(deadline: Deadline) -> Deadline:
+    """The engines' deadline when the cap may run after them: all but :data:`_CAP_SHARE` of the
+    time limit (at most :data:`_CAP_MAX_S` seconds) kept for it; unchanged without a limit."""
+    if deadline.limit is None:
+        return deadline
+    return deadline.shortened(min(_CAP_SHARE * deadline.limit, _CAP_MAX_S))
+
+
+def cap_bound(outcome: Any, matrix: Any, weights: np.ndarray, views: int, cameras: int, allowed: np.ndarray | None,
+              deadline: Deadline) -> Any:
+    """Tighten an unproven multiview bound with :func:`opposite_pair_bound`.
+
+    Parameters
+    ----------
+    outcome : camplace.solver.result.EngineOutcome
+        The engines' answer.
+    matrix : (m, n) scipy.sparse matrix or BitMatrix
+    weights : (m,) float64
+    views, cameras : int
+        As in :func:`opposite_pair_bound` (``cameras < 2 * views``).
+    allowed : (a,) int64 or None
+        The allowed columns (fixed and free; None: all).
+    deadline : Deadline
+
+    Returns
+    -------
+    EngineOutcome
+        ``outcome`` with the lower of the two bounds; ``stats["opposite_pairs"]`` records the cap.
+    """
+    from dataclasses import replace
+
+    cap, cap_stats = opposite_pair_bound(matrix, weights, views, cameras, columns=allowed, deadline=deadline)
+    cap_stats["bound_before"] = float(outcome.bound)
+    outcome.stats["opposite_pairs"] = cap_stats
+    return replace(outcome, bound=cap) if cap < outcome.bound else outcome

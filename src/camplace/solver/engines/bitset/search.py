@@ -76,10 +76,11 @@ from camplace.solver._support.blocks import run_blocks
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.greedy import greedy_swap
-from camplace.solver._support.memory import memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.engines.bitset.pair_cap import match_opposite
 from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve import Presolved
+from camplace.solver.problem.presolve_bits import layout_bits
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["solve_bitset", "bitset_bytes", "BITSET_MAX_K"]
@@ -260,8 +261,17 @@ def _dfs_roots(roots, lo, hi, left, right, levels, views, w, planes, mask, total
 
 
 def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str, Any]):
-    """Rows and weights of the opposite-pairs layout of ``pre``, or None when it would not pay."""
-    a, _, col_map = pre.source
+    """Rows and weights of the opposite-pairs layout of ``pre``, or None when it would not pay.
+
+    The layout reads the original rows: of ``pre.source``'s CSR, or, for a presolve of column
+    bitsets, of the BitMatrix itself (``pre.origin``, transposed; no CSR is made)."""
+    origin = getattr(pre, "origin", None)
+    if origin is not None:
+        a = origin
+        col_map = np.full(a.shape[1], -1, dtype=np.int64)
+        col_map[pre.columns] = np.arange(pre.columns.size, dtype=np.int64)
+    else:
+        a, _, col_map = pre.source
     g = pre.row_groups
     live = g >= 0
     if pre.weight_unit is not None:
@@ -279,7 +289,7 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
         return None
     rows, lw, pw = match.layout(unit=pre.weight_unit)
     # Rarely observed rows first: a tuple that cannot win misses most there, so its sum stops early.
-    seen = np.diff(a.indptr)
+    seen = a.row_counts() if origin is not None else np.diff(a.indptr)
     n_pairs = int(np.count_nonzero(rows[: 64 * pw] >= 0))
     o = np.argsort(seen[rows[:n_pairs]] + seen[rows[64 * pw : 64 * pw + n_pairs]], kind="stable")
     rows[:n_pairs], rows[64 * pw : 64 * pw + n_pairs], lw[:n_pairs] = (
@@ -290,8 +300,15 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
     if need > memory_budget_bytes():
         stats["opposite_pairs"]["skipped"] = f"layout bitsets need {need / 2**30:.1f} GiB"
         return None
-    with ctrl_c_deferred():
-        bits = P.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
+    if origin is not None:
+        try:
+            bits = layout_bits(origin, rows, col_map, pre.shape[1])
+        except OverBudget as exc:  # the plain layout instead (valid, only less tight)
+            stats["opposite_pairs"]["skipped"] = exc.message
+            return None
+    else:
+        with ctrl_c_deferred():
+            bits = P.build_bits(a.indptr, a.indices, kernel_data(a), rows, col_map, pre.shape[1])
     return bits, lw, pw, _last_mask(rows.size)
 
 
@@ -411,6 +428,14 @@ def _dfs_stack(k: int, n: int) -> int:
     return (k + 1) * (k * max(1, math.ceil(math.log2(max(n, 2)))) + 1)
 
 
+def _row_entries(bits: np.ndarray, m: int) -> np.ndarray:
+    """(m,) int64: the columns of column bitsets ``bits`` ((n, ceil(m / 64)) uint64) observing each row."""
+    out = np.zeros(m, dtype=np.int64)
+    for c in range(bits.shape[0]):
+        out += np.unpackbits(bits[c].view(np.uint8), bitorder="little", count=m)
+    return out
+
+
 def solve_bitset(pre: Presolved, *, views: int = 1, deadline: Deadline | None = None,
                  start: tuple[int, ...] | None = None) -> EngineOutcome:
     """Choose ``pre.k`` columns maximising the weight of rows observed by at least ``views`` of them.
@@ -444,7 +469,7 @@ def solve_bitset(pre: Presolved, *, views: int = 1, deadline: Deadline | None = 
     if m == 0 or n <= k:
         sel = tuple(range(min(k, n)))
         # n == k: every column is chosen, so a row's views are its entries in the reduced matrix
-        value = float(pre.weights[np.diff(pre.matrix.indptr) >= views].sum()) if n <= k else 0.0
+        value = float(pre.weights[_row_entries(pre.bits, m) >= views].sum()) if n <= k else 0.0
         return EngineOutcome(selected=sel, status="optimal", bound=value, stats={"trivial": True})
 
     st = _State(pre, views)

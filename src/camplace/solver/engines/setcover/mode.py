@@ -14,11 +14,13 @@ import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.mip.linear import solve_model
 from camplace.solver.engines.mip.mode_models import setcover_model
 from camplace.solver.engines.setcover.local_search import solve_cover
 from camplace.solver.problem.objectives import coverage_weight
 from camplace.solver.problem.presolve import as_pattern
+from camplace.solver.problem.presolve_bits import covered_weight, row_counts_of, rows_csr, rows_csr_bytes
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["setcover"]
@@ -36,6 +38,11 @@ def setcover(
     Without minimum-distance conflicts: :func:`camplace.solver.engines.setcover.local_search.solve_cover`
     (reductions, local search, Lagrangian bound, then SCIP / CP-SAT with the local-search cover as
     hint and cutoff where it applies). With conflicts: the SCIP / CP-SAT model directly.
+
+    ``q`` is the (m, n) CSR matrix, or a binary matrix as column bitsets
+    (:class:`camplace.visibility.bits.BitMatrix`): then the coverable and fixed-covered rows are
+    counted from the bits and only the rows left to cover become the CSR pattern the search reads
+    (:func:`_bits_rows`: the same arrays as the CSR route's), not the whole matrix's pattern.
     """
     m, n = q.shape
     if engine == "exact":
@@ -45,14 +52,21 @@ def setcover(
     if c.shape != (n,) or not np.all(np.isfinite(c)) or np.any(c < 0):
         raise CamplaceError(f"costs must be ({n},) finite values >= 0, got shape {c.shape}")
     frac = float(required_fraction)
-    pat = as_pattern(q)
-    allowed = np.zeros(n, dtype=bool)
-    allowed[free_cols] = True
-    allowed[list(fixed_t)] = True
-    if allowed.all():  # no column copy of a large matrix when every camera may be used
-        obs_allowed = np.diff(pat.indptr) > 0
+    bits = getattr(q, "format", None) == "bits"
+    if bits:  # a binary matrix as column bitsets: the counts from the bits, the rows to cover as CSR
+        covered_f = q.union(fixed_t) if fixed_t else np.zeros(m, dtype=bool)
+        free_count = row_counts_of(q, free_cols)
+        obs_allowed = (free_count > 0) | covered_f  # allowed = free and fixed columns
     else:
-        obs_allowed = np.diff(pat[:, np.flatnonzero(allowed)].tocsr().indptr) > 0
+        pat = as_pattern(q)
+        allowed = np.zeros(n, dtype=bool)
+        allowed[free_cols] = True
+        allowed[list(fixed_t)] = True
+        if allowed.all():  # no column copy of a large matrix when every camera may be used
+            obs_allowed = np.diff(pat.indptr) > 0
+        else:
+            obs_allowed = np.diff(pat[:, np.flatnonzero(allowed)].tocsr().indptr) > 0
+        covered_f = (np.diff(pat[:, list(fixed_t)].tocsr().indptr) > 0) if fixed_t else np.zeros(m, dtype=bool)
     pos_w = w > 0
     unc = pos_w & ~obs_allowed
     coverable_w = float(w[pos_w & obs_allowed].sum())
@@ -62,17 +76,19 @@ def setcover(
         "coverable_weight": coverable_w,
         "required_fraction": frac,
     }
-    covered_f = (np.diff(pat[:, list(fixed_t)].tocsr().indptr) > 0) if fixed_t else np.zeros(m, dtype=bool)
     credit = float(w[covered_f & pos_w].sum())
     need = frac * coverable_w - credit
     rows = pos_w & obs_allowed & ~covered_f
-    sub = (pat if free_cols.size == n else pat[:, free_cols].tocsr())[rows]
+    if bits:
+        sub = _bits_rows(q, rows, free_cols, int(free_count[rows].sum()))
+    else:
+        sub = (pat if free_cols.size == n else pat[:, free_cols].tocsr())[rows]
     sw = w[rows]
 
     def finish(sel_free: Sequence[int], status: str, bound: float,
                used: str = name) -> EngineOutcome:
         sel = tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in sel_free}))
-        cov = coverage_weight(pat, w, sel) if sel else 0.0
+        cov = (covered_weight(q, w, sel) if bits else coverage_weight(pat, w, sel)) if sel else 0.0
         stats["covered_fraction"] = cov / coverable_w if coverable_w > 0 else 1.0
         stats["covered_weight"] = cov
         cost = float(sum(c[j] for j in sel if j not in set(fixed_t)))
@@ -106,3 +122,15 @@ def setcover(
             log.warning("setcover: the %s answer misses the required weight by %.3g (integer rounding)", name, need - got)
             status = "unknown"
     return finish(sel_free, status, bound)
+
+
+def _bits_rows(bits: Any, rows: np.ndarray, free_cols: np.ndarray, nnz: int) -> sp.csr_matrix:
+    """The rows to cover (``rows`` (m,) bool) over the free columns of a BitMatrix as the CSR
+    pattern the search reads (the CSR route's ``as_pattern(q)[:, free_cols][rows]``, the same
+    arrays), checked against the memory budget first (``nnz``: its observed pairs)."""
+    r = int(np.count_nonzero(rows))
+    need, budget = rows_csr_bytes(r, free_cols.size, nnz), memory_budget_bytes()
+    if need > budget:  # nothing answers without it: a one-line error
+        memory_fallback(OverBudget(need, budget, f"the set-cover rows as CSR ({r} x {free_cols.size}, {nnz} nonzeros)"),
+                        None, asked=True, then=None, fix="use fewer candidates / points")
+    return rows_csr(bits, np.flatnonzero(rows), free_cols)
