@@ -807,3 +807,124 @@ def selected_pattern(indptr, indices, data, rows, cols, n):  # pragma: no cover 
             if t >= 0 and data[p] > 0:
                 out[i, t] = True
     return out
+
+
+@numba.njit(**_JIT)
+def column_lists(indptr, indices, data, w, local, n_local):  # pragma: no cover - compiled
+    """The rows of weight > 0 that some columns observe (value > 0), column by column, in one pass
+    over the CSR matrix.
+
+    Parameters
+    ----------
+    indptr, indices, data
+        The (m, n) CSR matrix.
+    w : (m,) float64
+        Row weights; rows with ``w <= 0`` are left out.
+    local : (n,) int64
+        Index of each wanted column in the output (-1: not wanted).
+    n_local : int
+
+    Returns
+    -------
+    ptr : (n_local + 1,) int64
+    rows : (ptr[-1],) int64
+        Rows of output column ``c``: ``rows[ptr[c]:ptr[c + 1]]``, increasing.
+    """
+    m = indptr.shape[0] - 1
+    ptr = np.zeros(n_local + 1, dtype=np.int64)
+    for r in range(m):
+        if w[r] <= 0:
+            continue
+        for p in range(indptr[r], indptr[r + 1]):
+            c = local[indices[p]]
+            if c >= 0 and data[p] > 0:
+                ptr[c + 1] += 1
+    for c in range(n_local):
+        ptr[c + 1] += ptr[c]
+    fill = ptr[:-1].copy()
+    rows = np.empty(ptr[n_local], dtype=np.int64)
+    for r in range(m):
+        if w[r] <= 0:
+            continue
+        for p in range(indptr[r], indptr[r + 1]):
+            c = local[indices[p]]
+            if c >= 0 and data[p] > 0:
+                rows[fill[c]] = r
+                fill[c] += 1
+    return ptr, rows
+
+
+@numba.njit(**_JIT)
+def _set_value(ptr, rows, cols, w, campos, pts, views, theta_deg, cos_t, cnt, obs, touched):  # pragma: no cover - compiled
+    """Weight of the rows at least ``views`` of the columns ``cols`` observe with a pair making the
+    angle (``cnt`` (m,) zero on entry and on exit, ``obs`` (m, s), ``touched`` scratch)."""
+    n_t = 0
+    for a in range(cols.shape[0]):
+        c = cols[a]
+        for p in range(ptr[c], ptr[c + 1]):
+            r = rows[p]
+            if cnt[r] == 0:
+                touched[n_t] = r
+                n_t += 1
+            obs[r, cnt[r]] = c
+            cnt[r] += 1
+    total = 0.0
+    for t in range(n_t):
+        r = touched[t]
+        c = cnt[r]
+        cnt[r] = 0
+        if c < views or c < 2:
+            continue
+        found = False
+        for a in range(c):
+            for b in range(a + 1, c):
+                if angle_ok(pts[r], campos[obs[r, a]], campos[obs[r, b]], theta_deg, cos_t):
+                    found = True
+                    break
+            if found:
+                break
+        if found:
+            total += w[r]
+    return total
+
+
+@numba.njit(**_PJIT)
+def set_values(ptr, rows, sets, w, campos, pts, views, theta_deg, n_chunks):  # pragma: no cover - compiled
+    """Exact value of every camera set of ``sets``: the weight of the rows that at least ``views``
+    of its cameras observe with two of them making the angle (the rule of :func:`row_status`).
+
+    Parameters
+    ----------
+    ptr, rows
+        Rows observed by each local column (:func:`column_lists`).
+    sets : (T, s) int64
+        Local columns of each set (distinct within a set).
+    w : (m,) float64
+        Row weights.
+    campos : (n_local, 3) float64
+        Positions of the local columns.
+    pts : (m, 3) float64
+    views : int
+    theta_deg : float
+    n_chunks : int
+        Parallel chunks (each with its own (m, s) scratch).
+
+    Returns
+    -------
+    (T,) float64
+    """
+    cos_t = math.cos(math.radians(theta_deg))
+    n_sets, s = sets.shape
+    m = w.shape[0]
+    out = np.zeros(n_sets)
+    step = (n_sets + n_chunks - 1) // max(n_chunks, 1)
+    longest = 0
+    for c in range(ptr.shape[0] - 1):
+        longest = max(longest, ptr[c + 1] - ptr[c])
+    for ch in prange(n_chunks):
+        cnt = np.zeros(m, dtype=np.int64)
+        obs = np.empty((m, max(s, 1)), dtype=np.int64)
+        touched = np.empty(max(1, s * longest), dtype=np.int64)
+        for i in range(ch * step, min(n_sets, (ch + 1) * step)):
+            out[i] = _set_value(ptr, rows, sets[i], w, campos, pts, views, theta_deg, cos_t, cnt, obs, touched)
+    return out

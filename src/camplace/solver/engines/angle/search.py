@@ -43,7 +43,9 @@ over the columns, in parallel batches, here best-first), with the angle added to
   removes credit): at most one point of a matched pair counts.
 * **Fixed cameras** are part of every tuple (their pairs among themselves are precomputed exactly,
   and rows they already make count are a constant); forbidden cameras are left out.
-* **Incumbent.** Greedy from the heaviest columns plus 1-swap local search, with exact angles.
+* **Incumbent.** Greedy from the heaviest columns plus 1-swap local search, with exact angles,
+  then a large-neighbourhood search (:meth:`_Incumbent.climb`: one or two cameras moved to
+  columns near them, every set evaluated exactly) from the best of those and the warm start.
 * **Time limit.** On expiry the incumbent comes back with the largest bound still open.
 * **Memory.** :func:`angle_bytes` (column bitsets, the tree's level bitsets, 8 bytes of cone per
   node and block, the open tuples) is checked against the budget before anything is allocated;
@@ -83,6 +85,13 @@ _INCUMBENT_SHARE = 0.1
 _SETUP_COST = 4.0  # greedy + swaps stop after this share of the time limit
 _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
+#: the incumbent's large-neighbourhood search (:meth:`_Incumbent.climb`): the moves of a camera are
+#: the _LNS_NEAR free columns nearest its position and every _LNS_FAR-th of the next
+#: _LNS_NEAR * _LNS_FAR, at most _LNS_SETS sets a round, within _LNS_SHARE of the time left
+_LNS_NEAR = 24
+_LNS_FAR = 8
+_LNS_SETS = 20_000
+_LNS_SHARE = 0.1
 _CHUNK = 4096  # tuples per stack entry
 _BATCH = 1 << 14  # tuples expanded per parallel call, at most ...
 _BATCH_MIN = 256  # ... and at least
@@ -262,6 +271,7 @@ class _Incumbent:
         self.best = -math.inf
         self.best_set: tuple[int, ...] = ()
         self.calls = 0
+        self.lns_rounds = 0
 
     def expired(self) -> bool:
         return self.stop.expired()
@@ -320,6 +330,73 @@ class _Incumbent:
                 if not improved:
                     break
             self.offer(sel)
+
+
+    def climb(self, sel: Sequence[int], stop: Deadline, round_s: float = 0.0) -> None:
+        """Large-neighbourhood search from the cameras ``sel`` (original columns, free), offered
+        when it ends: each round evaluates exactly (:func:`~camplace.solver.engines.angle._kernels.set_values`,
+        the rule of :meth:`value`) every set that replaces one or two of the cameras by columns
+        near them (:meth:`_near`), and moves to the best while it gains more than the margin.
+        Candidates sampled more finely hold better sets close to a coarse answer: the moves climb
+        there. A round (not interruptible) starts only while more than ``round_s`` seconds (an
+        estimate: the caller's, then the longest round so far) are left before ``stop``."""
+        free = np.flatnonzero(self.allowed)
+        sel = sorted(int(c) for c in sel)
+        if not sel or free.size <= len(sel):
+            return
+        fpos = self.pos[free]
+        cur = -math.inf
+        while not stop.expired() and (stop.remaining() is None or stop.remaining() > round_s):
+            t0 = time.perf_counter()
+            near = [self._near(c, free, fpos) for c in sel]
+            cols = np.unique(np.concatenate(near + [self.fixed]))
+            local = np.full(self.q.shape[1], -1, dtype=np.int64)
+            local[cols] = np.arange(cols.size)
+            sets = _moves(local[np.asarray(sel)], [local[c] for c in near], _LNS_SETS)
+            full = np.concatenate([sets, np.broadcast_to(local[self.fixed], (sets.shape[0], self.fixed.size))], axis=1)
+            with ctrl_c_deferred():
+                ptr, rows = AK.column_lists(self.q.indptr, self.q.indices, self.q.data, self.wu, local, cols.size)
+                vals = AK.set_values(ptr, rows, np.ascontiguousarray(full), self.wu, np.ascontiguousarray(self.pos[cols]),
+                                     self.pts, self.views, self.theta_deg, 4)
+            self.lns_rounds += 1
+            round_s = max(round_s, time.perf_counter() - t0)
+            cur = max(cur, float(vals[0]))  # the first set is the current one
+            i = int(np.argmax(vals))
+            if vals[i] <= cur + self.margin:
+                break
+            sel, cur = sorted(int(c) for c in cols[sets[i]]), float(vals[i])
+        self.offer(sel)
+
+    def _near(self, c: int, free: np.ndarray, fpos: np.ndarray) -> np.ndarray:
+        """The moves of camera ``c`` in :meth:`climb`: itself, the :data:`_LNS_NEAR` free columns
+        nearest its position (its other poses first) and every :data:`_LNS_FAR`-th of the next
+        ``_LNS_NEAR * _LNS_FAR`` (farther steps); ties by index, sorted original columns."""
+        d = np.linalg.norm(fpos - self.pos[c], axis=1)
+        n_near = min(d.size, _LNS_NEAR * (_LNS_FAR + 1))
+        o = np.argpartition(d, n_near - 1)[:n_near]
+        o = o[np.lexsort((free[o], d[o]))]
+        return np.union1d(free[np.concatenate([o[:_LNS_NEAR], o[_LNS_NEAR::_LNS_FAR]])], [c])
+
+
+def _moves(sel: np.ndarray, near: list[np.ndarray], limit: int) -> np.ndarray:
+    """The sets of :meth:`_Incumbent.climb`: ``sel`` (k,) itself first, then every set replacing
+    one or two of its entries ``p`` (and ``q``) by one of ``near[p]`` (and ``near[q]``), with
+    no column twice; each list cut to its first entries so that there are about ``limit`` sets
+    at most (the nearest stay). Returns (T, k) int64."""
+    k = sel.size
+    pairs = [(p, q) for p in range(k) for q in range(p + 1, k)] or [(0, 0)]
+    keep = max(2, int(math.sqrt(limit / len(pairs))))
+    out = [sel[None, :]]
+    for p, q in pairs:
+        a, b = near[p][:keep], near[q][:keep]
+        grid = np.repeat(sel[None, :], a.size * (b.size if q != p else 1), axis=0)
+        grid[:, p] = np.repeat(a, b.size if q != p else 1)
+        if q != p:
+            grid[:, q] = np.tile(b, a.size)
+        out.append(grid)
+    sets = np.concatenate(out)
+    srt = np.sort(sets, axis=1)
+    return np.ascontiguousarray(sets[(np.diff(srt, axis=1) > 0).all(axis=1)])
 
 
 class _Tree:
@@ -447,10 +524,12 @@ class _Tree:
 def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
                  pts: np.ndarray, fixed: np.ndarray, free: np.ndarray, *,
                  deadline: Deadline | None = None) -> tuple[int, ...]:
-    """Greedy plus 1-swap choice of ``k`` new cameras with exact angles (the angle engine's
-    incumbent alone), in O(m + n) memory besides the matrix: the fallback when nothing else fits.
+    """Greedy plus 1-swap choice of ``k`` new cameras with exact angles, then the
+    large-neighbourhood search (:meth:`_Incumbent.climb`; the angle engine's incumbent alone), in
+    O(m + n) memory besides the matrix and the rows of the columns near the chosen ones: the
+    fallback when nothing else fits.
 
-    Parameters are those of :func:`solve_angle`; the swaps stop at ``deadline``.
+    Parameters are those of :func:`solve_angle`; the swaps and the climb stop at ``deadline``.
 
     Returns
     -------
@@ -465,6 +544,7 @@ def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_
         colw = AK.column_weights(q.indptr, q.indices, q.data, np.arange(q.shape[0], dtype=np.int64), wu, q.shape[1])
     inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline)
     inc.run(k, colw)
+    inc.climb(inc.best_set, deadline)
     return inc.best_set
 
 
@@ -579,11 +659,19 @@ def solve_angle(
     # the time for one, the warm start alone is the incumbent
     if not (start_ok and left is not None and left <= (k + _SETUP_COST) * stats["times_s"]["rows"]):
         inc.run(k, colw)  # at least one greedy start of its own
+    greedy = inc.best_set
     if start_ok:
         assert start is not None
         stats["start"] = const + inc.value(sorted(int(j) for j in start)) * scale
         inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
+    stats["greedy_incumbent"] = const + inc.best * scale
+    # the large-neighbourhood search from the warm start and from the greedy sets' best (other basins)
+    seeds = [sorted(int(j) for j in start)] if start_ok and start is not None else []
+    seeds += [list(greedy)] if greedy and greedy not in {tuple(x) for x in seeds} else []
+    for seed in seeds:
+        inc.climb(seed, Deadline(None) if total is None else deadline.share(_LNS_SHARE), stats["times_s"]["rows"])
     stats["initial_incumbent"] = const + inc.best * scale
+    stats["lns_rounds"] = inc.lns_rounds
     lap("incumbent")
     left = deadline.remaining()
     if left is not None and left <= _SETUP_COST * stats["times_s"]["rows"]:
