@@ -679,16 +679,20 @@ def test_set_values_equal_the_oracle(seed, views, n_fixed) -> None:
     rng = np.random.default_rng(seed)
     n = dense.shape[1]
     w = np.where(rng.random(w.size) < 0.2, 0.0, w)  # rows of weight 0 are left out of the lists
+    search = np.flatnonzero(w > 0)
+    row_id = np.full(w.size, -1, dtype=np.int64)
+    row_id[search] = np.arange(search.size)
     cols = np.sort(rng.choice(n, size=20, replace=False))
     local = np.full(n, -1, dtype=np.int64)
     local[cols] = np.arange(cols.size)
-    ptr, rows = AK.column_lists(q.indptr, q.indices, q.data, w, local, cols.size)
-    for c in range(cols.size):  # the lists are the columns' rows of weight > 0
-        assert rows[ptr[c]:ptr[c + 1]].tolist() == np.flatnonzero((dense[:, cols[c]] > 0) & (w > 0)).tolist()
+    ptr, rows = AK.column_lists(q.indptr, q.indices, q.data, row_id, local, cols.size)
+    for c in range(cols.size):  # the lists are the columns' rows of weight > 0, numbered among those
+        assert search[rows[ptr[c]:ptr[c + 1]]].tolist() == np.flatnonzero((dense[:, cols[c]] > 0) & (w > 0)).tolist()
     fixed = list(range(n_fixed))
     sets = np.array([rng.choice(np.arange(n_fixed, cols.size), size=3, replace=False) for _ in range(40)])
     full = np.concatenate([sets, np.tile(fixed, (sets.shape[0], 1))], axis=1).astype(np.int64)
-    got = AK.set_values(ptr, rows, full, w, np.ascontiguousarray(pos[cols]), pts, views, 20.0, 3)
+    got = AK.set_values(ptr, rows, full, w[search], np.ascontiguousarray(pos[cols]), np.ascontiguousarray(pts[search]),
+                        views, 20.0, 3)
     want = [_value(dense, w, pos, pts, cols[s], views, 20.0) for s in full]
     assert got == pytest.approx(want, rel=1e-12, abs=1e-12)
     assert max(want) > 0
@@ -722,7 +726,9 @@ def test_climb_ends_at_a_local_optimum_of_its_moves(monkeypatch, seed, views, fi
     value = _value(dense, w, pos, pts, list(fixed) + sel, views, 20.0)
     assert inc.best == pytest.approx(value, rel=1e-12)
     assert value >= _value(dense, w, pos, pts, list(fixed) + start, views, 20.0) - 1e-12
-    near = [inc._near(c, free, pos[free]) for c in sel]
+    near = [inc._near(c, free, pos[free], ae._move_list_size(3)) for c in sel]
+    # itself, the 5 others of the 6 nearest, every 2nd of the next 12
+    assert all(x[0] == c and x.size == len(set(x.tolist())) == 12 for x, c in zip(near, sel))
     for p, qq in itertools.combinations(range(3), 2):
         for a in near[p]:
             for b in near[qq]:

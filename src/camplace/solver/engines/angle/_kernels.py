@@ -810,16 +810,16 @@ def selected_pattern(indptr, indices, data, rows, cols, n):  # pragma: no cover 
 
 
 @numba.njit(**_JIT)
-def column_lists(indptr, indices, data, w, local, n_local):  # pragma: no cover - compiled
-    """The rows of weight > 0 that some columns observe (value > 0), column by column, in one pass
-    over the CSR matrix.
+def column_lists(indptr, indices, data, row_id, local, n_local):  # pragma: no cover - compiled
+    """The rows that some columns observe (value > 0), column by column, in one pass over the CSR
+    matrix, numbered by ``row_id``.
 
     Parameters
     ----------
     indptr, indices, data
         The (m, n) CSR matrix.
-    w : (m,) float64
-        Row weights; rows with ``w <= 0`` are left out.
+    row_id : (m,) int64
+        Number of each row in the output (-1: left out).
     local : (n,) int64
         Index of each wanted column in the output (-1: not wanted).
     n_local : int
@@ -827,13 +827,13 @@ def column_lists(indptr, indices, data, w, local, n_local):  # pragma: no cover 
     Returns
     -------
     ptr : (n_local + 1,) int64
-    rows : (ptr[-1],) int64
-        Rows of output column ``c``: ``rows[ptr[c]:ptr[c + 1]]``, increasing.
+    rows : (ptr[-1],) int32
+        Row numbers of output column ``c``: ``rows[ptr[c]:ptr[c + 1]]``, in matrix order.
     """
     m = indptr.shape[0] - 1
     ptr = np.zeros(n_local + 1, dtype=np.int64)
     for r in range(m):
-        if w[r] <= 0:
+        if row_id[r] < 0:
             continue
         for p in range(indptr[r], indptr[r + 1]):
             c = local[indices[p]]
@@ -842,14 +842,14 @@ def column_lists(indptr, indices, data, w, local, n_local):  # pragma: no cover 
     for c in range(n_local):
         ptr[c + 1] += ptr[c]
     fill = ptr[:-1].copy()
-    rows = np.empty(ptr[n_local], dtype=np.int64)
+    rows = np.empty(ptr[n_local], dtype=np.int32)
     for r in range(m):
-        if w[r] <= 0:
+        if row_id[r] < 0:
             continue
         for p in range(indptr[r], indptr[r + 1]):
             c = local[indices[p]]
             if c >= 0 and data[p] > 0:
-                rows[fill[c]] = r
+                rows[fill[c]] = row_id[r]
                 fill[c] += 1
     return ptr, rows
 
@@ -857,7 +857,7 @@ def column_lists(indptr, indices, data, w, local, n_local):  # pragma: no cover 
 @numba.njit(**_JIT)
 def _set_value(ptr, rows, cols, w, campos, pts, views, theta_deg, cos_t, cnt, obs, touched):  # pragma: no cover - compiled
     """Weight of the rows at least ``views`` of the columns ``cols`` observe with a pair making the
-    angle (``cnt`` (m,) zero on entry and on exit, ``obs`` (m, s), ``touched`` scratch)."""
+    angle (``cnt`` (m,) zero on entry and on exit, ``obs`` (m, s), ``touched`` scratch; int32)."""
     n_t = 0
     for a in range(cols.shape[0]):
         c = cols[a]
@@ -896,18 +896,19 @@ def set_values(ptr, rows, sets, w, campos, pts, views, theta_deg, n_chunks):  # 
     Parameters
     ----------
     ptr, rows
-        Rows observed by each local column (:func:`column_lists`).
+        Rows observed by each local column (:func:`column_lists`; numbers below m).
     sets : (T, s) int64
         Local columns of each set (distinct within a set).
     w : (m,) float64
-        Row weights.
+        Weights of the numbered rows.
     campos : (n_local, 3) float64
         Positions of the local columns.
     pts : (m, 3) float64
+        Points of the numbered rows.
     views : int
     theta_deg : float
     n_chunks : int
-        Parallel chunks (each with its own (m, s) scratch).
+        Parallel chunks (each with its own (m, s + 1) int32 scratch).
 
     Returns
     -------
@@ -922,9 +923,9 @@ def set_values(ptr, rows, sets, w, campos, pts, views, theta_deg, n_chunks):  # 
     for c in range(ptr.shape[0] - 1):
         longest = max(longest, ptr[c + 1] - ptr[c])
     for ch in prange(n_chunks):
-        cnt = np.zeros(m, dtype=np.int64)
-        obs = np.empty((m, max(s, 1)), dtype=np.int64)
-        touched = np.empty(max(1, s * longest), dtype=np.int64)
+        cnt = np.zeros(m, dtype=np.int32)
+        obs = np.empty((m, max(s, 1)), dtype=np.int32)
+        touched = np.empty(min(m, max(1, s * longest)), dtype=np.int32)
         for i in range(ch * step, min(n_sets, (ch + 1) * step)):
             out[i] = _set_value(ptr, rows, sets[i], w, campos, pts, views, theta_deg, cos_t, cnt, obs, touched)
     return out

@@ -87,7 +87,8 @@ _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
 #: the incumbent's large-neighbourhood search (:meth:`_Incumbent.climb`): the moves of a camera are
 #: the _LNS_NEAR free columns nearest its position and every _LNS_FAR-th of the next
-#: _LNS_NEAR * _LNS_FAR, at most _LNS_SETS sets a round, within _LNS_SHARE of the time left
+#: _LNS_NEAR * _LNS_FAR (fewer when k is large: about _LNS_SETS sets a round at most), within
+#: _LNS_SHARE of the time left
 _LNS_NEAR = 24
 _LNS_FAR = 8
 _LNS_SETS = 20_000
@@ -115,8 +116,8 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     here: the column bitsets and their ordered copy (and, while the order is made, a copy with
     the positions' thermometer codes), ``min(views, k)`` level bitsets and an 8-byte
     cone per tree node and 64-row block (and a float64 working copy per thread), the points of the
-    layout, the pair matching's row bitsets and ``open_tuples`` open tuples of the search (which
-    stops there, with a valid bound).
+    layout, the pair matching's row bitsets, ``open_tuples`` open tuples of the search (which
+    stops there, with a valid bound) and the incumbent's climb (:meth:`_Incumbent.climb`).
     """
     words = (2 * int(rows) + 127) // 64 + 2
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
@@ -126,7 +127,9 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
     frontier = (int(open_tuples) + (k + 1) * _BATCH) * _tuple_bytes(k)
-    return int(bits + cones + points + match + frontier + 64 * rows)
+    # the incumbent's climb: the rows of its columns (int32), 4 chunks of scratch, the search rows' copies
+    lns = 4 * int(rows) * (lns_columns(k, n_cols) + int(n_fixed)) + 16 * int(rows) * (k + int(n_fixed) + 2) + 32 * int(rows)
+    return int(bits + cones + points + match + frontier + lns + 64 * rows)
 
 
 def _tuple_bytes(k: int) -> int:
@@ -336,28 +339,36 @@ class _Incumbent:
         """Large-neighbourhood search from the cameras ``sel`` (original columns, free), offered
         when it ends: each round evaluates exactly (:func:`~camplace.solver.engines.angle._kernels.set_values`,
         the rule of :meth:`value`) every set that replaces one or two of the cameras by columns
-        near them (:meth:`_near`), and moves to the best while it gains more than the margin.
-        Candidates sampled more finely hold better sets close to a coarse answer: the moves climb
-        there. A round (not interruptible) starts only while more than ``round_s`` seconds (an
-        estimate: the caller's, then the longest round so far) are left before ``stop``."""
+        near them (:meth:`_near`, :func:`_moves`), and moves to the best while it gains more than
+        the margin. Candidates sampled more finely hold better sets close to a coarse answer: the
+        moves climb there. A round (not interruptible) starts only while more than ``round_s``
+        seconds (an estimate: the caller's, then the longest round so far) are left before
+        ``stop``. Memory: the search rows of the columns in the move lists (4 bytes a row, at
+        most :func:`lns_columns` columns) and 4 chunks of (rows, k + fixed + 1) int32 scratch."""
         free = np.flatnonzero(self.allowed)
         sel = sorted(int(c) for c in sel)
-        if not sel or free.size <= len(sel):
+        k = len(sel)
+        if not sel or free.size <= k:
             return
         fpos = self.pos[free]
+        search = np.flatnonzero(self.wu > 0)  # the lists and the scratch hold these rows only
+        row_id = np.full(self.q.shape[0], -1, dtype=np.int64)
+        row_id[search] = np.arange(search.size)
+        w_s, pts_s = self.wu[search], np.ascontiguousarray(self.pts[search])
+        size = _move_list_size(k)
         cur = -math.inf
         while not stop.expired() and (stop.remaining() is None or stop.remaining() > round_s):
             t0 = time.perf_counter()
-            near = [self._near(c, free, fpos) for c in sel]
+            near = [self._near(c, free, fpos, size) for c in sel]
             cols = np.unique(np.concatenate(near + [self.fixed]))
             local = np.full(self.q.shape[1], -1, dtype=np.int64)
             local[cols] = np.arange(cols.size)
-            sets = _moves(local[np.asarray(sel)], [local[c] for c in near], _LNS_SETS)
+            sets = _moves(local[np.asarray(sel)], [local[c] for c in near])
             full = np.concatenate([sets, np.broadcast_to(local[self.fixed], (sets.shape[0], self.fixed.size))], axis=1)
             with ctrl_c_deferred():
-                ptr, rows = AK.column_lists(self.q.indptr, self.q.indices, self.q.data, self.wu, local, cols.size)
-                vals = AK.set_values(ptr, rows, np.ascontiguousarray(full), self.wu, np.ascontiguousarray(self.pos[cols]),
-                                     self.pts, self.views, self.theta_deg, 4)
+                ptr, rows = AK.column_lists(self.q.indptr, self.q.indices, self.q.data, row_id, local, cols.size)
+                vals = AK.set_values(ptr, rows, np.ascontiguousarray(full), w_s, np.ascontiguousarray(self.pos[cols]),
+                                     pts_s, self.views, self.theta_deg, 4)
             self.lns_rounds += 1
             round_s = max(round_s, time.perf_counter() - t0)
             cur = max(cur, float(vals[0]))  # the first set is the current one
@@ -367,28 +378,40 @@ class _Incumbent:
             sel, cur = sorted(int(c) for c in cols[sets[i]]), float(vals[i])
         self.offer(sel)
 
-    def _near(self, c: int, free: np.ndarray, fpos: np.ndarray) -> np.ndarray:
-        """The moves of camera ``c`` in :meth:`climb`: itself, the :data:`_LNS_NEAR` free columns
-        nearest its position (its other poses first) and every :data:`_LNS_FAR`-th of the next
-        ``_LNS_NEAR * _LNS_FAR`` (farther steps); ties by index, sorted original columns."""
+    def _near(self, c: int, free: np.ndarray, fpos: np.ndarray, size: int) -> np.ndarray:
+        """The moves of camera ``c`` in :meth:`climb`, nearest first: itself, the
+        :data:`_LNS_NEAR` free columns nearest its position (its other poses first) and every
+        :data:`_LNS_FAR`-th of the next ``_LNS_NEAR * _LNS_FAR`` (farther steps); ties by index;
+        the first ``size`` of them (original columns)."""
         d = np.linalg.norm(fpos - self.pos[c], axis=1)
         n_near = min(d.size, _LNS_NEAR * (_LNS_FAR + 1))
         o = np.argpartition(d, n_near - 1)[:n_near]
         o = o[np.lexsort((free[o], d[o]))]
-        return np.union1d(free[np.concatenate([o[:_LNS_NEAR], o[_LNS_NEAR::_LNS_FAR]])], [c])
+        got = free[np.concatenate([o[:_LNS_NEAR], o[_LNS_NEAR::_LNS_FAR]])]
+        return np.concatenate([[c], got[got != c]])[:size].astype(np.int64)
 
 
-def _moves(sel: np.ndarray, near: list[np.ndarray], limit: int) -> np.ndarray:
+def _move_list_size(k: int) -> int:
+    """Entries of each camera's move list in :meth:`_Incumbent.climb`: all of them (``1 + 2
+    _LNS_NEAR``), or fewer so that the pairs of lists make about :data:`_LNS_SETS` sets."""
+    pairs = max(1, k * (k - 1) // 2)
+    return int(min(1 + 2 * _LNS_NEAR, max(2, math.isqrt(_LNS_SETS // pairs))))
+
+
+def lns_columns(k: int, n_cols: int) -> int:
+    """Columns (besides the fixed ones) whose rows :meth:`_Incumbent.climb` holds at most."""
+    return int(min(n_cols, k * _move_list_size(k)))
+
+
+def _moves(sel: np.ndarray, near: list[np.ndarray]) -> np.ndarray:
     """The sets of :meth:`_Incumbent.climb`: ``sel`` (k,) itself first, then every set replacing
-    one or two of its entries ``p`` (and ``q``) by one of ``near[p]`` (and ``near[q]``), with
-    no column twice; each list cut to its first entries so that there are about ``limit`` sets
-    at most (the nearest stay). Returns (T, k) int64."""
+    one or two of its entries ``p`` (and ``q``) by one of ``near[p]`` (and ``near[q]``), with no
+    column twice. Returns (T, k) int64."""
     k = sel.size
     pairs = [(p, q) for p in range(k) for q in range(p + 1, k)] or [(0, 0)]
-    keep = max(2, int(math.sqrt(limit / len(pairs))))
     out = [sel[None, :]]
     for p, q in pairs:
-        a, b = near[p][:keep], near[q][:keep]
+        a, b = near[p], near[q]
         grid = np.repeat(sel[None, :], a.size * (b.size if q != p else 1), axis=0)
         grid[:, p] = np.repeat(a, b.size if q != p else 1)
         if q != p:
