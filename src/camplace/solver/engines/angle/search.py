@@ -334,7 +334,6 @@ class _Incumbent:
                     break
             self.offer(sel)
 
-
     def climb(self, sel: Sequence[int], stop: Deadline, round_s: float = 0.0) -> None:
         """Large-neighbourhood search from the cameras ``sel`` (original columns, free), offered
         when it ends: each round evaluates exactly (:func:`~camplace.solver.engines.angle._kernels.set_values`,
@@ -566,8 +565,10 @@ def greedy_angle(q: sp.csr_matrix, w: np.ndarray, k: int, views: int, min_angle_
     with ctrl_c_deferred():
         colw = AK.column_weights(q.indptr, q.indices, q.data, np.arange(q.shape[0], dtype=np.int64), wu, q.shape[1])
     inc = _Incumbent(q, wu, pos, pts, views, float(min_angle_deg), fixed, free, 0.0, deadline)
+    t0 = time.perf_counter()
     inc.run(k, colw)
-    inc.climb(inc.best_set, deadline)
+    # a climb's round reads the matrix once, like a gain: no round with less than one gain's time left
+    inc.climb(inc.best_set, deadline, (time.perf_counter() - t0) / max(1, inc.calls))
     return inc.best_set
 
 
@@ -687,7 +688,7 @@ def solve_angle(
         assert start is not None
         stats["start"] = const + inc.value(sorted(int(j) for j in start)) * scale
         inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
-    stats["greedy_incumbent"] = const + inc.best * scale
+    stats["incumbent_before_climb"] = const + inc.best * scale
     # the large-neighbourhood search from the warm start and from the greedy sets' best (other basins)
     seeds = [sorted(int(j) for j in start)] if start_ok and start is not None else []
     seeds += [list(greedy)] if greedy and greedy not in {tuple(x) for x in seeds} else []
