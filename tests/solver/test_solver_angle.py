@@ -664,3 +664,89 @@ def test_angle_engine_with_poses_at_one_position_interrupted_keeps_a_valid_bound
     assert res.bound >= best * (1 - 1e-9) and best >= v * (1 - 1e-9)
     if res.status == "optimal":
         assert v == pytest.approx(best, rel=1e-9)
+
+
+# ---- the incumbent's large-neighbourhood search ---------------------------------------------------
+
+
+@pytest.mark.parametrize("seed,views,n_fixed", [(0, 2, 0), (1, 2, 1), (2, 3, 0), (3, 3, 2)])
+def test_set_values_equal_the_oracle(seed, views, n_fixed) -> None:
+    """Every set's value from the column lists equals the arctan2 oracle (fixed cameras appended)."""
+    from camplace.solver.engines.angle import _kernels as AK
+
+    dense, w, pos, pts = _aims_instance(240, 10, seed)
+    q = sp.csr_matrix(dense)
+    rng = np.random.default_rng(seed)
+    n = dense.shape[1]
+    w = np.where(rng.random(w.size) < 0.2, 0.0, w)  # rows of weight 0 are left out of the lists
+    search = np.flatnonzero(w > 0)
+    row_id = np.full(w.size, -1, dtype=np.int64)
+    row_id[search] = np.arange(search.size)
+    cols = np.sort(rng.choice(n, size=20, replace=False))
+    local = np.full(n, -1, dtype=np.int64)
+    local[cols] = np.arange(cols.size)
+    ptr, rows = AK.column_lists(q.indptr, q.indices, q.data, row_id, local, cols.size)
+    for c in range(cols.size):  # the lists are the columns' rows of weight > 0, numbered among those
+        assert search[rows[ptr[c]:ptr[c + 1]]].tolist() == np.flatnonzero((dense[:, cols[c]] > 0) & (w > 0)).tolist()
+    fixed = list(range(n_fixed))
+    sets = np.array([rng.choice(np.arange(n_fixed, cols.size), size=3, replace=False) for _ in range(40)])
+    full = np.concatenate([sets, np.tile(fixed, (sets.shape[0], 1))], axis=1).astype(np.int64)
+    got = AK.set_values(ptr, rows, full, w[search], np.ascontiguousarray(pos[cols]), np.ascontiguousarray(pts[search]),
+                        views, 20.0, 3)
+    want = [_value(dense, w, pos, pts, cols[s], views, 20.0) for s in full]
+    assert got == pytest.approx(want, rel=1e-12, abs=1e-12)
+    assert max(want) > 0
+
+
+def _climbed(dense, w, pos, pts, start, views, fixed=(), forbidden=(), layout="csr"):
+    from camplace.visibility.bits import bits_from_csr
+
+    n = dense.shape[1]
+    fixed = np.asarray(fixed, dtype=np.int64)
+    free = np.setdiff1d(np.arange(n), np.concatenate([fixed, np.asarray(forbidden, dtype=np.int64)]))
+    q = sp.csr_matrix(dense) if layout == "csr" else bits_from_csr(sp.csr_matrix(dense > 0))
+    inc = ae._Incumbent(ae._Rows(q), w, pos, pts, views, 20.0, fixed, free, 0.0, Deadline(None))
+    inc.climb(start, Deadline(None))
+    return inc, free
+
+
+@pytest.mark.parametrize("layout", ["csr", "bits"])
+@pytest.mark.parametrize("seed,views,fixed", [(0, 2, ()), (1, 2, (7,)), (2, 3, ()), (4, 2, ())])
+def test_climb_ends_at_a_local_optimum_of_its_moves(monkeypatch, seed, views, fixed, layout) -> None:
+    """From a random start the climb returns a feasible set whose value is its exact value, at
+    least the start's, and no set of its final neighbourhood (one or two cameras replaced by
+    columns of their move lists, each valued by the oracle) is better."""
+    monkeypatch.setattr(ae, "_LNS_NEAR", 6)
+    monkeypatch.setattr(ae, "_LNS_FAR", 2)
+    dense, w, pos, pts = _aims_instance(200, 14, seed)
+    rng = np.random.default_rng(seed)
+    forbidden = (5,)
+    n = dense.shape[1]
+    pool = np.setdiff1d(np.arange(n), np.array(fixed + forbidden, dtype=np.int64))
+    start = sorted(int(c) for c in rng.choice(pool, size=3, replace=False))
+    inc, free = _climbed(dense, w, pos, pts, start, views, fixed, forbidden, layout)
+    sel = list(inc.best_set)
+    assert len(sel) == len(set(sel)) == 3 and set(sel) <= set(free.tolist())
+    value = _value(dense, w, pos, pts, list(fixed) + sel, views, 20.0)
+    assert inc.best == pytest.approx(value, rel=1e-12)
+    assert value >= _value(dense, w, pos, pts, list(fixed) + start, views, 20.0) - 1e-12
+    near = [inc._near(c, free, pos[free], ae._move_list_size(3)) for c in sel]
+    # itself, the 5 others of the 6 nearest, every 2nd of the next 12
+    assert all(x[0] == c and x.size == len(set(x.tolist())) == 12 for x, c in zip(near, sel, strict=True))
+    for p, qq in itertools.combinations(range(3), 2):
+        for a in near[p]:
+            for b in near[qq]:
+                s = list(sel)
+                s[p], s[qq] = int(a), int(b)
+                if len(set(s)) == 3:
+                    assert _value(dense, w, pos, pts, list(fixed) + s, views, 20.0) <= value + 1e-12
+
+
+def test_climb_improves_a_poor_start() -> None:
+    """The climb moves: from the worst enumerated set of a small instance it reaches a better one."""
+    dense, w, pos, pts = _aims_instance(200, 8, 6)
+    best, vals = _enumerate(dense, w, pos, pts, 3, 2, 20.0)
+    worst = list(itertools.combinations(range(dense.shape[1]), 3))[int(np.argmin(vals))]
+    inc, _ = _climbed(dense, w, pos, pts, list(worst), 2)
+    assert inc.best > float(vals.min()) + 1e-9
+    assert inc.best <= best + 1e-9

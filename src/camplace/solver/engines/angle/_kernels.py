@@ -915,3 +915,125 @@ def gains_bits(words, m, w, sel, pos, pts, views, theta_deg, count, ok, n_chunks
             tot += part[ch]
         out[x] = tot
     return out
+
+
+@numba.njit(**_JIT)
+def column_lists(indptr, indices, data, row_id, local, n_local):  # pragma: no cover - compiled
+    """The rows that some columns observe (value > 0), column by column, in one pass over the CSR
+    matrix, numbered by ``row_id``.
+
+    Parameters
+    ----------
+    indptr, indices, data
+        The (m, n) CSR matrix.
+    row_id : (m,) int64
+        Number of each row in the output (-1: left out).
+    local : (n,) int64
+        Index of each wanted column in the output (-1: not wanted).
+    n_local : int
+
+    Returns
+    -------
+    ptr : (n_local + 1,) int64
+    rows : (ptr[-1],) int32
+        Row numbers of output column ``c``: ``rows[ptr[c]:ptr[c + 1]]``, in matrix order.
+    """
+    m = indptr.shape[0] - 1
+    ptr = np.zeros(n_local + 1, dtype=np.int64)
+    for r in range(m):
+        if row_id[r] < 0:
+            continue
+        for p in range(indptr[r], indptr[r + 1]):
+            c = local[indices[p]]
+            if c >= 0 and data[p] > 0:
+                ptr[c + 1] += 1
+    for c in range(n_local):
+        ptr[c + 1] += ptr[c]
+    fill = ptr[:-1].copy()
+    rows = np.empty(ptr[n_local], dtype=np.int32)
+    for r in range(m):
+        if row_id[r] < 0:
+            continue
+        for p in range(indptr[r], indptr[r + 1]):
+            c = local[indices[p]]
+            if c >= 0 and data[p] > 0:
+                rows[fill[c]] = row_id[r]
+                fill[c] += 1
+    return ptr, rows
+
+
+@numba.njit(**_JIT)
+def _set_value(ptr, rows, cols, w, campos, pts, views, theta_deg, cos_t, cnt, obs, touched):  # pragma: no cover - compiled
+    """Weight of the rows at least ``views`` of the columns ``cols`` observe with a pair making the
+    angle (``cnt`` (m,) zero on entry and on exit, ``obs`` (m, s), ``touched`` scratch; int32)."""
+    n_t = 0
+    for a in range(cols.shape[0]):
+        c = cols[a]
+        for p in range(ptr[c], ptr[c + 1]):
+            r = rows[p]
+            if cnt[r] == 0:
+                touched[n_t] = r
+                n_t += 1
+            obs[r, cnt[r]] = c
+            cnt[r] += 1
+    total = 0.0
+    for t in range(n_t):
+        r = touched[t]
+        c = cnt[r]
+        cnt[r] = 0
+        if c < views or c < 2:
+            continue
+        found = False
+        for a in range(c):
+            for b in range(a + 1, c):
+                if angle_ok(pts[r], campos[obs[r, a]], campos[obs[r, b]], theta_deg, cos_t):
+                    found = True
+                    break
+            if found:
+                break
+        if found:
+            total += w[r]
+    return total
+
+
+@numba.njit(**_PJIT)
+def set_values(ptr, rows, sets, w, campos, pts, views, theta_deg, n_chunks):  # pragma: no cover - compiled
+    """Exact value of every camera set of ``sets``: the weight of the rows that at least ``views``
+    of its cameras observe with two of them making the angle (the rule of :func:`row_status`).
+
+    Parameters
+    ----------
+    ptr, rows
+        Rows observed by each local column (:func:`column_lists`; numbers below m).
+    sets : (T, s) int64
+        Local columns of each set (distinct within a set).
+    w : (m,) float64
+        Weights of the numbered rows.
+    campos : (n_local, 3) float64
+        Positions of the local columns.
+    pts : (m, 3) float64
+        Points of the numbered rows.
+    views : int
+    theta_deg : float
+    n_chunks : int
+        Parallel chunks (each with its own (m, s + 1) int32 scratch).
+
+    Returns
+    -------
+    (T,) float64
+    """
+    cos_t = math.cos(math.radians(theta_deg))
+    n_sets, s = sets.shape
+    m = w.shape[0]
+    out = np.zeros(n_sets)
+    step = (n_sets + n_chunks - 1) // max(n_chunks, 1)
+    longest = 0
+    for c in range(ptr.shape[0] - 1):
+        longest = max(longest, ptr[c + 1] - ptr[c])
+    for ch in prange(n_chunks):
+        cnt = np.zeros(m, dtype=np.int32)
+        obs = np.empty((m, max(s, 1)), dtype=np.int32)
+        touched = np.empty(min(m, max(1, s * longest)), dtype=np.int32)
+        for i in range(ch * step, min(n_sets, (ch + 1) * step)):
+            out[i] = _set_value(ptr, rows, sets[i], w, campos, pts, views, theta_deg, cos_t, cnt, obs, touched)
+    return out
