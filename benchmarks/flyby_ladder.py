@@ -21,7 +21,8 @@ MIN_ANGLE_DEG = 20.0
 def flyby_inputs(positions: int, points: int = POINTS, seed: int = SEED) -> dict[str, Any]:
     """The solve's inputs of comet-flyby at ``positions`` candidate positions (cached visibility).
 
-    Returns a dict: ``matrix`` (m, n), ``weights`` (m,), ``positions`` (n, 3), ``points`` (m, 3),
+    Returns a dict: ``matrix`` (m, n; what ``camplace run`` solves: the column bitsets of a binary
+    instance), ``weights`` (m,), ``positions`` (n, 3), ``points`` (m, 3),
     ``visibility_s`` (seconds to compute or load the matrix).
     """
     from camplace.instance import resolve_instance
@@ -33,7 +34,7 @@ def flyby_inputs(positions: int, points: int = POINTS, seed: int = SEED) -> dict
     cands, pts = sampling_stage(inst, s)
     t = time.perf_counter()
     vis = visibility_stage(inst, cands, pts, cache=True)
-    return {"matrix": vis.matrix, "weights": event_weights(vis.points, inst, s.event_mode),
+    return {"matrix": vis.pattern, "weights": event_weights(vis.points, inst, s.event_mode),
             "positions": cands.positions, "points": vis.points.positions, "visibility_s": time.perf_counter() - t}
 
 
