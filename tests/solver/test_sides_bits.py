@@ -184,3 +184,24 @@ def test_sides_on_bits_errors_are_the_csr_routes(kw, message) -> None:
     for matrix in (sp.csr_matrix(dense), bits_from_csr(sp.csr_matrix(dense))):
         with pytest.raises(CamplaceError, match=message):
             solve(matrix, w, **kw)
+
+
+@pytest.mark.parametrize("kw", [
+    dict(k=2, fixed=(3, 17)),
+    dict(k=3, forbidden=(5, 6)),
+    dict(k=2, fixed=(4,), forbidden=(0, 9)),
+    dict(mode="multiview", k=3, forbidden=(1, 2)),
+    dict(mode="multiview", k=3, min_angle_deg=20.0, forbidden=(7,)),
+])
+def test_binary_run_with_fixed_or_forbidden_cameras_solves_on_the_bits(kw, monkeypatch) -> None:
+    """A binary instance's run with --fixed / --forbidden: the solver takes the bits route on the
+    allowed columns (no tocsr), fixed cameras kept, forbidden ones not chosen."""
+    import camplace
+
+    _no_csr(monkeypatch)
+    sol = camplace.run("comet-67p-bunker", candidates=60, points=500, time_limit_s=30, cache=False, **kw)
+    n_allowed = 60 - len(kw.get("fixed", ())) - len(kw.get("forbidden", ()))
+    assert sol.solver_stats["matrix"] == f"column bitsets of the {n_allowed} allowed columns (no CSR copy)"
+    assert sol.status in ("optimal", "feasible")
+    assert set(kw.get("fixed", ())) <= set(sol.selected) and not set(kw.get("forbidden", ())) & set(sol.selected)
+    assert len(sol.selected) == kw["k"] + len(kw.get("fixed", ()))

@@ -22,7 +22,7 @@ from camplace.solver.options import SolveOptions
 
 __all__ = [
     "ROBUST_MODES", "make_spec", "spec_record", "stack_scenarios", "scenario_matrix", "solve_robust",
-    "out_of_sample", "robust_stage", "order_p10", "scenario_values",
+    "out_of_sample", "robust_stage", "order_p10", "scenario_values", "stack_bit_scenarios", "stack_bits_bytes",
 ]
 
 log = logging.getLogger(__name__)
@@ -393,8 +393,9 @@ def robust_stage(
     ----------
     instance, cands, pts
         The run's instance, candidates and points.
-    nominal_matrix : (m, n) scipy.sparse.csr_matrix
-        The nominal visibility matrix.
+    nominal_matrix : (m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
+        The nominal visibility matrix (its ``nnz`` and ``shape`` are read; a binary run's
+        scenarios are then cast and stacked as bits, :func:`scenario_matrix` with ``bits``).
     weights : (m,) float64
         The row weights the run maximises.
     nominal : camplace.solver.SolverResult

@@ -3,7 +3,9 @@ visibility stage made it (:class:`camplace.visibility.bits.BitMatrix`, one bit a
 CSR copy.
 
 :func:`bits_outcome` takes the cases without fixed, forbidden, minimum-distance or team
-constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that read bits:
+constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that read bits
+(forbidden cameras, and fixed ones in max coverage, come here as the allowed columns' bitsets
+with the fixed-covered rows weighted 0: ``camplace.solver.api._sides_bits``):
 
 ``maxcover`` (and ``quality``, the same objective on a binary matrix)
     plain max coverage (``exact`` for k <= 4 under ``auto``): the presolve of
@@ -32,7 +34,8 @@ its bitsets copied); plain max coverage on bits is not (the engines' own greedy 
 incumbent, as before). Any other case
 (another engine choice, an engine over the memory budget) returns None and
 :func:`camplace.solver.api.solve` converts the bits to a bool CSR pattern (5 bytes an observed
-pair) and goes on as before. Set cover on bits is
+pair) and goes on as before; so do multiview with fixed cameras (a row's threshold is ``views``
+less its fixed views, which the bitset engine does not model), a minimum distance and k > 4. Set cover on bits is
 :func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``).
 """
 
