@@ -1,7 +1,8 @@
-"""Fixed and forbidden cameras on column bitsets (issue 32): max coverage with fixed and / or
-forbidden cameras and multiview (with or without a minimum angle) with forbidden ones are solved
-on the allowed columns' bits; the answer is the CSR route's and the enumerated optimum, and no
-CSR is made. Multiview with fixed cameras, and a copy over the budget, go through CSR as before."""
+"""Fixed and forbidden cameras on column bitsets (issue 32): max coverage and multiview with a
+minimum angle with fixed and / or forbidden cameras, multiview without the angle with forbidden
+ones, are solved on the allowed columns' bits; the answer is the CSR route's and the enumerated
+optimum, and no CSR is made. Multiview with fixed cameras and no angle, and a copy over the
+budget, go through CSR as before."""
 
 from __future__ import annotations
 
@@ -122,6 +123,58 @@ def test_min_angle_forbidden_on_bits_equals_csr_and_enumeration(views: int, k: i
         assert got.objective == pytest.approx(best, rel=1e-9, abs=1e-12)
 
 
+@pytest.mark.parametrize("views, k, angle", [(2, 1, 20.0), (2, 2, 35.0), (3, 2, 12.5), (2, 3, 25.0)])
+@pytest.mark.parametrize("fixed, forbidden", [((3,), ()), ((0, 9), ()), ((5,), (1, 2))])
+def test_min_angle_fixed_on_bits_equals_csr_and_enumeration(views: int, k: int, angle: float, fixed, forbidden,
+                                                            monkeypatch) -> None:
+    """The angle engine with fixed cameras on the bitsets of the columns not forbidden (the fixed
+    ones among them): the CSR route's selection, status, objective and bound, the enumerated optimum."""
+    from tests.solver.test_multiview_bits import _angle_cases
+
+    for dense, w, pos, pts in _angle_cases(views * 10 + k + len(fixed)):
+        kw = dict(mode="multiview", views=views, min_angle_deg=angle, positions=pos, points=pts, fixed=fixed,
+                  forbidden=forbidden)
+        ref = solve(sp.csr_matrix(dense), w, k, **kw)
+        with monkeypatch.context() as mp:
+            _no_csr(mp)
+            got = solve(bits_from_csr(sp.csr_matrix(dense)), w, k, **kw)
+        assert got.stats["engine_choice"]["route"] == "angle"
+        assert got.stats["matrix"] == f"column bitsets of the {dense.shape[1] - len(forbidden)} allowed columns (no CSR copy)"
+        assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective,
+                                                                         ref.bound)
+        assert got.status == "optimal" and set(fixed) <= set(got.selected) and not set(forbidden) & set(got.selected)
+        assert len(got.selected) == k + len(fixed)
+        best = brute_force_mode(dense, w, k, "multiview", views=views, min_angle_deg=angle, pos=pos, pts=pts,
+                                fixed=fixed, forbidden=forbidden)
+        assert got.objective == pytest.approx(best, rel=1e-9, abs=1e-12)
+
+
+def test_min_angle_fixed_on_bits_warm_start_as_the_csr_route(monkeypatch) -> None:
+    """With a time limit and more than WARM_MIN_COLS free columns (lowered to 8): both routes solve
+    every fourth free position's poses and the fixed cameras first, then the whole: the same answer
+    and warm-start figures; only the k + fixed cameras count for the opposite-pairs cap."""
+    import camplace.solver.bits_route as bits_route
+    import camplace.solver.routes as routes
+    from tests.solver.test_solver_angle import _sphere_instance
+
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 8)
+    monkeypatch.setattr(bits_route, "WARM_MIN_COLS", 8)
+    dense, w, pos, pts = _sphere_instance(160, 24, 3)
+    pos[1::2] = pos[0::2]  # two poses a position
+    for k, fixed, forbidden in [(2, (4,), ()), (3, (4, 11), (0, 1)), (1, (6,), (20,))]:
+        kw = dict(mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, fixed=fixed,
+                  forbidden=forbidden, time_limit_s=1000.0)
+        ref = solve(sp.csr_matrix(dense), w, k, **kw)
+        with monkeypatch.context() as mp:
+            _no_csr(mp)
+            got = solve(bits_from_csr(sp.csr_matrix(dense)), w, k, **kw)
+        assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective,
+                                                                         ref.bound)
+        keys = ("columns", "status", "objective", "engine")
+        assert {key: got.stats["warm_start"][key] for key in keys} == {key: ref.stats["warm_start"][key] for key in keys}
+        assert set(fixed) <= set(got.selected)
+
+
 def _counting_tocsr(mp) -> list[int]:
     """BitMatrix.tocsr made to count its calls (and still convert)."""
     calls: list[int] = []
@@ -136,8 +189,8 @@ def _counting_tocsr(mp) -> list[int]:
 
 
 def test_multiview_with_fixed_cameras_goes_through_csr(monkeypatch) -> None:
-    """Multiview with fixed cameras (rows needing views of their own) stays on the CSR route: the
-    CSR route's answer, one tocsr."""
+    """Multiview with fixed cameras and no minimum angle (rows needing views of their own) stays on
+    the CSR route: the CSR route's answer, one tocsr."""
     dense, w = next(_cases(2))
     ref = solve(sp.csr_matrix(dense), w, 2, mode="multiview", views=2, fixed=(3,))
     with monkeypatch.context() as mp:
@@ -192,6 +245,7 @@ def test_sides_on_bits_errors_are_the_csr_routes(kw, message) -> None:
     dict(k=2, fixed=(4,), forbidden=(0, 9)),
     dict(mode="multiview", k=3, forbidden=(1, 2)),
     dict(mode="multiview", k=3, min_angle_deg=20.0, forbidden=(7,)),
+    dict(mode="multiview", k=2, min_angle_deg=20.0, fixed=(8,), forbidden=(7,)),
 ])
 def test_binary_run_with_fixed_or_forbidden_cameras_solves_on_the_bits(kw, monkeypatch) -> None:
     """A binary instance's run with --fixed / --forbidden: the solver takes the bits route on the
@@ -200,7 +254,8 @@ def test_binary_run_with_fixed_or_forbidden_cameras_solves_on_the_bits(kw, monke
 
     _no_csr(monkeypatch)
     sol = camplace.run("comet-67p-bunker", candidates=60, points=500, time_limit_s=30, cache=False, **kw)
-    n_allowed = 60 - len(kw.get("fixed", ())) - len(kw.get("forbidden", ()))
+    angle_fixed = "min_angle_deg" in kw and kw.get("fixed")  # the angle engine keeps the fixed columns
+    n_allowed = 60 - (0 if angle_fixed else len(kw.get("fixed", ()))) - len(kw.get("forbidden", ()))
     assert sol.solver_stats["matrix"] == f"column bitsets of the {n_allowed} allowed columns (no CSR copy)"
     assert sol.status in ("optimal", "feasible")
     assert set(kw.get("fixed", ())) <= set(sol.selected) and not set(kw.get("forbidden", ())) & set(sol.selected)

@@ -408,18 +408,19 @@ def _setcover_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline)
 
 def _sides_bits_applies(o: SolveOptions) -> bool:
     """Fixed or forbidden cameras that :func:`_sides_bits` takes on the bits: max coverage (and
-    quality, the same objective on a binary matrix) with fixed and / or forbidden cameras, multiview
-    (with or without a minimum angle) with forbidden ones only; never with a minimum distance or
-    a team.
+    quality, the same objective on a binary matrix) and multiview with a minimum angle, with fixed
+    and / or forbidden cameras; multiview without the angle with forbidden ones only; never with a
+    minimum distance or a team.
 
-    Multiview with fixed cameras stays on the CSR route: a row then needs ``views`` minus its fixed
-    views, a threshold of its own, which the bitset engine (one ``views`` for every row) does not
-    model (the CSR route gives it to the general model, which reads CSR rows anyway)."""
+    Multiview with fixed cameras and no angle stays on the CSR route: a row then needs ``views``
+    minus its fixed views, a threshold of its own, which the bitset engine (one ``views`` for every
+    row) does not model (the CSR route gives it to the general model, which reads CSR rows anyway).
+    The angle engine takes fixed cameras itself."""
     if o.team is not None or o.min_distance_m is not None or not (o.fixed or o.forbidden):
         return False
     if o.mode in ("maxcover", "quality"):
         return o.min_angle_deg is None
-    return o.mode == "multiview" and not o.fixed
+    return o.mode == "multiview" and (not o.fixed or o.min_angle_deg is not None)
 
 
 def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, positions: Any, points: Any) -> tuple | None:
@@ -427,7 +428,9 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
     the bits route (:func:`camplace.solver.bits_route.bits_outcome`) on the allowed columns (neither
     fixed nor forbidden; :func:`_column_bits`), the rows the fixed cameras cover weighted 0 (max
     coverage: their weight is the constant ``fixed_value`` added to the bound, as the CSR route's
-    :func:`~camplace.solver.routes.fixed_base` does), with the same ``k``.
+    :func:`~camplace.solver.routes.fixed_base` does), with the same ``k``. Multiview with a minimum
+    angle and fixed cameras: the columns not forbidden, the fixed ones among them passed on to the
+    angle engine (its bound counts them).
 
     Parameters
     ----------
@@ -469,32 +472,42 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
     if k > free_cols.size:
         raise CamplaceError(f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
                             "(lower k, or forbid/fix fewer cameras)")
-    fixed_value = covered_weight(bits, w, fixed_t)  # 0.0 without fixed cameras (multiview has none here)
+    views = o.mode == "multiview"
+    full_pos = pts = None
+    if o.min_angle_deg is not None:
+        if positions is None or points is None:
+            raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions "
+                                "(points (m, 3))")
+        full_pos = coords(positions, n, "positions", "camera positions")
+        pts = coords(points, m, "points", "point positions")
+
+    def value(sel: tuple[int, ...]) -> float:  # the mode's objective on the whole matrix
+        if views:
+            return bits_views_value(bits, w, sel, int(o.views), o.min_angle_deg, full_pos, pts) if sel else 0.0
+        return covered_weight(bits, w, sel)
+
     if k == 0:  # the fixed cameras alone (the CSR route's answer)
+        fixed_value = value(fixed_t)
         return (EngineOutcome(tuple(fixed_t), "optimal", fixed_value, {"k": 0}, engine="exact", objective=fixed_value),
                 w, fixed_t, forbidden_t)
+    # multiview (the angle) keeps the fixed columns for the engine; max coverage weights their rows 0
+    cols = np.union1d(free_cols, np.asarray(fixed_t, dtype=np.int64)) if views else free_cols
     try:
-        sub = _column_bits(bits, free_cols, "the bitsets of the allowed columns")
+        sub = _column_bits(bits, cols, "the bitsets of the allowed columns")
     except OverBudget as exc:
         log.info("%s: the CSR route", exc.message)
         return None
-    resid_w = np.where(bits.union(fixed_t), 0.0, w) if fixed_t else w  # rows the fixed cameras cover: constant
-    pos = None if positions is None else coords(positions, n, "positions", "camera positions")[free_cols]
-    got = bits_outcome(sub, resid_w, replace(o, fixed=(), forbidden=()), deadline, pos, points)
+    const = 0.0 if views else covered_weight(bits, w, fixed_t)  # the fixed cameras' covered weight
+    resid_w = np.where(bits.union(fixed_t), 0.0, w) if fixed_t and not views else w
+    local = replace(o, forbidden=(), fixed=tuple(int(j) for j in np.searchsorted(cols, fixed_t)) if views else ())
+    got = bits_outcome(sub, resid_w, local, deadline, None if full_pos is None else full_pos[cols], pts)
     if got is None:
         return None
     ctx = got[0]
-    sel = None if ctx.selected is None else tuple(sorted(set(fixed_t) | {int(free_cols[j]) for j in ctx.selected}))
-    if sel is None:
-        objective = fixed_value
-    elif o.mode == "multiview":  # forbidden columns only: the same cameras, read on the whole matrix
-        pts = None if points is None else coords(points, m, "points", "point positions")
-        full_pos = None if positions is None else coords(positions, n, "positions", "camera positions")
-        objective = bits_views_value(bits, w, sel, int(o.views), o.min_angle_deg, full_pos, pts)
-    else:
-        objective = covered_weight(bits, w, sel)
-    ctx.stats["matrix"] = f"column bitsets of the {free_cols.size} allowed columns (no CSR copy)"
-    return (EngineOutcome(sel, ctx.status, float(ctx.bound) + fixed_value, ctx.stats, engine=ctx.engine,
+    sel = None if ctx.selected is None else tuple(sorted(set(fixed_t) | {int(cols[j]) for j in ctx.selected}))
+    objective = const if sel is None else value(sel)
+    ctx.stats["matrix"] = f"column bitsets of the {cols.size} allowed columns (no CSR copy)"
+    return (EngineOutcome(sel, ctx.status, float(ctx.bound) + const, ctx.stats, engine=ctx.engine,
                           objective=objective), w, fixed_t, forbidden_t)
 
 
