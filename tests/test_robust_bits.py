@@ -170,3 +170,26 @@ def test_p10_csr_over_the_budget_is_one_line(monkeypatch) -> None:
     need = 5 * stacked.nnz + 8 * (stacked.shape[0] + 1)
     with pytest.raises(CamplaceError, match="p10 model's CSR"):
         solve_robust(bits_from_csr(stacked), rng.random(30), spec, SolveOptions(k=2, memory_budget_bytes=need - 1))
+
+
+def test_robust_run_and_solve_verb_read_bits(tmp_path, monkeypatch) -> None:
+    """A binary instance's robust run and the ``solve --pose-error`` verb on its folder: the
+    nominal and mean solves, the scenarios and their values on bits (tocsr refused), the verb's
+    answer the run's."""
+    import json
+
+    import camplace
+    from camplace.cli import main
+
+    _no_csr(monkeypatch)
+    out = tmp_path / "run"
+    from camplace.robust import make_spec
+
+    sol = camplace.run("comet-67p-bunker", candidates=30, points=300, k=2, cache=False,
+                       robust=make_spec(None, "0.1,5", 4), outdir=out)
+    m = json.loads((out / "solution.json").read_text())["n_points"]
+    assert sol.robust["stacked_shape"] == [4 * m, 30]
+    assert main(["solve", str(out), "--pose-error", "0.1,5", "--scenarios", "4", "-o", str(tmp_path / "s.json")]) == 0
+    again = json.loads((tmp_path / "s.json").read_text())
+    assert again["selected"] == list(sol.selected)
+    assert again["objective"] == pytest.approx(sol.objective, rel=1e-9)
