@@ -472,7 +472,7 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
     if k > free_cols.size:
         raise CamplaceError(f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
                             "(lower k, or forbid/fix fewer cameras)")
-    views = o.mode == "multiview"
+    multiview = o.mode == "multiview"
     full_pos = pts = None
     if o.min_angle_deg is not None:
         if positions is None or points is None:
@@ -482,7 +482,7 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
         pts = coords(points, m, "points", "point positions")
 
     def value(sel: tuple[int, ...]) -> float:  # the mode's objective on the whole matrix
-        if views:
+        if multiview:
             return bits_views_value(bits, w, sel, int(o.views), o.min_angle_deg, full_pos, pts) if sel else 0.0
         return covered_weight(bits, w, sel)
 
@@ -491,15 +491,15 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
         return (EngineOutcome(tuple(fixed_t), "optimal", fixed_value, {"k": 0}, engine="exact", objective=fixed_value),
                 w, fixed_t, forbidden_t)
     # multiview (the angle) keeps the fixed columns for the engine; max coverage weights their rows 0
-    cols = np.union1d(free_cols, np.asarray(fixed_t, dtype=np.int64)) if views else free_cols
+    cols = np.union1d(free_cols, np.asarray(fixed_t, dtype=np.int64)) if multiview else free_cols
     try:
         sub = _column_bits(bits, cols, "the bitsets of the allowed columns")
     except OverBudget as exc:
         log.info("%s: the CSR route", exc.message)
         return None
-    const = 0.0 if views else covered_weight(bits, w, fixed_t)  # the fixed cameras' covered weight
-    resid_w = np.where(bits.union(fixed_t), 0.0, w) if fixed_t and not views else w
-    local = replace(o, forbidden=(), fixed=tuple(int(j) for j in np.searchsorted(cols, fixed_t)) if views else ())
+    const = 0.0 if multiview else covered_weight(bits, w, fixed_t)  # the fixed cameras' covered weight
+    resid_w = np.where(bits.union(fixed_t), 0.0, w) if fixed_t and not multiview else w
+    local = replace(o, forbidden=(), fixed=tuple(int(j) for j in np.searchsorted(cols, fixed_t)) if multiview else ())
     got = bits_outcome(sub, resid_w, local, deadline, None if full_pos is None else full_pos[cols], pts)
     if got is None:
         return None
