@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from camplace.errors import CamplaceError, EXIT_OK, EXIT_NO_SOLUTION
 from camplace.names import ROBUST_OBJECTIVES
@@ -85,7 +85,7 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     if k is None:
         raise CamplaceError(f"--k: required (no solution.json in {folder} to take it from)")
     event_mode = args.event_mode or run.get("event_mode", "all")
-    cands, matrix, pts = run_folder.candidates, run_folder.matrix, run_folder.points
+    cands, matrix, pts = run_folder.candidates, _nominal_matrix(run_folder), run_folder.points
     weights = run_folder.weights(event_mode)
     seed = _run_seed(folder, instance.defaults.seed)
     opts = options_from_args(args, k=int(k))
@@ -105,6 +105,19 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     _print_summary(res, record)
     print(f"wrote {args.out}")
     return EXIT_OK if res.status in ("optimal", "feasible") else EXIT_NO_SOLUTION
+
+
+def _nominal_matrix(run_folder) -> Any:
+    """The run's matrix for the nominal solve and the robust stage: a binary one stored as column
+    bitsets (``colbits``) as those bits (:class:`camplace.visibility.bits.BitMatrix`: the solver and
+    the robust stage read them, no CSR), any other as its CSR matrix."""
+    path = run_folder.matrix_path
+    if path.suffix == ".cpm":
+        from camplace.visibility.store import describe, load_bits
+
+        if describe(path).get("structure") == "colbits":
+            return load_bits(path)
+    return run_folder.matrix
 
 
 def _run_seed(folder: Path, default: int) -> int:

@@ -81,8 +81,9 @@ def scenario_values(
 
     Parameters
     ----------
-    stacked : (S * m, n) scipy.sparse.csr_matrix
-        Scenario-stacked observation quality (row ``s * m + i``: point i in scenario s).
+    stacked : (S * m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
+        Scenario-stacked observation quality (row ``s * m + i``: point i in scenario s); column
+        bitsets are read for the selected columns only (their values are 1).
     weights : (m,) float64
         Point weights (of one scenario).
     scenarios : int
@@ -101,7 +102,7 @@ def scenario_values(
         raise CamplaceError(f"stacked matrix has {stacked.shape[0]} rows, expected {scenarios} x {m}")
     if len(selected) == 0:
         return np.zeros(scenarios)
-    count, vmax = selected_row_stats(stacked, selected)
+    count, vmax = _row_stats(stacked, selected)
     if mode == "quality":
         per_row = vmax.reshape(scenarios, m)
     elif mode == "multiview":
@@ -109,6 +110,22 @@ def scenario_values(
     else:
         per_row = (count > 0).reshape(scenarios, m).astype(np.float64)
     return per_row @ np.asarray(weights, dtype=np.float64)
+
+
+def _row_stats(stacked: Any, selected: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~camplace.solver.problem.objectives.selected_row_stats` of a CSR matrix or a
+    BitMatrix ((rows,) int64 counts of the selected columns observing each row, (rows,) float64
+    largest values: 1.0 where a bit is set)."""
+    if getattr(stacked, "format", None) != "bits":
+        return selected_row_stats(stacked, selected)
+    from camplace.solver.problem.presolve_bits import row_counts_of
+
+    n = stacked.shape[1]
+    cols = np.array(sorted({int(j) for j in selected}), dtype=np.int64)
+    if cols.size and (cols[0] < 0 or cols[-1] >= n):
+        raise CamplaceError(f"selected column index out of range 0..{n - 1}: {cols.tolist()}")
+    count = row_counts_of(stacked, cols)[:stacked.shape[0]]
+    return count, (count > 0).astype(np.float64)
 
 
 def _merged_blocks(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int) -> list[tuple[sp.csr_matrix, np.ndarray]]:

@@ -22,7 +22,7 @@ from camplace.solver.options import SolveOptions
 
 __all__ = [
     "ROBUST_MODES", "make_spec", "spec_record", "stack_scenarios", "scenario_matrix", "solve_robust",
-    "out_of_sample", "robust_stage", "order_p10", "scenario_values",
+    "out_of_sample", "robust_stage", "order_p10", "scenario_values", "stack_bit_scenarios", "stack_bits_bytes",
 ]
 
 log = logging.getLogger(__name__)
@@ -158,23 +158,85 @@ def stack_scenarios(matrix: sp.spmatrix, n: int, scenarios: int) -> sp.csr_matri
     return sp.csr_matrix((data, indices, indptr), shape=(S * m, n))
 
 
-def _compute(instance, poses: CandidateSet, pts, *, cache: bool, memory_budget_bytes: int | None, reporter, label: str):
+#: :func:`stack_bit_scenarios` restacks about this many bytes of unpacked bits at a time.
+_STACK_BLOCK_BYTES = 64 * 2**20
+
+
+def stack_bits_bytes(m: int, n: int, scenarios: int) -> int:
+    """Bytes of a binary run's scenario bits: the wide (m, S * n) column bitsets as the
+    visibility stage makes them, the stacked (S * m, n) ones and :func:`stack_bit_scenarios`'s
+    block of unpacked bits (``_STACK_BLOCK_BYTES``)."""
+    from camplace.visibility.bits import bit_words
+
+    s = int(scenarios)
+    return 8 * (n * s * bit_words(m) + n * bit_words(s * m)) + 2 * _STACK_BLOCK_BYTES
+
+
+def stack_bit_scenarios(wide: Any, n: int, scenarios: int) -> Any:
+    """:func:`stack_scenarios` of a binary matrix held as column bitsets, without a CSR.
+
+    Parameters
+    ----------
+    wide : camplace.visibility.bits.BitMatrix
+        (m, S * n): column ``s * n + j`` is candidate ``j`` installed as in scenario ``s``.
+    n : int
+        Candidates.
+    scenarios : int
+        S.
+
+    Returns
+    -------
+    camplace.visibility.bits.BitMatrix
+        (S * m, n): column ``j``'s rows ``s * m .. s * m + m - 1`` are the bits of wide column
+        ``s * n + j`` (``(n, ceil(S * m / 64))`` uint64 words, ``8 n ceil(S m / 64)`` bytes).
+
+    Notes
+    -----
+    Scenario ``s``'s rows start at bit ``s * m``, not at a word boundary unless 64 divides m: the
+    columns are unpacked to bytes and packed again, a block of columns at a time (about
+    ``_STACK_BLOCK_BYTES`` of bytes, in :func:`stack_bits_bytes`).
+    """
+    from camplace.visibility.bits import BitMatrix, bit_words
+
+    m = wide.shape[0]
+    s_count = int(scenarios)
+    if wide.shape[1] != n * s_count:
+        raise CamplaceError(f"matrix has {wide.shape[1]} columns, expected {s_count} x {n}")
+    words_in = np.asarray(wide.words)
+    out = np.zeros((n, bit_words(s_count * m)), dtype=np.uint64)
+    step = max(1, _STACK_BLOCK_BYTES // max(1, s_count * m))
+    cells = np.zeros((min(step, max(n, 1)), out.shape[1] * 64), dtype=np.uint8)  # rows past S * m stay 0
+    for j0 in range(0, n, step):
+        j1 = min(n, j0 + step)
+        for s in range(s_count):
+            block = words_in[s * n + j0:s * n + j1].view(np.uint8)
+            cells[:j1 - j0, s * m:(s + 1) * m] = np.unpackbits(block, axis=1, count=m, bitorder="little")
+        out[j0:j1] = np.packbits(cells[:j1 - j0], axis=1, bitorder="little").view(np.uint64)
+    return BitMatrix(out, s_count * m)
+
+
+def _compute(instance, poses: CandidateSet, pts, *, bits: bool, cache: bool, memory_budget_bytes: int | None, reporter,
+             label: str):
+    """The visibility of ``poses``: with ``bits``, a binary instance's column bitsets
+    (:class:`~camplace.visibility.bits.BitMatrix`), else the CSR matrix."""
     from camplace.visibility import compute_visibility
     from camplace.visibility.cache import default_cache_dir
 
     if reporter is None:
-        return compute_visibility(instance, poses, pts, memory_budget_bytes=memory_budget_bytes,
-                                  cache_dir=default_cache_dir() if cache else None).matrix
-    with reporter.stage(label, total=len(poses)) as advance:
-        return compute_visibility(instance, poses, pts, progress=advance, memory_budget_bytes=memory_budget_bytes,
-                                  cache_dir=default_cache_dir() if cache else None).matrix
+        vis = compute_visibility(instance, poses, pts, memory_budget_bytes=memory_budget_bytes,
+                                 cache_dir=default_cache_dir() if cache else None)
+    else:
+        with reporter.stage(label, total=len(poses)) as advance:
+            vis = compute_visibility(instance, poses, pts, progress=advance, memory_budget_bytes=memory_budget_bytes,
+                                     cache_dir=default_cache_dir() if cache else None)
+    return vis.bits if bits and vis.bits is not None else vis.matrix
 
 
 def scenario_matrix(
     instance, cands: CandidateSet, pts, spec: RobustSpec, *, seed: int, stream: int = IN_SAMPLE_STREAM,
     columns: Sequence[int] | None = None, scenarios: int | None = None, nominal_nnz: int | None = None,
-    cache: bool = True, memory_budget_bytes: int | None = None, reporter=None,
-) -> sp.csr_matrix:
+    cache: bool = True, memory_budget_bytes: int | None = None, reporter=None, bits: bool = False,
+) -> Any:
     """The stacked scenario matrix of some candidates (one visibility pass over S * c poses).
 
     Parameters
@@ -194,18 +256,25 @@ def scenario_matrix(
         ray is cast and an oversized request stops with a one-line error.
     cache, memory_budget_bytes, reporter
         As for the visibility stage.
+    bits : bool
+        Return a binary instance's scenarios as column bitsets (the robust stage does): no CSR is
+        made. False (default): CSR float32 always.
 
     Returns
     -------
-    (S * m, c) scipy.sparse.csr_matrix of float32
+    (S * m, c) camplace.visibility.bits.BitMatrix, or scipy.sparse.csr_matrix of float32
+        With ``bits``, a binary instance's scenarios as column bitsets (:func:`stack_bit_scenarios`:
+        no CSR is made; ``nominal_nnz`` then checks :func:`stack_bits_bytes` against the budget);
+        otherwise CSR values (:func:`stack_scenarios`).
     """
     from camplace.visibility.engine import available_memory_bytes
 
     s_count = int(spec.scenarios if scenarios is None else scenarios)
     c = len(cands) if columns is None else len(columns)
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
+    binary = bits and instance.quality.mode != "graded"  # the visibility stage makes column bitsets
     if nominal_nnz is not None:
-        need = int(nominal_nnz) * s_count * _STACK_BYTES_PER_NNZ
+        need = stack_bits_bytes(len(pts), c, s_count) if binary else int(nominal_nnz) * s_count * _STACK_BYTES_PER_NNZ
         if need > budget:
             raise CamplaceError(
                 f"--scenarios: the {s_count} scenarios of {c} candidates need about {need / 2**30:.1f} GiB "
@@ -213,8 +282,10 @@ def scenario_matrix(
             )
     poses = perturb_poses(cands, columns, s_count, spec.position_sigma_m, spec.rotation_sigma_deg, seed=seed, stream=stream,
                           design="sobol" if stream == IN_SAMPLE_STREAM else "iid")
-    wide = _compute(instance, poses, pts, cache=cache, memory_budget_bytes=budget, reporter=reporter,
+    wide = _compute(instance, poses, pts, bits=binary, cache=cache, memory_budget_bytes=budget, reporter=reporter,
                     label="robust visibility" if stream == IN_SAMPLE_STREAM else "out-of-sample visibility")
+    if getattr(wide, "format", None) == "bits":
+        return stack_bit_scenarios(wide, c, s_count)
     return stack_scenarios(wide, c, s_count)
 
 
@@ -226,7 +297,10 @@ def solve_robust(
 
     Parameters
     ----------
-    stacked : (S * m, n) scipy.sparse.csr_matrix
+    stacked : (S * m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
+        Scenario-stacked observations (:func:`scenario_matrix`). Bits: the mean solve reads
+        them (:func:`camplace.solver.solve`'s bits route); ``p10`` makes their bool CSR (5 bytes
+        an observed pair, checked against the memory budget).
     weights : (m,) float64
         The run's row weights (one scenario).
     spec : RobustSpec
@@ -257,10 +331,25 @@ def solve_robust(
     from camplace.robust.p10 import solve_p10
 
     conflicts = conflict_pairs(np.asarray(positions), float(min_d)) if min_d is not None else None
+    if getattr(stacked, "format", None) == "bits":  # the p10 model reads the scenarios' rows: a bool CSR
+        stacked = _p10_csr(stacked, options.memory_budget_bytes)
     # the options unchanged: the per-scenario solves and the p10 model keep to their memory budget
     # and thread count (the engine was checked by robust_checks: auto or mip)
     return solve_p10(stacked, weights, s_count, options, conflicts=conflicts, incumbents=[mean.selected, *incumbents],
                      mean_bound=mean.bound)
+
+
+def _p10_csr(stacked: Any, budget_bytes: int | None) -> sp.csr_matrix:
+    """The bool CSR pattern of stacked scenario bits (the p10 model and its swap search read rows),
+    about 5 bytes an observed pair, checked against the memory budget before it is made."""
+    from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes, memory_fallback
+
+    with memory_budget(budget_bytes):
+        need, budget = 5 * int(stacked.nnz) + 8 * (stacked.shape[0] + 1), memory_budget_bytes()
+    if need > budget:
+        memory_fallback(OverBudget(need, budget, "the p10 model's CSR of the scenarios"), None, asked=False, then=None,
+                        fix="use --robust-objective mean, or lower --scenarios, --candidates or --points")
+    return stacked.tocsr(np.bool_)
 
 
 def out_of_sample(
@@ -281,6 +370,7 @@ def out_of_sample(
     stacked = scenario_matrix(
         instance, cands, pts, spec, seed=seed, stream=OUT_OF_SAMPLE_STREAM, columns=union,
         scenarios=spec.eval_scenarios, cache=cache, memory_budget_bytes=memory_budget_bytes, reporter=reporter,
+        bits=True,
     )
     where = {j: t for t, j in enumerate(union)}
     return {
@@ -303,8 +393,9 @@ def robust_stage(
     ----------
     instance, cands, pts
         The run's instance, candidates and points.
-    nominal_matrix : (m, n) scipy.sparse.csr_matrix
-        The nominal visibility matrix.
+    nominal_matrix : (m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
+        The nominal visibility matrix (its ``nnz`` and ``shape`` are read; a binary run's
+        scenarios are then cast and stacked as bits, :func:`scenario_matrix` with ``bits``).
     weights : (m,) float64
         The row weights the run maximises.
     nominal : camplace.solver.SolverResult
@@ -347,7 +438,7 @@ def robust_stage(
     t0 = time.perf_counter()
     stacked = scenario_matrix(
         instance, cands, pts, spec, seed=seed, nominal_nnz=nominal_matrix.nnz, cache=cache,
-        memory_budget_bytes=memory_budget_bytes, reporter=reporter,
+        memory_budget_bytes=memory_budget_bytes, reporter=reporter, bits=True,
     )
     timings["robust.visibility"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -228,6 +228,10 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         if got is not None:
             ctx, w = got
             return _result(ctx, o, w, (), (), np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        sided = _sides_bits(matrix, weights, o, deadline, positions, points) if _sides_bits_applies(o) else None
+        if sided is not None:  # fixed / forbidden cameras: the bits route on the allowed columns
+            ctx, w, fixed_t, forbidden_t = sided
+            return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
         team = _team_bits(matrix, weights, o, deadline) if _team_bits_applies(o) else None
         if team is not None:  # a team's branch and bound read the bits too
             ctx, w, fixed_t, forbidden_t = team
@@ -402,25 +406,145 @@ def _setcover_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline)
     return ctx, w, fixed_t, forbidden_t
 
 
-def _bits_columns_solve(bits: Any, w: np.ndarray, sub: SolveOptions) -> SolverResult:
-    """:func:`_solve` of ``sub`` (no team) on the columns of ``bits`` it does not forbid: the
-    bitsets of those columns (a view when they are one range, else a copy of
-    ``columns x ceil(m / 64) x 8`` bytes, checked against the memory budget), so that the bits route
-    applies; ``selected`` mapped back to the columns of ``bits``."""
-    from camplace.visibility.bits import BitMatrix
+def _sides_bits_applies(o: SolveOptions) -> bool:
+    """Fixed or forbidden cameras that :func:`_sides_bits` takes on the bits: max coverage (and
+    quality, the same objective on a binary matrix) and multiview with a minimum angle, with fixed
+    and / or forbidden cameras; multiview without the angle with forbidden ones only; never with a
+    minimum distance or a team.
+
+    Multiview with fixed cameras and no angle stays on the CSR route: a row then needs ``views``
+    minus its fixed views, a threshold of its own, which the bitset engine (one ``views`` for every
+    row) does not model (the CSR route gives it to the general model, which reads CSR rows anyway).
+    The angle engine takes fixed cameras itself."""
+    if o.team is not None or o.min_distance_m is not None or not (o.fixed or o.forbidden):
+        return False
+    if o.mode in ("maxcover", "quality"):
+        return o.min_angle_deg is None
+    return o.mode == "multiview" and (not o.fixed or o.min_angle_deg is not None)
+
+
+def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, positions: Any, points: Any) -> tuple | None:
+    """Fixed and forbidden cameras on a binary matrix held as column bitsets, without a CSR copy:
+    the bits route (:func:`camplace.solver.bits_route.bits_outcome`) on the allowed columns (neither
+    fixed nor forbidden; :func:`_column_bits`), the rows the fixed cameras cover weighted 0 (max
+    coverage: their weight is the constant ``fixed_value`` added to the bound, as the CSR route's
+    :func:`~camplace.solver.routes.fixed_base` does), with the same ``k``. Multiview with a minimum
+    angle and fixed cameras: the columns not forbidden, the fixed ones among them passed on to the
+    angle engine (its bound counts them).
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n) observed pairs.
+    weights : (m,) array_like of float64
+    o : SolveOptions
+        Checked options with :func:`_sides_bits_applies`.
+    deadline : Deadline
+    positions : (n, 3) array_like, optional
+        Camera positions (metres; multiview with a minimum angle).
+    points : (m, 3) array_like, optional
+        Point positions (metres; the same).
+
+    Returns
+    -------
+    (EngineOutcome, (m,) float64 weights, fixed, forbidden) or None
+        ``selected`` holds the fixed and new cameras (original columns), ``objective`` is
+        recomputed on the whole matrix (fixed cameras included) and ``bound`` is the reduced
+        problem's plus ``fixed_value``. None when the bits route does not take the reduced problem
+        (another engine choice, over the memory budget) or the allowed columns' bitsets do not fit:
+        the caller converts the bits to CSR as before.
+    """
+    from camplace.solver.bits_route import bits_outcome
+    from camplace.solver.problem.objectives import bits_views_value
+    from camplace.solver.problem.presolve_bits import covered_weight
 
     m, n = bits.shape
+    w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
+    k = o.k
+    if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
+        raise CamplaceError(f"k must be an integer number of cameras for mode {o.mode!r}, got {k!r}")
+    k = int(k)
+    free = np.ones(n, dtype=bool)
+    free[list(set(fixed_t) | set(forbidden_t))] = False
+    free_cols = np.flatnonzero(free)
+    if k < (0 if fixed_t else 1):
+        raise CamplaceError(f"k must be at least {0 if fixed_t else 1}, got {k}")
+    if k > free_cols.size:
+        raise CamplaceError(f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
+                            "(lower k, or forbid/fix fewer cameras)")
+    multiview = o.mode == "multiview"
+    full_pos = pts = None
+    if o.min_angle_deg is not None:
+        if positions is None or points is None:
+            raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions "
+                                "(points (m, 3))")
+        full_pos = coords(positions, n, "positions", "camera positions")
+        pts = coords(points, m, "points", "point positions")
+
+    def value(sel: tuple[int, ...]) -> float:  # the mode's objective on the whole matrix
+        if multiview:
+            return bits_views_value(bits, w, sel, int(o.views), o.min_angle_deg, full_pos, pts) if sel else 0.0
+        return covered_weight(bits, w, sel)
+
+    if k == 0:  # the fixed cameras alone (the CSR route's answer)
+        fixed_value = value(fixed_t)
+        return (EngineOutcome(tuple(fixed_t), "optimal", fixed_value, {"k": 0}, engine="exact", objective=fixed_value),
+                w, fixed_t, forbidden_t)
+    # multiview (the angle) keeps the fixed columns for the engine; max coverage weights their rows 0
+    cols = np.union1d(free_cols, np.asarray(fixed_t, dtype=np.int64)) if multiview else free_cols
+    try:
+        sub = _column_bits(bits, cols, "the bitsets of the allowed columns")
+    except OverBudget as exc:
+        log.info("%s: the CSR route", exc.message)
+        return None
+    const = 0.0 if multiview else covered_weight(bits, w, fixed_t)  # the fixed cameras' covered weight
+    resid_w = np.where(bits.union(fixed_t), 0.0, w) if fixed_t and not multiview else w
+    local = replace(o, forbidden=(), fixed=tuple(int(j) for j in np.searchsorted(cols, fixed_t)) if multiview else ())
+    got = bits_outcome(sub, resid_w, local, deadline, None if full_pos is None else full_pos[cols], pts)
+    if got is None:
+        return None
+    ctx = got[0]
+    sel = None if ctx.selected is None else tuple(sorted(set(fixed_t) | {int(cols[j]) for j in ctx.selected}))
+    objective = const if sel is None else value(sel)
+    ctx.stats["matrix"] = f"column bitsets of the {cols.size} allowed columns (no CSR copy)"
+    return (EngineOutcome(sel, ctx.status, float(ctx.bound) + const, ctx.stats, engine=ctx.engine,
+                          objective=objective), w, fixed_t, forbidden_t)
+
+
+def _column_bits(bits: Any, cols: np.ndarray, what: str) -> Any:
+    """The :class:`~camplace.visibility.bits.BitMatrix` of the columns ``cols`` ((c,) int64,
+    sorted, distinct) of ``bits``: a view when they are one range, else a copy of
+    ``c x ceil(m / 64) x 8`` bytes, checked against the memory budget first.
+
+    Raises
+    ------
+    OverBudget
+        The copy would not fit (``what`` names it).
+    """
+    from camplace.visibility.bits import BitMatrix
+
+    m = bits.shape[0]
+    if cols.size and cols[-1] - cols[0] + 1 == cols.size:
+        return BitMatrix(bits.words[int(cols[0]):int(cols[-1]) + 1], m)  # one range: a view
+    need, budget = cols.size * bits.words.shape[1] * 8, memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, what)
+    return BitMatrix(bits.words[cols], m)
+
+
+def _bits_columns_solve(bits: Any, w: np.ndarray, sub: SolveOptions) -> SolverResult:
+    """:func:`_solve` of ``sub`` (no team) on the columns of ``bits`` it does not forbid: the
+    bitsets of those columns (:func:`_column_bits`: a view or a copy checked against the memory
+    budget), so that the bits route applies; ``selected`` mapped back to the columns of ``bits``."""
+    m, n = bits.shape
     allowed = np.setdiff1d(np.arange(n, dtype=np.int64), np.asarray(sub.forbidden, dtype=np.int64))
-    if allowed.size and allowed[-1] - allowed[0] + 1 == allowed.size:
-        words = bits.words[int(allowed[0]):int(allowed[-1]) + 1]  # one range: a view
-    else:
-        need, budget = allowed.size * bits.words.shape[1] * 8, memory_budget_bytes()
-        if need > budget:
-            memory_fallback(OverBudget(need, budget, "the bitsets of one camera model's columns"), None, asked=False,
-                            then=None, fix="use fewer candidates / points")
-        words = bits.words[allowed]
+    try:
+        cols = _column_bits(bits, allowed, "the bitsets of one camera model's columns")
+    except OverBudget as exc:
+        memory_fallback(exc, None, asked=False, then=None, fix="use fewer candidates / points")
+        raise  # memory_fallback raises when there is nothing to fall back to
     local = replace(sub, forbidden=(), fixed=tuple(int(j) for j in np.searchsorted(allowed, sub.fixed)))
-    res = _solve(BitMatrix(words, m), w, None, None, local)
+    res = _solve(cols, w, None, None, local)
     return replace(res, selected=tuple(int(allowed[j]) for j in res.selected))
 
 

@@ -3,7 +3,11 @@ visibility stage made it (:class:`camplace.visibility.bits.BitMatrix`, one bit a
 CSR copy.
 
 :func:`bits_outcome` takes the cases without fixed, forbidden, minimum-distance or team
-constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that read bits:
+constraints, on the routes of :func:`~camplace.solver.choose.choose_engine` that read bits
+(forbidden cameras, and fixed ones in max coverage, come here as the allowed columns' bitsets
+with the fixed-covered rows weighted 0; fixed ones in multiview with a minimum angle as
+``o.fixed`` among the columns, for the angle engine, its warm start and its cap:
+``camplace.solver.api._sides_bits``):
 
 ``maxcover`` (and ``quality``, the same objective on a binary matrix)
     plain max coverage (``exact`` for k <= 4 under ``auto``): the presolve of
@@ -32,7 +36,8 @@ its bitsets copied); plain max coverage on bits is not (the engines' own greedy 
 incumbent, as before). Any other case
 (another engine choice, an engine over the memory budget) returns None and
 :func:`camplace.solver.api.solve` converts the bits to a bool CSR pattern (5 bytes an observed
-pair) and goes on as before. Set cover on bits is
+pair) and goes on as before; so do multiview with fixed cameras and no angle (a row's threshold is ``views``
+less its fixed views, which the bitset engine does not model), a minimum distance and k > 4. Set cover on bits is
 :func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``).
 """
 
@@ -111,8 +116,11 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline, positi
     k = int(k)
     if k < 1:
         raise CamplaceError(f"k must be at least 1, got {k}")
-    if k > n:
-        raise CamplaceError(f"cannot choose k={k} new cameras from {n} allowed candidates "
+    fixed = tuple(int(j) for j in o.fixed)
+    if fixed and not (o.mode == "multiview" and o.min_angle_deg is not None):
+        raise CamplaceError("bits route: fixed cameras only with a minimum angle (the caller weights the rest)")
+    if k > n - len(fixed):
+        raise CamplaceError(f"cannot choose k={k} new cameras from {n - len(fixed)} allowed candidates "
                             "(lower k, or forbid/fix fewer cameras)")
     if o.mode == "multiview":
         pos = pts = None
@@ -122,7 +130,7 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline, positi
                                     "(points (m, 3))")
             pos = coords(positions, n, "positions", "camera positions")
             pts = coords(points, m, "points", "point positions")
-        got = _multiview(_Views(bits, w, k, o, pos, pts), deadline)
+        got = _multiview(_Views(bits, w, k, o, pos, pts, fixed), deadline)
     else:
         got = _maxcover(bits, w, k, o, deadline)
     return None if got is None else (got, w)
@@ -152,8 +160,10 @@ def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) 
 
 @dataclass(frozen=True)
 class _Views:
-    """One multiview problem on bits: the matrix, the checked weights, k, the options and, with a
-    minimum angle, the checked camera (n, 3) and point (m, 3) positions."""
+    """One multiview problem on bits: the matrix, the checked weights, k (new cameras), the
+    options, with a minimum angle the checked camera (n, 3) and point (m, 3) positions, and the
+    fixed cameras (columns of ``bits``; a minimum angle only: the angle engine takes them, the
+    bitset engine does not)."""
 
     bits: Any
     w: np.ndarray
@@ -161,15 +171,23 @@ class _Views:
     o: SolveOptions
     pos: np.ndarray | None
     pts: np.ndarray | None
+    fixed: tuple[int, ...] = ()
 
     @property
     def angle(self) -> bool:
         return self.o.min_angle_deg is not None
 
+    @property
+    def free(self) -> np.ndarray:
+        """(f,) int64: the columns the new cameras are chosen from (all but the fixed ones)."""
+        return np.setdiff1d(np.arange(self.bits.shape[1], dtype=np.int64), np.asarray(self.fixed, dtype=np.int64))
+
     def columns(self, cols: np.ndarray) -> "_Views":
-        """The same problem on the columns ``cols`` (their bitsets copied)."""
+        """The same problem on the columns ``cols`` (sorted, the fixed ones among them; their
+        bitsets copied)."""
         return replace(self, bits=BitMatrix(self.bits.words[cols], self.bits.shape[0]),
-                       pos=None if self.pos is None else self.pos[cols])
+                       pos=None if self.pos is None else self.pos[cols],
+                       fixed=tuple(int(j) for j in np.searchsorted(cols, np.asarray(self.fixed, dtype=np.int64))))
 
     def value(self, sel: tuple[int, ...] | None) -> float:
         """The objective of ``sel`` (:func:`~camplace.solver.problem.objectives.mode_value`'s number)."""
@@ -185,14 +203,15 @@ def _multiview(p: _Views, deadline: Deadline) -> EngineOutcome | None:
     :func:`camplace.solver.api.solve`, on the bits. None off those routes, or when the engine's
     working memory is over the budget (the CSR route then falls back as before)."""
     views = int(p.o.views)
-    cap = cap_applies(p.k, views)
+    cameras = p.k + len(p.fixed)  # new and fixed, as the CSR route counts them
+    cap = cap_applies(cameras, views)
     inner = cap_deadline(deadline) if cap else deadline  # leaves the cap its share of the limit
     got = _search(p, inner)
     if got is None:
         return None
     searched = got.stats.get("engine_stats", {}).get("search") == "opposite pairs"  # already bounded by them
     if cap and got.selected is not None and got.status != "optimal" and not searched and not deadline.expired():
-        got = cap_bound(got, p.bits, p.w, views, p.k, None, deadline)
+        got = cap_bound(got, p.bits, p.w, views, cameras, None, deadline)  # every column: the free and the fixed
     return got
 
 
@@ -201,10 +220,11 @@ def _search(p: _Views, deadline: Deadline, warm: bool = True,
     """The route on ``p.bits``: with ``warm``, warm-started as :func:`camplace.solver.routes.run_cover`
     warm-starts it (more than ``WARM_MIN_COLS`` columns, k <= ``WARM_MAX_K``, a time limit); then
     the engine (:func:`_bitset` or :func:`_angle`), from ``start`` (k original columns) when given."""
-    n = p.bits.shape[1]
-    if warm and p.k <= WARM_MAX_K and n > WARM_MIN_COLS and deadline.limit is not None:
+    n_free = p.bits.shape[1] - len(p.fixed)
+    if warm and p.k <= WARM_MAX_K and n_free > WARM_MIN_COLS and deadline.limit is not None:
         return _warm_started(p, deadline)
-    choice = choose_engine(problem_sizes(p.bits, p.k, n, 0, 0, "multiview"), p.o, memory_budget_bytes())
+    choice = choose_engine(problem_sizes(p.bits, p.k, n_free, len(p.fixed), 0, "multiview"), p.o,
+                           memory_budget_bytes())
     if choice.route != ("angle" if p.angle else "multiview"):
         return None
     return (_angle if p.angle else _bitset)(p, choice, deadline, start)
@@ -213,6 +233,7 @@ def _search(p: _Views, deadline: Deadline, warm: bool = True,
 def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:
     """:func:`camplace.solver.routes._multiview` on bits: the bit presolve without dominance, then
     the bitset engine with ``views``; None when the engine's estimate is over the budget."""
+    assert not p.fixed  # the bitset engine has one views for every row (choose_engine: the model)
     k, views, budget = p.k, int(p.o.views), memory_budget_bytes()
     stats = _choice_stats(k, choice)
     pre = presolve_bits(p.bits, p.w, k, dominance=False, deadline=deadline)  # dominance: one view only
@@ -233,16 +254,15 @@ def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None)
     """:func:`camplace.solver.routes._angle` on bits: the angle engine reading the bitsets; None when
     it does not fit in the memory budget."""
     assert p.pos is not None and p.pts is not None and p.o.min_angle_deg is not None
-    n = p.bits.shape[1]
     stats = _choice_stats(p.k, choice)
     try:
         out = solve_angle(p.bits, p.w, p.k, int(p.o.views), float(p.o.min_angle_deg), p.pos, p.pts,
-                          np.zeros(0, dtype=np.int64), np.arange(n, dtype=np.int64), deadline=deadline,
+                          np.asarray(p.fixed, dtype=np.int64), p.free, deadline=deadline,
                           budget_bytes=memory_budget_bytes(), start=start)
     except OverBudget as exc:
         log.info("multiview on bits: %s: the CSR route", exc.message)
         return None
-    sel = tuple(sorted(int(j) for j in out.selected))
+    sel = tuple(sorted(set(p.fixed) | {int(j) for j in out.selected}))  # the engine's are the new cameras
     stats["engine_stats"] = dict(out.stats)
     return EngineOutcome(sel, out.status, float(out.bound), stats, engine="exact", objective=p.value(sel))
 
@@ -256,13 +276,14 @@ def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
 
     The subset's bitsets are a copy (``columns x ceil(m / 64) x 8`` bytes, checked against the
     memory budget: over it, no warm start)."""
-    m, n = p.bits.shape
     k = p.k
-    cols = spread_subset(np.arange(n, dtype=np.int64), p.pos, WARM_SHRINK) if p.angle else np.zeros(0, dtype=np.int64)
-    if cols.size < k:
-        colw = column_weights(p.bits, p.w)  # weights >= 0 (checked): the CSR route's ranking
-        size = max(k, -(-n // WARM_SHRINK))
-        cols = np.sort(np.lexsort((np.arange(n), -colw))[:size])
+    free = p.free
+    sub_free = spread_subset(free, p.pos, WARM_SHRINK) if p.angle else np.zeros(0, dtype=np.int64)
+    if sub_free.size < k:
+        colw = column_weights(p.bits, p.w)[free]  # weights >= 0 (checked): the CSR route's ranking
+        size = max(k, -(-free.size // WARM_SHRINK))
+        sub_free = np.sort(free[np.lexsort((np.arange(free.size), -colw))[:size]])
+    cols = np.union1d(sub_free, np.asarray(p.fixed, dtype=np.int64))  # the subset and the fixed cameras
     need, budget = cols.size * p.bits.words.shape[1] * 8, memory_budget_bytes()
     if need > budget:
         log.info("multiview on bits: no warm start (the subset's bitsets need %.3g GiB)", need / 2**30)
@@ -271,11 +292,12 @@ def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
     got_sel = None if got is None or got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
     warm: dict[str, Any] = {}
     if got is not None:
-        warm = {"columns": int(cols.size), "status": got.status, "objective": float(got.objective),
+        warm = {"columns": int(sub_free.size), "status": got.status, "objective": float(got.objective),
                 "engine": got.engine, "time_s": deadline.elapsed()}
         if "warm_start" in got.stats:
             warm["inner"] = got.stats["warm_start"]
-    out = _search(p, deadline, warm=False, start=got_sel)
+    start = None if got_sel is None else tuple(sorted(set(got_sel) - set(p.fixed)))  # its new cameras
+    out = _search(p, deadline, warm=False, start=start)
     if out is None:
         return None
     if warm:
