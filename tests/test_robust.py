@@ -531,3 +531,37 @@ def test_cli_robust_run_and_solve_enforce_the_builtin_team(tmp_path) -> None:
     team = TeamConstraints.from_team(run_folder.instance.team, run_folder.candidates)
     assert again["selected"] and team.violations(again["selected"]) == [], again["selected"]
     assert again["stats"]["team"]["budget"] == team.budget
+
+
+@pytest.mark.parametrize("layout", ["csr", "bits"])
+def test_a_mean_solve_stopped_on_a_worse_system_keeps_the_better_incumbent(bunker, monkeypatch, layout) -> None:
+    """A mean solve that stops at its time limit below a starting system (the nominal optimum)
+    returns that system: status feasible, its sampled mean (the enumeration's number) as the
+    objective, the solve's bound kept."""
+    import dataclasses
+
+    import camplace.solver.api as api
+
+    inst, cands, pts, _ = bunker
+    S, k = 4, 2
+    spec = RobustSpec(*SIGMA, scenarios=S)
+    stacked = scenario_matrix(inst, cands, pts, spec, seed=0, cache=False, bits=layout == "bits")
+    means = {sel: float(np.mean(scenario_values(stacked, pts.weight, S, sel)))
+             for sel in itertools.combinations(range(len(cands)), k)}
+    best_sel = max(means, key=means.get)
+    worst_seen = min((s for s in means if means[s] > 0), key=means.get)
+    real = api.solve
+
+    def stopped_early(*args, **kw):  # the solve's bound, a poor answer
+        got = real(*args, **kw)
+        return dataclasses.replace(got, selected=worst_seen, objective=means[worst_seen], status="feasible")
+
+    monkeypatch.setattr(api, "solve", stopped_early)
+    res = solve_robust(stacked, pts.weight, spec, SolveOptions(mode="maxcover", k=k), incumbents=[best_sel])
+    assert tuple(res.selected) == best_sel and res.status == "feasible"
+    assert res.objective == pytest.approx(means[best_sel], rel=1e-12)
+    assert res.bound >= res.objective
+    assert res.stats["kept_incumbent"]["solve_objective"] == pytest.approx(means[worst_seen])
+    monkeypatch.setattr(api, "solve", real)
+    plain = solve_robust(stacked, pts.weight, spec, SolveOptions(mode="maxcover", k=k), incumbents=[worst_seen])
+    assert "kept_incumbent" not in plain.stats and plain.objective == pytest.approx(means[best_sel], rel=1e-9)

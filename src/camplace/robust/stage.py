@@ -326,6 +326,7 @@ def solve_robust(
     min_d = options.min_distance_m
     w_stacked = np.tile(np.asarray(weights, dtype=np.float64), s_count) / s_count
     mean = solve(stacked, w_stacked, positions=positions if min_d is not None else None, options=options)
+    mean = _at_least_the_incumbents(mean, stacked, weights, s_count, options, incumbents)
     if spec.objective == "mean":
         return mean
     from camplace.robust.p10 import solve_p10
@@ -337,6 +338,33 @@ def solve_robust(
     # and thread count (the engine was checked by robust_checks: auto or mip)
     return solve_p10(stacked, weights, s_count, options, conflicts=conflicts, incumbents=[mean.selected, *incumbents],
                      mean_bound=mean.bound)
+
+
+def _at_least_the_incumbents(mean, stacked: Any, weights: np.ndarray, s_count: int, options: SolveOptions,
+                             incumbents: Sequence[Sequence[int]]):
+    """The mean solve's answer, or the best of ``incumbents`` (systems that keep the same
+    constraints, e.g. the nominal optimum) when the solve stopped at its time limit on a worse
+    one: a robust answer is never below the nominal one's sampled mean. The bound is the solve's
+    (still valid); the status is then ``feasible`` and ``stats["kept_incumbent"]`` says so."""
+    best, best_value = None, float(mean.objective) if mean.selected else -math.inf
+    for sel in incumbents:
+        sel = tuple(sorted(int(j) for j in sel))
+        if not sel:
+            continue
+        value = float(np.mean(scenario_values(stacked, weights, s_count, sel, mode=options.mode, views=options.views)))
+        if value > best_value * (1.0 + 1e-12) + 1e-15:  # summed in another order: a relative margin
+            best, best_value = sel, value
+    if best is None:
+        return mean
+    status = "feasible" if mean.status in ("optimal", "feasible", "unknown") else mean.status
+    bound = max(float(mean.bound), best_value)
+    gap = (bound - best_value) / max(abs(bound), 1e-12)
+    stats = {**mean.stats, "kept_incumbent": {"selected": list(best), "mean": best_value,
+                                              "solve_objective": float(mean.objective)}}
+    log.info("robust: the mean solve stopped at %.6f, below a starting system's %.6f: keeping that one",
+             float(mean.objective), best_value)
+    return replace(mean, selected=best, status=status, objective=best_value, bound=bound, gap=gap,
+                               stats=stats)
 
 
 def _p10_csr(stacked: Any, budget_bytes: int | None) -> sp.csr_matrix:
