@@ -164,3 +164,28 @@ def test_presolve_bits_on_arrays_faulted_in_by_the_workers(monkeypatch) -> None:
             np.testing.assert_array_equal(got.columns, ref.columns)
             np.testing.assert_array_equal(got.row_groups, ref.row_groups)
             np.testing.assert_array_equal(got.bits, ref.bits)
+
+
+@pytest.mark.parametrize("collide", [False, True])
+def test_grouped_rows_equal_a_dict_of_row_bytes_at_every_thread_count(collide: bool) -> None:
+    """The parallel grouping of identical rows: the groups a dict of the rows' bytes gives
+    (numbered by first occurrence), with real hashes and with every row in three hash buckets
+    (exact comparison decides), at 1, 2 and 3 workers."""
+    from camplace.solver.problem import presolve_bits as pb
+
+    rng = np.random.default_rng(5)
+    base = rng.integers(0, 2**63, size=(40, 5), dtype=np.uint64)
+    rb = base[rng.integers(0, 40, size=900)]
+    rb[rng.random(900) < 0.1, 2] ^= np.uint64(1)  # near-duplicates: one bit apart
+    idx = np.sort(rng.choice(900, size=700, replace=False)).astype(np.int64)
+    h = np.zeros(900, dtype=np.uint64)
+    has = np.zeros(900, dtype=bool)
+    pb._hash_rows(rb, 0, 900, h, has)
+    hs = h[idx] % np.uint64(3) if collide else h[idx]
+    keys = [rb[i].tobytes() for i in idx]
+    ref = {key: g for g, key in enumerate(dict.fromkeys(keys))}
+    want = [ref[key] for key in keys]
+    assert 40 < len(ref) < 700
+    for workers in (1, 2, 3):
+        groups, n_groups = pb._grouped_rows(rb, idx, hs, workers)
+        assert n_groups == len(ref) and groups.tolist() == want

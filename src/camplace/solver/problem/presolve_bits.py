@@ -216,40 +216,72 @@ def _hash_rows(rb, lo, hi, h, has):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _group_rows(rb, idx, h):  # pragma: no cover - compiled
-    """Groups of identical rows ``rb[idx]`` (hash buckets, then exact comparison), numbered by
-    first occurrence in ``idx`` order."""
-    m = idx.shape[0]
+def _hash_buckets(h):  # pragma: no cover - compiled
+    """``order`` (stable argsort of the hashes ``h``) and ``starts`` (b + 1,): the runs of equal
+    hash in ``order``, the buckets :func:`_bucket_reps` compares within."""
     order = np.argsort(h, kind="mergesort")
-    groups = np.full(m, -1, dtype=np.int64)
-    rep = np.empty(m, dtype=np.int64)
-    n_groups = 0
-    s = 0
-    while s < m:
-        e = s + 1
-        while e < m and h[order[e]] == h[order[s]]:
-            e += 1
-        g0 = n_groups
+    m = order.shape[0]
+    starts = np.empty(m + 1, dtype=np.int64)
+    nb = 0
+    for q in range(m):
+        if q == 0 or h[order[q]] != h[order[q - 1]]:
+            starts[nb] = q
+            nb += 1
+    starts[nb] = m
+    return order, starts[:nb + 1].copy()
+
+
+@numba.njit(**_JIT)
+def _bucket_reps(rb, idx, order, starts, b0, b1, rep):  # pragma: no cover - compiled
+    """For the rows of buckets ``b0:b1``: ``rep[q]`` = the first position ``p <= q`` of the same
+    bucket (in ``order``) whose row ``rb[idx[order[p]]]`` equals row ``order[q]``'s (exact
+    comparison against the bucket's representatives so far)."""
+    nw = rb.shape[1]
+    for b in range(b0, b1):
+        s, e = starts[b], starts[b + 1]
         for q in range(s, e):
-            i = order[q]
-            found = -1
-            for g in range(g0, n_groups):
+            bq = idx[order[q]]
+            found = q
+            for p in range(s, q):
+                if rep[p] != p:
+                    continue
+                a = idx[order[p]]
                 same = True
-                a, b = idx[rep[g]], idx[i]
-                for w in range(rb.shape[1]):
-                    if rb[a, w] != rb[b, w]:
+                for w in range(nw):
+                    if rb[a, w] != rb[bq, w]:
                         same = False
                         break
                 if same:
-                    found = g
+                    found = p
                     break
-            if found < 0:
-                found = n_groups
-                rep[found] = i
-                n_groups += 1
-            groups[i] = found
-        s = e
-    return renumber_by_first(groups, n_groups)
+            rep[q] = found
+
+
+@numba.njit(**_JIT)
+def _label_groups(order, rep):  # pragma: no cover - compiled
+    """Groups of the rows (positions of ``idx``) from :func:`_bucket_reps`, numbered by first
+    occurrence in ``idx`` order: ``(groups (m,) int64, n_groups)``."""
+    m = order.shape[0]
+    groups = np.empty(m, dtype=np.int64)
+    n_groups = 0
+    for q in range(m):
+        groups[order[q]] = rep[q]  # a label in 0..m-1: the representative's position
+        if rep[q] == q:
+            n_groups += 1
+    renumber_by_first(groups, m)
+    return groups, n_groups
+
+
+def _grouped_rows(rb: np.ndarray, idx: np.ndarray, h: np.ndarray, workers: int) -> tuple[np.ndarray, int]:
+    """Groups of identical rows ``rb[idx]`` (``h``: their hashes) numbered by first occurrence in
+    ``idx`` order: the hashes sorted once, the exact comparisons within the hash
+    buckets in blocks of about equal rows on the pool (the part that grows with duplicate rows),
+    then the labels. The same groups at every thread count."""
+    order, starts = _hash_buckets(h)
+    rep = np.empty(idx.size, dtype=np.int64)
+    _run(lambda b0, b1: _bucket_reps(rb, idx, order, starts, b0, b1, rep), work_cuts(np.diff(starts), _BLOCKS),
+         workers)
+    return _label_groups(order, rep)
 
 
 @numba.njit(**_JIT)
@@ -698,8 +730,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     has = np.zeros(live_rows.size, dtype=bool)
     _run(lambda lo, hi: _hash_rows(rb, lo, hi, h, has), rbk, workers)
     idx = np.flatnonzero(has).astype(np.int64)
-    with ctrl_c_deferred():
-        groups, n_groups = _group_rows(rb, idx, h[idx])
+    groups, n_groups = _grouped_rows(rb, idx, h[idx], workers)
     orig_rows = live_rows[idx]
     first = np.full(n_groups, -1, dtype=np.int64)
     first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)
