@@ -29,7 +29,7 @@ import scipy.sparse as sp
 from camplace._bitops import ctz as _ctz, popcount as _popcount, transpose64 as _transpose64
 from camplace._cores import thread_count
 
-__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk"]
+__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk", "take_rows", "stack_rows", "column_sums"]
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
@@ -259,3 +259,114 @@ def bits_from_csr(matrix, workers: int | None = None) -> BitMatrix:
     blocks = part_ranges(bit_words(m), 64)
     run_ranges(lambda a0, b0: _from_csr(a.indptr, a.indices, 64 * a0, min(m, 64 * b0), words), blocks, thread_count(workers))
     return BitMatrix(words, m)
+
+
+#: Cells (rows x columns) unpacked to one byte each at a time by the row helpers below.
+_BLOCK_CELLS = 1 << 22
+
+
+def _column_blocks(bits: BitMatrix, cells: int = _BLOCK_CELLS) -> list[tuple[int, int]]:
+    """Consecutive column ranges of about ``cells`` unpacked cells each (at least one column)."""
+    n = bits.shape[1]
+    step = max(1, cells // max(1, bits.shape[0]))
+    return [(c, min(n, c + step)) for c in range(0, n, step)]
+
+
+def _unpack_block(bits: BitMatrix, lo: int, hi: int) -> np.ndarray:
+    """(hi - lo, m) uint8 0/1: columns ``lo:hi`` unpacked (1 byte a cell)."""
+    block = np.ascontiguousarray(bits.words[lo:hi]).view(np.uint8)
+    return np.unpackbits(block, axis=1, bitorder="little", count=bits.shape[0])
+
+
+def _pack_into(words: np.ndarray, lo: int, cells: np.ndarray) -> None:
+    """Write (c, m') 0/1 cells as the bitsets of columns ``lo:lo + c`` of ``words`` (n, ceil(m' / 64))."""
+    packed = np.packbits(cells, axis=1, bitorder="little")
+    words[lo:lo + cells.shape[0]].view(np.uint8)[:, :packed.shape[1]] = packed
+
+
+def take_rows(bits: BitMatrix, rows: np.ndarray) -> BitMatrix:
+    """The rows ``rows`` of a bit matrix, in that order: ``bits.tocsr()[rows]`` without CSR.
+
+    Parameters
+    ----------
+    bits : BitMatrix
+        (m, n).
+    rows : (r,) int64
+        Row indices in 0..m-1 (any order, repeats allowed).
+
+    Returns
+    -------
+    BitMatrix
+        (r, n); ``n * ceil(r / 64) * 8`` bytes, plus an unpacked block of about 4 MiB at a time.
+    """
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+    m, n = bits.shape
+    if rows.size and (rows.min() < 0 or rows.max() >= m):
+        raise IndexError(f"rows out of range 0..{m - 1}")
+    out = np.zeros((n, bit_words(rows.size)), dtype=np.uint64)
+    if rows.size:
+        for lo, hi in _column_blocks(bits):
+            _pack_into(out, lo, _unpack_block(bits, lo, hi)[:, rows])
+            bits.release_columns(lo, hi)
+    return BitMatrix(out, rows.size)
+
+
+def stack_rows(blocks: Sequence[BitMatrix]) -> BitMatrix:
+    """The row blocks one under the other (``scipy.sparse.vstack`` of their CSR forms), as bits.
+
+    Parameters
+    ----------
+    blocks : sequence of (m_b, n) BitMatrix
+        At least one; all with ``n`` columns.
+
+    Returns
+    -------
+    BitMatrix
+        (sum of m_b, n).
+    """
+    n = blocks[0].shape[1]
+    if any(b.shape[1] != n for b in blocks):
+        raise ValueError("stack_rows: the blocks must have the same number of columns")
+    m = sum(b.shape[0] for b in blocks)
+    out = np.zeros((n, bit_words(m)), dtype=np.uint64)
+    step = max(1, _BLOCK_CELLS // max(1, m))
+    for lo in range(0, n, step):
+        hi = min(n, lo + step)
+        _pack_into(out, lo, np.concatenate([_unpack_block(b, lo, hi) for b in blocks], axis=1))
+    return BitMatrix(out, m)
+
+
+def column_sums(bits: BitMatrix, values: np.ndarray) -> np.ndarray:
+    """(n,) float64: ``values`` summed over the rows each column observes.
+
+    The sums are taken row after row in increasing order from 0.0 (``np.bincount`` of the CSR
+    column indices with per-entry weights ``values[row]`` gives the very same floats), so a reader
+    of the bits agrees with the CSR reader to the last bit.
+
+    Parameters
+    ----------
+    bits : BitMatrix
+        (m, n).
+    values : (m,) float64
+        Per-row values (weights, gains).
+
+    Returns
+    -------
+    (n,) float64
+    """
+    m, n = bits.shape
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if v.shape != (m,):
+        raise ValueError(f"column_sums: values must be ({m},), got {v.shape}")
+    out = np.zeros(n, dtype=np.float64)
+    live = np.flatnonzero(v != 0.0)  # a zero adds nothing (weights and gains are >= 0: no -0.0 either)
+    if live.size == 0:
+        return out
+    vl = v[live]
+    # the entries of a block of columns: 16 bytes each as index pairs, so a quarter of the cells
+    for lo, hi in _column_blocks(bits, _BLOCK_CELLS // 4):
+        cells = _unpack_block(bits, lo, hi)[:, live]
+        c, r = np.nonzero(cells)  # row-major: each column's rows in increasing order
+        out[lo:hi] = np.bincount(c, weights=vl[r], minlength=hi - lo)
+        bits.release_columns(lo, hi)
+    return out
