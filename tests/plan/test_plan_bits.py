@@ -77,9 +77,10 @@ def test_column_sums_are_the_csr_bincount_to_the_last_bit(m):
     q = _random_pattern(rng, m, 53, 0.45)
     v = rng.uniform(0.0, 1.0, size=m) ** 3 * (rng.random(m) < 0.8)
     want = np.bincount(q.indices, weights=np.repeat(v, np.diff(q.indptr)), minlength=53).astype(np.float64)
-    got = column_sums(bits_from_csr(q), v)
-    assert got.dtype == np.float64
-    np.testing.assert_array_equal(got, want)  # exact: the same additions in the same order
+    for workers in (1, 2):
+        got = column_sums(bits_from_csr(q), v, workers=workers)
+        assert got.dtype == np.float64
+        np.testing.assert_array_equal(got, want)  # exact: the same additions in the same order
 
 
 def _problem_pair(seed: int, mode: str, *, P: int = 3, n_pos: int = 12, orient: int = 2, k: int = 3,

@@ -116,6 +116,20 @@ def _from_csr(indptr, indices, lo, hi, words):  # pragma: no cover - compiled
             words[indices[t], w] |= b
 
 
+@numba.njit(**_JIT)
+def _column_sums(words, values, lo, hi, out):  # pragma: no cover - compiled
+    """``out[j]``: ``values`` summed over column j's rows, in increasing row order from 0.0."""
+    for j in range(lo, hi):
+        s = 0.0
+        for w in range(words.shape[1]):
+            x = words[j, w]
+            base = np.int64(w) << 6
+            while x:
+                s += values[base + np.int64(_ctz(x))]
+                x &= x - np.uint64(1)
+        out[j] = s
+
+
 def part_ranges(total: int, parts: int = 64) -> list[tuple[int, int]]:
     """``parts`` contiguous ranges of ``range(total)`` (words, columns or rows; fixed by the size,
     not the thread count)."""
@@ -336,12 +350,13 @@ def stack_rows(blocks: Sequence[BitMatrix]) -> BitMatrix:
     return BitMatrix(out, m)
 
 
-def column_sums(bits: BitMatrix, values: np.ndarray) -> np.ndarray:
+def column_sums(bits: BitMatrix, values: np.ndarray, workers: int | None = None) -> np.ndarray:
     """(n,) float64: ``values`` summed over the rows each column observes.
 
     The sums are taken row after row in increasing order from 0.0 (``np.bincount`` of the CSR
     column indices with per-entry weights ``values[row]`` gives the very same floats), so a reader
-    of the bits agrees with the CSR reader to the last bit.
+    of the bits agrees with the CSR reader to the last bit. A compiled kernel walks each column's
+    set bits (no unpacked copy).
 
     Parameters
     ----------
@@ -349,24 +364,20 @@ def column_sums(bits: BitMatrix, values: np.ndarray) -> np.ndarray:
         (m, n).
     values : (m,) float64
         Per-row values (weights, gains).
+    workers : int, optional
+        Threads over ranges of columns (default: the allowed cores; the sums do not depend on it).
 
     Returns
     -------
     (n,) float64
     """
     m, n = bits.shape
-    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    v = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
     if v.shape != (m,):
         raise ValueError(f"column_sums: values must be ({m},), got {v.shape}")
     out = np.zeros(n, dtype=np.float64)
-    live = np.flatnonzero(v != 0.0)  # a zero adds nothing (weights and gains are >= 0: no -0.0 either)
-    if live.size == 0:
+    if m == 0 or not np.any(v):
         return out
-    vl = v[live]
-    # the entries of a block of columns: 16 bytes each as index pairs, so a quarter of the cells
-    for lo, hi in _column_blocks(bits, _BLOCK_CELLS // 4):
-        cells = _unpack_block(bits, lo, hi)[:, live]
-        c, r = np.nonzero(cells)  # row-major: each column's rows in increasing order
-        out[lo:hi] = np.bincount(c, weights=vl[r], minlength=hi - lo)
-        bits.release_columns(lo, hi)
+    run_ranges(lambda lo, hi: (_column_sums(bits.words, v, lo, hi, out), bits.release_columns(lo, hi)),
+               part_ranges(n), thread_count(workers))
     return out
