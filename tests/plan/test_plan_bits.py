@@ -195,6 +195,21 @@ def test_pruned_model_and_neighbourhood_search_on_bits_are_the_csr_ones(no_whole
     _same_result(want, got, "maxcover")
 
 
+@pytest.mark.parametrize("mode", ["maxcover", "quality", "multiview"])
+def test_a_phase_without_rows_on_bits(mode, no_whole_csr):
+    rng = np.random.default_rng(2)
+    n, m = 10, 70
+    pos = rng.uniform(0.0, 10.0, size=(n, 3))
+    q = _random_pattern(rng, m, n, 0.3)
+    w = rng.uniform(0.0, 1.0, size=m)
+    row_phase = np.r_[np.zeros(30, dtype=np.int64), np.full(40, 2)]  # phase 1 has no rows
+    kw = dict(mode=mode, reach_m=[3.0, 3.0])
+    bits = make_problem(bits_from_csr(q), w, row_phase, pos, 2, **kw)
+    assert bits.matrices[1].shape == (0, n)
+    _same_result(solve_plan(make_problem(q, w, row_phase, pos, 2, **kw), time_limit_s=30),
+                 solve_plan(bits, time_limit_s=30), mode)
+
+
 # ------------------------------------------------------------------------------------------------
 # the plan verb on a binary run: the bitsets as stored, the same files as the CSR route
 
