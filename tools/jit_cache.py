@@ -190,7 +190,8 @@ RECORD_RUNS: tuple[tuple[str, ...], ...] = (
     ("run", "comet-67p-bunker", "-o", "{tmp}/sc", "--mode", "setcover", "--candidates", "200", "--points", "2000"),
     ("run", "comet-67p-bunker", "-o", "{tmp}/q", "--mode", "quality", "--candidates", "200", "--points", "2000"),
     ("run", "comet-67p-bunker", "-o", "{tmp}/k6", "--k", "6", "--candidates", "200", "--points", "2000"),
-    ("run", "comet-flyby", "-o", "{tmp}/fly", "--candidates", "200", "--points", "2000"),
+    # a binary run with a plan: the planner reads the bitsets (visibility.bits.column_sums)
+    ("run", "comet-flyby", "-o", "{tmp}/fly", "--candidates", "200", "--points", "2000", "--phases", "3", "--speed", "5"),
     ("run", "volcanic-eruption", "-o", "{tmp}/vol", "--candidates", "200", "--points", "2000"),
     ("run", "comet-67p-team", "-o", "{tmp}/team", "--candidates", "60", "--points", "600"),
 )

@@ -130,6 +130,8 @@ def column_gains(problem: PlanProblem, p: int, others: Sequence[int]) -> tuple[f
     q, w = problem.matrices[p], problem.weights[p]
     m, n = q.shape
     cols = sorted({int(j) for j in others})
+    if problem.bits:
+        return _column_gains_bits(problem, p, cols)
     rowlen = np.diff(q.indptr)
     extra = None
     csc = _csc(problem, p)
@@ -154,6 +156,38 @@ def column_gains(problem: PlanProblem, p: int, others: Sequence[int]) -> tuple[f
     # float64 even for a phase without entries (np.bincount of nothing returns integers)
     gain = np.bincount(q.indices, weights=contrib, minlength=n).astype(np.float64)
     score = gain if extra is None else gain + _TIE * np.bincount(q.indices, weights=extra, minlength=n)
+    if cols:
+        gain[cols] = -np.inf
+        score = score.copy()
+        score[cols] = -np.inf
+    return base, gain, score
+
+
+def _column_gains_bits(problem: PlanProblem, p: int, cols: list[int]) -> tuple[float, np.ndarray, np.ndarray]:
+    """:func:`column_gains` on phase p's column bitsets: the others' rows from their bitsets, each
+    pose's gain a sum over the rows its bitset holds (:func:`camplace.visibility.bits.column_sums`,
+    the same floats as the CSR route's ``np.bincount``). Every value is 1, so quality is maxcover."""
+    from camplace.visibility.bits import column_sums
+
+    q, w = problem.matrices[p], problem.weights[p]
+    count = np.zeros(q.shape[0], dtype=np.int64)
+    for j in cols:
+        count += q.column(j)
+    extra = None
+    if problem.mode == "quality":
+        best = (count > 0).astype(np.float64)
+        base = float(w @ best)
+        row_gain = w * np.maximum(1.0 - best, 0.0)
+    elif problem.mode == "maxcover":
+        base = float(w[count > 0].sum())
+        row_gain = np.where(count > 0, 0.0, w)
+    else:
+        views = problem.views
+        base = float(w[count >= views].sum())
+        row_gain = np.where(count == views - 1, w, 0.0)
+        extra = np.where(count < views - 1, w * (count + 1) / views, 0.0)
+    gain = column_sums(q, row_gain)
+    score = gain if extra is None else gain + _TIE * column_sums(q, extra)
     if cols:
         gain[cols] = -np.inf
         score = score.copy()

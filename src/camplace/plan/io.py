@@ -41,6 +41,7 @@ from camplace.runfolder import RunFolder
 __all__ = [
     "RunFolder",
     "load_run_folder",
+    "plan_matrix",
     "plan_document",
     "plan_csv",
     "light_curves_csv",
@@ -69,12 +70,42 @@ def load_run_folder(outdir: str | Path) -> RunFolder:
     run = RunFolder(outdir)
     run.solution_record  # noqa: B018  (solution.json first: the clearest error for a wrong folder)
     instance = run.instance
-    run.matrix, run.candidates  # noqa: B018  (candidates.csv is checked against the matrix's columns)
+    matrix = plan_matrix(run)
+    if len(run.candidates) != matrix.shape[1]:
+        raise CamplaceError(f"{run.file('candidates.csv')}: {len(run.candidates)} candidates but the matrix has "
+                            f"{matrix.shape[1]} columns (re-run)")
     points = run.points
+    if len(points) != matrix.shape[0]:
+        raise CamplaceError(f"{run.path}: {run.matrix_path.name} has {matrix.shape[0]} rows but points.csv "
+                            f"has {len(points)} (re-run)")
     if points.frame.size and int(points.frame.max()) >= len(instance.frames):
         raise CamplaceError(f"{run.file('points.csv')}: frame {int(points.frame.max())} but the instance has "
                             f"{plural(len(instance.frames), 'frame')} (re-run)")
     return run
+
+
+def _colbits(run) -> bool:
+    """Whether the run's matrix is stored as column bitsets (a binary run's ``colbits`` .cpm)."""
+    path = run.matrix_path
+    if path.suffix != ".cpm" or not path.is_file():
+        return False
+    from camplace.visibility.store import describe
+
+    return describe(path).get("structure") == "colbits"
+
+
+def plan_matrix(run):
+    """The matrix the planner reads: a binary run's column bitsets as they are stored
+    (:class:`camplace.visibility.bits.BitMatrix`, ``m * n / 8`` bytes, no CSR copy), any other
+    run's CSR matrix (``run.matrix``). Read once per run folder object."""
+    if "_plan_matrix" not in run.__dict__:
+        if _colbits(run):
+            from camplace.visibility.store import load_bits
+
+            run.__dict__["_plan_matrix"] = load_bits(run.matrix_path)
+        else:
+            run.__dict__["_plan_matrix"] = run.matrix
+    return run.__dict__["_plan_matrix"]
 
 
 def _f(x: float) -> float | None:
@@ -147,17 +178,21 @@ def plan_csv(plan: np.ndarray, phases: Sequence[Phase], candidates, start_positi
 
 
 def light_curves_csv(plan: np.ndarray, phases: Sequence[Phase], matrix, points, frame_times_s: Sequence[float]) -> str:
-    """``plan_light_curves.csv`` text: what each agent's pose observes alone, frame by frame."""
+    """``plan_light_curves.csv`` text: what each agent's pose observes alone, frame by frame.
+
+    ``matrix``: the run's (m, n) CSR matrix, or a binary run's column bitsets (BitMatrix).
+    """
     n_frames = len(frame_times_s)
     frame = np.asarray(points.frame, dtype=np.int64)
     w = np.asarray(points.weight, dtype=np.float64)
     frame_total = np.bincount(frame, weights=w, minlength=n_frames)
-    csc = matrix.tocsc()
+    bits = getattr(matrix, "format", None) == "bits"  # column bitsets: a column's rows unpacked, no CSC copy
+    csc = None if bits else matrix.tocsc()
     lines = ["agent,frame,phase,candidate,observed_weight,observed_fraction,time_s"]
     for a in range(plan.shape[0]):
         for ph in phases:
             j = int(plan[a, ph.index])
-            rows = csc.indices[csc.indptr[j]:csc.indptr[j + 1]]
+            rows = np.flatnonzero(matrix.column(j)) if bits else csc.indices[csc.indptr[j]:csc.indptr[j + 1]]
             seen = np.bincount(frame[rows], weights=w[rows], minlength=n_frames)
             for f in ph.frames:
                 frac = seen[f] / frame_total[f] if frame_total[f] > 0 else 0.0
@@ -175,9 +210,18 @@ def frame_values(matrix, points, sets_by_phase: Sequence[Sequence[int]], phases:
     out = np.zeros(n_frames)
     for ph in phases:
         rows = np.flatnonzero(np.isin(frame, ph.frames))
-        vals = row_values(matrix[rows].tocsr(), w[rows], sets_by_phase[ph.index], mode, views)
+        vals = row_values(_rows_of(matrix, rows), w[rows], sets_by_phase[ph.index], mode, views)
         out += np.bincount(frame[rows], weights=vals, minlength=n_frames)
     return out
+
+
+def _rows_of(matrix, rows: np.ndarray):
+    """The rows ``rows`` of a CSR matrix, or of column bitsets as bitsets (no CSR copy)."""
+    if getattr(matrix, "format", None) == "bits":
+        from camplace.visibility.bits import take_rows
+
+        return take_rows(matrix, rows)
+    return matrix[rows].tocsr()
 
 
 def timeline_csv(plan: np.ndarray, static: Sequence[int], phases: Sequence[Phase], matrix, points, mode: str, views: int,

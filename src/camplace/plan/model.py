@@ -31,6 +31,7 @@ from camplace.errors import CamplaceError
 __all__ = [
     "PLAN_MODES",
     "PlanProblem",
+    "is_bits",
     "make_problem",
     "row_values",
     "phase_value",
@@ -64,8 +65,10 @@ class PlanProblem:
 
     Attributes
     ----------
-    matrices : tuple of (m_p, n) scipy.sparse.csr_matrix
-        Each phase's rows of the visibility matrix (observation quality, > 0 observes).
+    matrices : tuple of (m_p, n) scipy.sparse.csr_matrix or BitMatrix
+        Each phase's rows of the visibility matrix (observation quality, > 0 observes); for a
+        binary matrix given as column bitsets (:class:`camplace.visibility.bits.BitMatrix`),
+        each phase's rows as bitsets (every reader here has a bits branch: no CSR copy).
     weights : tuple of (m_p,) float64
         Their weights (as in ``points.csv``: all phases together sum to the event's total).
     rows : tuple of (m_p,) int64
@@ -104,6 +107,11 @@ class PlanProblem:
     _cache: dict = field(default_factory=dict, repr=False)
 
     @property
+    def bits(self) -> bool:
+        """Whether the phase matrices are column bitsets (a binary run)."""
+        return is_bits(self.matrices[0]) if self.matrices else False
+
+    @property
     def n_phases(self) -> int:
         """Number of phases P."""
         return len(self.matrices)
@@ -112,6 +120,11 @@ class PlanProblem:
     def n_candidates(self) -> int:
         """Number of candidate poses n."""
         return int(self.positions.shape[0])
+
+
+def is_bits(matrix) -> bool:
+    """Whether ``matrix`` is a :class:`camplace.visibility.bits.BitMatrix` (a binary pattern)."""
+    return getattr(matrix, "format", None) == "bits"
 
 
 def make_problem(
@@ -131,8 +144,9 @@ def make_problem(
 
     Parameters
     ----------
-    matrix : (m, n) sparse
-        Visibility (quality > 0 observes).
+    matrix : (m, n) sparse or BitMatrix
+        Visibility (quality > 0 observes), or a binary matrix's column bitsets (the phase blocks
+        are then bitsets too, ``n * ceil(m_p / 64) * 8`` bytes each).
     weights : (m,) float64
         Row weights, >= 0.
     row_phase : (m,) int64
@@ -150,6 +164,9 @@ def make_problem(
     """
     if mode not in PLAN_MODES:
         raise CamplaceError(f"mode {mode!r} has no moving-agents plan (use one of {', '.join(PLAN_MODES)})")
+    if is_bits(matrix):
+        return _make_problem_bits(matrix, weights, row_phase, positions, k, mode=mode, views=views, reach_m=reach_m,
+                                  start_positions_m=start_positions_m, start_reach_m=start_reach_m)
     q = sp.csr_matrix(matrix)
     if q.dtype not in (np.float32, np.float64):
         q = q.astype(np.float64)
@@ -162,6 +179,60 @@ def make_problem(
         q = q.copy()
         q.eliminate_zeros()
     m, n = q.shape
+    w, pos, reach, ph, k, start = _checked_inputs(m, n, weights, row_phase, positions, k, mode, views, reach_m,
+                                                  start_positions_m, start_reach_m)
+    n_phases = reach.size + 1
+    # the phase blocks, and later their CSC copies (heuristic), each as large as the matrix
+    need = 2 * q.nnz * (q.data.itemsize + q.indices.itemsize) + 2 * (m + n_phases) * 8 + 3 * n * 8
+    _check_budget(need, "the phase copies of the visibility matrix")
+    mats, ws, rows = [], [], []
+    for p in range(n_phases):
+        r = np.flatnonzero(ph == p)
+        mats.append(q[r].tocsr())
+        ws.append(w[r])
+        rows.append(r)
+    upos, pos_id = np.unique(pos, axis=0, return_inverse=True)
+    return PlanProblem(tuple(mats), tuple(ws), tuple(rows), pos, k, mode, int(views), reach, start, float(start_reach_m),
+                       pos_id.reshape(-1).astype(np.int64), upos)
+
+
+def _make_problem_bits(bits, weights, row_phase, positions, k, *, mode, views, reach_m, start_positions_m,
+                       start_reach_m) -> PlanProblem:
+    """:func:`make_problem` of a binary matrix's column bitsets: each phase's rows taken from the
+    bitsets (:func:`camplace.visibility.bits.take_rows`), never a CSR copy of the matrix."""
+    from camplace.visibility.bits import bit_words, take_rows
+
+    m, n = bits.shape
+    w, pos, reach, ph, k, start = _checked_inputs(m, n, weights, row_phase, positions, k, mode, views, reach_m,
+                                                  start_positions_m, start_reach_m)
+    n_phases = reach.size + 1
+    counts = np.bincount(ph, minlength=n_phases)
+    # the phase blocks' bitsets, the row lists and weights, and the unpacked block take_rows works in
+    need = sum(n * bit_words(int(c)) * 8 for c in counts) + 2 * (m + n_phases) * 8 + 3 * n * 8 + 2**23
+    _check_budget(need, "the phase blocks of the visibility bitsets")
+    mats, ws, rows = [], [], []
+    for p in range(n_phases):
+        r = np.flatnonzero(ph == p)
+        mats.append(take_rows(bits, r))
+        ws.append(w[r])
+        rows.append(r)
+    upos, pos_id = np.unique(pos, axis=0, return_inverse=True)
+    return PlanProblem(tuple(mats), tuple(ws), tuple(rows), pos, k, mode, int(views), reach, start, float(start_reach_m),
+                       pos_id.reshape(-1).astype(np.int64), upos)
+
+
+def _check_budget(need: int, what: str) -> None:
+    """Raise a one-line CamplaceError when ``need`` bytes exceed the memory budget."""
+    from camplace.solver._support.memory import memory_budget_bytes
+
+    budget = memory_budget_bytes()
+    if need > budget:
+        raise CamplaceError(f"plan: {what} need about {need / 2**30:.1f} GiB but only "
+                            f"{budget / 2**30:.1f} GiB may be used (fewer --points or --candidates)")
+
+
+def _checked_inputs(m, n, weights, row_phase, positions, k, mode, views, reach_m, start_positions_m, start_reach_m):
+    """The checked inputs of :func:`make_problem` as arrays: (w, positions, reach, row phases, k, start)."""
     w = np.asarray(weights, dtype=np.float64)
     if w.shape != (m,) or not np.all(np.isfinite(w)) or np.any(w < 0):
         raise CamplaceError(f"weights must be ({m},) finite values >= 0")
@@ -189,23 +260,7 @@ def make_problem(
             raise CamplaceError(f"start positions: need one finite [x, y, z] per agent ({k}), got shape {start.shape}")
     if not (start_reach_m >= 0):
         raise CamplaceError("start reach must be >= 0")
-    # the phase blocks, and later their CSC copies (heuristic), each as large as the matrix
-    need = 2 * q.nnz * (q.data.itemsize + q.indices.itemsize) + 2 * (m + n_phases) * 8 + 3 * n * 8
-    from camplace.solver._support.memory import memory_budget_bytes
-
-    budget = memory_budget_bytes()
-    if need > budget:
-        raise CamplaceError(f"plan: the phase copies of the visibility matrix need about {need / 2**30:.1f} GiB but only "
-                            f"{budget / 2**30:.1f} GiB may be used (fewer --points or --candidates)")
-    mats, ws, rows = [], [], []
-    for p in range(n_phases):
-        r = np.flatnonzero(ph == p)
-        mats.append(q[r].tocsr())
-        ws.append(w[r])
-        rows.append(r)
-    upos, pos_id = np.unique(pos, axis=0, return_inverse=True)
-    return PlanProblem(tuple(mats), tuple(ws), tuple(rows), pos, k, mode, int(views), reach, start, float(start_reach_m),
-                       pos_id.reshape(-1).astype(np.int64), upos)
+    return w, pos, reach, ph, k, start
 
 
 # ------------------------------------------------------------------------------------------------
@@ -222,6 +277,8 @@ def row_values(q: sp.csr_matrix, w: np.ndarray, cols: Sequence[int], mode: str, 
     m = q.shape[0]
     if not cols:
         return np.zeros(m)
+    if is_bits(q):
+        return _row_values_bits(q, w, cols, mode, views)
     sub = q[:, cols].tocsr()
     if mode == "quality":
         best = sub.max(axis=1).toarray().ravel() if sub.nnz else np.zeros(m)
@@ -229,6 +286,17 @@ def row_values(q: sp.csr_matrix, w: np.ndarray, cols: Sequence[int], mode: str, 
     count = np.diff(sub.indptr)
     need = 1 if mode == "maxcover" else int(views)
     return np.where(count >= need, w, 0.0)
+
+
+def _row_values_bits(bits, w: np.ndarray, cols: list[int], mode: str, views: int) -> np.ndarray:
+    """:func:`row_values` on column bitsets (every value 1: quality is ``w`` times 1.0 where observed)."""
+    if mode == "multiview":
+        count = np.zeros(bits.shape[0], dtype=np.int64)
+        for j in cols:
+            count += bits.column(j)
+        return np.where(count >= int(views), w, 0.0)
+    seen = bits.union(cols)
+    return w * seen.astype(np.float64) if mode == "quality" else np.where(seen, w, 0.0)
 
 
 def phase_value(problem: PlanProblem, p: int, cols: Sequence[int]) -> float:
@@ -255,6 +323,10 @@ def single_values(problem: PlanProblem, p: int) -> np.ndarray:
     included: a row j observes can only gain what it weighs).
     """
     q, w = problem.matrices[p], problem.weights[p]
+    if is_bits(q):  # every value 1: the weights summed per column, in the CSR order
+        from camplace.visibility.bits import column_sums
+
+        return column_sums(q, w)
     per_entry = np.repeat(w, np.diff(q.indptr))
     if problem.mode == "quality":
         per_entry = per_entry * q.data
@@ -395,9 +467,21 @@ def _phase_block(problem: PlanProblem, p: int, kept: np.ndarray) -> tuple[sp.csr
     """Phase p's live rows restricted to the kept poses, identical rows merged."""
     from camplace.solver.engines.mip.mode_models import merge_rows
 
-    q = problem.matrices[p][:, kept].tocsr()
+    q = _kept_columns(problem, p, kept)
     live = (problem.weights[p] > 0) & (np.diff(q.indptr) > 0)
     return merge_rows(q[live].tocsr(), problem.weights[p][live])
+
+
+def _kept_columns(problem: PlanProblem, p: int, kept: np.ndarray) -> sp.csr_matrix:
+    """(m_p, |kept|) CSR: phase p's rows on the kept poses (the row lists the model's coverage rows
+    need). From bitsets only those columns are expanded, float32 ones as a stored binary matrix
+    reads; :func:`flow_model_size` bounds their entries before any model is built."""
+    q = problem.matrices[p]
+    if is_bits(q):
+        from camplace.visibility.bits import BitMatrix
+
+        return BitMatrix(q.words[np.asarray(kept, dtype=np.int64)], q.shape[0]).tocsr(np.float32)
+    return q[:, kept].tocsr()
 
 
 def _transition_arcs(problem: PlanProblem, kept: list, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -414,9 +498,14 @@ def flow_model_size(problem: PlanProblem, kept: list) -> dict:
     merging identical rows), flow arcs, binary pose variables."""
     nnz = 0
     for p, kp in enumerate(kept):
-        q = problem.matrices[p][:, kp]
         live = problem.weights[p] > 0
-        nnz += int(np.diff(q.tocsr().indptr)[live].sum())
+        q = problem.matrices[p]
+        if is_bits(q):  # the kept columns' live rows, counted on the bits
+            from camplace.visibility.bits import column_sums
+
+            nnz += int(column_sums(q, live.astype(np.float64))[np.asarray(kp, dtype=np.int64)].sum())
+            continue
+        nnz += int(np.diff(q[:, kp].tocsr().indptr)[live].sum())
     arcs = 0
     for t in range(problem.n_phases - 1):
         ua = np.unique(problem.pos_id[kept[t]])

@@ -171,8 +171,19 @@ def _solve_phase(problem: PlanProblem, p: int, k: int, limit: float | None) -> t
     res = solve(q, w, k, mode=problem.mode, views=problem.views, time_limit_s=limit)
     sel = tuple(int(j) for j in res.selected)
     value = phase_value(problem, p, sel)
-    bound = float(res.bound) if math.isfinite(res.bound) else float(w.sum() if problem.mode != "quality" else (w * q.max(axis=1).toarray().ravel()).sum())
+    bound = float(res.bound) if math.isfinite(res.bound) else _all_poses_value(problem, p)
     return sel, value, max(bound, value), res.status
+
+
+def _all_poses_value(problem: PlanProblem, p: int) -> float:
+    """An upper bound on phase p's value: the weight of its rows (quality: times each row's best
+    quality; of a binary matrix's bitsets, 1 where some pose observes the row)."""
+    q, w = problem.matrices[p], problem.weights[p]
+    if problem.mode != "quality":
+        return float(w.sum())
+    if problem.bits:
+        return float((w * (q.row_counts() > 0)).sum())
+    return float((w * q.max(axis=1).toarray().ravel()).sum())
 
 
 def _static(problem: PlanProblem, static: StaticReference | None, limit: float | None) -> StaticReference:
@@ -183,7 +194,12 @@ def _static(problem: PlanProblem, static: StaticReference | None, limit: float |
 
     if static is not None:
         return static
-    q = sp.vstack(problem.matrices).tocsr()
+    if problem.bits:  # the phase blocks stacked as bits (the solver reads a BitMatrix)
+        from camplace.visibility.bits import stack_rows
+
+        q = stack_rows(problem.matrices)
+    else:
+        q = sp.vstack(problem.matrices).tocsr()
     w = np.concatenate(problem.weights)
     res = solve(q, w, problem.k, mode=problem.mode, views=problem.views, time_limit_s=limit)
     return StaticReference(tuple(int(j) for j in res.selected), res.status, float(res.bound), "solved")

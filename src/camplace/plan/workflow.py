@@ -158,7 +158,15 @@ def plan_run_folder(
     (PlanResult, dict)
         The result and the ``plan.json`` document.
     """
-    from camplace.plan.io import light_curves_csv, load_run_folder, plan_csv, plan_document, timeline_csv, write_plan
+    from camplace.plan.io import (
+        light_curves_csv,
+        load_run_folder,
+        plan_csv,
+        plan_document,
+        plan_matrix,
+        timeline_csv,
+        write_plan,
+    )
     from camplace.plan.model import PLAN_MODES, make_problem
     from camplace.plan.planner import solve_plan
 
@@ -181,7 +189,8 @@ def plan_run_folder(
                               start_positions_m=start_positions_m, start_time_s=start_time_s)
     n_frames = len(run.instance.frames)
     row_phase = phase_of_frame(settings.phases, n_frames)[np.asarray(run.points.frame, dtype=np.int64)]
-    problem = make_problem(run.matrix, run.points.weight, row_phase, run.candidates.positions, int(k), mode=mode,
+    matrix = plan_matrix(run)  # a binary run's column bitsets, else its CSR matrix
+    problem = make_problem(matrix, run.points.weight, row_phase, run.candidates.positions, int(k), mode=mode,
                            views=int(views), reach_m=settings.reach_m, start_positions_m=settings.start_positions_m,
                            start_reach_m=settings.start_reach_m)
     static = static_from_solution(sol, mode, int(k), int(views))
@@ -196,8 +205,8 @@ def plan_run_folder(
         times = [f.time_s for f in run.instance.frames]
         files = {
             "plan.csv": plan_csv(result.plan, settings.phases, run.candidates, settings.start_positions_m),
-            "plan_light_curves.csv": light_curves_csv(result.plan, settings.phases, run.matrix, run.points, times),
-            "plan_timeline.csv": timeline_csv(result.plan, result.static_candidates, settings.phases, run.matrix, run.points,
+            "plan_light_curves.csv": light_curves_csv(result.plan, settings.phases, matrix, run.points, times),
+            "plan_timeline.csv": timeline_csv(result.plan, result.static_candidates, settings.phases, matrix, run.points,
                                               mode, int(views), times),
         }
     dest = Path(out) if out is not None else Path(outdir)

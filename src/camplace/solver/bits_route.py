@@ -38,7 +38,9 @@ incumbent, as before). Any other case
 :func:`camplace.solver.api.solve` converts the bits to a bool CSR pattern (5 bytes an observed
 pair) and goes on as before; so do multiview with fixed cameras and no angle (a row's threshold is ``views``
 less its fixed views, which the bitset engine does not model), a minimum distance and k > 4. Set cover on bits is
-:func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``).
+:func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``). The planner
+(``camplace plan`` on a binary run) hands its per-phase and static solves the phase row blocks as
+bitsets (:func:`camplace.visibility.bits.take_rows`), so they come here too.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import scipy.sparse as sp
 from camplace._bitops import ctz as _ctz, popcount as _popcount, transpose64 as _transpose64
 from camplace._cores import thread_count
 
-__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk"]
+__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk", "take_rows", "stack_rows", "column_sums"]
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
@@ -114,6 +114,20 @@ def _from_csr(indptr, indices, lo, hi, words):  # pragma: no cover - compiled
         b = np.uint64(1) << np.uint64(r & 63)
         for t in range(indptr[r], indptr[r + 1]):
             words[indices[t], w] |= b
+
+
+@numba.njit(**_JIT)
+def _column_sums(words, values, lo, hi, out):  # pragma: no cover - compiled
+    """``out[j]``: ``values`` summed over column j's rows, in increasing row order from 0.0."""
+    for j in range(lo, hi):
+        s = 0.0
+        for w in range(words.shape[1]):
+            x = words[j, w]
+            base = np.int64(w) << 6
+            while x:
+                s += values[base + np.int64(_ctz(x))]
+                x &= x - np.uint64(1)
+        out[j] = s
 
 
 def part_ranges(total: int, parts: int = 64) -> list[tuple[int, int]]:
@@ -259,3 +273,111 @@ def bits_from_csr(matrix, workers: int | None = None) -> BitMatrix:
     blocks = part_ranges(bit_words(m), 64)
     run_ranges(lambda a0, b0: _from_csr(a.indptr, a.indices, 64 * a0, min(m, 64 * b0), words), blocks, thread_count(workers))
     return BitMatrix(words, m)
+
+
+#: Cells (rows x columns) unpacked to one byte each at a time by the row helpers below.
+_BLOCK_CELLS = 1 << 22
+
+
+def _column_blocks(bits: BitMatrix, cells: int = _BLOCK_CELLS) -> list[tuple[int, int]]:
+    """Consecutive column ranges of about ``cells`` unpacked cells each (at least one column)."""
+    n = bits.shape[1]
+    step = max(1, cells // max(1, bits.shape[0]))
+    return [(c, min(n, c + step)) for c in range(0, n, step)]
+
+
+def _unpack_block(bits: BitMatrix, lo: int, hi: int) -> np.ndarray:
+    """(hi - lo, m) uint8 0/1: columns ``lo:hi`` unpacked (1 byte a cell)."""
+    block = np.ascontiguousarray(bits.words[lo:hi]).view(np.uint8)
+    return np.unpackbits(block, axis=1, bitorder="little", count=bits.shape[0])
+
+
+def _pack_into(words: np.ndarray, lo: int, cells: np.ndarray) -> None:
+    """Write (c, m') 0/1 cells as the bitsets of columns ``lo:lo + c`` of ``words`` (n, ceil(m' / 64))."""
+    packed = np.packbits(cells, axis=1, bitorder="little")
+    words[lo:lo + cells.shape[0]].view(np.uint8)[:, :packed.shape[1]] = packed
+
+
+def take_rows(bits: BitMatrix, rows: np.ndarray) -> BitMatrix:
+    """The rows ``rows`` of a bit matrix, in that order: ``bits.tocsr()[rows]`` without CSR.
+
+    Parameters
+    ----------
+    bits : BitMatrix
+        (m, n).
+    rows : (r,) int64
+        Row indices in 0..m-1 (any order, repeats allowed).
+
+    Returns
+    -------
+    BitMatrix
+        (r, n); ``n * ceil(r / 64) * 8`` bytes, plus an unpacked block of about 4 MiB at a time.
+    """
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+    m, n = bits.shape
+    if rows.size and (rows.min() < 0 or rows.max() >= m):
+        raise IndexError(f"rows out of range 0..{m - 1}")
+    out = np.zeros((n, bit_words(rows.size)), dtype=np.uint64)
+    if rows.size:
+        for lo, hi in _column_blocks(bits):
+            _pack_into(out, lo, _unpack_block(bits, lo, hi)[:, rows])
+            bits.release_columns(lo, hi)
+    return BitMatrix(out, rows.size)
+
+
+def stack_rows(blocks: Sequence[BitMatrix]) -> BitMatrix:
+    """The row blocks one under the other (``scipy.sparse.vstack`` of their CSR forms), as bits.
+
+    Parameters
+    ----------
+    blocks : sequence of (m_b, n) BitMatrix
+        At least one; all with ``n`` columns.
+
+    Returns
+    -------
+    BitMatrix
+        (sum of m_b, n).
+    """
+    n = blocks[0].shape[1]
+    if any(b.shape[1] != n for b in blocks):
+        raise ValueError("stack_rows: the blocks must have the same number of columns")
+    m = sum(b.shape[0] for b in blocks)
+    out = np.zeros((n, bit_words(m)), dtype=np.uint64)
+    step = max(1, _BLOCK_CELLS // max(1, m))
+    for lo in range(0, n, step):
+        hi = min(n, lo + step)
+        _pack_into(out, lo, np.concatenate([_unpack_block(b, lo, hi) for b in blocks], axis=1))
+    return BitMatrix(out, m)
+
+
+def column_sums(bits: BitMatrix, values: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """(n,) float64: ``values`` summed over the rows each column observes.
+
+    The sums are taken row after row in increasing order from 0.0 (``np.bincount`` of the CSR
+    column indices with per-entry weights ``values[row]`` gives the very same floats), so a reader
+    of the bits agrees with the CSR reader to the last bit. A compiled kernel walks each column's
+    set bits (no unpacked copy).
+
+    Parameters
+    ----------
+    bits : BitMatrix
+        (m, n).
+    values : (m,) float64
+        Per-row values (weights, gains).
+    workers : int, optional
+        Threads over ranges of columns (default: the allowed cores; the sums do not depend on it).
+
+    Returns
+    -------
+    (n,) float64
+    """
+    m, n = bits.shape
+    v = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
+    if v.shape != (m,):
+        raise ValueError(f"column_sums: values must be ({m},), got {v.shape}")
+    out = np.zeros(n, dtype=np.float64)
+    if m == 0 or not np.any(v):
+        return out
+    run_ranges(lambda lo, hi: (_column_sums(bits.words, v, lo, hi, out), bits.release_columns(lo, hi)),
+               part_ranges(n), thread_count(workers))
+    return out
