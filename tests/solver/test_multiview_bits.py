@@ -165,7 +165,7 @@ def test_multiview_bits_off_its_routes_goes_through_csr() -> None:
 def test_column_weights_equal_the_csr_product() -> None:
     """The warm start's ranking: the same float64 numbers as the CSR route's ``resid.T @ w`` on the
     bool pattern."""
-    from camplace.solver.problem.presolve_bits import column_weights
+    from camplace.visibility.bits import column_sums as column_weights
 
     for a, w in _matrices():
         bits = bits_from_csr(a)

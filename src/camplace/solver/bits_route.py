@@ -46,6 +46,7 @@ bitsets (:func:`camplace.visibility.bits.take_rows`), so they come here too.
 from __future__ import annotations
 
 import logging
+import math
 import numbers
 from dataclasses import dataclass, replace
 from typing import Any
@@ -64,10 +65,10 @@ from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import coords
 from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import column_weights, covered_weight, presolve_bits
+from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits
 from camplace.solver.result import EngineOutcome
-from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, spread_subset
-from camplace.visibility.bits import BitMatrix
+from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
+from camplace.visibility.bits import BitMatrix, column_sums
 
 __all__ = ["bits_applies", "bits_outcome", "load_kernels"]
 
@@ -282,7 +283,7 @@ def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
     free = p.free
     sub_free = spread_subset(free, p.pos, WARM_SHRINK) if p.angle else np.zeros(0, dtype=np.int64)
     if sub_free.size < k:
-        colw = column_weights(p.bits, p.w)[free]  # weights >= 0 (checked): the CSR route's ranking
+        colw = column_sums(p.bits, p.w)[free]  # weights >= 0 (checked): the CSR route's ranking
         size = max(k, -(-free.size // WARM_SHRINK))
         sub_free = np.sort(free[np.lexsort((np.arange(free.size), -colw))[:size]])
     cols = np.union1d(sub_free, np.asarray(p.fixed, dtype=np.int64))  # the subset and the fixed cameras
@@ -304,12 +305,7 @@ def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
         return None
     if warm:
         out.stats["warm_start"] = warm
-    if got_sel is not None and (out.selected is None or got.objective > out.objective):
-        warm["kept"] = True  # the full search found nothing better within the limit
-        status = "optimal" if out.status == "optimal" and out.bound <= got.objective else "feasible"
-        out = EngineOutcome(got_sel, status, max(out.bound, got.objective), out.stats, engine=out.engine,
-                            objective=got.objective)
-    return out
+    return keep_warm(out, got_sel, got.objective if got is not None else -math.inf, warm)
 
 
 def _choice_stats(k: int, choice) -> dict[str, Any]:

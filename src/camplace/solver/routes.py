@@ -433,13 +433,21 @@ def _warm_started(p: CoverProblem) -> EngineOutcome:
     del sub
     if got_sel is not None:
         p.start = tuple(sorted(set(got_sel) - set(p.fixed_t)))
-    out = _run_cover(p)
-    if got_sel is not None and (out.selected is None or got.objective > out.objective):
-        warm["kept"] = True  # the full search found nothing better within the limit
-        status = "optimal" if out.status == "optimal" and out.bound <= got.objective else "feasible"
-        out = EngineOutcome(got_sel, status, max(out.bound, got.objective), out.stats, engine=out.engine,
-                            objective=got.objective)
-    return out
+    return keep_warm(_run_cover(p), got_sel, got.objective, warm)
+
+
+def keep_warm(out: EngineOutcome, got_sel: tuple[int, ...] | None, got_objective: float,
+              warm: dict) -> EngineOutcome:
+    """The full search's answer ``out``, or the warm start's (``got_sel``, original columns, of
+    value ``got_objective``) when the search found nothing better within the limit (then
+    ``warm["kept"]``); the bound is the larger of the two, the status optimal only when the
+    search proved the warm answer."""
+    if got_sel is None or (out.selected is not None and got_objective <= out.objective):
+        return out
+    warm["kept"] = True
+    status = "optimal" if out.status == "optimal" and out.bound <= got_objective else "feasible"
+    return EngineOutcome(got_sel, status, max(out.bound, got_objective), out.stats, engine=out.engine,
+                         objective=got_objective)
 
 
 def run_cover(p: CoverProblem) -> EngineOutcome:

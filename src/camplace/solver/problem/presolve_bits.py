@@ -41,7 +41,7 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
-__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight", "column_weights",
+__all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight",
            "row_counts_of", "row_bitsets", "layout_bits", "layout_bits_bytes", "rows_csr",
            "rows_csr_bytes"]
 
@@ -318,21 +318,6 @@ def _count_rows(words, columns, w0, w1, counts):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _column_weights(words, wr, lo, hi, out):  # pragma: no cover - compiled
-    """``out[j] = sum of wr[i]`` over the rows i column j observes (rows in ascending order, as
-    scipy's CSC product sums them), for columns ``lo:hi``."""
-    for j in range(lo, hi):
-        s = 0.0
-        for wd in range(words.shape[1]):
-            x = words[j, wd]
-            base = np.int64(wd) << 6
-            while x:
-                s += wr[base + np.int64(_ctz(x))]
-                x &= x - np.uint64(1)
-        out[j] = s
-
-
-@numba.njit(**_JIT)
 def _row_lengths(rb, lo, hi, out):  # pragma: no cover - compiled
     """Set bits of rows ``lo:hi`` of row bitsets ``rb``."""
     for i in range(lo, hi):
@@ -439,20 +424,6 @@ def covered_weight(bits, weights: np.ndarray, selected) -> float:
     w = np.asarray(weights, dtype=np.float64)
     covered = bits.union(list(selected)) if len(selected) else np.zeros(bits.shape[0], dtype=bool)
     return float(np.sum(w[covered], dtype=np.float64))
-
-
-def column_weights(bits, weights: np.ndarray, workers: int | None = None) -> np.ndarray:
-    """(n,) float64: the weight each column of a BitMatrix observes, ``sum_i w_i [j observes i]``,
-    summed over the rows in ascending order: the same numbers as ``csr.T @ w`` of the matrix's
-    CSR (scipy sums each column's rows in that order)."""
-    m, n = bits.shape
-    wr = np.zeros(bits.words.shape[1] * 64, dtype=np.float64)
-    wr[:m] = weights
-    out = np.zeros(n, dtype=np.float64)
-    release = getattr(bits, "release_columns", None) or (lambda lo, hi: None)
-    _run(lambda lo, hi: (_column_weights(bits.words, wr, lo, hi, out), release(lo, hi)), cuts(n, _BLOCKS),
-         thread_count(workers))
-    return out
 
 
 def row_counts_of(bits, columns: np.ndarray, workers: int | None = None) -> np.ndarray:

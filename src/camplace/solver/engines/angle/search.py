@@ -71,7 +71,8 @@ from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.memory import OverBudget
 from camplace.solver.engines.angle import _kernels as AK
 from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bytes
-from camplace.solver.problem.presolve_bits import column_weights, layout_bits, row_counts_of
+from camplace.solver.problem.presolve_bits import layout_bits, row_counts_of
+from camplace.visibility.bits import column_sums
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["angle_bytes", "greedy_angle", "solve_angle"]
@@ -300,7 +301,7 @@ class _Rows:
         if self.bits:
             wz = np.zeros(q.shape[0])
             wz[rows] = w_rows
-            return column_weights(q, wz)  # the other rows add 0.0: the same sums
+            return column_sums(q, wz)  # the other rows add 0.0: the same sums
         with ctrl_c_deferred():
             return AK.column_weights(q.indptr, q.indices, q.data, rows, w_rows, q.shape[1])
 
