@@ -5,7 +5,7 @@ Each measurement is a fresh process (``--worker``) that loads a run folder's mat
 and the exact engine (views = 1) once to warm up and then ``--inner`` more times at ``--threads T``
 (:func:`camplace._cores.set_threads`), and reports per stage: wall seconds, the main thread's CPU
 seconds and the pool's CPU seconds (every worker, and the busiest one:
-:class:`camplace.solver._support.blocks.PoolProfile`). The driver runs these processes interleaved
+:class:`camplace._blocks.PoolProfile`). The driver runs these processes interleaved
 (1 thread, 2 threads, 1, 2, ...; with ``--baseline SRC`` also that source tree, e.g. main, at 1
 thread in the same rounds), prints the load average, the median wall times and ratios, and a
 load-independent estimate: ``main CPU + busiest worker's CPU`` is about what a stage takes on idle
@@ -39,7 +39,7 @@ def worker(args: argparse.Namespace) -> None:
     from camplace.solver.problem.presolve import presolve
 
     try:
-        from camplace.solver._support.blocks import PoolProfile
+        from camplace._blocks import PoolProfile
     except ImportError:  # a tree without the pool (main before issue 29)
         PoolProfile = None
     matrix, weights, _, _ = load_problem(args.folder)

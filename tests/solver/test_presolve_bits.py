@@ -166,6 +166,26 @@ def test_presolve_bits_on_arrays_faulted_in_by_the_workers(monkeypatch) -> None:
             np.testing.assert_array_equal(got.bits, ref.bits)
 
 
+def test_hash_buckets_are_one_stable_sort_at_every_thread_count() -> None:
+    """The hashes split by their top bits and sorted part by part on the pool give numpy's stable
+    argsort and its runs of equal hashes: uniform hashes, many repeats, every hash in one part
+    (small values), one part much heavier than the rest, and none."""
+    from camplace.solver.problem import presolve_bits as pb
+
+    rng = np.random.default_rng(11)
+    uniform = rng.integers(0, 2**64 - 1, size=5000, dtype=np.uint64)
+    cases = [uniform, uniform[rng.integers(0, 300, size=5000)], uniform % np.uint64(7),
+             np.concatenate([uniform[:100], (uniform[100:] >> np.uint64(8)) | np.uint64(3 << 58)]),
+             np.zeros(0, dtype=np.uint64)]
+    for h in cases:
+        want = np.argsort(h, kind="stable")
+        cut = np.flatnonzero(np.diff(h[want]) != 0) + 1
+        want_starts = np.concatenate([[0], cut, [h.size]]) if h.size else np.zeros(1, dtype=np.int64)
+        for workers in (1, 2, 3):
+            order, starts = pb._hash_buckets(h, workers)
+            assert order.tolist() == want.tolist() and starts.tolist() == want_starts.tolist()
+
+
 @pytest.mark.parametrize("collide", [False, True])
 def test_grouped_rows_equal_a_dict_of_row_bytes_at_every_thread_count(collide: bool) -> None:
     """The parallel grouping of identical rows: the groups a dict of the rows' bytes gives

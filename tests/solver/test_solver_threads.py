@@ -15,7 +15,7 @@ from camplace._cores import allowed_cores, set_threads, thread_count, using_thre
 from camplace.errors import CamplaceError
 from camplace.solver import SolveOptions, presolve, solve
 from camplace.solver._support import bitkernels as K
-from camplace.solver._support import blocks
+from camplace import _blocks as blocks
 from camplace.solver._support import parkernels as P
 from camplace.solver.engines.bitset import search as bitset_mod
 from camplace.solver.engines.bitset.search import solve_bitset

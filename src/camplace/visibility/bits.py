@@ -19,7 +19,6 @@ The kernels are compiled with numba (``nogil``: the callers run them on a thread
 from __future__ import annotations
 
 import functools
-from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numba
@@ -27,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace._bitops import ctz as _ctz, popcount as _popcount, transpose64 as _transpose64
+from camplace._blocks import cuts, run_blocks
 from camplace._cores import thread_count
 
 __all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk", "take_rows", "stack_rows", "column_sums"]
@@ -130,24 +130,6 @@ def _column_sums(words, values, lo, hi, out):  # pragma: no cover - compiled
         out[j] = s
 
 
-def part_ranges(total: int, parts: int = 64) -> list[tuple[int, int]]:
-    """``parts`` contiguous ranges of ``range(total)`` (words, columns or rows; fixed by the size,
-    not the thread count)."""
-    parts = max(1, min(parts, total))
-    return [(total * p // parts, total * (p + 1) // parts) for p in range(parts)]
-
-
-def run_ranges(fn, ranges, workers: int | None = None) -> None:
-    """``fn(lo, hi)`` for every range, on ``workers`` threads (default: the allowed cores)."""
-    workers = thread_count(workers)
-    if workers > 1 and len(ranges) > 1:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(lambda r: fn(*r), ranges))
-    else:
-        for r in ranges:
-            fn(*r)
-
-
 class BitMatrix:
     """An (m, n) 0/1 matrix stored as column bitsets (see the module docstring).
 
@@ -193,8 +175,8 @@ class BitMatrix:
     def column_counts(self) -> np.ndarray:
         """(n,) int64: rows each column observes."""
         out = np.zeros(self.shape[1], dtype=np.int64)
-        run_ranges(lambda lo, hi: (_column_counts(self.words, lo, hi, out), self.release_columns(lo, hi)),
-                   part_ranges(self.shape[1]))
+        run_blocks(lambda lo, hi: (_column_counts(self.words, lo, hi, out), self.release_columns(lo, hi)),
+                   cuts(self.shape[1]))
         return out
 
     @property
@@ -206,8 +188,8 @@ class BitMatrix:
         """(m,) int64: candidates observing each row."""
         m = self.shape[0]
         counts = np.zeros(bit_words(m) * 64, dtype=np.int64)
-        run_ranges(lambda a, b: (_row_counts(self.words, a, b, counts), self.release_columns(0, self.shape[1])),
-             part_ranges(self.words.shape[1], 64),
+        run_blocks(lambda a, b: (_row_counts(self.words, a, b, counts), self.release_columns(0, self.shape[1])),
+             cuts(self.words.shape[1], 64),
              thread_count(workers))
         return counts[:m]
 
@@ -235,7 +217,7 @@ class BitMatrix:
         indices = np.empty(nnz, dtype=idt)
         cursor = np.zeros(bit_words(m) * 64, dtype=np.int64)
         cursor[:m] = indptr[:-1]
-        run_ranges(lambda a, b: _fill_indices(self.words, a, b, cursor, indices), part_ranges(self.words.shape[1], 64),
+        run_blocks(lambda a, b: _fill_indices(self.words, a, b, cursor, indices), cuts(self.words.shape[1], 64),
              thread_count(workers))
         data = np.ones(nnz, dtype=dtype)
         out = sp.csr_matrix((data, indices, indptr.astype(idt)), shape=(m, n), copy=False)
@@ -270,8 +252,8 @@ def bits_from_csr(matrix, workers: int | None = None) -> BitMatrix:
     m, n = a.shape
     words = np.zeros((n, bit_words(m)), dtype=np.uint64)
     # rows in blocks of 64 (whole words), so no two threads write one word
-    blocks = part_ranges(bit_words(m), 64)
-    run_ranges(lambda a0, b0: _from_csr(a.indptr, a.indices, 64 * a0, min(m, 64 * b0), words), blocks, thread_count(workers))
+    blocks = cuts(bit_words(m), 64)
+    run_blocks(lambda a0, b0: _from_csr(a.indptr, a.indices, 64 * a0, min(m, 64 * b0), words), blocks, thread_count(workers))
     return BitMatrix(words, m)
 
 
@@ -378,6 +360,6 @@ def column_sums(bits: BitMatrix, values: np.ndarray, workers: int | None = None)
     out = np.zeros(n, dtype=np.float64)
     if m == 0 or not np.any(v):
         return out
-    run_ranges(lambda lo, hi: (_column_sums(bits.words, v, lo, hi, out), bits.release_columns(lo, hi)),
-               part_ranges(n), thread_count(workers))
+    run_blocks(lambda lo, hi: (_column_sums(bits.words, v, lo, hi, out), bits.release_columns(lo, hi)),
+               cuts(n), thread_count(workers))
     return out

@@ -31,7 +31,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from camplace.visibility.bits import part_ranges, run_ranges
+from camplace._blocks import cuts, run_blocks
 
 __all__ = ["ByteMatrix", "quantise", "bytes_from_csr", "QUANT_STEP", "QUANT_ERROR"]
 
@@ -147,7 +147,7 @@ class ByteMatrix:
     def column_counts(self) -> np.ndarray:
         """(n,) int64: rows each column observes."""
         out = np.zeros(self.shape[1], dtype=np.int64)
-        run_ranges(lambda lo, hi: _column_counts(self.values, lo, hi, out), part_ranges(self.shape[1]))
+        run_blocks(lambda lo, hi: _column_counts(self.values, lo, hi, out), cuts(self.shape[1]))
         return out
 
     @property
@@ -166,14 +166,14 @@ class ByteMatrix:
 
         m, n = self.shape
         words = np.zeros((n, bit_words(m)), dtype=np.uint64)
-        run_ranges(lambda lo, hi: _pack(self.values, lo, hi, words), part_ranges(n))
+        run_blocks(lambda lo, hi: _pack(self.values, lo, hi, words), cuts(n))
         return BitMatrix(words, m)
 
     def row_counts(self, workers: int | None = None) -> np.ndarray:
         """(m,) int64: candidates observing each row."""
         m = self.shape[0]
         counts = np.zeros(m, dtype=np.int64)
-        run_ranges(lambda lo, hi: _row_counts(self.values, lo, hi, counts), part_ranges(m), workers)
+        run_blocks(lambda lo, hi: _row_counts(self.values, lo, hi, counts), cuts(m), workers)
         return counts
 
     def tocsr(self, dtype=np.float32, workers: int | None = None) -> sp.csr_matrix:
@@ -188,7 +188,7 @@ class ByteMatrix:
         indices = np.empty(nnz, dtype=idt)
         data = np.empty(nnz, dtype=np.float32)
         cursor = indptr[:-1].copy()
-        run_ranges(lambda lo, hi: _fill(self.values, lo, hi, cursor, indices, data, 255.0), part_ranges(m), workers)
+        run_blocks(lambda lo, hi: _fill(self.values, lo, hi, cursor, indices, data, 255.0), cuts(m), workers)
         if np.dtype(dtype) == np.bool_:
             data = np.ones(nnz, dtype=np.bool_)
         elif np.dtype(dtype) != np.float32:
@@ -215,5 +215,5 @@ def bytes_from_csr(matrix, workers: int | None = None) -> ByteMatrix:
     m, n = a.shape
     values = np.zeros((n, m), dtype=np.uint8)
     # rows in ranges: every thread writes its own rows of every column
-    run_ranges(lambda lo, hi: _quantise_csr(a.indptr, a.indices, a.data, lo, hi, values), part_ranges(m), workers)
+    run_blocks(lambda lo, hi: _quantise_csr(a.indptr, a.indices, a.data, lo, hi, values), cuts(m), workers)
     return ByteMatrix(values)

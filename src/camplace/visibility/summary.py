@@ -12,13 +12,13 @@ load, an OpenMP region around this 15 ms pass took 0.6-0.9 s waiting at its barr
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Sequence
 
 import numba
 import numpy as np
 
+from camplace._blocks import cuts, run_blocks
 from camplace._cores import thread_count
 
 __all__ = ["MatrixSummary", "summarise"]
@@ -102,23 +102,18 @@ def summarise(matrix, weights: np.ndarray, selected: Sequence[int], frame: np.nd
     frame = np.zeros(m, dtype=np.int64) if frame is None else np.asarray(frame, dtype=np.int64)
     fw = np.asarray(weights if frame_weight is None else frame_weight, dtype=np.float64)
     n_frames = max(1, int(n_frames))
-    blocks = max(1, min(BLOCKS, m))
-    cuts = [m * b // blocks for b in range(blocks + 1)]
+    bounds = cuts(m, BLOCKS)
+    blocks = len(bounds) - 1
     live = np.asarray(weights) > 0
     col_live = np.zeros((blocks, n), dtype=np.bool_)
     seen = np.zeros((blocks, max(1, len(sel)), n_frames), dtype=np.float64)
     covered = np.zeros(m, dtype=np.bool_)
 
-    def one(b: int) -> None:
-        _block(cuts[b], cuts[b + 1], matrix.indptr, matrix.indices, live, slot, frame, fw, col_live[b], seen[b], covered)
+    def one(lo: int, hi: int) -> None:
+        b = bounds.index(lo)
+        _block(lo, hi, matrix.indptr, matrix.indices, live, slot, frame, fw, col_live[b], seen[b], covered)
 
-    threads = thread_count() if matrix.nnz >= PARALLEL_MIN_NNZ else 1
-    if threads > 1:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            list(pool.map(one, range(blocks)))
-    else:
-        for b in range(blocks):
-            one(b)
+    run_blocks(one, bounds, thread_count() if matrix.nnz >= PARALLEL_MIN_NNZ else 1)
     total = np.zeros(seen.shape[1:], dtype=np.float64)
     for b in range(blocks):  # in block order: the same sums at every thread count
         total += seen[b]
@@ -156,26 +151,16 @@ def _summarise_bits(bits, weights, selected, frame, frame_weight, n_frames) -> M
     n_frames = max(1, int(n_frames))
     live = pack_rows(np.asarray(weights) > 0)
     col_live = np.zeros(n, dtype=np.bool_)
-    parts = max(1, min(64, n))
-    ranges = [(n * p // parts, n * (p + 1) // parts) for p in range(parts)]
-    threads = thread_count() if m * n >= 8 * PARALLEL_MIN_NNZ else 1
-    if threads > 1:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            list(pool.map(lambda r: (_touch_live(bits.words, live, r[0], r[1], col_live), bits.release_columns(*r)),
-                          ranges))
-    else:
-        for lo, hi in ranges:
-            _touch_live(bits.words, live, lo, hi, col_live)
-            bits.release_columns(lo, hi)
+    run_blocks(lambda lo, hi: (_touch_live(bits.words, live, lo, hi, col_live), bits.release_columns(lo, hi)),
+               cuts(n, 64), thread_count() if m * n >= 8 * PARALLEL_MIN_NNZ else 1)
     covered = np.zeros(m, dtype=np.bool_)
     seen = np.zeros((max(1, len(sel)), n_frames), dtype=np.float64)
-    blocks = max(1, min(BLOCKS, m))
-    cuts = np.array([m * b // blocks for b in range(blocks + 1)], dtype=np.int64)
+    row_cuts = np.array(cuts(m, BLOCKS), dtype=np.int64)
     for s, j in enumerate(sel):
         rows = bits.column(j)
         covered |= rows
-        part = np.zeros((blocks, n_frames), dtype=np.float64)
-        _seen_blocks(rows, frame, fw, cuts, part)
-        for b in range(blocks):  # the CSR pass's order: rows within a block, then blocks in order
+        part = np.zeros((row_cuts.size - 1, n_frames), dtype=np.float64)
+        _seen_blocks(rows, frame, fw, row_cuts, part)
+        for b in range(row_cuts.size - 1):  # the CSR pass's order: rows within a block, then blocks in order
             seen[s] += part[b]
     return MatrixSummary(useful_columns=int(np.count_nonzero(col_live)), covered=covered, seen=seen[:len(sel)])

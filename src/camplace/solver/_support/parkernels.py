@@ -2,7 +2,7 @@
 
 Same arguments and the same results (bit for bit, at every thread count) as the serial kernels of
 the same names: each runs the kernel's block version on fixed row or column blocks
-(:mod:`camplace.solver._support.blocks`) from a thread pool; every block writes only its own rows
+(:mod:`camplace._blocks`) from a thread pool; every block writes only its own rows
 or columns. Small inputs stay on the calling thread.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from camplace.solver._support import bitkernels as K
-from camplace.solver._support.blocks import cuts, run_blocks, threads_for
+from camplace._blocks import cuts, run_blocks, threads_for
 
 __all__ = ["build_bits", "column_sizes", "dominated_columns", "group_rows", "live_rows", "row_hashes", "shortfall_all"]
 

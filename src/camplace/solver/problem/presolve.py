@@ -37,7 +37,7 @@ from camplace.errors import CamplaceError
 from camplace.solver._support import bitkernels as _bk
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support import parkernels as _par
-from camplace.solver._support.blocks import cuts, run_blocks, threads_for
+from camplace._blocks import cuts, run_blocks, threads_for
 from camplace.solver.problem.checks import kernel_data
 
 __all__ = ["Presolved", "presolve", "as_pattern", "canonical_csr", "check_weights"]

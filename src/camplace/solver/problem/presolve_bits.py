@@ -36,7 +36,7 @@ from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.solver._support.bitkernels import renumber_by_first
-from camplace.solver._support.blocks import cuts, run_blocks, work_cuts
+from camplace._blocks import cuts, run_blocks, work_cuts
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
@@ -215,11 +215,47 @@ def _hash_rows(rb, lo, hi, h, has):  # pragma: no cover - compiled
         has[i] = any_bit
 
 
+#: the hashes' top bits that split them into parts sorted on the pool (64 parts)
+_HASH_PART_SHIFT = 58
+
+
 @numba.njit(**_JIT)
-def _hash_buckets(h):  # pragma: no cover - compiled
-    """``order`` (stable argsort of the hashes ``h``) and ``starts`` (b + 1,): the runs of equal
-    hash in ``order``, the buckets :func:`_bucket_reps` compares within."""
-    order = np.argsort(h, kind="mergesort")
+def _hash_parts(h, shift):  # pragma: no cover - compiled
+    """Positions of the hashes ``h`` (m,) uint64 grouped by their top bits ``h >> shift``, in
+    increasing position within a part (a stable counting sort): ``(order (m,) int64, pstarts
+    (P + 1,) int64)`` with ``P = 2 ** (64 - shift)`` parts."""
+    m = h.shape[0]
+    n_parts = np.int64(1) << (64 - shift)
+    pstarts = np.zeros(n_parts + 1, dtype=np.int64)
+    for i in range(m):
+        pstarts[np.int64(h[i] >> np.uint64(shift)) + 1] += 1
+    for p in range(n_parts):
+        pstarts[p + 1] += pstarts[p]
+    cursor = pstarts[:-1].copy()
+    order = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        p = np.int64(h[i] >> np.uint64(shift))
+        order[cursor[p]] = i
+        cursor[p] += 1
+    return order, pstarts
+
+
+@numba.njit(**_JIT)
+def _sort_parts(h, order, pstarts, p0, p1):  # pragma: no cover - compiled
+    """Sort parts ``p0:p1`` of :func:`_hash_parts`'s ``order`` by hash, stably (equal hashes keep
+    increasing positions)."""
+    for p in range(p0, p1):
+        s, e = pstarts[p], pstarts[p + 1]
+        if e - s > 1:
+            sub = order[s:e].copy()
+            o = np.argsort(h[sub], kind="mergesort")
+            for q in range(e - s):
+                order[s + q] = sub[o[q]]
+
+
+@numba.njit(**_JIT)
+def _bucket_starts(h, order):  # pragma: no cover - compiled
+    """``starts`` (b + 1,): the runs of equal hash in ``order`` (sorted by hash)."""
     m = order.shape[0]
     starts = np.empty(m + 1, dtype=np.int64)
     nb = 0
@@ -228,7 +264,17 @@ def _hash_buckets(h):  # pragma: no cover - compiled
             starts[nb] = q
             nb += 1
     starts[nb] = m
-    return order, starts[:nb + 1].copy()
+    return starts[:nb + 1].copy()
+
+
+def _hash_buckets(h: np.ndarray, workers: int) -> tuple[np.ndarray, np.ndarray]:
+    """``order`` (the stable argsort of the hashes ``h`` (m,) uint64: by hash, then by position)
+    and ``starts`` (b + 1,) int64: the runs of equal hash in ``order``, the buckets
+    :func:`_bucket_reps` compares within. The hashes are split by their top bits (a serial
+    counting pass) and the parts sorted on the pool: the same order as one stable sort."""
+    order, pstarts = _hash_parts(h, _HASH_PART_SHIFT)
+    _run(lambda p0, p1: _sort_parts(h, order, pstarts, p0, p1), work_cuts(np.diff(pstarts), _BLOCKS), workers)
+    return order, _bucket_starts(h, order)
 
 
 @numba.njit(**_JIT)
@@ -277,7 +323,7 @@ def _grouped_rows(rb: np.ndarray, idx: np.ndarray, h: np.ndarray, workers: int) 
     ``idx`` order: the hashes sorted once, the exact comparisons within the hash
     buckets in blocks of about equal rows on the pool (the part that grows with duplicate rows),
     then the labels. The same groups at every thread count."""
-    order, starts = _hash_buckets(h)
+    order, starts = _hash_buckets(h, workers)
     rep = np.empty(idx.size, dtype=np.int64)
     _run(lambda b0, b1: _bucket_reps(rb, idx, order, starts, b0, b1, rep), work_cuts(np.diff(starts), _BLOCKS),
          workers)
@@ -342,7 +388,7 @@ def _row_indices(rb, indptr, lo, hi, indices):  # pragma: no cover - compiled
 
 
 def _run(fn, bounds: list[int], workers: int) -> None:
-    """``fn(lo, hi)`` for every block of ``bounds`` (:func:`~camplace.solver._support.blocks.cuts`),
+    """``fn(lo, hi)`` for every block of ``bounds`` (:func:`~camplace._blocks.cuts`),
     on the solver's pool of ``workers`` threads."""
     with ctrl_c_deferred():
         run_blocks(fn, bounds, workers)

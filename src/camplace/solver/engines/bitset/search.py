@@ -72,7 +72,7 @@ from numba import prange
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
 from camplace.solver._support import parkernels as P
-from camplace.solver._support.blocks import run_blocks
+from camplace._blocks import run_blocks
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.greedy import greedy_swap

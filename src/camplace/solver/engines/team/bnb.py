@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace._bitops import ctz as _ctz
-from camplace.solver._support.blocks import cuts, run_blocks
+from camplace._blocks import cuts, run_blocks
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.team import TeamConstraints

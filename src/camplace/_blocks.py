@@ -1,16 +1,19 @@
-"""Fixed blocks of work on a thread pool: how the solver's compiled kernels use every allowed core.
+"""Fixed blocks of work on one kept thread pool: how camplace's compiled kernels use every allowed core.
 
 A kernel that treats rows (or columns) one by one gets a block version ``kernel(lo, hi, ...)``
 (GIL-free, ``nogil=True``) writing into arrays made beforehand; :func:`run_blocks` calls it on
 :func:`cuts` (a number of blocks that does not depend on the thread count) from a thread pool of
 :func:`camplace._cores.thread_count` threads. Each block writes only its own part of the outputs,
 and anything summed across blocks is summed in block order by the caller, so the result is the
-same bits at every thread count.
+same bits at every thread count. The visibility stage's passes over the finished matrix
+(:mod:`camplace.visibility.bits`, :mod:`camplace.visibility.qbytes`,
+:mod:`camplace.visibility.summary`) and the solver's share the pool (one home: a stage below the
+solver may not import it, so it lives beside :mod:`camplace._cores`); ray casting keeps its own
+pool of chunk futures (:func:`camplace.visibility.engine.compute_visibility`).
 
 A thread pool rather than numba's ``prange`` (OpenMP here): measured on the shared 2-core
 machine, an OpenMP region around a 15 ms pass waited 0.6-0.9 s at its barrier when the other core
-was busy, while the pool's threads simply take the next block (see
-:mod:`camplace.visibility.summary`, which does the same).
+was busy, while the pool's threads simply take the next block.
 """
 
 from __future__ import annotations
