@@ -366,6 +366,25 @@ def _solver_warm_up(instance, settings: RunSettings):
     return lambda: load_kernels(settings.solve_options)
 
 
+def _while_casting(instance, settings: RunSettings, cands: CandidateSet, pts, write: bool):
+    """The visibility stage's ``idle`` work: the solver's kernels (:func:`_solver_warm_up`), then,
+    for a run that writes a folder, the text of ``candidates.csv`` and ``points.csv`` (kept on the
+    sets: :meth:`CandidateSet.to_csv`), so that neither waits in a serial stage after the cast.
+    None when there is nothing to do."""
+    warm = _solver_warm_up(instance, settings)
+    if warm is None and not write:
+        return None
+
+    def work() -> None:
+        if warm is not None:
+            warm()
+        if write:
+            cands.to_csv()
+            pts.to_csv()
+
+    return work
+
+
 def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None = None,
                  reporter: Reporter | None = None) -> Solution:
     """The pipeline as a sequence of stages: sampling, visibility, solve, the solution, the folder.
@@ -404,7 +423,8 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         t0 = time.perf_counter()
         vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
                                dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
-                               scratch=scratch, solve_mode=settings.mode, idle=_solver_warm_up(instance, settings))
+                               scratch=scratch, solve_mode=settings.mode,
+                               idle=_while_casting(instance, settings, cands, pts, outdir is not None))
         timings["visibility"] = time.perf_counter() - t0
         timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 

@@ -94,3 +94,34 @@ def test_the_visibility_stage_runs_the_idle_work_once_and_ignores_its_errors() -
     assert calls == [1]
     np.testing.assert_array_equal(got.bits.words, ref.bits.words)
     assert got.stats == ref.stats
+
+
+def test_a_run_formats_its_csv_files_while_the_rays_are_cast(tmp_path) -> None:
+    """``camplace run``'s idle work formats candidates.csv and points.csv during the cast (only
+    when it writes a folder), and the folder holds the same text as a fresh format."""
+    import camplace
+    from camplace.instance import builtin
+    from camplace.sampling import CandidateSet
+    from camplace.visibility import TargetPoints, engine
+
+    seen = []
+    real = engine._while_waiting
+
+    def spy(idle) -> None:
+        real(idle)
+        seen.append(idle)
+
+    inst = builtin("comet-67p-bunker")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(engine, "_while_waiting", spy)
+        sol = camplace.run(inst, candidates=600, points=1500, seed=3, cache=False, outdir=tmp_path / "run")
+    assert len(seen) == 1 and "_csv" in sol.candidates.__dict__ and "_csv" in sol.visibility.points.__dict__
+    fresh = CandidateSet(sol.candidates.positions, sol.candidates.aims, sol.candidates.rotations)
+    assert (tmp_path / "run" / "candidates.csv").read_text() == fresh.to_csv() == sol.candidates.to_csv()
+    p = sol.visibility.points
+    fresh_p = TargetPoints(p.positions, p.normals, p.frame, p.weight)
+    assert (tmp_path / "run" / "points.csv").read_text() == fresh_p.to_csv()
+    assert "_csv" not in fresh.__dict__ or fresh.__dict__["_csv"] == fresh.to_csv()
+    # without a folder to write, the cast formats nothing
+    sol2 = camplace.run(inst, candidates=600, points=1500, seed=3, cache=False)
+    assert "_csv" not in sol2.candidates.__dict__ and "_csv" not in sol2.visibility.points.__dict__

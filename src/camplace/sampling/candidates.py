@@ -58,13 +58,19 @@ class CandidateSet:
         return CandidateSet(self.positions, self.aims, self.rotations, sampler=sampler, seed=seed, model=self.model, zones=self.zones)
 
     def to_csv(self) -> str:
-        """The ``candidates.csv`` text: ``index,x,y,z,aim_x,aim_y,aim_z,r11,...,r33`` (and ``,model`` for a team)."""
-        n = len(self)
-        cols = [np.arange(n), *np.asarray(self.positions, dtype=np.float64).T, *np.asarray(self.aims, dtype=np.float64).T,
-                *np.asarray(self.rotations, dtype=np.float64).reshape(n, 9).T]
-        if self.model is not None:
-            cols.append(np.asarray(self.model, dtype=np.int64))
-        return csv_text(CSV_HEADER if self.model is None else CSV_HEADER_TEAM, cols)
+        """The ``candidates.csv`` text: ``index,x,y,z,aim_x,aim_y,aim_z,r11,...,r33`` (and ``,model`` for a team).
+
+        Formatted once per set and kept (the poses are frozen): ``camplace run`` formats it while
+        the rays are cast (:func:`camplace.pipeline.run_settings`), and the run folder writes it."""
+        text = self.__dict__.get("_csv")
+        if text is None:
+            n = len(self)
+            cols = [np.arange(n), *np.asarray(self.positions, dtype=np.float64).T,
+                    *np.asarray(self.aims, dtype=np.float64).T, *np.asarray(self.rotations, dtype=np.float64).reshape(n, 9).T]
+            if self.model is not None:
+                cols.append(np.asarray(self.model, dtype=np.int64))
+            text = self.__dict__["_csv"] = csv_text(CSV_HEADER if self.model is None else CSV_HEADER_TEAM, cols)
+        return text
 
     def save(self, path: str | Path) -> None:
         """Write ``candidates.csv`` atomically."""

@@ -100,9 +100,16 @@ class TargetPoints:
         return ~np.any(self.normals != 0.0, axis=1)
 
     def to_csv(self) -> str:
-        """The ``points.csv`` text: ``index,x,y,z,nx,ny,nz,frame,weight``."""
-        m = len(self)
-        return csv_text(POINTS_HEADER, [np.arange(m), *self.positions.T, *self.normals.T, self.frame, self.weight])
+        """The ``points.csv`` text: ``index,x,y,z,nx,ny,nz,frame,weight``.
+
+        Formatted once per set and kept (the points are frozen): ``camplace run`` formats it while
+        the rays are cast (:func:`camplace.pipeline.run_settings`), and the run folder writes it."""
+        text = self.__dict__.get("_csv")
+        if text is None:
+            m = len(self)
+            text = self.__dict__["_csv"] = csv_text(POINTS_HEADER, [np.arange(m), *self.positions.T, *self.normals.T,
+                                                                     self.frame, self.weight])
+        return text
 
     def save(self, path: str | Path) -> None:
         """Write ``points.csv`` atomically."""
