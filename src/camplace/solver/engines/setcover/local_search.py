@@ -815,8 +815,11 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
 
     Parameters
     ----------
-    pattern : (m, n) scipy.sparse.csr_matrix
-        Canonical 0/1 matrix; every row is covered by some column.
+    pattern : (m, n) scipy.sparse.csr_matrix or RowBits
+        Canonical 0/1 matrix; every row is covered by some column. Or its row bitsets
+        (:class:`camplace.solver.engines.setcover.reduce_bits.RowBits`): the reductions then read
+        the bitsets (:func:`~camplace.solver.engines.setcover.reduce_bits.reduce_cover_bits`, the
+        same reduced instance) and only the reduced instance becomes lists.
     costs : (n,) float64
         Costs >= 0.
     weights : (m,) float64, optional
@@ -854,13 +857,19 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     total = left()  # the time left at the call (None: no limit)
 
     m, n = pattern.shape
-    need_bytes = cover_bytes(m, n, int(pattern.nnz))
+    on_bits = getattr(pattern, "format", None) == "rowbits"
+    if on_bits:  # the reductions read the row bitsets; the reduced instance's lists are checked there
+        from camplace.solver.engines.setcover.reduce_bits import reduce_bits_bytes, reduce_cover_bits
+
+        need_bytes = reduce_bits_bytes(m, n)
+    else:
+        need_bytes = cover_bytes(m, n, int(pattern.nnz))
     budget = memory_budget_bytes()
     if need_bytes > budget:
         memory_fallback(OverBudget(need_bytes, budget, f"the set-cover search ({m} x {n}, {pattern.nnz} nonzeros)"),
                         stats=None, asked=True, then=None)  # nothing answers without it
     c = np.asarray(costs, dtype=np.float64)
-    red = reduce_cover(pattern, c, weights, need)
+    red = reduce_cover_bits(pattern, c, weights, need) if on_bits else reduce_cover(pattern, c, weights, need)
     stats: dict[str, Any] = {"reduction": dict(red.stats)}
     mr, nr = red.shape
     if mr == 0 or (red.partial and red.need <= 0):
@@ -955,15 +964,19 @@ def _prune_input(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray 
     sel = list(selected)
     if not sel:
         return ()
-    a = pattern.tocsc()
+    if getattr(pattern, "format", None) == "rowbits":  # row bitsets: the selected columns' rows alone
+        col_rows = {j: pattern.column_rows(j) for j in sel}
+    else:
+        a = pattern.tocsc()
+        col_rows = {j: a.indices[a.indptr[j] : a.indptr[j + 1]] for j in sel}
     cov = np.zeros(m, dtype=np.int64)
     for j in sel:
-        cov[a.indices[a.indptr[j] : a.indptr[j + 1]]] += 1
+        cov[col_rows[j]] += 1
     w = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
     got = float(w[cov > 0].sum())
     floor = None if need is None else float(need) * (1.0 - 1e-12)
     for j in sorted(sel, key=lambda j: (-costs[j], -j)):
-        rows = a.indices[a.indptr[j] : a.indptr[j + 1]]
+        rows = col_rows[j]
         alone = rows[cov[rows] == 1]
         if floor is None:
             ok = alone.size == 0

@@ -20,7 +20,9 @@ from camplace.solver.engines.mip.mode_models import setcover_model
 from camplace.solver.engines.setcover.local_search import solve_cover
 from camplace.solver.problem.objectives import coverage_weight
 from camplace.solver.problem.presolve import as_pattern
-from camplace.solver.problem.presolve_bits import covered_weight, row_counts_of, rows_csr, rows_csr_bytes
+from camplace.solver.engines.setcover.reduce_bits import RowBits, row_bits_bytes
+from camplace.solver.problem.presolve_bits import (covered_weight, row_bitsets, row_counts_of, rows_csr,
+                                                    rows_csr_bytes)
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["setcover"]
@@ -79,7 +81,9 @@ def setcover(
     credit = float(w[covered_f & pos_w].sum())
     need = frac * coverable_w - credit
     rows = pos_w & obs_allowed & ~covered_f
-    if bits:
+    if bits and conflicts.size == 0:  # the search reduces the row bitsets itself: no CSR of the rows
+        sub = _bits_row_sets(q, rows, free_cols)
+    elif bits:
         sub = _bits_rows(q, rows, free_cols, int(free_count[rows].sum()))
     else:
         sub = (pat if free_cols.size == n else pat[:, free_cols].tocsr())[rows]
@@ -122,6 +126,19 @@ def setcover(
             log.warning("setcover: the %s answer misses the required weight by %.3g (integer rounding)", name, need - got)
             status = "unknown"
     return finish(sel_free, status, bound)
+
+
+def _bits_row_sets(bits: Any, rows: np.ndarray, free_cols: np.ndarray) -> RowBits:
+    """The rows to cover (``rows`` (m,) bool) over the free columns of a BitMatrix as row bitsets
+    (:class:`~camplace.solver.engines.setcover.reduce_bits.RowBits`, ``r x ceil(c / 64)`` words,
+    bit ``t`` = column ``free_cols[t]``), which :func:`solve_cover` reduces without CSR lists;
+    checked against the memory budget first."""
+    r = int(np.count_nonzero(rows))
+    need, budget = row_bits_bytes(r, free_cols.size), memory_budget_bytes()
+    if need > budget:  # nothing answers without it: a one-line error
+        memory_fallback(OverBudget(need, budget, f"the set-cover rows as bitsets ({r} x {free_cols.size})"),
+                        None, asked=True, then=None, fix="use fewer candidates / points")
+    return RowBits(row_bitsets(bits, np.flatnonzero(rows), free_cols), free_cols.size)
 
 
 def _bits_rows(bits: Any, rows: np.ndarray, free_cols: np.ndarray, nnz: int) -> sp.csr_matrix:
