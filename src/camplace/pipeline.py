@@ -396,6 +396,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
 
+    from camplace.solver.bits_route import bits_solve
     from camplace.visibility.scratch import Scratch
 
     parent = settings.scratch if settings.scratch is not None else (Path(outdir).resolve().parent if outdir is not None
@@ -404,7 +405,8 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         t0 = time.perf_counter()
         vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
                                dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
-                               scratch=scratch, solve_mode=settings.mode, idle=_solver_warm_up(instance, settings))
+                               scratch=scratch, solve_mode=settings.mode, idle=_solver_warm_up(instance, settings),
+                               solve=None if settings.robust is not None else bits_solve(settings.solve_options))
         timings["visibility"] = time.perf_counter() - t0
         timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 

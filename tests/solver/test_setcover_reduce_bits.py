@@ -92,3 +92,53 @@ def test_solve_cover_on_bits_same_answer_and_less_than_a_byte_a_pair() -> None:
     assert peak_lists > 20 * a.nnz
     assert peak_bits - base < a.nnz
     assert peak_bits - base <= reduce_bits_bytes(m, n) + row_bits_bytes(m, n)
+
+
+def _enumerated_min_columns(dense: np.ndarray) -> int:
+    import itertools
+
+    m, n = dense.shape
+    for r in range(1, n + 1):
+        if any(dense[:, list(c)].any(axis=1).all() for c in itertools.combinations(range(n), r)):
+            return r
+    raise AssertionError("no cover")
+
+
+def test_small_cover_test_equals_enumeration() -> None:
+    """The exact test of a unicost cover (:func:`small_cover_test`) from the greedy cover and a zero
+    bound: its answer is a cover, and 'proven' exactly when its size is the enumerated minimum."""
+    proven = 0
+    for seed in range(120):
+        rng = np.random.default_rng(1000 + seed)
+        m, n = int(rng.integers(2, 30)), int(rng.integers(2, 13))
+        dense = rng.random((m, n)) < rng.uniform(0.1, 0.5)
+        dense[np.arange(m), rng.integers(0, n, m)] = True
+        red = S.reduce_cover(sp.csr_matrix(dense.astype(float)), np.ones(n))
+        if red.shape[0] == 0:
+            continue
+        rd = np.zeros(red.shape, dtype=bool)
+        for j in range(red.shape[1]):
+            rd[red.crow[red.cptr[j]:red.cptr[j + 1]], j] = True
+        start = S.LocalSearch(red, seed=seed).best_cover()
+        sel, bound, st = S.small_cover_test(red, start, 0.0)
+        assert sel.size <= start.size and rd[:, sel].any(axis=1).all()
+        best = _enumerated_min_columns(rd)
+        assert st["result"] == "proven" and bound == sel.size == best, (seed, st, best)
+        proven += 1
+    assert proven > 25  # the others reduce to nothing (forced columns)
+
+
+def test_small_cover_test_work_limit_keeps_the_lower_bound() -> None:
+    """Out of work before an answer: the cover and the given bound come back unchanged."""
+    a = _dense_instance()
+    red = S.reduce_cover(a, np.ones(a.shape[1]))
+    start = S.LocalSearch(red, seed=1).best_cover()
+    old = S.EXACT_WORK
+    try:
+        S.EXACT_WORK = 1
+        sel, bound, st = S.small_cover_test(red, start, 1.0)
+    finally:
+        S.EXACT_WORK = old
+    assert st["result"] in ("work limit", f"skipped ({start.size} columns, tested up to {S.EXACT_MAX_COLUMNS + 1})")
+    np.testing.assert_array_equal(sel, start)
+    assert bound == 1.0

@@ -988,3 +988,108 @@ def lagrangian(cptr, crow, rptr, cost, roww, need, u, best_u, lst, iters, ub, pa
             v = u[i] + t * g[i]
             u[i] = v if v > 0 else 0.0
     return iters
+
+
+# ----------------------------------------------------------------------------------------------
+# exact test for a small unicost cover
+# ----------------------------------------------------------------------------------------------
+
+
+@numba.njit(**_JIT)
+def column_bitsets(cptr, crow, m):  # pragma: no cover - compiled
+    """(n, ceil(m / 64)) uint64 column bitsets of the column-major lists."""
+    n = cptr.shape[0] - 1
+    out = np.zeros((n, max(1, (m + 63) // 64)), dtype=np.uint64)
+    for j in range(n):
+        for p in range(cptr[j], cptr[j + 1]):
+            i = crow[p]
+            out[j, i >> 6] |= np.uint64(1) << np.uint64(i & 63)
+    return out
+
+
+@numba.njit(**_JIT)
+def small_cover(cb, rptr, rcol, unc, level, k_left, banned, chosen, work, max_work):  # pragma: no cover - compiled
+    """Depth-first search for a cover of the rows ``unc[level]`` (bitset) by at most ``k_left`` more
+    columns of column bitsets ``cb`` (not ``banned``: (n,) int64, 0 or the level + 1 that banned it).
+
+    Branches on the columns (in list order) of the uncovered row with the fewest columns (the first
+    such row); a column explored at a node is banned in its later siblings' subtrees (the covers
+    holding it were all seen); a node is cut when ``k_left`` times the most uncovered rows one column
+    covers is below the uncovered rows. ``work`` [1] int64 counts word operations; past
+    ``max_work`` the search gives up. Deterministic.
+
+    Returns
+    -------
+    int
+        1: a cover found (its columns in ``chosen[:level']``, -1 past its end); 0: none with at most
+        ``k_left`` columns; -1: the work budget ran out.
+    """
+    n, n_words = cb.shape
+    cnt = np.int64(0)
+    best_r = np.int64(-1)
+    best_d = np.int64(1) << 62
+    for wd in range(n_words):
+        x = unc[level, wd]
+        cnt += np.int64(_popc(x))
+        while x:
+            r = (np.int64(wd) << 6) + np.int64(_ctz(x))
+            x &= x - np.uint64(1)
+            d = rptr[r + 1] - rptr[r]
+            if d < best_d:
+                best_d = d
+                best_r = r
+    work[0] += n_words
+    if cnt == 0:
+        for t in range(level, chosen.shape[0]):
+            chosen[t] = -1
+        return 1
+    if k_left == 0:
+        return 0
+    if work[0] > max_work:
+        return -1
+    if k_left == 1:
+        for p in range(rptr[best_r], rptr[best_r + 1]):
+            j = rcol[p]
+            if banned[j]:
+                continue
+            ok = True
+            for wd in range(n_words):
+                work[0] += 1
+                if unc[level, wd] & ~cb[j, wd]:
+                    ok = False
+                    break
+            if ok:
+                chosen[level] = j
+                for t in range(level + 1, chosen.shape[0]):
+                    chosen[t] = -1
+                return 1
+        return 0
+    most = np.int64(0)
+    for j in range(n):
+        if banned[j]:
+            continue
+        g = np.int64(0)
+        for wd in range(n_words):
+            g += np.int64(_popc(unc[level, wd] & cb[j, wd]))
+        if g > most:
+            most = g
+    work[0] += n * n_words
+    if most * k_left < cnt:
+        return 0
+    res = 0
+    for p in range(rptr[best_r], rptr[best_r + 1]):
+        j = rcol[p]
+        if banned[j]:
+            continue
+        for wd in range(n_words):
+            unc[level + 1, wd] = unc[level, wd] & ~cb[j, wd]
+        work[0] += n_words
+        chosen[level] = j
+        res = small_cover(cb, rptr, rcol, unc, level + 1, k_left - 1, banned, chosen, work, max_work)
+        if res != 0:
+            break
+        banned[j] = level + 1  # the covers holding j were all seen: not in the later siblings' subtrees
+    for p in range(rptr[best_r], rptr[best_r + 1]):  # released for the parent's other branches
+        if banned[rcol[p]] == level + 1:
+            banned[rcol[p]] = 0
+    return res
