@@ -142,3 +142,26 @@ def test_small_cover_test_work_limit_keeps_the_lower_bound() -> None:
     assert st["result"] in ("work limit", f"skipped ({start.size} columns, tested up to {S.EXACT_MAX_COLUMNS + 1})")
     np.testing.assert_array_equal(sel, start)
     assert bound == 1.0
+
+
+def test_setcover_on_bits_stays_within_the_guard_term() -> None:
+    """Set cover through :func:`camplace.solver.solve` on column bitsets: the traced peak stays
+    under the term the visibility guard adds for it (:func:`setcover_bits_bytes`)."""
+    from camplace.solver.api import solve
+    from camplace.solver.engines.setcover.reduce_bits import setcover_bits_bytes
+    from camplace.visibility.bits import bits_from_csr
+
+    a = _dense_instance()
+    bits = bits_from_csr(a)
+    w = np.ones(a.shape[0])
+    solve(bits, w, mode="setcover", iterations=2000)  # kernels loaded before tracing
+    tracemalloc.start()
+    try:
+        base, _ = tracemalloc.get_traced_memory()
+        res = solve(bits, w, mode="setcover", iterations=2000)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert res.stats["setcover"]["reduction"]["layout"] == "bitsets"
+    assert bool(np.all(np.diff(a[:, list(res.selected)].tocsr().indptr) > 0))  # a cover
+    assert peak - base <= setcover_bits_bytes(*a.shape)
