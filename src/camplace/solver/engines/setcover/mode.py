@@ -43,8 +43,10 @@ def setcover(
 
     ``q`` is the (m, n) CSR matrix, or a binary matrix as column bitsets
     (:class:`camplace.visibility.bits.BitMatrix`): then the coverable and fixed-covered rows are
-    counted from the bits and only the rows left to cover become the CSR pattern the search reads
-    (:func:`_bits_rows`: the same arrays as the CSR route's), not the whole matrix's pattern.
+    counted from the bits and only the rows left to cover become row bitsets
+    (:func:`_bits_row_sets`), which :func:`solve_cover` reduces on bitsets (the same reduced
+    instance as the CSR route's); with minimum-distance conflicts (the model reads CSR rows) the
+    CSR pattern of those rows (:func:`_bits_rows`). Never the whole matrix's pattern.
     """
     m, n = q.shape
     if engine == "exact":
@@ -55,7 +57,7 @@ def setcover(
         raise CamplaceError(f"costs must be ({n},) finite values >= 0, got shape {c.shape}")
     frac = float(required_fraction)
     bits = getattr(q, "format", None) == "bits"
-    if bits:  # a binary matrix as column bitsets: the counts from the bits, the rows to cover as CSR
+    if bits:  # a binary matrix as column bitsets: the counts from the bits, the rows to cover as row bitsets
         covered_f = q.union(fixed_t) if fixed_t else np.zeros(m, dtype=bool)
         free_count = row_counts_of(q, free_cols)
         obs_allowed = (free_count > 0) | covered_f  # allowed = free and fixed columns
