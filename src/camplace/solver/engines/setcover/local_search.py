@@ -62,7 +62,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -78,6 +78,9 @@ from camplace.solver.result import EngineOutcome
 __all__ = ["CoverReduction", "reduce_cover", "small_cover_test", "LocalSearch", "local_search", "lagrangian_bound", "solve_cover",
            "AUTO_MODEL_NNZ", "cover_bytes", "cover_model_bytes", "patience_work", "restart_unit_work",
            "run_searches", "search_threads"]
+
+if TYPE_CHECKING:
+    from camplace.solver.engines.setcover.reduce_bits import RowBits
 
 log = logging.getLogger(__name__)
 
@@ -905,7 +908,7 @@ def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) 
     return "mip", ""
 
 
-def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None = None,
+def solve_cover(pattern: sp.csr_matrix | RowBits, costs: np.ndarray, weights: np.ndarray | None = None,
                 need: float | None = None, *, engine: str = "auto", deadline: Deadline | None = None,
                 seed: int = 0, max_iterations: int | None = None) -> EngineOutcome:
     """Reductions, local search, Lagrangian bound and (if it applies) SCIP / CP-SAT.
@@ -1062,7 +1065,7 @@ def solve_cover(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray |
     return EngineOutcome(sel, status, bound, stats, engine=name, objective=cost)
 
 
-def _prune_input(pattern: sp.csr_matrix, costs: np.ndarray, weights: np.ndarray | None, need: float | None,
+def _prune_input(pattern: sp.csr_matrix | RowBits, costs: np.ndarray, weights: np.ndarray | None, need: float | None,
                  selected: tuple[int, ...]) -> tuple[int, ...]:
     """Drop columns of a cover of the input that are not needed, dearest first (cost 0 ones
     included): the cost never rises and no camera is kept for nothing."""

@@ -25,7 +25,6 @@ import scipy.sparse as sp
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
-from camplace.solver._support.blocks import cuts
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.setcover import _kernels as K
 
@@ -123,6 +122,13 @@ class RowBits:
         return cls(rb, n)
 
 
+def _cuts(n: int, blocks: int) -> list[int]:
+    """Block boundaries of ``range(n)`` (the solver's, through the bit presolve's import)."""
+    from camplace.solver.problem import presolve_bits
+
+    return presolve_bits.cuts(n, blocks)
+
+
 def _transpose(rb: np.ndarray, n: int, workers: int) -> np.ndarray:
     """(n, ceil(m / 64)) uint64: the column bitsets of row bitsets ``rb`` (m, ceil(n / 64))."""
     from camplace.solver.problem.presolve_bits import _gather, _run
@@ -130,7 +136,7 @@ def _transpose(rb: np.ndarray, n: int, workers: int) -> np.ndarray:
     m = rb.shape[0]
     out = np.zeros((n, _words(m)), dtype=np.uint64)
     sel = np.arange(m, dtype=np.int64)
-    _run(lambda w0, w1: _gather(rb, sel, n, w0, w1, out), cuts(rb.shape[1], _BLOCKS), workers)
+    _run(lambda w0, w1: _gather(rb, sel, n, w0, w1, out), _cuts(rb.shape[1], _BLOCKS), workers)
     return out
 
 
@@ -143,7 +149,7 @@ def _compact(bits: np.ndarray, items: np.ndarray, keep_bits: np.ndarray, workers
     bit_map[kept] = np.arange(kept.size, dtype=np.int64)
     items = np.asarray(items, dtype=np.int64)
     out = np.zeros((items.size, _words(kept.size)), dtype=np.uint64)
-    _run(lambda lo, hi: K.compact_bits(bits, items, bit_map, lo, hi, out), cuts(items.size, _BLOCKS), workers)
+    _run(lambda lo, hi: K.compact_bits(bits, items, bit_map, lo, hi, out), _cuts(items.size, _BLOCKS), workers)
     return out
 
 
@@ -153,7 +159,7 @@ def _lists_of(bits: np.ndarray, workers: int) -> tuple[np.ndarray, np.ndarray]:
 
     r = bits.shape[0]
     lengths = np.zeros(r, dtype=np.int64)
-    blocks = cuts(r, _BLOCKS)
+    blocks = _cuts(r, _BLOCKS)
     _run(lambda lo, hi: _row_lengths(bits, lo, hi, lengths), blocks, workers)
     ptr = np.zeros(r + 1, dtype=np.int64)
     np.cumsum(lengths, out=ptr[1:])
