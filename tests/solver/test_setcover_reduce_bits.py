@@ -165,3 +165,18 @@ def test_setcover_on_bits_stays_within_the_guard_term() -> None:
     assert res.stats["setcover"]["reduction"]["layout"] == "bitsets"
     assert bool(np.all(np.diff(a[:, list(res.selected)].tocsr().indptr) > 0))  # a cover
     assert peak - base <= setcover_bits_bytes(*a.shape)
+
+
+@pytest.mark.parametrize("seed", [5, 6, 11])
+def test_exact_test_proves_what_the_lagrangian_bound_leaves_open(seed: int, monkeypatch) -> None:
+    """Unicost covers whose Lagrangian bound is one camera short (no SCIP: the search-only path of
+    large instances): the exact test proves the search's cover optimal (was 'feasible'), the
+    enumerated minimum."""
+    monkeypatch.setattr(S, "AUTO_MODEL_NNZ", 0)
+    rng = np.random.default_rng(seed)
+    dense = rng.random((40, 16)) < 0.3
+    dense[np.arange(40), rng.integers(0, 16, 40)] = True
+    out = S.solve_cover(sp.csr_matrix(dense.astype(float)), np.ones(16), seed=0, max_iterations=500)
+    assert out.stats["lagrangian"]["bound"] < out.objective
+    assert out.stats["exact_test"]["result"] == "proven" and out.engine == "local-search"
+    assert out.status == "optimal" and out.bound == out.objective == _enumerated_min_columns(dense)
