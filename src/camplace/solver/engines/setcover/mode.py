@@ -18,9 +18,9 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes, mem
 from camplace.solver.engines.mip.linear import solve_model
 from camplace.solver.engines.mip.mode_models import setcover_model
 from camplace.solver.engines.setcover.local_search import solve_cover
+from camplace.solver.engines.setcover.reduce_bits import RowBits, row_bits_bytes
 from camplace.solver.problem.objectives import coverage_weight
 from camplace.solver.problem.presolve import as_pattern
-from camplace.solver.engines.setcover.reduce_bits import RowBits, row_bits_bytes
 from camplace.solver.problem.presolve_bits import (covered_weight, row_bitsets, row_counts_of, rows_csr,
                                                     rows_csr_bytes)
 from camplace.solver.result import EngineOutcome
