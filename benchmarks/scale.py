@@ -10,8 +10,12 @@ and prints per run:
   ``local:N`` Dask cluster, sampled every 50 ms with psutil; a separate scheduler / worker started
   outside is not counted), the observed pairs (from ``solution.json``) and bytes per observed pair;
 - the memory guard's estimate (:func:`camplace.visibility.engine.estimate_matrix_bytes`, the
-  function the run checks its budget with, evaluated for the same size and thread count) and its
-  ratio to the measured peak (target: within 25 %);
+  function the run checks its budget with, evaluated for the same size, thread count and, on
+  column bitsets, the same solve: ``--mode setcover`` and ``--mode multiview`` count their own
+  working memory, :func:`camplace.solver.bits_route.bits_solve_bytes`), the estimate of a set-cover
+  SCIP / CP-SAT model when one ran (``solver_stats["setcover"]["model_bytes"]``, made before the
+  model is built, once the reduced instance is known: the guard cannot know before the cast whether
+  one will run), their sum and its ratio to the measured peak (target: within 25 %);
 - the objective and status, and the peak's ratio to the baseline's.
 
 With ``--graded`` the instance is a copy of comet-67p-bunker with ``[quality] mode = "graded"``
@@ -78,18 +82,23 @@ def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
     observed = describe(out / "run" / "visibility.cpm")["nnz"]  # the footer alone
     subprocess.run(["rm", "-rf", str(out)], check=False)
     selected = [c.get("index", c.get("candidate")) for c in sol.get("cameras", [])]
-    return {"layout": layout, "wall_s": wall, "peak": peak, "observed": observed,
+    model = int((sol.get("solver_stats") or {}).get("setcover", {}).get("model_bytes", 0))
+    return {"layout": layout, "wall_s": wall, "peak": peak, "observed": observed, "model": model,
             "objective": sol.get("objective"), "status": sol.get("status"), "selected": selected}
 
 
 def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads: int | None,
-                   graded: bool = False, mode: str = "maxcover") -> int:
+                   graded: bool = False, mode: str = "maxcover", k: int = 3, views: int = 2) -> int:
     from camplace._cores import set_threads
+    from camplace.solver.bits_route import bits_solve
+    from camplace.solver.options import SolveOptions
     from camplace.visibility.engine import estimate_matrix_bytes
 
     set_threads(threads)
+    plan = bits_solve(SolveOptions(mode=mode, k=None if mode == "setcover" else k, views=views))
+    solve = {} if plan is None else {"solve": plan[0], "k": plan[1], "views": plan[2]}  # what the run passes
     return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded),
-                                 tree=1.0 if mode == "quality" else 0.0)
+                                 tree=1.0 if mode == "quality" else 0.0, **solve)
 
 
 def layout_name(layout: str, graded: bool) -> str:
@@ -119,8 +128,8 @@ def main() -> None:
     args = ap.parse_args()
     args.instance = graded_instance(Path(tempfile.mkdtemp(prefix="camplace-graded-"))) if args.graded else \
         "comet-67p-bunker"
-    print(f"{'size':>16} {'layout':>6} {'wall s':>8} {'peak MB':>9} {'pairs':>12} {'B/pair':>7} {'est MB':>8} "
-          f"{'est/peak':>8} {'vs base':>8}  result")
+    print(f"{'size':>16} {'layout':>6} {'wall s':>8} {'peak MB':>9} {'pairs':>12} {'B/pair':>7} {'guard MB':>8} "
+          f"{'model MB':>8} {'est MB':>8} {'est/peak':>8} {'vs base':>8}  result")
     for size in args.sizes.split(","):
         n_cand, n_pts = (int(v) for v in size.lower().split("x"))
         runs = [run_once(n_cand, n_pts, args, "auto")]
@@ -133,11 +142,13 @@ def main() -> None:
                 continue
             pairs = r["observed"] or 0
             density = pairs / (n_cand * n_pts) if pairs else 0.0
-            est = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded, args.mode)
+            guard = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded, args.mode, args.k)
+            est = guard + r["model"]  # a set-cover model's own estimate (made before building it) on top
             vs = f"{r['peak'] / base:.2f}" if base else "-"
             bpp = r["peak"] / pairs if pairs else float("nan")
             print(f"{size:>16} {layout_name(r['layout'], args.graded):>6} {r['wall_s']:8.1f} "
-                  f"{r['peak'] / 2**20:9.0f} {pairs:12,d} {bpp:7.2f} {est / 2**20:8.0f} {est / r['peak']:8.2f} {vs:>8}  "
+                  f"{r['peak'] / 2**20:9.0f} {pairs:12,d} {bpp:7.2f} {guard / 2**20:8.0f} {r['model'] / 2**20:8.0f} "
+                  f"{est / 2**20:8.0f} {est / r['peak']:8.2f} {vs:>8}  "
                   f"{r['status']} {r['objective']:.6f} {r['selected']}", flush=True)
 
 

@@ -415,6 +415,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
 
+    from camplace.solver.bits_route import bits_solve
     from camplace.visibility.scratch import Scratch
 
     parent = settings.scratch if settings.scratch is not None else (Path(outdir).resolve().parent if outdir is not None
@@ -424,7 +425,8 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         vis = visibility_stage(instance, cands, pts, reporter=reporter, cache=settings.cache,
                                dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
                                scratch=scratch, solve_mode=settings.mode,
-                               idle=_while_casting(instance, settings, cands, pts, outdir is not None))
+                               idle=_while_casting(instance, settings, cands, pts, outdir is not None),
+                               solve=None if settings.robust is not None else bits_solve(settings.solve_options))
         timings["visibility"] = time.perf_counter() - t0
         timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 

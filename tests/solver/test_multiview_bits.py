@@ -323,7 +323,8 @@ def test_rows_csr_is_the_pattern_slice() -> None:
 @pytest.mark.parametrize("case", range(6))
 def test_setcover_on_bits_equals_csr_and_enumeration(case: int, monkeypatch) -> None:
     """Costs, fixed and forbidden cameras, partial covers, uncoverable rows and zero weights: the
-    CSR route's answer and coverage figures, the enumerated minimum cost, and no tocsr."""
+    CSR route's answer and coverage figures, the enumerated minimum cost, and no tocsr (nor a CSR of
+    the rows to cover: the reductions read their row bitsets)."""
     rng = np.random.default_rng(100 + case)
     m, n = 90, 10
     dense = (rng.random((m, n)) < 0.25).astype(np.float32)
@@ -335,10 +336,15 @@ def test_setcover_on_bits_equals_csr_and_enumeration(case: int, monkeypatch) -> 
     frac = 0.8 if case >= 4 else 1.0
     kw = dict(mode="setcover", costs=costs, fixed=fixed, forbidden=forbidden, required_fraction=frac, iterations=2000)
     ref = solve(sp.csr_matrix(dense), w, **kw)
+    def no_rows_csr(*args, **kwargs):
+        raise AssertionError("set cover on bits made a CSR of the rows to cover")
+
     with monkeypatch.context() as mp:
         _no_csr(mp)
+        mp.setattr("camplace.solver.engines.setcover.mode.rows_csr", no_rows_csr)
         got = solve(bits_from_csr(sp.csr_matrix(dense)), w, **kw)
-    assert got.stats["matrix"] == "column bitsets (the rows to cover as CSR)"
+    assert got.stats["matrix"] == "column bitsets (the rows to cover as row bitsets)"
+    assert got.stats["setcover"]["reduction"]["layout"] == "bitsets"
     assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective, ref.bound)
     for key in ("uncoverable_points", "uncoverable_weight", "coverable_weight", "covered_weight", "covered_fraction"):
         assert got.stats[key] == ref.stats[key]
@@ -380,7 +386,7 @@ def test_layout_bits_over_the_budget(monkeypatch) -> None:
 @pytest.mark.parametrize("kw, matrix", [
     (dict(mode="multiview"), "column bitsets (no CSR copy)"),
     (dict(mode="multiview", min_angle_deg=20.0), "column bitsets (no CSR copy)"),
-    (dict(mode="setcover", k=None), "column bitsets (the rows to cover as CSR)"),
+    (dict(mode="setcover", k=None), "column bitsets (the rows to cover as row bitsets)"),
 ])
 def test_binary_run_solves_on_the_bits(kw, matrix, monkeypatch) -> None:
     """A binary instance's run hands its bitsets (and, for the angle, the candidates' and points'

@@ -254,6 +254,7 @@ def test_model_too_big_for_memory_falls_back_to_the_search(monkeypatch) -> None:
     best = enumerate_cover(dense, np.ones(12), np.ones(dense.shape[0]), None)
     monkeypatch.setattr(S, "cover_model_bytes", lambda red, backend: 1 << 60)
     monkeypatch.setattr(S, "lagrangian_bound", lambda red, upper, **kw: (0.0, {}))  # no proof without the model
+    monkeypatch.setattr(S, "EXACT_MAX_COLUMNS", -1)  # nor by the exact test of small covers
     res = solve(dense, np.ones(dense.shape[0]), mode="setcover", engine="mip", iterations=2000)
     assert "memory_fallback" in res.stats["setcover"] and "\n" not in res.stats["setcover"]["memory_fallback"]
     assert res.engine == "local-search"

@@ -148,3 +148,29 @@ def test_out_of_core_equals_in_memory(problem, tmp_path: Path) -> None:
         np.testing.assert_array_equal(load_bits(path).words, ref.bits.words)
     with pytest.raises(Exception, match="memory budget"):
         compute_visibility(inst, cands, pts, memory_budget_bytes=budget)  # no scratch: an error before the work
+
+
+def test_guard_counts_the_solve_on_bits(problem) -> None:
+    """The guard's bits estimate counts the solve the run makes (issue 32: the multiview engine's
+    and set cover's working memory): a budget between max coverage's estimate and multiview's
+    lets the max-coverage run cast its rays and stops the multiview one before the work."""
+    from camplace.solver.bits_route import bits_solve, bits_solve_bytes
+    from camplace.solver.options import SolveOptions
+    from camplace.visibility.engine import estimate_matrix_bytes
+
+    inst, pts, cands = problem
+    m, n = len(pts), len(cands)
+    plain = estimate_matrix_bytes(m, n, 1.0, "bits")
+    mv = bits_solve(SolveOptions(mode="multiview", k=3, views=2))
+    sc = bits_solve(SolveOptions(mode="setcover"))
+    assert mv == ("multiview", 3, 2) and sc == ("setcover", None, 0)
+    assert bits_solve(SolveOptions(mode="maxcover", k=3)) is None
+    assert bits_solve(SolveOptions(mode="multiview", k=3, min_angle_deg=20.0)) is None
+    words = n * ((m + 63) // 64) * 8
+    for plan in (mv, sc):
+        got = estimate_matrix_bytes(m, n, 1.0, "bits", solve=plan[0], k=plan[1], views=plan[2])
+        assert got - plain == bits_solve_bytes(m, n, *plan) - words > 0
+    budget = (plain + estimate_matrix_bytes(m, n, 1.0, "bits", solve="multiview", k=3, views=2)) // 2
+    compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget)
+    with pytest.raises(Exception, match="memory budget"):
+        compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve=mv)

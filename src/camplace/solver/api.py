@@ -402,7 +402,7 @@ def _setcover_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline)
     free[list(set(fixed_t) | set(forbidden_t))] = False
     ctx = setcover(bits, w, o.costs, o.required_fraction, fixed_t, np.flatnonzero(free), np.zeros((0, 2), dtype=np.int64),
                    o.engine, deadline, o.search_seed, o.iterations)
-    ctx.stats["matrix"] = "column bitsets (the rows to cover as CSR)"
+    ctx.stats["matrix"] = "column bitsets (the rows to cover as row bitsets)"
     return ctx, w, fixed_t, forbidden_t
 
 

@@ -59,7 +59,7 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.choose import choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
-from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
+from camplace.solver.engines.bitset.search import BITSET_MAX_K, bitset_bytes, solve_bitset
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import coords
@@ -70,9 +70,46 @@ from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
 
-__all__ = ["bits_applies", "bits_outcome", "load_kernels"]
+__all__ = ["bits_applies", "bits_outcome", "bits_solve", "bits_solve_bytes", "load_kernels"]
 
 log = logging.getLogger(__name__)
+
+
+def bits_solve(o: SolveOptions) -> tuple[str, int | None, int] | None:
+    """The solve a run makes on its column bitsets, for the visibility guard's estimate
+    (:func:`bits_solve_bytes`): ``(mode, k, views)`` for set cover (no minimum distance, no team)
+    and plain multiview (no angle, no fixed, forbidden, distance or team), None otherwise (the
+    guard then counts max coverage's presolve)."""
+    if o.team is not None or o.min_distance_m is not None:
+        return None
+    if o.mode == "setcover":
+        return ("setcover", None, 0)
+    if o.mode == "multiview" and o.min_angle_deg is None and not o.fixed and not o.forbidden:
+        return ("multiview", None if o.k is None else int(o.k), int(o.views))
+    return None
+
+
+def bits_solve_bytes(m: int, n: int, mode: str | None = None, k: int | None = None, views: int = 2) -> int:
+    """Working bytes of a solve on an (m, n) matrix held as column bitsets (``B = n x ceil(m / 64) x 8``
+    bytes), besides the bitsets.
+
+    * ``setcover``: :func:`camplace.solver.engines.setcover.reduce_bits.setcover_bits_bytes` (the
+      rows to cover as row bitsets and their transposition, about ``2 B``);
+    * ``multiview`` with ``k`` up to :data:`~camplace.solver.engines.bitset.search.BITSET_MAX_K`:
+      the bitset engine's bitsets on the presolved instance, at most ``(2 + 2 min(views, k)) B``
+      (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` without its open tuples, which
+      grow with the search up to a fixed cap and are checked by the engine); at least the presolve's
+      ``B``;
+    * otherwise (max coverage, quality, None): the presolve's working bitsets, at most ``B``.
+    """
+    words = int(n) * ((int(m) + 63) // 64) * 8
+    if mode == "setcover":
+        from camplace.solver.engines.setcover.reduce_bits import setcover_bits_bytes
+
+        return setcover_bits_bytes(m, n)
+    if mode == "multiview" and k is not None and 1 <= int(k) <= BITSET_MAX_K:
+        return max(words, bitset_bytes(m, n, min(int(views), int(k)), int(k), tuples=False))
+    return words
 
 
 def bits_applies(o: SolveOptions) -> bool:

@@ -543,7 +543,8 @@ THREAD_BYTES = 60 * 2**20
 LEAN_TREE = 1 / 32
 
 
-def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: float = 1.0) -> int:
+def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: float = 1.0,
+                          solve: str | None = None, k: int | None = None, views: int = 2) -> int:
     """Peak bytes of a run with a matrix of this size and density in ``layout``.
 
     ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
@@ -562,6 +563,12 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     (``(1 + tree) C + B``: ``tree = 0`` for a run whose solve reads the pattern, e.g. max coverage,
     :data:`LEAN_TREE` when the solver keeps rows for large clusters only). All add the per-thread work arrays
     (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
+
+    ``solve`` (``bits`` only): the mode the run solves next. ``setcover`` and ``multiview`` (no
+    minimum angle) do not run the max-coverage presolve's ``B`` but their own working memory
+    (:func:`camplace.solver.bits_route.bits_solve_bytes`: set cover's row bitsets and their
+    transposition, about ``2 B``; the multiview bitset engine's ``(2 + 2 min(views, k)) B``):
+    ``B + that``. None, ``maxcover``, ``quality``: ``2 B``.
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
     words = 8 * n_cols * ((n_rows + 63) // 64)
@@ -571,7 +578,9 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     if layout == "bits-disk":
         return int(16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
-        return int(2 * words + 16 * n_rows + fixed)
+        from camplace.solver.bits_route import bits_solve_bytes
+
+        return int(words + bits_solve_bytes(n_rows, n_cols, solve, k, views) + 16 * n_rows + fixed)
     nnz = density * n_rows * n_cols
     return int(10 * nnz + 16 * (n_rows + 1) + fixed)
 
@@ -591,6 +600,7 @@ def compute_visibility(
     scratch=None,
     quality_tree: bool = True,
     idle: Callable[[], object] | None = None,
+    solve: tuple[str | None, int | None, int] | None = None,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -627,6 +637,9 @@ def compute_visibility(
         Quantised columns only: the run's solve builds the quality tree over them (``--mode
         quality``), so the memory estimate counts its inner nodes' table too (False: a solve that
         reads the pattern).
+    solve : (mode, k, views) or None
+        Column bitsets only: the solve the run makes next, for the memory estimate
+        (:func:`estimate_matrix_bytes`'s ``solve``, ``k``, ``views``); None: max coverage's.
     idle : callable or None
         Called once by this thread while the worker threads cast the chunks (after the first one),
         for work that would otherwise wait for the matrix (the pipeline loads the solver's
@@ -689,6 +702,7 @@ def compute_visibility(
                                     store_path=cache.entry_path(Path(cache_dir), key), timings_s=timings)
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
     starts = list(range(0, n_cand, chunk_size))
+    solve_kw = {} if solve is None else {"solve": solve[0], "k": solve[1], "views": int(solve[2])}
 
     # The first chunk is a pilot: its density is checked against the memory budget before the bulk
     # of the work (in process, the other chunks start beside it and are cancelled on a failed check).
@@ -697,7 +711,7 @@ def compute_visibility(
         if pilot_layout == "bytes":  # one byte a cell: checked before the work
             return
         density = len(first.lcols) / max(1, len(points) * pilot_cols)
-        need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout)
+        need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout, **solve_kw)
         if need > budget:
             raise CamplaceError(
                 f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
@@ -728,7 +742,7 @@ def compute_visibility(
     if use_bits:
         from camplace.visibility.bits import bit_words
 
-        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits")  # one bit a cell: known before the work
+        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits", **solve_kw)  # one bit a cell: known before the work
         shape = (n_cand, bit_words(len(points)))
         if need > budget and scratch is not None:
             disk = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits-disk")

@@ -112,12 +112,13 @@ _PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": Fa
 _NJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 
-def bitset_bytes(m: int, n: int, levels: int, k: int = BITSET_MAX_K) -> int:
+def bitset_bytes(m: int, n: int, levels: int, k: int = BITSET_MAX_K, tuples: bool = True) -> int:
     """Approximate working memory for ``m`` reduced rows and ``n`` columns: the column bitsets,
-    their ordered copy and ``levels`` level bitsets per tree node (2 n - 1 nodes), and the open
-    tuples of ``k`` nodes (the search stack, or the frontier and the parallel stacks for views > 1)."""
-    tuples = (_STACK + _FRONTIER_MAX + max((k + 1) * _BATCH, _ROOTS_MAX * _dfs_stack(k, n))) * (8 * k + 8)
-    return n * ((m + 63) // 64) * 8 * (2 + 2 * max(1, levels)) + tuples
+    their ordered copy and ``levels`` level bitsets per tree node (2 n - 1 nodes), and (``tuples``)
+    the open tuples of ``k`` nodes at most (the search stack, or the frontier and the parallel
+    stacks for views > 1; they grow with the search, up to 160 MiB at k = 3)."""
+    open_b = (_STACK + _FRONTIER_MAX + max((k + 1) * _BATCH, _ROOTS_MAX * _dfs_stack(k, n))) * (8 * k + 8)
+    return n * ((m + 63) // 64) * 8 * (2 + 2 * max(1, levels)) + (open_b if tuples else 0)
 
 
 def _last_mask(m: int) -> np.uint64:

@@ -35,6 +35,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from camplace._bitops import ctz as _ctz, popcount as _popc
+
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
 # ist slots
@@ -176,6 +178,181 @@ def cheaper_cover_marks(cptr, crow, rptr, rcol, cost, alive):  # pragma: no cove
         if s < cost[j] * (1.0 - 1e-12):
             out[j] = True
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# reductions on bitsets (the rows to cover of a binary matrix held as bits: no CSR lists)
+# ----------------------------------------------------------------------------------------------
+
+
+@numba.njit(**_JIT)
+def bit_counts(bits):  # pragma: no cover - compiled
+    """(n_items,) int64: set bits of every item of ``bits`` (n_items, words) uint64."""
+    n_items, n_words = bits.shape
+    out = np.zeros(n_items, dtype=np.int64)
+    for a in range(n_items):
+        s = np.int64(0)
+        for wd in range(n_words):
+            s += np.int64(_popc(bits[a, wd]))
+        out[a] = s
+    return out
+
+
+@numba.njit(**_JIT)
+def lowest_bits(bits, items):  # pragma: no cover - compiled
+    """(k,) int64: the lowest set bit of each item of ``items`` (-1 for an empty item)."""
+    out = np.full(items.shape[0], -1, dtype=np.int64)
+    for t in range(items.shape[0]):
+        a = items[t]
+        for wd in range(bits.shape[1]):
+            x = bits[a, wd]
+            if x:
+                out[t] = (np.int64(wd) << 6) + np.int64(_ctz(x))
+                break
+    return out
+
+
+@numba.njit(**_JIT)
+def subset_marks_bits(bits, size, ebits, ecount, key, mark_superset):  # pragma: no cover - compiled
+    """:func:`subset_marks` read from bitsets instead of compressed lists, with the same result.
+
+    The elements of item ``a`` are the set bits of ``bits[a]`` (ascending, as ``idx`` of a sorted
+    list), the items holding element ``e`` the set bits of ``ebits[e]`` (ascending) and their number
+    ``ecount[e]``; the rarest element (first of the least count), the candidates' order and the
+    marks are those of :func:`subset_marks`.
+
+    Parameters
+    ----------
+    bits : (n_items, ceil(n_elements / 64)) uint64
+    size : (n_items,) int64
+        Set bits of every item.
+    ebits : (n_elements, ceil(n_items / 64)) uint64
+        The transposition of ``bits``.
+    ecount : (n_elements,) int64
+        Set bits of every element.
+    key : (n_items,) float64
+    mark_superset : bool
+
+    Returns
+    -------
+    (n_items,) bool
+    """
+    n_items, n_words = bits.shape
+    n_ewords = ebits.shape[1]
+    out = np.zeros(n_items, dtype=np.bool_)
+    for a in range(n_items):
+        if size[a] == 0:
+            continue
+        if mark_superset is False and out[a]:
+            continue
+        best_e = -1
+        best_cnt = np.int64(1) << 62
+        for wd in range(n_words):
+            x = bits[a, wd]
+            while x:
+                e = (np.int64(wd) << 6) + np.int64(_ctz(x))
+                x &= x - np.uint64(1)
+                c = ecount[e]
+                if c < best_cnt:
+                    best_cnt = c
+                    best_e = e
+        done = False
+        for wq in range(n_ewords):
+            y = ebits[best_e, wq]
+            while y:
+                b = (np.int64(wq) << 6) + np.int64(_ctz(y))
+                y &= y - np.uint64(1)
+                if b == a or size[b] < size[a]:
+                    continue
+                if mark_superset:
+                    if out[b] or (size[b] == size[a] and b < a):
+                        continue
+                else:
+                    if key[b] > key[a]:
+                        continue
+                    if key[b] == key[a] and size[b] == size[a] and b > a:
+                        continue
+                ok = True
+                for wd in range(n_words):
+                    if bits[a, wd] & ~bits[b, wd]:
+                        ok = False
+                        break
+                if ok:
+                    if mark_superset:
+                        out[b] = True
+                    else:
+                        out[a] = True
+                        done = True
+                        break
+            if done:
+                break
+    return out
+
+
+@numba.njit(**_JIT)
+def cheaper_cover_marks_bits(cbits, rbits, cost, alive):  # pragma: no cover - compiled
+    """:func:`cheaper_cover_marks` read from the column bitsets ``cbits`` (n, ceil(m / 64)) and the
+    row bitsets ``rbits`` (m, ceil(n / 64)) uint64, with the same result.
+
+    Returns
+    -------
+    (n,) bool
+    """
+    n = cbits.shape[0]
+    m = rbits.shape[0]
+    c1 = np.full(m, np.inf)
+    j1 = np.full(m, -1, dtype=np.int64)
+    c2 = np.full(m, np.inf)
+    for i in range(m):
+        for wd in range(rbits.shape[1]):
+            x = rbits[i, wd]
+            while x:
+                j = (np.int64(wd) << 6) + np.int64(_ctz(x))
+                x &= x - np.uint64(1)
+                if not alive[j]:
+                    continue
+                c = cost[j]
+                if c < c1[i] or (c == c1[i] and j < j1[i]):
+                    c2[i] = c1[i]
+                    c1[i] = c
+                    j1[i] = j
+                elif c < c2[i]:
+                    c2[i] = c
+    out = np.zeros(n, dtype=np.bool_)
+    for j in range(n):
+        if not alive[j]:
+            continue
+        s = 0.0
+        stop = False
+        for wd in range(cbits.shape[1]):
+            x = cbits[j, wd]
+            while x:
+                i = (np.int64(wd) << 6) + np.int64(_ctz(x))
+                x &= x - np.uint64(1)
+                s += c2[i] if j1[i] == j else c1[i]
+                if s >= cost[j]:
+                    stop = True
+                    break
+            if stop:
+                break
+        if s < cost[j] * (1.0 - 1e-12):
+            out[j] = True
+    return out
+
+
+@numba.njit(**_JIT)
+def compact_bits(bits, items, bit_map, lo, hi, out):  # pragma: no cover - compiled
+    """``out[t]`` = item ``items[t]`` of ``bits`` with its bits renumbered (bit ``b`` becomes
+    ``bit_map[b]``; -1 drops it), for ``t`` in ``lo:hi`` (``out`` zeroed by the caller)."""
+    for t in range(lo, hi):
+        a = items[t]
+        for wd in range(bits.shape[1]):
+            x = bits[a, wd]
+            while x:
+                b = bit_map[(np.int64(wd) << 6) + np.int64(_ctz(x))]
+                x &= x - np.uint64(1)
+                if b >= 0:
+                    out[t, b >> 6] |= np.uint64(1) << np.uint64(b & 63)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -811,3 +988,108 @@ def lagrangian(cptr, crow, rptr, cost, roww, need, u, best_u, lst, iters, ub, pa
             v = u[i] + t * g[i]
             u[i] = v if v > 0 else 0.0
     return iters
+
+
+# ----------------------------------------------------------------------------------------------
+# exact test for a small unicost cover
+# ----------------------------------------------------------------------------------------------
+
+
+@numba.njit(**_JIT)
+def column_bitsets(cptr, crow, m):  # pragma: no cover - compiled
+    """(n, ceil(m / 64)) uint64 column bitsets of the column-major lists."""
+    n = cptr.shape[0] - 1
+    out = np.zeros((n, max(1, (m + 63) // 64)), dtype=np.uint64)
+    for j in range(n):
+        for p in range(cptr[j], cptr[j + 1]):
+            i = crow[p]
+            out[j, i >> 6] |= np.uint64(1) << np.uint64(i & 63)
+    return out
+
+
+@numba.njit(**_JIT)
+def small_cover(cb, rptr, rcol, unc, level, k_left, banned, chosen, work, max_work):  # pragma: no cover - compiled
+    """Depth-first search for a cover of the rows ``unc[level]`` (bitset) by at most ``k_left`` more
+    columns of column bitsets ``cb`` (not ``banned``: (n,) int64, 0 or the level + 1 that banned it).
+
+    Branches on the columns (in list order) of the uncovered row with the fewest columns (the first
+    such row); a column explored at a node is banned in its later siblings' subtrees (the covers
+    holding it were all seen); a node is cut when ``k_left`` times the most uncovered rows one column
+    covers is below the uncovered rows. ``work`` [1] int64 counts word operations; past
+    ``max_work`` the search gives up. Deterministic.
+
+    Returns
+    -------
+    int
+        1: a cover found (its columns in ``chosen[:level']``, -1 past its end); 0: none with at most
+        ``k_left`` columns; -1: the work budget ran out.
+    """
+    n, n_words = cb.shape
+    cnt = np.int64(0)
+    best_r = np.int64(-1)
+    best_d = np.int64(1) << 62
+    for wd in range(n_words):
+        x = unc[level, wd]
+        cnt += np.int64(_popc(x))
+        while x:
+            r = (np.int64(wd) << 6) + np.int64(_ctz(x))
+            x &= x - np.uint64(1)
+            d = rptr[r + 1] - rptr[r]
+            if d < best_d:
+                best_d = d
+                best_r = r
+    work[0] += n_words
+    if cnt == 0:
+        for t in range(level, chosen.shape[0]):
+            chosen[t] = -1
+        return 1
+    if k_left == 0:
+        return 0
+    if work[0] > max_work:
+        return -1
+    if k_left == 1:
+        for p in range(rptr[best_r], rptr[best_r + 1]):
+            j = rcol[p]
+            if banned[j]:
+                continue
+            ok = True
+            for wd in range(n_words):
+                work[0] += 1
+                if unc[level, wd] & ~cb[j, wd]:
+                    ok = False
+                    break
+            if ok:
+                chosen[level] = j
+                for t in range(level + 1, chosen.shape[0]):
+                    chosen[t] = -1
+                return 1
+        return 0
+    most = np.int64(0)
+    for j in range(n):
+        if banned[j]:
+            continue
+        g = np.int64(0)
+        for wd in range(n_words):
+            g += np.int64(_popc(unc[level, wd] & cb[j, wd]))
+        if g > most:
+            most = g
+    work[0] += n * n_words
+    if most * k_left < cnt:
+        return 0
+    res = 0
+    for p in range(rptr[best_r], rptr[best_r + 1]):
+        j = rcol[p]
+        if banned[j]:
+            continue
+        for wd in range(n_words):
+            unc[level + 1, wd] = unc[level, wd] & ~cb[j, wd]
+        work[0] += n_words
+        chosen[level] = j
+        res = small_cover(cb, rptr, rcol, unc, level + 1, k_left - 1, banned, chosen, work, max_work)
+        if res != 0:
+            break
+        banned[j] = level + 1  # the covers holding j were all seen: not in the later siblings' subtrees
+    for p in range(rptr[best_r], rptr[best_r + 1]):  # released for the parent's other branches
+        if banned[rcol[p]] == level + 1:
+            banned[rcol[p]] = 0
+    return res

@@ -18,9 +18,11 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes, mem
 from camplace.solver.engines.mip.linear import solve_model
 from camplace.solver.engines.mip.mode_models import setcover_model
 from camplace.solver.engines.setcover.local_search import solve_cover
+from camplace.solver.engines.setcover.reduce_bits import RowBits, row_bits_bytes
 from camplace.solver.problem.objectives import coverage_weight
 from camplace.solver.problem.presolve import as_pattern
-from camplace.solver.problem.presolve_bits import covered_weight, row_counts_of, rows_csr, rows_csr_bytes
+from camplace.solver.problem.presolve_bits import (covered_weight, row_bitsets, row_counts_of, rows_csr,
+                                                    rows_csr_bytes)
 from camplace.solver.result import EngineOutcome
 
 __all__ = ["setcover"]
@@ -41,8 +43,10 @@ def setcover(
 
     ``q`` is the (m, n) CSR matrix, or a binary matrix as column bitsets
     (:class:`camplace.visibility.bits.BitMatrix`): then the coverable and fixed-covered rows are
-    counted from the bits and only the rows left to cover become the CSR pattern the search reads
-    (:func:`_bits_rows`: the same arrays as the CSR route's), not the whole matrix's pattern.
+    counted from the bits and only the rows left to cover become row bitsets
+    (:func:`_bits_row_sets`), which :func:`solve_cover` reduces on bitsets (the same reduced
+    instance as the CSR route's); with minimum-distance conflicts (the model reads CSR rows) the
+    CSR pattern of those rows (:func:`_bits_rows`). Never the whole matrix's pattern.
     """
     m, n = q.shape
     if engine == "exact":
@@ -53,7 +57,7 @@ def setcover(
         raise CamplaceError(f"costs must be ({n},) finite values >= 0, got shape {c.shape}")
     frac = float(required_fraction)
     bits = getattr(q, "format", None) == "bits"
-    if bits:  # a binary matrix as column bitsets: the counts from the bits, the rows to cover as CSR
+    if bits:  # a binary matrix as column bitsets: the counts from the bits, the rows to cover as row bitsets
         covered_f = q.union(fixed_t) if fixed_t else np.zeros(m, dtype=bool)
         free_count = row_counts_of(q, free_cols)
         obs_allowed = (free_count > 0) | covered_f  # allowed = free and fixed columns
@@ -79,7 +83,9 @@ def setcover(
     credit = float(w[covered_f & pos_w].sum())
     need = frac * coverable_w - credit
     rows = pos_w & obs_allowed & ~covered_f
-    if bits:
+    if bits and conflicts.size == 0:  # the search reduces the row bitsets itself: no CSR of the rows
+        sub = _bits_row_sets(q, rows, free_cols)
+    elif bits:
         sub = _bits_rows(q, rows, free_cols, int(free_count[rows].sum()))
     else:
         sub = (pat if free_cols.size == n else pat[:, free_cols].tocsr())[rows]
@@ -122,6 +128,19 @@ def setcover(
             log.warning("setcover: the %s answer misses the required weight by %.3g (integer rounding)", name, need - got)
             status = "unknown"
     return finish(sel_free, status, bound)
+
+
+def _bits_row_sets(bits: Any, rows: np.ndarray, free_cols: np.ndarray) -> RowBits:
+    """The rows to cover (``rows`` (m,) bool) over the free columns of a BitMatrix as row bitsets
+    (:class:`~camplace.solver.engines.setcover.reduce_bits.RowBits`, ``r x ceil(c / 64)`` words,
+    bit ``t`` = column ``free_cols[t]``), which :func:`solve_cover` reduces without CSR lists;
+    checked against the memory budget first."""
+    r = int(np.count_nonzero(rows))
+    need, budget = row_bits_bytes(r, free_cols.size), memory_budget_bytes()
+    if need > budget:  # nothing answers without it: a one-line error
+        memory_fallback(OverBudget(need, budget, f"the set-cover rows as bitsets ({r} x {free_cols.size})"),
+                        None, asked=True, then=None, fix="use fewer candidates / points")
+    return RowBits(row_bitsets(bits, np.flatnonzero(rows), free_cols), free_cols.size)
 
 
 def _bits_rows(bits: Any, rows: np.ndarray, free_cols: np.ndarray, nnz: int) -> sp.csr_matrix:
