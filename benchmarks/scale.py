@@ -90,13 +90,13 @@ def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
 def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads: int | None,
                    graded: bool = False, mode: str = "maxcover", k: int = 3, views: int = 2) -> int:
     from camplace._cores import set_threads
-    from camplace.solver.bits_route import bits_solve
+    from camplace.solver.bits_route import bits_solve, bits_solve_bytes
     from camplace.solver.options import SolveOptions
     from camplace.visibility.engine import estimate_matrix_bytes
 
     set_threads(threads)
     plan = bits_solve(SolveOptions(mode=mode, k=None if mode == "setcover" else k, views=views))
-    solve = {} if plan is None else {"solve": plan[0], "k": plan[1], "views": plan[2]}  # what the run passes
+    solve = {} if plan is None else {"solve_bytes": bits_solve_bytes(n_pts, n_cand, *plan)}  # what the run passes
     return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded),
                                  tree=1.0 if mode == "quality" else 0.0, **solve)
 

@@ -415,8 +415,11 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
 
-    from camplace.solver.bits_route import bits_solve
+    from camplace.solver.bits_route import bits_solve, bits_solve_bytes
     from camplace.visibility.scratch import Scratch
+
+    plan = None if settings.robust is not None else bits_solve(settings.solve_options)
+    solve_bytes = None if plan is None else bits_solve_bytes(len(pts), len(cands), *plan)  # for the guard
 
     parent = settings.scratch if settings.scratch is not None else (Path(outdir).resolve().parent if outdir is not None
                                                                     else None)
@@ -426,7 +429,7 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
                                dask_address=settings.dask_address, memory_budget_gb=settings.memory_budget_gb,
                                scratch=scratch, solve_mode=settings.mode,
                                idle=_while_casting(instance, settings, cands, pts, outdir is not None),
-                               solve=None if settings.robust is not None else bits_solve(settings.solve_options))
+                               solve_bytes=solve_bytes)
         timings["visibility"] = time.perf_counter() - t0
         timings.update(vis.timings_s)  # cache.load / cache.store (inside the visibility stage)
 

@@ -168,9 +168,10 @@ def test_guard_counts_the_solve_on_bits(problem) -> None:
     assert bits_solve(SolveOptions(mode="multiview", k=3, min_angle_deg=20.0)) is None
     words = n * ((m + 63) // 64) * 8
     for plan in (mv, sc):
-        got = estimate_matrix_bytes(m, n, 1.0, "bits", solve=plan[0], k=plan[1], views=plan[2])
+        got = estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=bits_solve_bytes(m, n, *plan))
         assert got - plain == bits_solve_bytes(m, n, *plan) - words > 0
-    budget = (plain + estimate_matrix_bytes(m, n, 1.0, "bits", solve="multiview", k=3, views=2)) // 2
+    mv_bytes = bits_solve_bytes(m, n, *mv)
+    budget = (plain + estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=mv_bytes)) // 2
     compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget)
     with pytest.raises(Exception, match="memory budget"):
-        compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve=mv)
+        compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve_bytes=mv_bytes)

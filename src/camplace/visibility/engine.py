@@ -544,7 +544,7 @@ LEAN_TREE = 1 / 32
 
 
 def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: float = 1.0,
-                          solve: str | None = None, k: int | None = None, views: int = 2) -> int:
+                          solve_bytes: int | None = None) -> int:
     """Peak bytes of a run with a matrix of this size and density in ``layout``.
 
     ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
@@ -564,11 +564,10 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     :data:`LEAN_TREE` when the solver keeps rows for large clusters only). All add the per-thread work arrays
     (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
 
-    ``solve`` (``bits`` only): the mode the run solves next. ``setcover`` and ``multiview`` (no
-    minimum angle) do not run the max-coverage presolve's ``B`` but their own working memory
-    (:func:`camplace.solver.bits_route.bits_solve_bytes`: set cover's row bitsets and their
-    transposition, about ``2 B``; the multiview bitset engine's ``(2 + 2 min(views, k)) B``):
-    ``B + that``. None, ``maxcover``, ``quality``: ``2 B``.
+    ``solve_bytes`` (``bits`` only): the working bytes of the solve the run makes next, besides the
+    bitsets, from the stage that knows the solver (the pipeline: :func:`camplace.solver.bits_route.bits_solve_bytes`:
+    set cover's row bitsets and their transposition, about ``2 B``; the multiview bitset engine's
+    ``(2 + 2 min(views, k)) B``): ``B + solve_bytes``. None: max coverage's presolve, ``2 B``.
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
     words = 8 * n_cols * ((n_rows + 63) // 64)
@@ -578,9 +577,7 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     if layout == "bits-disk":
         return int(16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
-        from camplace.solver.bits_route import bits_solve_bytes
-
-        return int(words + bits_solve_bytes(n_rows, n_cols, solve, k, views) + 16 * n_rows + fixed)
+        return int(words + (words if solve_bytes is None else int(solve_bytes)) + 16 * n_rows + fixed)
     nnz = density * n_rows * n_cols
     return int(10 * nnz + 16 * (n_rows + 1) + fixed)
 
@@ -600,7 +597,7 @@ def compute_visibility(
     scratch=None,
     quality_tree: bool = True,
     idle: Callable[[], object] | None = None,
-    solve: tuple[str | None, int | None, int] | None = None,
+    solve_bytes: int | None = None,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -637,9 +634,10 @@ def compute_visibility(
         Quantised columns only: the run's solve builds the quality tree over them (``--mode
         quality``), so the memory estimate counts its inner nodes' table too (False: a solve that
         reads the pattern).
-    solve : (mode, k, views) or None
-        Column bitsets only: the solve the run makes next, for the memory estimate
-        (:func:`estimate_matrix_bytes`'s ``solve``, ``k``, ``views``); None: max coverage's.
+    solve_bytes : int or None
+        Column bitsets only: the working bytes of the solve the run makes next, besides the bitsets,
+        for the memory estimate (:func:`estimate_matrix_bytes`'s ``solve_bytes``; the pipeline
+        gives :func:`camplace.solver.bits_route.bits_solve_bytes`); None: max coverage's presolve.
     idle : callable or None
         Called once by this thread while the worker threads cast the chunks (after the first one),
         for work that would otherwise wait for the matrix (the pipeline loads the solver's
@@ -702,7 +700,7 @@ def compute_visibility(
                                     store_path=cache.entry_path(Path(cache_dir), key), timings_s=timings)
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
     starts = list(range(0, n_cand, chunk_size))
-    solve_kw = {} if solve is None else {"solve": solve[0], "k": solve[1], "views": int(solve[2])}
+    solve_kw = {} if solve_bytes is None else {"solve_bytes": int(solve_bytes)}
 
     # The first chunk is a pilot: its density is checked against the memory budget before the bulk
     # of the work (in process, the other chunks start beside it and are cancelled on a failed check).

@@ -287,13 +287,13 @@ def visibility_stage(
     scratch=None,
     solve_mode: str | None = None,
     idle=None,
-    solve: tuple[str, int | None, int] | None = None,
+    solve_bytes: int | None = None,
 ) -> VisibilityMatrix:
     """Compute (or fetch from the cache) the visibility matrix, with a progress bar (``scratch``: a
     :class:`~camplace.visibility.scratch.Scratch` for column bitsets over the budget; ``solve_mode``:
     the mode the run solves next, for the memory estimate of quantised columns: None or
-    ``quality`` counts the quality tree; ``solve``: ``(mode, k, views)`` of the solve on column
-    bitsets, for their estimate (:func:`camplace.solver.bits_route.bits_solve`); ``idle``: work
+    ``quality`` counts the quality tree; ``solve_bytes``: the working bytes of the solve on column
+    bitsets besides them, for their estimate (the pipeline's :func:`camplace.solver.bits_route.bits_solve_bytes`); ``idle``: work
     for this thread while the chunks are cast,
     see :func:`~camplace.visibility.engine.compute_visibility`)."""
     from camplace.visibility.cache import default_cache_dir
@@ -310,6 +310,6 @@ def visibility_stage(
         return compute_visibility(
             instance, cands, pts, progress=advance, memory_budget_bytes=budget, dask_address=dask_address,
             cache_dir=default_cache_dir() if cache else None, layout=layout, scratch=scratch,
-            quality_tree=solve_mode in (None, "quality"), idle=idle, solve=solve,
+            quality_tree=solve_mode in (None, "quality"), idle=idle, solve_bytes=solve_bytes,
         )
 

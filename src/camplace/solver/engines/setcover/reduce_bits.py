@@ -1,4 +1,4 @@
-"""The set-cover reductions of :func:`camplace.solver.engines.setcover.local_search.reduce_cover` on
+"""The set-cover reductions of :func:`camplace.solver.engines.setcover.reduce.reduce_cover` on
 bitsets: the rows to cover of a binary matrix held as column bitsets, without CSR lists.
 
 :func:`reduce_cover` holds the instance twice as compressed lists (int32 indices, int64 pointers)
@@ -178,7 +178,7 @@ def _union_rows(cbits: np.ndarray, cols: np.ndarray, m: int) -> np.ndarray:
 
 def reduce_cover_bits(inst: RowBits, costs: np.ndarray, weights: np.ndarray | None = None,
                       need: float | None = None, workers: int | None = None):
-    """:func:`~camplace.solver.engines.setcover.local_search.reduce_cover` on row bitsets: the same
+    """:func:`~camplace.solver.engines.setcover.reduce.reduce_cover` on row bitsets: the same
     reductions in the same order, the same :class:`CoverReduction` (array for array), read from
     the bitsets.
 
@@ -205,7 +205,7 @@ def reduce_cover_bits(inst: RowBits, costs: np.ndarray, weights: np.ndarray | No
         When the column bitsets and a round's copies (:func:`reduce_bits_bytes`) or the reduced
         instance's lists (:func:`lists_bytes`) would not fit the memory budget (before allocating).
     """
-    from camplace.solver.engines.setcover.local_search import (
+    from camplace.solver.engines.setcover.reduce import (
         _REDUCE_ROUNDS, CoverReduction, _bitset_ok, _lists, _merge_identical_rows)
 
     t0 = time.perf_counter()
