@@ -60,12 +60,13 @@ from camplace.solver.choose import choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
+from camplace.solver.engines.large_k.search import run_large_k
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import coords
 from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits
+from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_csr
 from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
@@ -146,11 +147,13 @@ def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) 
     asked = o.mode
     o = replace(o, mode="maxcover")  # quality of a binary matrix: the same objective (see bits_applies)
     choice = choose_engine(problem_sizes(bits, k, n, 0, 0, "maxcover"), o, budget)
-    if choice.route != "maxcover":
+    if choice.route not in ("maxcover", "large-k"):
         return None
     stats = _choice_stats(k, choice)
     if asked != "maxcover":
         stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
+    if choice.route == "large-k":
+        return _large_k(bits, w, k, o, stats, deadline)
     pre = presolve_bits(bits, w, k, deadline=deadline.share(0.5))  # at least half the time left to the search
     name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline, stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
@@ -228,9 +231,67 @@ def _search(p: _Views, deadline: Deadline, warm: bool = True,
         return _warm_started(p, deadline)
     choice = choose_engine(problem_sizes(p.bits, p.k, n_free, len(p.fixed), 0, "multiview"), p.o,
                            memory_budget_bytes())
+    if choice.route == "large-k" and not p.fixed:  # (choose_engine: never with fixed cameras or the angle)
+        got = _large_k(p.bits, p.w, p.k, p.o, _choice_stats(p.k, choice), deadline)
+        return None if got is None else replace(got, objective=p.value(got.selected))
     if choice.route != ("angle" if p.angle else "multiview"):
         return None
     return (_angle if p.angle else _bitset)(p, choice, deadline, start)
+
+
+def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any],
+             deadline: Deadline) -> EngineOutcome | None:
+    """The engines for ``4 < k <= 8`` (:func:`~camplace.solver.engines.large_k.search.run_large_k`,
+    as :func:`camplace.solver.routes._large_k` runs them) on the bit presolve's reduced instance:
+    dead rows dropped, identical rows merged (their weights summed) and, for max coverage, dominated
+    columns dropped (not for multiview: dominance keeps only coverage); the reduced instance made
+    into the CSR the engines read (:func:`~camplace.solver.problem.presolve_bits.reduced_csr`,
+    checked against the memory budget), never the whole matrix's.
+
+    Every k-set of the kept columns has the same value on the reduced instance as on the matrix,
+    and the dropped columns leave an optimum among the kept ones, so the engines' optimum and
+    bounds are the matrix's.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n) observed pairs.
+    w : (m,) float64
+        Checked weights.
+    k : int
+        New cameras, ``4 < k <= 8``.
+    o : SolveOptions
+        ``mode`` maxcover (quality of a binary matrix comes as maxcover) or multiview, ``views``,
+        ``engine``.
+    stats : dict
+        The result's stats (:func:`_choice_stats`), filled by the engines.
+    deadline : Deadline
+
+    Returns
+    -------
+    EngineOutcome or None
+        ``selected`` original columns; ``objective`` the covered weight (multiview: the caller's
+        :meth:`_Views.value`). None when the reduced CSR or the engines do not fit in the memory
+        budget under ``auto`` (the CSR route then falls back as before).
+    """
+    views = o.mode == "multiview"
+    # max coverage: at most half of the time to the dominance, as on the k <= 4 route
+    pre = presolve_bits(bits, w, k, dominance=not views, deadline=deadline if views else deadline.share(0.5))
+    try:
+        resid = reduced_csr(pre, what="the presolved instance as CSR (the large-k engines)")
+    except OverBudget as exc:
+        log.info("large k on bits: %s: the CSR route", exc.message)
+        return None
+    mode, n_views = ("multiview", int(o.views)) if views else ("maxcover", 1)
+    stats["matrix"] = f"column bitsets, presolved to {pre.shape[0]} x {pre.shape[1]} (that as CSR)"
+    stats["presolve"] = dict(pre.stats)
+    got = run_large_k(resid, pre.weights, k, mode, n_views, o.engine, deadline, stats)
+    if got is None:
+        return None
+    sel = pre.original_columns(got.selected)
+    stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1]})  # the bit presolve's
+    objective = 0.0 if views else covered_weight(bits, w, sel)
+    return EngineOutcome(sel, got.status, float(got.bound), stats, engine=got.engine, objective=objective)
 
 
 def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:
