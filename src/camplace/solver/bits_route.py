@@ -71,7 +71,7 @@ from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
 
-__all__ = ["bits_applies", "bits_outcome", "load_kernels"]
+__all__ = ["bits_applies", "bits_outcome", "binary_value", "load_kernels"]
 
 log = logging.getLogger(__name__)
 
@@ -153,15 +153,37 @@ def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) 
     if asked != "maxcover":
         stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
     if choice.route == "large-k":
-        return _large_k(bits, w, k, o, stats, deadline)
+        got = _large_k(bits, w, k, o, stats, deadline)
+        return None if got is None else replace(got, objective=binary_value(bits, w, got.selected, asked))
     pre = presolve_bits(bits, w, k, deadline=deadline.share(0.5))  # at least half the time left to the search
     name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline, stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
-    objective = covered_weight(bits, w, sel) if sel else 0.0
+    objective = binary_value(bits, w, sel, asked) if sel else 0.0
     stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
                   "engine_stats": dict(out.stats)})
     return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=name,
                          objective=objective)
+
+
+def binary_value(bits, w: np.ndarray, sel: tuple[int, ...], mode: str) -> float:
+    """The ``maxcover`` or ``quality`` objective of the columns ``sel`` of a binary matrix, the same
+    float64 number as :func:`~camplace.solver.problem.objectives.mode_value` on its CSR: the covered
+    weight summed (maxcover), or ``w`` dotted with the rows' best value, 1 or 0 (quality).
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    w : (m,) float64
+        Checked weights.
+    sel : tuple of int
+        Columns.
+    mode : {"maxcover", "quality"}
+    """
+    if mode != "quality":
+        return covered_weight(bits, w, sel)
+    best = bits.union(list(sel)).astype(np.float64) if len(sel) else np.zeros(bits.shape[0])
+    return float(w @ best)
 
 
 @dataclass(frozen=True)
