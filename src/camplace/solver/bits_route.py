@@ -13,6 +13,14 @@ with the fixed-covered rows weighted 0; fixed ones in multiview with a minimum a
     plain max coverage (``exact`` for k <= 4 under ``auto``): the presolve of
     :func:`~camplace.solver.problem.presolve_bits.presolve_bits` (the same reduced instance as the
     CSR presolve), then the same max-coverage engines.
+``large-k`` (4 < k <= 8: maxcover, quality, multiview without fixed cameras or angle)
+    :func:`_large_k`: the bit presolve (column dominance for max coverage only), then the large-k
+    engines (:func:`~camplace.solver.engines.large_k.search.run_large_k`) on the reduced instance's
+    CSR (:func:`~camplace.solver.problem.presolve_bits.reduced_csr`, checked against the budget;
+    ``stats["matrix"]``: ``column bitsets, presolved to m' x n' (that as CSR)``), never the whole
+    matrix's. Every k-set of the kept columns has the same value there, so the optimum and the
+    bounds are the matrix's; a search stopped by the time limit may stop at another set than the
+    CSR route's.
 ``multiview``
     the ``multiview`` route (the bitset engine, ``exact`` for k <= 4): the bit presolve without
     column dominance (dropping dead rows and merging identical ones keeps every column's view
@@ -30,14 +38,22 @@ with the fixed-covered rows weighted 0; fixed ones in multiview with a minimum a
 The objective is summed as :func:`~camplace.solver.problem.objectives.mode_value` sums it
 (:func:`~camplace.solver.problem.presolve_bits.covered_weight`,
 :func:`~camplace.solver.problem.objectives.bits_views_value`), so without a time limit the answer
-is the CSR route's. With a time limit, multiview (with or without the angle) is warm-started as
+is the CSR route's (quality of a binary matrix: :func:`binary_value`, summed as ``mode_value``
+sums quality). With a time limit, multiview (with or without the angle) is warm-started as
 the CSR route warm-starts it (:func:`_warm_started`: the same subset of the columns solved first,
 its bitsets copied); plain max coverage on bits is not (the engines' own greedy gives its first
 incumbent, as before). Any other case
-(another engine choice, an engine over the memory budget) returns None and
-:func:`camplace.solver.api.solve` converts the bits to a bool CSR pattern (5 bytes an observed
-pair) and goes on as before; so do multiview with fixed cameras and no angle (a row's threshold is ``views``
-less its fixed views, which the bitset engine does not model), a minimum distance and k > 4. Set cover on bits is
+(another engine choice, an engine over the memory budget) returns None. Then, for maxcover,
+quality and multiview without a minimum angle or a team (a minimum distance, the general model
+asked for or chosen, multiview with fixed cameras and no angle, whose rows' thresholds are
+``views`` less their fixed views, which the bitset engine does not model),
+:func:`camplace.solver.api._rows_presolved` makes the CSR of the bit presolve's rows only (dead
+rows dropped, identical rows merged, every column kept: no dominance) and solves that on the CSR
+route, the objective recomputed on the bits (``stats["matrix"]``: ``column bitsets, rows
+presolved to m' x n (that as CSR)``). Only what is left (a minimum angle on the general model, a
+team off its bits route, that presolve or its CSR over the budget) has
+:func:`camplace.solver.api.solve` convert the whole bits to a bool CSR pattern (5 bytes an
+observed pair) as before. Set cover on bits is
 :func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``). The planner
 (``camplace plan`` on a binary run) hands its per-phase and static solves the phase row blocks as
 bitsets (:func:`camplace.visibility.bits.take_rows`), so they come here too.
@@ -66,7 +82,7 @@ from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import coords
 from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_csr
+from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_csr, reduced_pattern
 from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
@@ -107,8 +123,8 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline, positi
     Returns
     -------
     (EngineOutcome, (m,) float64 weights) or None
-        None when the engine choice is not one this route runs (large k, the general model) or
-        the bitset engine would not fit in the memory budget.
+        None when the engine choice is not one this route runs (the general model) or the engine
+        (or the large-k engines' reduced CSR) would not fit in the memory budget.
     """
     m, n = bits.shape
     if n == 0:
@@ -267,8 +283,10 @@ def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any]
     as :func:`camplace.solver.routes._large_k` runs them) on the bit presolve's reduced instance:
     dead rows dropped, identical rows merged (their weights summed) and, for max coverage, dominated
     columns dropped (not for multiview: dominance keeps only coverage); the reduced instance made
-    into the CSR the engines read (:func:`~camplace.solver.problem.presolve_bits.reduced_csr`,
-    checked against the memory budget), never the whole matrix's.
+    into the bool CSR the engines presolve and model
+    (:func:`~camplace.solver.problem.presolve_bits.reduced_csr`) and the column lists their local
+    searches read (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern`), each checked
+    against the memory budget, never the whole matrix's CSR.
 
     Every k-set of the kept columns has the same value on the reduced instance as on the matrix,
     and the dropped columns leave an optimum among the kept ones, so the engines' optimum and
@@ -299,15 +317,17 @@ def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any]
     views = o.mode == "multiview"
     # max coverage: at most half of the time to the dominance, as on the k <= 4 route
     pre = presolve_bits(bits, w, k, dominance=not views, deadline=deadline if views else deadline.share(0.5))
-    try:
-        resid = reduced_csr(pre, what="the presolved instance as CSR (the large-k engines)")
+    try:  # the bool pattern (5 bytes a pair) for the presolve and model the engines run on it ...
+        resid = reduced_csr(pre, np.bool_, what="the presolved instance as CSR (the large-k engines)")
+        # ... and the column lists their local searches read (8 bytes a pair), instead of their copies
+        pattern = reduced_pattern(pre, what="the presolved instance's column lists (the large-k engines)")
     except OverBudget as exc:
         log.info("large k on bits: %s: the CSR route", exc.message)
         return None
     mode, n_views = ("multiview", int(o.views)) if views else ("maxcover", 1)
     stats["matrix"] = f"column bitsets, presolved to {pre.shape[0]} x {pre.shape[1]} (that as CSR)"
     stats["presolve"] = dict(pre.stats)
-    got = run_large_k(resid, pre.weights, k, mode, n_views, o.engine, deadline, stats)
+    got = run_large_k(resid, pre.weights, k, mode, n_views, o.engine, deadline, stats, pattern=pattern)
     if got is None:
         return None
     sel = pre.original_columns(got.selected)

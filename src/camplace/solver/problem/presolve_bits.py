@@ -43,7 +43,7 @@ from camplace.solver.problem.presolve import Presolved, check_weights, restore_c
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight",
            "row_counts_of", "row_bitsets", "layout_bits", "layout_bits_bytes", "rows_csr",
-           "rows_csr_bytes", "reduced_csr", "reduced_csr_bytes"]
+           "rows_csr_bytes", "reduced_csr", "reduced_csr_bytes", "reduced_pattern"]
 
 log = logging.getLogger(__name__)
 
@@ -462,6 +462,44 @@ def reduced_csr(pre: BitPresolved, dtype: Any = np.float64, what: str = "the red
     if np.dtype(dtype) == np.float64:
         pre.__dict__["matrix"] = csr  # what BitPresolved.matrix would make: made once
     return csr
+
+
+def reduced_pattern(pre: BitPresolved, what: str = "the presolved instance's column lists") -> tuple[np.ndarray, np.ndarray]:
+    """The CSC pattern of :func:`presolve_bits`'s reduced instance, read from its column bitsets
+    (the rows each column observes, ascending), checked against the memory budget first.
+
+    Parameters
+    ----------
+    pre : BitPresolved
+        (m', n') reduced instance.
+    what : str
+        Names the arrays in the over-budget message.
+
+    Returns
+    -------
+    indptr : (n' + 1,) int64
+    indices : (nnz',) int64
+        ``8 * (nnz' + n' + 1)`` bytes (and one column's m' bools at a time).
+
+    Raises
+    ------
+    OverBudget
+        Over :func:`~camplace.solver._support.memory.memory_budget_bytes` (nothing allocated).
+    """
+    from camplace.visibility.bits import BitMatrix, unpack_rows
+
+    m, n = pre.shape
+    counts = BitMatrix(pre.bits, m).column_counts
+    nnz = int(counts.sum())
+    need, budget = 8 * (nnz + n + 1) + m, memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, what)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    indices = np.empty(nnz, dtype=np.int64)
+    for j in range(n):
+        indices[indptr[j]:indptr[j + 1]] = np.flatnonzero(unpack_rows(pre.bits[j], m))
+    return indptr, indices
 
 
 def covered_weight(bits, weights: np.ndarray, selected) -> float:
