@@ -53,7 +53,8 @@ def test_large_k_on_bits_equals_csr_and_enumeration(mode: str, views: int, monke
             shapes = watch_tocsr(mp, bits)
             got = solve(bits, w, k, mode=mode, views=views)
         assert got.stats["matrix"].startswith("column bitsets, presolved to ")
-        assert shapes == [(got.stats["rows_after"], got.stats["cols_after"])]  # the reduced instance only
+        reduced = (got.stats["rows_after"], got.stats["cols_after"])
+        assert all(s == reduced for s in shapes)  # only the reduced instance, for a SCIP model that fits
         assert (got.status, got.objective, got.bound) == (ref.status, ref.objective, ref.bound)
         assert got.status == "optimal" and len(got.selected) == k
         best = brute_force_mode(dense, w, k, mode, views=views)
@@ -91,17 +92,19 @@ def test_large_k_with_fixed_and_forbidden_on_bits(fixed, forbidden, monkeypatch)
         assert got.objective == pytest.approx(best, rel=1e-12, abs=1e-12)
 
 
-def test_large_k_reduced_csr_over_the_budget_goes_through_csr(monkeypatch) -> None:
-    """The reduced instance's CSR over the memory budget: the bits route declines and the CSR route
-    answers as before (its own memory fallback)."""
+def test_large_k_column_lists_over_the_budget_go_through_csr(monkeypatch) -> None:
+    """The reduced instance's column lists one byte over the memory budget: the bits route declines
+    and the CSR route answers as before."""
     import camplace.solver.problem.presolve_bits as pb
 
     dense, w, k = next(_cases(5))
+    bits = bits_from_csr(sp.csr_matrix(dense))
+    pre = pb.presolve_bits(bits, w, k)
+    need = 8 * (pre.nnz + pre.shape[1] + 1) + pre.shape[0]  # reduced_pattern's estimate
     with monkeypatch.context() as mp:
-        mp.setattr(pb, "memory_budget_bytes", lambda: 1 << 40)
-        mp.setattr(pb, "reduced_csr_bytes", lambda *a, **kw: (1 << 40) + 1)
-        got = solve(bits_from_csr(sp.csr_matrix(dense)), w, k)
-        ref = solve(sp.csr_matrix(dense), w, k)
+        mp.setattr(pb, "memory_budget_bytes", lambda: need - 1)
+        got = solve(bits, w, k)
+    ref = solve(sp.csr_matrix(dense), w, k)
     assert "matrix" not in got.stats
     assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective, ref.bound)
 

@@ -15,10 +15,11 @@ with the fixed-covered rows weighted 0; fixed ones in multiview with a minimum a
     CSR presolve), then the same max-coverage engines.
 ``large-k`` (4 < k <= 8: maxcover, quality, multiview without fixed cameras or angle)
     :func:`_large_k`: the bit presolve (column dominance for max coverage only), then the large-k
-    engines (:func:`~camplace.solver.engines.large_k.search.run_large_k`) on the reduced instance's
-    CSR (:func:`~camplace.solver.problem.presolve_bits.reduced_csr`, checked against the budget;
-    ``stats["matrix"]``: ``column bitsets, presolved to m' x n' (that as CSR)``), never the whole
-    matrix's. Every k-set of the kept columns has the same value there, so the optimum and the
+    engines (:func:`~camplace.solver.engines.large_k.search.run_large_k`) on the reduced instance:
+    its column lists (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern`, checked
+    against the budget) for the local searches, its bitsets for the bitset engine
+    (``stats["matrix"]``: ``column bitsets, presolved to m' x n' (their column lists)``); a CSR
+    only of the reduced instance, and only for a SCIP model that fits, never the whole matrix's. Every k-set of the kept columns has the same value there, so the optimum and the
     bounds are the matrix's; a search stopped by the time limit may stop at another set than the
     CSR route's.
 ``multiview``
@@ -82,7 +83,7 @@ from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import coords
 from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_csr, reduced_pattern
+from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_pattern
 from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
@@ -283,10 +284,10 @@ def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any]
     as :func:`camplace.solver.routes._large_k` runs them) on the bit presolve's reduced instance:
     dead rows dropped, identical rows merged (their weights summed) and, for max coverage, dominated
     columns dropped (not for multiview: dominance keeps only coverage); the reduced instance made
-    into the bool CSR the engines presolve and model
-    (:func:`~camplace.solver.problem.presolve_bits.reduced_csr`) and the column lists their local
-    searches read (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern`), each checked
-    against the memory budget, never the whole matrix's CSR.
+    into the column lists the engines' local searches read
+    (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern`, checked against the memory
+    budget); the bitset engine and SCIP take the presolved instance itself (its bitsets; SCIP's
+    model makes its CSR when the model fits), never the whole matrix's CSR.
 
     Every k-set of the kept columns has the same value on the reduced instance as on the matrix,
     and the dropped columns leave an optimum among the kept ones, so the engines' optimum and
@@ -317,17 +318,17 @@ def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any]
     views = o.mode == "multiview"
     # max coverage: at most half of the time to the dominance, as on the k <= 4 route
     pre = presolve_bits(bits, w, k, dominance=not views, deadline=deadline if views else deadline.share(0.5))
-    try:  # the bool pattern (5 bytes a pair) for the presolve and model the engines run on it ...
-        resid = reduced_csr(pre, np.bool_, what="the presolved instance as CSR (the large-k engines)")
-        # ... and the column lists their local searches read (8 bytes a pair), instead of their copies
+    try:  # the column lists the local searches read (8 bytes a pair), instead of their CSR copies
         pattern = reduced_pattern(pre, what="the presolved instance's column lists (the large-k engines)")
     except OverBudget as exc:
         log.info("large k on bits: %s: the CSR route", exc.message)
         return None
     mode, n_views = ("multiview", int(o.views)) if views else ("maxcover", 1)
-    stats["matrix"] = f"column bitsets, presolved to {pre.shape[0]} x {pre.shape[1]} (that as CSR)"
+    stats["matrix"] = f"column bitsets, presolved to {pre.shape[0]} x {pre.shape[1]} (their column lists)"
     stats["presolve"] = dict(pre.stats)
-    got = run_large_k(resid, pre.weights, k, mode, n_views, o.engine, deadline, stats, pattern=pattern)
+    # the bitset engine and SCIP take the presolved instance itself (SCIP makes its CSR, when its model fits)
+    got = run_large_k(BitMatrix(pre.bits, pre.shape[0]), pre.weights, k, mode, n_views, o.engine, deadline, stats,
+                      pattern=pattern, presolved=pre)
     if got is None:
         return None
     sel = pre.original_columns(got.selected)

@@ -410,6 +410,13 @@ class BitPresolved(Presolved):
             self.__dict__["_source"] = value
 
     @functools.cached_property
+    def nnz(self) -> int:
+        """Observed pairs of the reduced instance, counted on :attr:`bits` (no CSR made)."""
+        from camplace.visibility.bits import BitMatrix
+
+        return BitMatrix(self.bits, self.shape[0]).nnz
+
+    @functools.cached_property
     def matrix(self) -> sp.csr_matrix:
         """(m', n') scipy.sparse.csr_matrix of float64: 0/1 pattern of the reduced instance."""
         from camplace.visibility.bits import BitMatrix

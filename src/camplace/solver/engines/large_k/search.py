@@ -596,7 +596,8 @@ def _views_scip(pre: Any, views: int, k: int, start: tuple[int, ...],
 
 def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, views: int, engine: str,
                 deadline: Deadline, stats: dict[str, Any],
-                seed: int = 0, pattern: tuple[np.ndarray, np.ndarray] | None = None) -> EngineOutcome | None:
+                seed: int = 0, pattern: tuple[np.ndarray, np.ndarray] | None = None,
+                presolved: Any = None) -> EngineOutcome | None:
     """The engines for ``4 < k <= LARGE_K_MAX`` behind :func:`camplace.solver.api.solve`.
 
     ``maxcover`` and ``quality``: :func:`solve_large_k` (under ``auto``, maxcover gets a tenth of
@@ -627,6 +628,11 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         ``resid``'s pattern, made by the caller (the bits route, from column bitsets): the local
         searches read them instead of their own copies of ``resid`` (the same searches; their
         memory is then the weighted values alone, :func:`large_k_bytes` with ``pattern``).
+    presolved : camplace.solver.problem.presolve.Presolved, optional
+        ``resid`` already presolved for ``k`` (multiview: without dominance), used instead of
+        presolving it again for the bitset engine and SCIP. With ``pattern`` too, ``resid`` is read
+        only for its ``shape`` and ``nnz`` (the bits route passes the reduced
+        :class:`~camplace.visibility.bits.BitMatrix`).
 
     Returns
     -------
@@ -647,7 +653,7 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     m, n = resid.shape
     budget = memory_budget_bytes()
     if mode == "multiview":
-        pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
+        pre = presolve(resid, resid_w, k, dominance=False) if presolved is None else presolved  # (one view only)
         need = bitset_bytes(pre.shape[0], pre.shape[1], min(views, k), k) + large_k_bytes(m, n, resid.nnz,
                                                                                           pattern is not None)
         if need > budget:
@@ -661,9 +667,10 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
             cap = float(np.sort(LK.view_gains(vs.indptr, vs.indices, vs.w))[-k:].sum()) / views
         start, _, ls = views_incumbent(resid, resid_w, k, views, deadline=views_dl, seed=seed, prepared=vs)
         del vs
+        pre_nnz = int(pre.nnz) if hasattr(type(pre), "nnz") else int(pre.matrix.nnz)  # (bits: no CSR to count)
         scip_need = model_bytes("mip", pre.shape[0] + pre.shape[1], pre.shape[0] + 1,
-                                int(pre.matrix.nnz) + pre.shape[0] + pre.shape[1])
-        scip = engine == "auto" and scip_need <= budget and pre.matrix.nnz <= _VIEWS_SCIP_MAX_NNZ
+                                pre_nnz + pre.shape[0] + pre.shape[1])
+        scip = engine == "auto" and scip_need <= budget and pre_nnz <= _VIEWS_SCIP_MAX_NNZ
         search_dl = deadline.share(_VIEWS_SEARCH_SHARE) if scip else deadline  # SCIP gets the rest if the search does not finish
         out = solve_bitset(pre, views=views, deadline=search_dl, start=pre.reduced_columns(start))
         sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
@@ -694,7 +701,7 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     stats["engine_stats"] = dict(out.stats)
     sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
     if status != "optimal" and mode == "maxcover" and engine == "auto" and not deadline.expired():
-        pre = presolve(resid, resid_w, k, deadline=deadline)
+        pre = presolve(resid, resid_w, k, deadline=deadline) if presolved is None else presolved
         used, mip = run_maxcover_engine("mip", engine, pre, deadline, stats)
         stats["engine_stats"]["then"] = dict(mip.stats, engine=used)
         if mip.selected and "model_build" not in mip.stats:  # (stopped while building: the greedy answer)
