@@ -556,8 +556,6 @@ def _rows_presolved(bits: Any, weights: Any, positions: Any, o: SolveOptions, de
         None when the presolve's working memory or the merged rows' CSR would not fit in the memory
         budget, or no row is left: the caller converts the whole matrix as before.
     """
-    from camplace.solver.bits_route import binary_value
-    from camplace.solver.problem.objectives import bits_views_value
     from camplace.solver.problem.presolve_bits import presolve_bits, presolve_bits_bytes, reduced_csr
 
     m, n = bits.shape
@@ -578,21 +576,31 @@ def _rows_presolved(bits: Any, weights: Any, positions: Any, o: SolveOptions, de
         return None
     res = _solve(csr, pre.weights, positions, None, o, deadline)
     del csr
+    res.stats.update({"matrix": f"column bitsets, rows presolved to {pre.shape[0]} x {n} (that as CSR)",
+                      "rows_presolve": dict(pre.stats)})
+    return _on_the_bits(res, bits, w, o, fixed_t, forbidden_t, deadline)
 
-    def value(sel: tuple[int, ...]) -> float:  # the mode's objective on the whole matrix, summed as mode_value sums it
+
+def _on_the_bits(res: SolverResult, bits: Any, w: np.ndarray, o: SolveOptions, fixed_t: tuple[int, ...],
+                 forbidden_t: tuple[int, ...], deadline: Deadline) -> SolverResult:
+    """The result ``res`` of a solve on merged rows (:func:`_rows_presolved`) as the whole matrix's:
+    the objective of its cameras recomputed on the (m, n) ``bits`` with the checked weights ``w``
+    (``mode_value``'s sum), the status, bound and gap made from it by :func:`_result`, the stats'
+    sizes the whole matrix's."""
+    from camplace.solver.bits_route import binary_value
+    from camplace.solver.problem.objectives import bits_views_value
+
+    def value(sel: tuple[int, ...]) -> float:  # the mode's objective on the whole matrix
         if o.mode == "multiview":
             return bits_views_value(bits, w, sel, int(o.views))
         return binary_value(bits, w, sel, o.mode)
 
     sel = res.selected if res.selected else None
     objective = value(sel) if sel else value(fixed_t) if fixed_t else res.objective
-    stats = dict(res.stats)
-    stats.update({"matrix": f"column bitsets, rows presolved to {pre.shape[0]} x {n} (that as CSR)",
-                  "rows_presolve": dict(pre.stats)})
-    conflicts = stats.get("conflict_pairs", 0)
-    ctx = EngineOutcome(sel, res.status, res.bound, stats, engine=res.engine, objective=objective)
-    out = _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((int(conflicts), 2), dtype=np.int64), (m, n),
-                  deadline.start)
+    conflicts = res.stats.get("conflict_pairs", 0)
+    ctx = EngineOutcome(sel, res.status, res.bound, dict(res.stats), engine=res.engine, objective=objective)
+    out = _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), bits.shape, deadline.start)
+    out.stats["conflict_pairs"] = conflicts  # (counted by the solve on the merged rows)
     return out
 
 
