@@ -131,3 +131,31 @@ def test_pattern_from_bits_is_the_engines_own_copy() -> None:
         ref = solve_large_k(resid, pre.weights, kk, binary=True)
         got = solve_large_k(resid, pre.weights, kk, binary=True, pattern=pattern)
         assert (got.selected, got.status, got.bound) == (ref.selected, ref.status, ref.bound)
+
+
+def test_large_k_on_bits_then_scip_maps_its_columns(monkeypatch) -> None:
+    """Max coverage, k > 4, the large-k search made to stop unproven at a poor set (the first k
+    columns, the total weight as its bound): SCIP then runs on the bit presolve itself, and its
+    answer (reduced columns) comes back as the matrix's columns: the enumerated optimum, as the
+    CSR route gives it."""
+    from camplace.solver.engines.large_k import search
+    from camplace.solver.result import EngineOutcome
+
+    real = search.solve_large_k
+
+    def unproven(matrix, weights, k, **kw):
+        out = real(matrix, weights, k, **kw)
+        return EngineOutcome(tuple(range(k)), "feasible", 2.0 * float(np.sum(weights)) + 1.0, out.stats)
+
+    monkeypatch.setattr(search, "solve_large_k", unproven)
+    for dense, w, k in _cases(13):
+        dense[:, 0] = 0.0  # the poor set is not optimal: SCIP's answer must replace it
+        dense[:, 4] = dense[:, 1]  # a dominated column: the bit presolve drops it, reduced != original columns
+        ref = solve(sp.csr_matrix(dense), w, k)
+        got = solve(bits_from_csr(sp.csr_matrix(dense)), w, k)
+        best = brute_force_mode(dense, w, k, "maxcover")
+        assert got.stats["cols_after"] < dense.shape[1]
+        assert got.stats["engine_stats"]["then"]["engine"] == "mip"
+        assert got.status == ref.status == "optimal"
+        assert got.objective == ref.objective == pytest.approx(best, rel=1e-12, abs=1e-12)
+        assert got.objective == mode_value(dense, w, got.selected, mode="maxcover")

@@ -19,9 +19,9 @@ with the fixed-covered rows weighted 0; fixed ones in multiview with a minimum a
     its column lists (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern`, checked
     against the budget) for the local searches, its bitsets for the bitset engine
     (``stats["matrix"]``: ``column bitsets, presolved to m' x n' (their column lists)``); a CSR
-    only of the reduced instance, and only for a SCIP model that fits, never the whole matrix's. Every k-set of the kept columns has the same value there, so the optimum and the
-    bounds are the matrix's; a search stopped by the time limit may stop at another set than the
-    CSR route's.
+    only of the reduced instance, and only for a SCIP model that fits, never the whole matrix's.
+    Every k-set of the kept columns has the same value there, so the optimum and the bounds are
+    the matrix's; a search stopped by the time limit may stop at another set than the CSR route's.
 ``multiview``
     the ``multiview`` route (the bitset engine, ``exact`` for k <= 4): the bit presolve without
     column dominance (dropping dead rows and merging identical ones keeps every column's view
@@ -125,7 +125,7 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline, positi
     -------
     (EngineOutcome, (m,) float64 weights) or None
         None when the engine choice is not one this route runs (the general model) or the engine
-        (or the large-k engines' reduced CSR) would not fit in the memory budget.
+        (or the large-k engines' column lists) would not fit in the memory budget.
     """
     m, n = bits.shape
     if n == 0:
@@ -312,7 +312,7 @@ def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any]
     -------
     EngineOutcome or None
         ``selected`` original columns; ``objective`` the covered weight (multiview: the caller's
-        :meth:`_Views.value`). None when the reduced CSR or the engines do not fit in the memory
+        :meth:`_Views.value`). None when the column lists or the engines do not fit in the memory
         budget under ``auto`` (the CSR route then falls back as before).
     """
     views = o.mode == "multiview"

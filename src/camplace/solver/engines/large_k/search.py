@@ -629,10 +629,11 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         searches read them instead of their own copies of ``resid`` (the same searches; their
         memory is then the weighted values alone, :func:`large_k_bytes` with ``pattern``).
     presolved : camplace.solver.problem.presolve.Presolved, optional
-        ``resid`` already presolved for ``k`` (multiview: without dominance), used instead of
-        presolving it again for the bitset engine and SCIP. With ``pattern`` too, ``resid`` is read
-        only for its ``shape`` and ``nnz`` (the bits route passes the reduced
-        :class:`~camplace.visibility.bits.BitMatrix`).
+        A presolve for ``k`` (multiview: without dominance) whose REDUCED instance is ``resid``
+        (rows and columns in its reduced order; the bits route's), given to the bitset engine and
+        SCIP instead of presolving ``resid``; their answers are then already ``resid``'s columns.
+        With ``pattern`` too, ``resid`` is read only for its ``shape`` and ``nnz`` (the bits route
+        passes the reduced :class:`~camplace.visibility.bits.BitMatrix`).
 
     Returns
     -------
@@ -647,6 +648,17 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     from camplace.solver.engines.mip.linear import model_bytes
     from camplace.solver.problem.presolve import presolve
 
+    if presolved is None:  # resid's columns and those of its presolve
+        def to_resid(cols) -> tuple[int, ...]:
+            return tuple(int(j) for j in pre.original_columns(cols))
+
+        def from_resid(cols) -> tuple[int, ...] | None:
+            return pre.reduced_columns(cols)
+    else:  # the presolve's reduced instance is resid: the same columns
+        def to_resid(cols) -> tuple[int, ...]:
+            return tuple(sorted(int(j) for j in cols))
+
+        from_resid = to_resid
     # the steps' slices of the time left now
     views_dl = deadline.share(_VIEWS_SHARE)
     first_dl = deadline.within(_MAXCOVER_FIRST_S) if deadline.limit is None else deadline.share(_MAXCOVER_SHARE)
@@ -672,7 +684,7 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
                                 pre_nnz + pre.shape[0] + pre.shape[1])
         scip = engine == "auto" and scip_need <= budget and pre_nnz <= _VIEWS_SCIP_MAX_NNZ
         search_dl = deadline.share(_VIEWS_SEARCH_SHARE) if scip else deadline  # SCIP gets the rest if the search does not finish
-        out = solve_bitset(pre, views=views, deadline=search_dl, start=pre.reduced_columns(start))
+        out = solve_bitset(pre, views=views, deadline=search_dl, start=from_resid(start))
         sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
         es = dict(out.stats, local_search=ls, column_cap=cap)
         if status != "optimal":
@@ -688,7 +700,7 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
                 if got[1] == "optimal":
                     status = "optimal"
         stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": es})
-        return EngineOutcome(tuple(int(j) for j in pre.original_columns(sel)), status, bound, stats, engine=name)
+        return EngineOutcome(to_resid(sel), status, bound, stats, engine=name)
     binary = mode == "maxcover"
     need = large_k_bytes(m, n, resid.nnz, binary and pattern is not None)
     if need > budget:
@@ -705,7 +717,7 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         used, mip = run_maxcover_engine("mip", engine, pre, deadline, stats)
         stats["engine_stats"]["then"] = dict(mip.stats, engine=used)
         if mip.selected and "model_build" not in mip.stats:  # (stopped while building: the greedy answer)
-            cand = tuple(int(j) for j in pre.original_columns(mip.selected))
+            cand = to_resid(mip.selected)
             vs = _Views(resid, resid_w, 1) if pattern is None else _Views.from_pattern(pattern, m, resid_w, 1)
             if vs.value(cand) > vs.value(sel) + vs.margin:
                 sel, name = cand, used
