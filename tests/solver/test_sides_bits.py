@@ -190,13 +190,16 @@ def _counting_tocsr(mp) -> list[int]:
 
 def test_multiview_with_fixed_cameras_goes_through_csr(monkeypatch) -> None:
     """Multiview with fixed cameras and no minimum angle (rows needing views of their own) stays on
-    the CSR route: the CSR route's answer, one tocsr."""
+    the CSR route, on the CSR of the presolved rows only: the CSR route's answer."""
+    from tests.solver.test_large_k_bits import watch_tocsr
+
     dense, w = next(_cases(2))
     ref = solve(sp.csr_matrix(dense), w, 2, mode="multiview", views=2, fixed=(3,))
+    bits = bits_from_csr(sp.csr_matrix(dense))
     with monkeypatch.context() as mp:
-        calls = _counting_tocsr(mp)
-        got = solve(bits_from_csr(sp.csr_matrix(dense)), w, 2, mode="multiview", views=2, fixed=(3,))
-    assert calls == [1]
+        shapes = watch_tocsr(mp, bits)
+        got = solve(bits, w, 2, mode="multiview", views=2, fixed=(3,))
+    assert shapes == [(got.stats["rows_presolve"]["rows_after"], dense.shape[1])]
     assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective, ref.bound)
 
 
@@ -212,15 +215,19 @@ def test_allowed_columns_over_the_budget_go_through_csr(monkeypatch) -> None:
     assert (got.selected, got.status, got.objective, got.bound) == (ref.selected, ref.status, ref.objective, ref.bound)
 
 
-def test_large_k_with_fixed_cameras_goes_through_csr(monkeypatch) -> None:
-    """k > 4 with fixed cameras (the large-k engines read CSR): the bits route declines, the CSR
-    route's answer."""
+def test_large_k_with_fixed_cameras_reads_the_presolved_bits(monkeypatch) -> None:
+    """k > 4 with fixed cameras: the allowed columns' bits presolved, the large-k engines on the
+    reduced instance (never a CSR of the whole matrix); the CSR route's answer."""
+    from tests.solver.test_large_k_bits import watch_tocsr
+
     dense, w = next(_cases(6))
     ref = solve(sp.csr_matrix(dense), w, 5, fixed=(0,), forbidden=(1,))
+    bits = bits_from_csr(sp.csr_matrix(dense))
     with monkeypatch.context() as mp:
-        calls = _counting_tocsr(mp)
-        got = solve(bits_from_csr(sp.csr_matrix(dense)), w, 5, fixed=(0,), forbidden=(1,))
-    assert calls == [1]
+        shapes = watch_tocsr(mp, bits)
+        got = solve(bits, w, 5, fixed=(0,), forbidden=(1,))
+    assert got.stats["matrix"].startswith("column bitsets of the ")
+    assert all(s == (got.stats["rows_after"], got.stats["cols_after"]) for s in shapes)
     assert (got.selected, got.status, got.objective) == (ref.selected, ref.status, ref.objective)
 
 

@@ -207,9 +207,12 @@ def _is_default(name: str, value: Any) -> bool:
                                                   and value == getattr(_DEFAULTS, name))
 
 
-def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions) -> SolverResult:
-    """:func:`solve` within the memory budget (``o`` is already checked)."""
-    deadline = Deadline(o.time_limit_s)  # the solve's one deadline, passed down to the engines
+def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions,
+           deadline: Deadline | None = None) -> SolverResult:
+    """:func:`solve` within the memory budget (``o`` is already checked); ``deadline`` is the
+    solve's when it has begun already (:func:`_rows_presolved`), else made here."""
+    if deadline is None:
+        deadline = Deadline(o.time_limit_s)  # the solve's one deadline, passed down to the engines
     t0 = deadline.start
     k, mode, views, min_angle_deg, engine = o.k, o.mode, o.views, o.min_angle_deg, o.engine
     min_distance_m = o.min_distance_m
@@ -239,6 +242,10 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         if o.mode == "setcover" and o.min_distance_m is None and o.team is None:  # counts from the bits
             ctx, w, fixed_t, forbidden_t = _setcover_bits(matrix, weights, o, deadline)
             return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        if _rows_presolve_applies(o):  # the general model (and the rest): CSR of the merged rows only
+            got = _rows_presolved(matrix, weights, positions, o, deadline)
+            if got is not None:
+                return got
         matrix = matrix.tocsr(np.bool_)  # the other routes read CSR (the bool pattern: 5 bytes a pair)
     q = values_matrix(matrix)
     if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
@@ -509,6 +516,92 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
     ctx.stats["matrix"] = f"column bitsets of the {cols.size} allowed columns (no CSR copy)"
     return (EngineOutcome(sel, ctx.status, float(ctx.bound) + const, ctx.stats, engine=ctx.engine,
                           objective=objective), w, fixed_t, forbidden_t)
+
+
+def _rows_presolve_applies(o: SolveOptions) -> bool:
+    """The k-camera modes on a binary matrix that the bits routes left to CSR (a minimum distance,
+    engine mip / cpsat where the bits route does not run it, multiview with fixed cameras and no
+    angle, k > 8, a memory fallback): :func:`_rows_presolved` gives them the merged rows. Not with a
+    minimum angle (rows with the same pattern are different points, whose views make different
+    angles), not for a team or set cover (they count points)."""
+    return o.mode in ("maxcover", "quality", "multiview") and o.min_angle_deg is None and o.team is None
+
+
+def _rows_presolved(bits: Any, weights: Any, positions: Any, o: SolveOptions, deadline: Deadline) -> SolverResult | None:
+    """:func:`_solve` on the CSR of a binary matrix's rows presolved from its bits, instead of the
+    whole matrix's CSR: dead rows (weight 0, or no camera observes them) dropped and identical rows
+    merged, their weights summed (:func:`~camplace.solver.problem.presolve_bits.presolve_bits`
+    without column dominance, which a minimum distance, fixed cameras or several views would not
+    keep valid). Every column stays, so fixed, forbidden and spaced cameras are the same indices,
+    and every set of cameras has the same value on the merged rows (a merged row is observed by
+    the same cameras as each of its rows): the route, its optimum and its bounds are the whole
+    matrix's. The objective is then recomputed on the bits (the CSR route's sum), and the status
+    and gap made from it as :func:`_result` makes them.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n) observed pairs.
+    weights : (m,) array_like of float64
+    positions : (n, 3) array_like, optional
+        Camera positions (metres; a minimum distance needs them).
+    o : SolveOptions
+        Checked options with :func:`_rows_presolve_applies`.
+    deadline : Deadline
+        The solve's; the presolve's time counts against its limit.
+
+    Returns
+    -------
+    SolverResult or None
+        None when the presolve's working memory or the merged rows' CSR would not fit in the memory
+        budget, or no row is left: the caller converts the whole matrix as before.
+    """
+    from camplace.solver.problem.presolve_bits import presolve_bits, presolve_bits_bytes, reduced_csr
+
+    m, n = bits.shape
+    w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
+    need, budget = presolve_bits_bytes(m, n), memory_budget_bytes()
+    if need > budget:
+        log.info("the rows' presolve on bits needs %.3g GiB (budget %.3g GiB): the whole matrix as CSR",
+                 need / 2**30, budget / 2**30)
+        return None
+    pre = presolve_bits(bits, w, 1, dominance=False)  # k: only the dominance reads it
+    assert pre.shape[1] == n  # no dominance: every column kept, in order
+    if pre.shape[0] == 0:
+        return None
+    try:
+        csr = reduced_csr(pre, np.bool_, what="the merged rows as CSR")
+    except OverBudget as exc:
+        log.info("%s: the whole matrix as CSR", exc.message)
+        return None
+    res = _solve(csr, pre.weights, positions, None, o, deadline)
+    del csr
+    res.stats.update({"matrix": f"column bitsets, rows presolved to {pre.shape[0]} x {n} (that as CSR)",
+                      "rows_presolve": dict(pre.stats)})
+    return _on_the_bits(res, bits, w, o, fixed_t, forbidden_t, deadline)
+
+
+def _on_the_bits(res: SolverResult, bits: Any, w: np.ndarray, o: SolveOptions, fixed_t: tuple[int, ...],
+                 forbidden_t: tuple[int, ...], deadline: Deadline) -> SolverResult:
+    """The result ``res`` of a solve on merged rows (:func:`_rows_presolved`) as the whole matrix's:
+    the objective of its cameras recomputed on the (m, n) ``bits`` with the checked weights ``w``
+    (``mode_value``'s sum), the status, bound and gap made from it by :func:`_result`, the stats'
+    sizes the whole matrix's."""
+    from camplace.solver.bits_route import binary_value
+    from camplace.solver.problem.objectives import bits_views_value
+
+    def value(sel: tuple[int, ...]) -> float:  # the mode's objective on the whole matrix
+        if o.mode == "multiview":
+            return bits_views_value(bits, w, sel, int(o.views))
+        return binary_value(bits, w, sel, o.mode)
+
+    sel = res.selected if res.selected else None
+    objective = value(sel) if sel else value(fixed_t) if fixed_t else res.objective
+    conflicts = res.stats.get("conflict_pairs", 0)
+    ctx = EngineOutcome(sel, res.status, res.bound, dict(res.stats), engine=res.engine, objective=objective)
+    out = _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), bits.shape, deadline.start)
+    out.stats["conflict_pairs"] = conflicts  # (counted by the solve on the merged rows)
+    return out
 
 
 def _column_bits(bits: Any, cols: np.ndarray, what: str) -> Any:

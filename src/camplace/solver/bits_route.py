@@ -13,6 +13,15 @@ with the fixed-covered rows weighted 0; fixed ones in multiview with a minimum a
     plain max coverage (``exact`` for k <= 4 under ``auto``): the presolve of
     :func:`~camplace.solver.problem.presolve_bits.presolve_bits` (the same reduced instance as the
     CSR presolve), then the same max-coverage engines.
+``large-k`` (4 < k <= 8: maxcover, quality, multiview without fixed cameras or angle)
+    :func:`_large_k`: the bit presolve (column dominance for max coverage only), then the large-k
+    engines (:func:`~camplace.solver.engines.large_k.search.run_large_k`) on the reduced instance:
+    its column lists (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern`, checked
+    against the budget) for the local searches, its bitsets for the bitset engine
+    (``stats["matrix"]``: ``column bitsets, presolved to m' x n' (their column lists)``); a CSR
+    only of the reduced instance, and only for a SCIP model that fits, never the whole matrix's.
+    Every k-set of the kept columns has the same value there, so the optimum and the bounds are
+    the matrix's; a search stopped by the time limit may stop at another set than the CSR route's.
 ``multiview``
     the ``multiview`` route (the bitset engine, ``exact`` for k <= 4): the bit presolve without
     column dominance (dropping dead rows and merging identical ones keeps every column's view
@@ -30,14 +39,22 @@ with the fixed-covered rows weighted 0; fixed ones in multiview with a minimum a
 The objective is summed as :func:`~camplace.solver.problem.objectives.mode_value` sums it
 (:func:`~camplace.solver.problem.presolve_bits.covered_weight`,
 :func:`~camplace.solver.problem.objectives.bits_views_value`), so without a time limit the answer
-is the CSR route's. With a time limit, multiview (with or without the angle) is warm-started as
+is the CSR route's (quality of a binary matrix: :func:`binary_value`, summed as ``mode_value``
+sums quality). With a time limit, multiview (with or without the angle) is warm-started as
 the CSR route warm-starts it (:func:`_warm_started`: the same subset of the columns solved first,
 its bitsets copied); plain max coverage on bits is not (the engines' own greedy gives its first
 incumbent, as before). Any other case
-(another engine choice, an engine over the memory budget) returns None and
-:func:`camplace.solver.api.solve` converts the bits to a bool CSR pattern (5 bytes an observed
-pair) and goes on as before; so do multiview with fixed cameras and no angle (a row's threshold is ``views``
-less its fixed views, which the bitset engine does not model), a minimum distance and k > 4. Set cover on bits is
+(another engine choice, an engine over the memory budget) returns None. Then, for maxcover,
+quality and multiview without a minimum angle or a team (a minimum distance, the general model
+asked for or chosen, multiview with fixed cameras and no angle, whose rows' thresholds are
+``views`` less their fixed views, which the bitset engine does not model),
+:func:`camplace.solver.api._rows_presolved` makes the CSR of the bit presolve's rows only (dead
+rows dropped, identical rows merged, every column kept: no dominance) and solves that on the CSR
+route, the objective recomputed on the bits (``stats["matrix"]``: ``column bitsets, rows
+presolved to m' x n (that as CSR)``). Only what is left (a minimum angle on the general model, a
+team off its bits route, that presolve or its CSR over the budget) has
+:func:`camplace.solver.api.solve` convert the whole bits to a bool CSR pattern (5 bytes an
+observed pair) as before. Set cover on bits is
 :func:`camplace.solver.engines.setcover.mode.setcover`'s own (``api._setcover_bits``). The planner
 (``camplace plan`` on a binary run) hands its per-phase and static solves the phase row blocks as
 bitsets (:func:`camplace.visibility.bits.take_rows`), so they come here too.
@@ -60,17 +77,18 @@ from camplace.solver.choose import choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.bitset.search import BITSET_MAX_K, bitset_bytes, solve_bitset
+from camplace.solver.engines.large_k.search import run_large_k
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.checks import coords
 from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
-from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits
+from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_pattern
 from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
 
-__all__ = ["bits_applies", "bits_outcome", "bits_solve", "bits_solve_bytes", "load_kernels"]
+__all__ = ["bits_applies", "bits_outcome", "binary_value", "bits_solve", "bits_solve_bytes", "load_kernels"]
 
 log = logging.getLogger(__name__)
 
@@ -143,8 +161,8 @@ def bits_outcome(bits, weights: Any, o: SolveOptions, deadline: Deadline, positi
     Returns
     -------
     (EngineOutcome, (m,) float64 weights) or None
-        None when the engine choice is not one this route runs (large k, the general model) or
-        the bitset engine would not fit in the memory budget.
+        None when the engine choice is not one this route runs (the general model) or the engine
+        (or the large-k engines' column lists) would not fit in the memory budget.
     """
     m, n = bits.shape
     if n == 0:
@@ -183,19 +201,43 @@ def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) 
     asked = o.mode
     o = replace(o, mode="maxcover")  # quality of a binary matrix: the same objective (see bits_applies)
     choice = choose_engine(problem_sizes(bits, k, n, 0, 0, "maxcover"), o, budget)
-    if choice.route != "maxcover":
+    if choice.route not in ("maxcover", "large-k"):
         return None
     stats = _choice_stats(k, choice)
     if asked != "maxcover":
         stats["binary_matrix"] = f"{asked} of a binary matrix (every value 1) is max coverage: solved as maxcover"
+    if choice.route == "large-k":
+        got = _large_k(bits, w, k, o, stats, deadline)
+        return None if got is None else replace(got, objective=binary_value(bits, w, got.selected, asked))
     pre = presolve_bits(bits, w, k, deadline=deadline.share(0.5))  # at least half the time left to the search
     name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline, stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
-    objective = covered_weight(bits, w, sel) if sel else 0.0
+    objective = binary_value(bits, w, sel, asked) if sel else 0.0
     stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
                   "engine_stats": dict(out.stats)})
     return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=name,
                          objective=objective)
+
+
+def binary_value(bits, w: np.ndarray, sel: tuple[int, ...], mode: str) -> float:
+    """The ``maxcover`` or ``quality`` objective of the columns ``sel`` of a binary matrix, the same
+    float64 number as :func:`~camplace.solver.problem.objectives.mode_value` on its CSR: the covered
+    weight summed (maxcover), or ``w`` dotted with the rows' best value, 1 or 0 (quality).
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    w : (m,) float64
+        Checked weights.
+    sel : tuple of int
+        Columns.
+    mode : {"maxcover", "quality"}
+    """
+    if mode != "quality":
+        return covered_weight(bits, w, sel)
+    best = bits.union(list(sel)).astype(np.float64) if len(sel) else np.zeros(bits.shape[0])
+    return float(w @ best)
 
 
 @dataclass(frozen=True)
@@ -265,9 +307,71 @@ def _search(p: _Views, deadline: Deadline, warm: bool = True,
         return _warm_started(p, deadline)
     choice = choose_engine(problem_sizes(p.bits, p.k, n_free, len(p.fixed), 0, "multiview"), p.o,
                            memory_budget_bytes())
+    if choice.route == "large-k" and not p.fixed:  # (choose_engine: never with fixed cameras or the angle)
+        got = _large_k(p.bits, p.w, p.k, p.o, _choice_stats(p.k, choice), deadline)
+        return None if got is None else replace(got, objective=p.value(got.selected))
     if choice.route != ("angle" if p.angle else "multiview"):
         return None
     return (_angle if p.angle else _bitset)(p, choice, deadline, start)
+
+
+def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any],
+             deadline: Deadline) -> EngineOutcome | None:
+    """The engines for ``4 < k <= 8`` (:func:`~camplace.solver.engines.large_k.search.run_large_k`,
+    as :func:`camplace.solver.routes._large_k` runs them) on the bit presolve's reduced instance:
+    dead rows dropped, identical rows merged (their weights summed) and, for max coverage, dominated
+    columns dropped (not for multiview: dominance keeps only coverage); the reduced instance made
+    into the column lists the engines' local searches read
+    (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern`, checked against the memory
+    budget); the bitset engine and SCIP take the presolved instance itself (its bitsets; SCIP's
+    model makes its CSR when the model fits), never the whole matrix's CSR.
+
+    Every k-set of the kept columns has the same value on the reduced instance as on the matrix,
+    and the dropped columns leave an optimum among the kept ones, so the engines' optimum and
+    bounds are the matrix's.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n) observed pairs.
+    w : (m,) float64
+        Checked weights.
+    k : int
+        New cameras, ``4 < k <= 8``.
+    o : SolveOptions
+        ``mode`` maxcover (quality of a binary matrix comes as maxcover) or multiview, ``views``,
+        ``engine``.
+    stats : dict
+        The result's stats (:func:`_choice_stats`), filled by the engines.
+    deadline : Deadline
+
+    Returns
+    -------
+    EngineOutcome or None
+        ``selected`` original columns; ``objective`` the covered weight (multiview: the caller's
+        :meth:`_Views.value`). None when the column lists or the engines do not fit in the memory
+        budget under ``auto`` (the CSR route then falls back as before).
+    """
+    views = o.mode == "multiview"
+    # max coverage: at most half of the time to the dominance, as on the k <= 4 route
+    pre = presolve_bits(bits, w, k, dominance=not views, deadline=deadline if views else deadline.share(0.5))
+    try:  # the column lists the local searches read (8 bytes a pair), instead of their CSR copies
+        pattern = reduced_pattern(pre, what="the presolved instance's column lists (the large-k engines)")
+    except OverBudget as exc:
+        log.info("large k on bits: %s: the CSR route", exc.message)
+        return None
+    mode, n_views = ("multiview", int(o.views)) if views else ("maxcover", 1)
+    stats["matrix"] = f"column bitsets, presolved to {pre.shape[0]} x {pre.shape[1]} (their column lists)"
+    stats["presolve"] = dict(pre.stats)
+    # the bitset engine and SCIP take the presolved instance itself (SCIP makes its CSR, when its model fits)
+    got = run_large_k(BitMatrix(pre.bits, pre.shape[0]), pre.weights, k, mode, n_views, o.engine, deadline, stats,
+                      pattern=pattern, presolved=pre)
+    if got is None:
+        return None
+    sel = pre.original_columns(got.selected)
+    stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1]})  # the bit presolve's
+    objective = 0.0 if views else covered_weight(bits, w, sel)
+    return EngineOutcome(sel, got.status, float(got.bound), stats, engine=got.engine, objective=objective)
 
 
 def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:

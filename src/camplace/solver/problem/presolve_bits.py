@@ -43,7 +43,7 @@ from camplace.solver.problem.presolve import Presolved, check_weights, restore_c
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight",
            "row_counts_of", "row_bitsets", "layout_bits", "layout_bits_bytes", "rows_csr",
-           "rows_csr_bytes"]
+           "rows_csr_bytes", "reduced_csr", "reduced_csr_bytes", "reduced_pattern"]
 
 log = logging.getLogger(__name__)
 
@@ -456,12 +456,103 @@ class BitPresolved(Presolved):
             self.__dict__["_source"] = value
 
     @functools.cached_property
+    def nnz(self) -> int:
+        """Observed pairs of the reduced instance, counted on :attr:`bits` (no CSR made)."""
+        from camplace.visibility.bits import BitMatrix
+
+        return BitMatrix(self.bits, self.shape[0]).nnz
+
+    @functools.cached_property
     def matrix(self) -> sp.csr_matrix:
         """(m', n') scipy.sparse.csr_matrix of float64: 0/1 pattern of the reduced instance."""
         from camplace.visibility.bits import BitMatrix
 
         csr = BitMatrix(self.bits, self.shape[0]).tocsr(np.float64)
         return csr
+
+
+def reduced_csr_bytes(m: int, n: int, nnz: int, value_bytes: int = 8) -> int:
+    """Peak bytes of :func:`reduced_csr` on an (m, n) reduced instance of ``nnz`` observed pairs:
+    int32 (int64 past 2**31) indices and ``value_bytes`` a pair, the row counts, pointers (and
+    their cast) and cursors (8 bytes a row each, the cursors rounded up to a word of rows)."""
+    idx = 4 if max(m, n, nnz) < 2**31 - 1 else 8
+    return int((idx + value_bytes) * nnz + 8 * (4 * (m + 1) + 64))
+
+
+def reduced_csr(pre: BitPresolved, dtype: Any = np.float64, what: str = "the reduced instance as CSR") -> sp.csr_matrix:
+    """The reduced instance of :func:`presolve_bits` as a CSR pattern, checked against the memory
+    budget before it is made: for the engines that read CSR rows, without a CSR of the whole matrix.
+
+    Parameters
+    ----------
+    pre : BitPresolved
+        (m', n') reduced instance (:attr:`BitPresolved.bits`, one bit a reduced row).
+    dtype : numpy dtype
+        Values (ones): float64 (12 bytes a pair with int32 indices; then also kept as
+        :attr:`BitPresolved.matrix`) or bool (5 bytes a pair).
+    what : str
+        Names the copy in the over-budget message.
+
+    Returns
+    -------
+    (m', n') scipy.sparse.csr_matrix
+        Canonical (sorted int32 indices unless int64 is needed), rows and columns in reduced order.
+
+    Raises
+    ------
+    OverBudget
+        :func:`reduced_csr_bytes` is over :func:`~camplace.solver._support.memory.memory_budget_bytes`
+        (nothing is allocated).
+    """
+    from camplace.visibility.bits import BitMatrix
+
+    m, n = pre.shape
+    red = BitMatrix(pre.bits, m)
+    need, budget = reduced_csr_bytes(m, n, red.nnz, np.dtype(dtype).itemsize), memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, what)
+    csr = red.tocsr(dtype)
+    if np.dtype(dtype) == np.float64:
+        pre.__dict__["matrix"] = csr  # what BitPresolved.matrix would make: made once
+    return csr
+
+
+def reduced_pattern(pre: BitPresolved, what: str = "the presolved instance's column lists") -> tuple[np.ndarray, np.ndarray]:
+    """The CSC pattern of :func:`presolve_bits`'s reduced instance, read from its column bitsets
+    (the rows each column observes, ascending), checked against the memory budget first.
+
+    Parameters
+    ----------
+    pre : BitPresolved
+        (m', n') reduced instance.
+    what : str
+        Names the arrays in the over-budget message.
+
+    Returns
+    -------
+    indptr : (n' + 1,) int64
+    indices : (nnz',) int64
+        ``8 * (nnz' + n' + 1)`` bytes (and one column's m' bools at a time).
+
+    Raises
+    ------
+    OverBudget
+        Over :func:`~camplace.solver._support.memory.memory_budget_bytes` (nothing allocated).
+    """
+    from camplace.visibility.bits import BitMatrix, unpack_rows
+
+    m, n = pre.shape
+    counts = BitMatrix(pre.bits, m).column_counts
+    nnz = int(counts.sum())
+    need, budget = 8 * (nnz + n + 1) + m, memory_budget_bytes()
+    if need > budget:
+        raise OverBudget(need, budget, what)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    indices = np.empty(nnz, dtype=np.int64)
+    for j in range(n):
+        indices[indptr[j]:indptr[j + 1]] = np.flatnonzero(unpack_rows(pre.bits[j], m))
+    return indptr, indices
 
 
 def covered_weight(bits, weights: np.ndarray, selected) -> float:

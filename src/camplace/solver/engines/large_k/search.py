@@ -66,11 +66,12 @@ _RESIDUAL_MAX_COLS = 400  # the exact residual search: at most this many survivi
 _RESIDUAL_MAX_SETS = 10**8  # ... or at most this many subsets of them
 
 
-def large_k_bytes(m: int, n: int, nnz: int) -> int:
+def large_k_bytes(m: int, n: int, nnz: int, pattern: bool = False) -> int:
     """Working memory for an (m, n) instance with ``nnz`` entries: the input's float64 CSC copy
     (12 bytes an entry), 64-bit row indices and weighted values (16) and their temporaries (16),
-    and about a dozen row and column vectors."""
-    return 48 * int(nnz) + 8 * (n + 1) + 12 * 8 * (int(m) + int(n))
+    and about a dozen row and column vectors. With ``pattern`` (the caller's CSC pattern arrays,
+    :func:`run_large_k`): the weighted values alone (8 bytes an entry) and the vectors."""
+    return (8 if pattern else 48) * int(nnz) + 8 * (n + 1) + 12 * 8 * (int(m) + int(n))
 
 
 class _IteratedSearch:
@@ -106,6 +107,18 @@ class _Quality(_IteratedSearch):
         self.wq = np.maximum(qc.data, 0.0) * w[self.indices]
         self.total = float(self.row_max().sum())
         self.margin = _MARGIN * max(self.total, 1e-300)
+
+    @classmethod
+    def from_pattern(cls, pattern: tuple[np.ndarray, np.ndarray], m: int, weights: np.ndarray) -> "_Quality":
+        """The same object as ``_Quality(matrix of ones, weights)`` from the pattern's CSC arrays
+        (:func:`run_large_k`'s ``pattern``; kept, not copied): ``wq = w[indices]`` (8 bytes an entry)."""
+        self = cls.__new__(cls)
+        self.indptr, self.indices = pattern
+        self.m, self.n = int(m), self.indptr.size - 1
+        self.wq = np.asarray(weights, dtype=np.float64)[self.indices]
+        self.total = float(self.row_max().sum())
+        self.margin = _MARGIN * max(self.total, 1e-300)
+        return self
 
     def row_max(self) -> np.ndarray:
         """(m,) float64: each row's largest weighted value (0 if unobserved)."""
@@ -182,6 +195,18 @@ class _Views(_IteratedSearch):
         self.w = np.asarray(weights, dtype=np.float64)
         self.views = int(views)
         self.margin = _MARGIN * max(float(self.w.sum()), 1e-300)
+
+    @classmethod
+    def from_pattern(cls, pattern: tuple[np.ndarray, np.ndarray], m: int, weights: np.ndarray, views: int) -> "_Views":
+        """The same object as ``_Views(matrix, weights, views)`` from the pattern's CSC arrays
+        (:func:`run_large_k`'s ``pattern``; kept, not copied)."""
+        self = cls.__new__(cls)
+        self.indptr, self.indices = pattern
+        self.m, self.n = int(m), self.indptr.size - 1
+        self.w = np.asarray(weights, dtype=np.float64)
+        self.views = int(views)
+        self.margin = _MARGIN * max(float(self.w.sum()), 1e-300)
+        return self
 
     def counts(self, sel: list[int]) -> np.ndarray:
         with ctrl_c_deferred():
@@ -348,7 +373,8 @@ def _fixing(rho: np.ndarray, bound: float, k: int, best: float, margin: float) -
 
 
 def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: bool = False,
-                  deadline: Deadline | None = None, seed: int = 0) -> EngineOutcome:
+                  deadline: Deadline | None = None, seed: int = 0,
+                  pattern: tuple[np.ndarray, np.ndarray] | None = None) -> EngineOutcome:
     """Best ``k`` columns for ``sum_i w_i max_{j in S} Q_ij`` (``binary``: the 0/1 pattern, i.e.
     max coverage).
 
@@ -368,6 +394,10 @@ def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: b
         search has not improved for a while.
     seed : int
         Seed of the perturbations of the local search.
+    pattern : ((n + 1,) int64, (nnz,) int64), optional
+        With ``binary``: the CSC ``indptr`` and ``indices`` (sorted in each column) of ``matrix``'s
+        pattern, read instead of a float64 CSC copy of ``matrix`` (the same search, 16 bytes an
+        entry fewer).
 
     Returns
     -------
@@ -376,11 +406,15 @@ def solve_large_k(matrix: sp.spmatrix, weights: np.ndarray, k: int, *, binary: b
     """
     deadline = as_deadline(deadline)
     clock = stopwatch(deadline)
-    a = sp.csc_matrix(matrix, dtype=np.float64, copy=True)
-    if binary:
-        a.data = (a.data > 0).astype(np.float64)
-    a.eliminate_zeros()
-    qs = _Quality(a, weights)
+    if binary and pattern is not None:
+        qs = _Quality.from_pattern(pattern, matrix.shape[0], weights)
+    else:
+        a = sp.csc_matrix(matrix, dtype=np.float64, copy=True)
+        if binary:
+            a.data = (a.data > 0).astype(np.float64)
+        a.eliminate_zeros()
+        qs = _Quality(a, weights)
+        del a  # qs holds its own arrays
     m, n = qs.m, qs.n
     if not 1 <= k <= n:
         raise ValueError("k must be between 1 and the number of columns")
@@ -562,7 +596,8 @@ def _views_scip(pre: Any, views: int, k: int, start: tuple[int, ...],
 
 def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, views: int, engine: str,
                 deadline: Deadline, stats: dict[str, Any],
-                seed: int = 0) -> EngineOutcome | None:
+                seed: int = 0, pattern: tuple[np.ndarray, np.ndarray] | None = None,
+                presolved: Any = None) -> EngineOutcome | None:
     """The engines for ``4 < k <= LARGE_K_MAX`` behind :func:`camplace.solver.api.solve`.
 
     ``maxcover`` and ``quality``: :func:`solve_large_k` (under ``auto``, maxcover gets a tenth of
@@ -586,6 +621,19 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
         The solve's deadline (the shares above are of the time left at the call).
     stats : dict
         Filled with ``engine_stats`` (and ``memory_fallback`` when the engine is skipped).
+    seed : int
+        Seed of the local searches' perturbations.
+    pattern : ((n + 1,) int64, (nnz,) int64), optional
+        maxcover and multiview: the CSC ``indptr`` and ``indices`` (sorted in each column) of
+        ``resid``'s pattern, made by the caller (the bits route, from column bitsets): the local
+        searches read them instead of their own copies of ``resid`` (the same searches; their
+        memory is then the weighted values alone, :func:`large_k_bytes` with ``pattern``).
+    presolved : camplace.solver.problem.presolve.Presolved, optional
+        A presolve for ``k`` (multiview: without dominance) whose REDUCED instance is ``resid``
+        (rows and columns in its reduced order; the bits route's), given to the bitset engine and
+        SCIP instead of presolving ``resid``; their answers are then already ``resid``'s columns.
+        With ``pattern`` too, ``resid`` is read only for its ``shape`` and ``nnz`` (the bits route
+        passes the reduced :class:`~camplace.visibility.bits.BitMatrix`).
 
     Returns
     -------
@@ -600,30 +648,43 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
     from camplace.solver.engines.mip.linear import model_bytes
     from camplace.solver.problem.presolve import presolve
 
+    if presolved is None:  # resid's columns and those of its presolve
+        def to_resid(cols) -> tuple[int, ...]:
+            return tuple(int(j) for j in pre.original_columns(cols))
+
+        def from_resid(cols) -> tuple[int, ...] | None:
+            return pre.reduced_columns(cols)
+    else:  # the presolve's reduced instance is resid: the same columns
+        def to_resid(cols) -> tuple[int, ...]:
+            return tuple(sorted(int(j) for j in cols))
+
+        from_resid = to_resid
     # the steps' slices of the time left now
     views_dl = deadline.share(_VIEWS_SHARE)
     first_dl = deadline.within(_MAXCOVER_FIRST_S) if deadline.limit is None else deadline.share(_MAXCOVER_SHARE)
     m, n = resid.shape
     budget = memory_budget_bytes()
     if mode == "multiview":
-        pre = presolve(resid, resid_w, k, dominance=False)  # dominance is only valid for one view
-        need = bitset_bytes(pre.shape[0], pre.shape[1], min(views, k), k) + large_k_bytes(m, n, resid.nnz)
+        pre = presolve(resid, resid_w, k, dominance=False) if presolved is None else presolved  # (one view only)
+        need = bitset_bytes(pre.shape[0], pre.shape[1], min(views, k), k) + large_k_bytes(m, n, resid.nnz,
+                                                                                          pattern is not None)
         if need > budget:
             memory_fallback(OverBudget(need, budget, "the exact multiview engine"), stats, asked=engine == "exact",
                             then="falling back to the general model", fix="use engine mip, or fewer candidates / points")
             return None
-        vs = _Views(resid, resid_w, views)
+        vs = _Views(resid, resid_w, views) if pattern is None else _Views.from_pattern(pattern, m, resid_w, views)
         # a counted row uses `views` of the views the k chosen columns give: the k heaviest columns
         # / views caps the bound (the search's open tuples are not capped by their parents')
         with ctrl_c_deferred():
             cap = float(np.sort(LK.view_gains(vs.indptr, vs.indices, vs.w))[-k:].sum()) / views
         start, _, ls = views_incumbent(resid, resid_w, k, views, deadline=views_dl, seed=seed, prepared=vs)
         del vs
+        pre_nnz = int(pre.nnz) if hasattr(type(pre), "nnz") else int(pre.matrix.nnz)  # (bits: no CSR to count)
         scip_need = model_bytes("mip", pre.shape[0] + pre.shape[1], pre.shape[0] + 1,
-                                int(pre.matrix.nnz) + pre.shape[0] + pre.shape[1])
-        scip = engine == "auto" and scip_need <= budget and pre.matrix.nnz <= _VIEWS_SCIP_MAX_NNZ
+                                pre_nnz + pre.shape[0] + pre.shape[1])
+        scip = engine == "auto" and scip_need <= budget and pre_nnz <= _VIEWS_SCIP_MAX_NNZ
         search_dl = deadline.share(_VIEWS_SEARCH_SHARE) if scip else deadline  # SCIP gets the rest if the search does not finish
-        out = solve_bitset(pre, views=views, deadline=search_dl, start=pre.reduced_columns(start))
+        out = solve_bitset(pre, views=views, deadline=search_dl, start=from_resid(start))
         sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
         es = dict(out.stats, local_search=ls, column_cap=cap)
         if status != "optimal":
@@ -639,23 +700,25 @@ def run_large_k(resid: sp.csr_matrix, resid_w: np.ndarray, k: int, mode: str, vi
                 if got[1] == "optimal":
                     status = "optimal"
         stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "engine_stats": es})
-        return EngineOutcome(tuple(int(j) for j in pre.original_columns(sel)), status, bound, stats, engine=name)
-    need = large_k_bytes(m, n, resid.nnz)
+        return EngineOutcome(to_resid(sel), status, bound, stats, engine=name)
+    binary = mode == "maxcover"
+    need = large_k_bytes(m, n, resid.nnz, binary and pattern is not None)
     if need > budget:
         memory_fallback(OverBudget(need, budget, "the large-k engine"), stats, asked=engine == "exact",
                         then="falling back to the general model", fix="use engine mip, or fewer candidates / points")
         return None
     share = first_dl if mode == "maxcover" and engine == "auto" else deadline
-    out = solve_large_k(resid, resid_w, k, binary=mode == "maxcover", deadline=share, seed=seed)
+    out = solve_large_k(resid, resid_w, k, binary=binary, deadline=share, seed=seed,
+                        pattern=pattern if binary else None)
     stats["engine_stats"] = dict(out.stats)
     sel, status, bound, name = tuple(out.selected), out.status, float(out.bound), "exact"
     if status != "optimal" and mode == "maxcover" and engine == "auto" and not deadline.expired():
-        pre = presolve(resid, resid_w, k, deadline=deadline)
+        pre = presolve(resid, resid_w, k, deadline=deadline) if presolved is None else presolved
         used, mip = run_maxcover_engine("mip", engine, pre, deadline, stats)
         stats["engine_stats"]["then"] = dict(mip.stats, engine=used)
         if mip.selected and "model_build" not in mip.stats:  # (stopped while building: the greedy answer)
-            cand = tuple(int(j) for j in pre.original_columns(mip.selected))
-            vs = _Views(resid, resid_w, 1)
+            cand = to_resid(mip.selected)
+            vs = _Views(resid, resid_w, 1) if pattern is None else _Views.from_pattern(pattern, m, resid_w, 1)
             if vs.value(cand) > vs.value(sel) + vs.margin:
                 sel, name = cand, used
         bound = min(bound, float(mip.bound))

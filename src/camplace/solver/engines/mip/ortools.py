@@ -87,9 +87,14 @@ def maxcover_model_bytes(pre: Presolved, backend: str) -> int:
     """Estimated peak memory of the max-coverage model of ``pre`` (``backend`` "mip" or "cpsat"),
     from the sizes alone (the reduced matrix is not built): n + m variables, m + 1 rows and at most
     the source rows' entries plus m + n nonzeros."""
+    from camplace.solver.problem.presolve_bits import BitPresolved
+
     m, n = pre.shape
-    a, rows, _ = pre.source
-    nnz = int(np.diff(a.indptr)[rows].sum()) if rows.size else 0
+    if isinstance(pre, BitPresolved):  # counted on its bitsets: its CSR is made only for a model that fits
+        nnz = pre.nnz
+    else:
+        a, rows, _ = pre.source
+        nnz = int(np.diff(a.indptr)[rows].sum()) if rows.size else 0
     return model_bytes(backend, n + m, m + 1, nnz + m + n)
 
 
