@@ -637,6 +637,32 @@ def test_ball_refinement_bounds_every_choice_of_a_node_tuple(monkeypatch, seed, 
     assert tighter > 0
 
 
+@pytest.mark.parametrize("seed,scale", [(0, 64), (1, 1024), (2, 40_000), (3, 0)])
+def test_bisection_order_with_positions_equals_thermometer_codes(seed, scale) -> None:
+    """The angle engine's column order (bitsets plus the positions' grid levels, as an L1 term of
+    the distance) is the order of the plain bisection on the bitsets with the levels appended as
+    thermometer codes (runs of ones), made explicitly; ties (equal columns, poses of one
+    position) included."""
+    from camplace.solver._support import bitkernels as BK
+
+    dense, _, pos, _ = _aims_instance(150, 12, seed)
+    dense[:, 5] = dense[:, 6]  # two equal columns
+    q = sp.csr_matrix(dense)
+    bits = BK.build_bits(q.indptr, q.indices, q.data, np.arange(dense.shape[0], dtype=np.int64),
+                         np.arange(dense.shape[1], dtype=np.int64), dense.shape[1])
+    lo = pos.min(axis=0)
+    lev = np.floor((pos - lo) * (scale / float((pos.max(axis=0) - lo).max()))).astype(np.int64)
+    n_axis = (int(lev.max()) + 64) // 64
+    therm = np.arange(64 * n_axis)[None, :]
+    codes = [np.packbits(therm < lev[:, d : d + 1], axis=1, bitorder="little").view(np.uint64) for d in range(3)]
+    want = BK.bisection_order(np.ascontiguousarray(np.concatenate([bits, *codes], axis=1)))
+    got = BK.bisection_order_with(bits, np.ascontiguousarray(lev))
+    assert got.tolist() == want.tolist()
+    assert sorted(got.tolist()) == list(range(dense.shape[1]))
+    if scale == 0:
+        assert got.tolist() == BK.bisection_order(bits).tolist()
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_angle_engine_with_poses_at_one_position_equals_enumeration(seed) -> None:
     """Three poses per position along a path (the comet-flyby structure the balls are for)."""

@@ -423,6 +423,86 @@ def bisection_order(bits):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
+def bisection_order_with(bits, extra):  # pragma: no cover - compiled
+    """:func:`bisection_order` of the bitsets with integer coordinates ``extra`` (n, d) int64 (>= 0)
+    appended as thermometer codes, without making them: the Hamming distance of two columns grows
+    by the L1 distance of their coordinates and a column's size by their sum, so the order is the
+    one :func:`bisection_order` gives on the bitsets with those codes appended (a run of
+    ``extra[c, j]`` ones per coordinate), at no memory and O(d) a distance."""
+    n, n_words = bits.shape
+    n_extra = extra.shape[1]
+    perm = np.arange(n, dtype=np.int64)
+    size = column_sizes(bits)
+    for c in range(n):
+        for j in range(n_extra):
+            size[c] += extra[c, j]
+    stack_lo = np.empty(128, dtype=np.int64)
+    stack_hi = np.empty(128, dtype=np.int64)
+    stack_lo[0] = 0
+    stack_hi[0] = n
+    sp = 1
+    dist = np.empty(n, dtype=np.int64)
+    key = np.empty(n, dtype=np.int64)
+    while sp > 0:
+        sp -= 1
+        lo = stack_lo[sp]
+        hi = stack_hi[sp]
+        s = hi - lo
+        if s <= 2:
+            if s == 2 and size[perm[lo + 1]] > size[perm[lo]]:
+                t = perm[lo]
+                perm[lo] = perm[lo + 1]
+                perm[lo + 1] = t
+            continue
+        # pivot 0: the largest column; pivot 1: farthest from it; pivot 2: farthest from pivot 1
+        p0 = perm[lo]
+        for q in range(lo, hi):
+            if size[perm[q]] > size[p0]:
+                p0 = perm[q]
+        piv = p0
+        p2 = p0
+        for rep in range(2):
+            far = -1
+            fd = -1
+            for q in range(lo, hi):
+                c = perm[q]
+                d = 0
+                for wd in range(n_words):
+                    d += _popcount(bits[c, wd] ^ bits[piv, wd])
+                for j in range(n_extra):
+                    d += abs(extra[c, j] - extra[piv, j])
+                dist[q] = d
+                if d > fd:
+                    fd = d
+                    far = c
+            if rep == 0:
+                piv = far
+            else:
+                p2 = far
+        # key = d(c, p1) - d(c, p2): smaller is nearer p1 (dist holds d(c, p1) from the second pass)
+        for q in range(lo, hi):
+            c = perm[q]
+            d2 = 0
+            for wd in range(n_words):
+                d2 += _popcount(bits[c, wd] ^ bits[p2, wd])
+            for j in range(n_extra):
+                d2 += abs(extra[c, j] - extra[p2, j])
+            key[q] = dist[q] - d2
+        idx = np.argsort(key[lo:hi], kind="mergesort")
+        seg = perm[lo:hi].copy()
+        for q in range(s):
+            perm[lo + q] = seg[idx[q]]
+        mid = lo + s // 2
+        stack_lo[sp] = mid
+        stack_hi[sp] = hi
+        sp += 1
+        stack_lo[sp] = lo
+        stack_hi[sp] = mid
+        sp += 1
+    return perm
+
+
+@numba.njit(**_JIT)
 def tree_shape(n):  # pragma: no cover - compiled
     """Implicit bisection tree over ``n`` ordered columns, nodes numbered breadth-first.
 

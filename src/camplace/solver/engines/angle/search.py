@@ -106,9 +106,10 @@ _FRONTIER_MIN = 100_000  # ... but at least this many, or the engine does not ru
 _REFINE_MIN_CUT = 0.3  # cone refinement of a tuple level stays on while it removes this share of the margins ...
 _REFINE_TRIALS = 2000  # ... judged after this many tries ...
 _REFINE_SAMPLE = 32  # ... and tried on 1 in this many tuples of a level where it is off
-#: the bisection order also parts cameras by position (thermometer codes of this many bits over
-#: the widest span of the camera positions; 0: bitsets only)
-_POSITION_BITS = 1024
+#: the bisection order also parts cameras by position (the L1 distance of their positions on a
+#: grid of this many steps over the widest span is added to the bitsets' Hamming distance, as
+#: thermometer codes of this many bits would add it; 0: bitsets only)
+_POSITION_BITS = 4096
 _DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
 
 
@@ -116,8 +117,8 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     """Working memory of :func:`solve_angle` for ``rows`` countable rows and ``n_cols`` columns.
 
     The opposite-pairs layout can hold up to twice as many bit rows as countable rows; counted
-    here: the column bitsets and their ordered copy (and, while the order is made, a copy with
-    the positions' thermometer codes), ``min(views, k)`` level bitsets and an 8-byte
+    here: the column bitsets and their ordered copy (and, while the order is made, the positions'
+    grid levels), ``min(views, k)`` level bitsets and an 8-byte
     cone per tree node and 64-row block (and a float64 working copy per thread), the points of the
     layout, the pair matching's row bitsets, ``open_tuples`` open tuples of the search (which
     stops there, with a valid bound) and the incumbent's climb (:meth:`_Incumbent.climb`).
@@ -125,7 +126,7 @@ def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_t
     words = (2 * int(rows) + 127) // 64 + 2
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
     levels = max(1, min(int(views), int(k)))
-    bits = words * 8 * (2 * int(n_cols) + levels * nodes) + int(n_cols) * 3 * (_POSITION_BITS // 8 + 8) * 2
+    bits = words * 8 * (2 * int(n_cols) + levels * nodes) + int(n_cols) * 3 * 8 * 2
     cones = nodes * words * 8 + nodes * 32 * (1 + max(1, numba.config.NUMBA_NUM_THREADS)) + 32 * (int(n_cols) + int(n_fixed))
     points = words * 64 * 24 * 2
     match = opposite_pair_bytes(int(rows), int(n_cols) + int(n_fixed))
@@ -213,21 +214,18 @@ def _pairs_layout(match, wu_unit: float | None, seen: np.ndarray, pts: np.ndarra
     return _Layout(rows, w, pw)
 
 
-def _with_position_bits(bits: np.ndarray, xyz: np.ndarray) -> np.ndarray:
-    """The column bitsets (n, W) with the columns' positions (n, 3) appended as thermometer codes
-    (a run of ones as long as the coordinate, :data:`_POSITION_BITS` for the widest span), so that
-    the Hamming distance of the bisection order also parts cameras standing far apart: the tree's
-    nodes then hold cameras close together, whose balls are narrow (only the order changes; every
-    bound stays valid for any tree)."""
-    lo = xyz.min(axis=0)
-    span = float((xyz.max(axis=0) - lo).max())
+def _position_levels(xyz: np.ndarray) -> np.ndarray:
+    """(n, 3) int64: the columns' positions ``xyz`` (n, 3) on a grid of :data:`_POSITION_BITS`
+    steps over the widest span (0 .. _POSITION_BITS). The bisection order adds their L1 distance
+    to the Hamming distance of the bitsets (:func:`~camplace.solver._support.bitkernels.bisection_order_with`:
+    the bitsets with thermometer codes of these levels appended, without making them), so that it
+    also parts cameras standing far apart: the tree's nodes then hold cameras close together,
+    whose balls are narrow (only the order changes; every bound stays valid for any tree)."""
+    lo = xyz.min(axis=0) if xyz.shape[0] else np.zeros(3)
+    span = float((xyz.max(axis=0) - lo).max()) if xyz.shape[0] else 0.0
     if span <= 0:
-        return bits
-    lev = np.floor((xyz - lo) * (_POSITION_BITS / span)).astype(np.int64)  # 0 .. _POSITION_BITS
-    n_axis = (int(lev.max()) + 64) // 64  # words per axis
-    therm = np.arange(64 * n_axis)[None, :]
-    extra = [np.packbits(therm < lev[:, d : d + 1], axis=1, bitorder="little").view(np.uint64) for d in range(3)]
-    return np.ascontiguousarray(np.concatenate([bits, *extra], axis=1))
+        return np.zeros((xyz.shape[0], 3), dtype=np.int64)
+    return np.ascontiguousarray(np.floor((xyz - lo) * (_POSITION_BITS / span)).astype(np.int64))
 
 
 def _sphere_directions(p: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -534,7 +532,7 @@ class _Tree:
         bits = q.build_bits(rows, col_map, cols.size)
         lap("bits")
         with ctrl_c_deferred():
-            perm = K.bisection_order(_with_position_bits(bits, pos[cols]) if _POSITION_BITS else bits)
+            perm = K.bisection_order_with(bits, _position_levels(pos[cols]))
             lap("order")
             self.lo, self.hi, self.left, self.right, self.levels = K.build_tree(np.ascontiguousarray(bits[perm]),
                                                                                 min(views, k))
