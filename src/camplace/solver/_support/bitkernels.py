@@ -355,71 +355,9 @@ def bisection_order(bits):  # pragma: no cover - compiled
 
     A range of size s splits into its first s // 2 and last s - s // 2 positions (the tree of
     :func:`build_tree`); each split separates the columns nearer one far pivot from those nearer
-    another.
+    another (:func:`bisection_order_with` without coordinates).
     """
-    n, n_words = bits.shape
-    perm = np.arange(n, dtype=np.int64)
-    size = column_sizes(bits)
-    stack_lo = np.empty(128, dtype=np.int64)
-    stack_hi = np.empty(128, dtype=np.int64)
-    stack_lo[0] = 0
-    stack_hi[0] = n
-    sp = 1
-    dist = np.empty(n, dtype=np.int64)
-    key = np.empty(n, dtype=np.int64)
-    while sp > 0:
-        sp -= 1
-        lo = stack_lo[sp]
-        hi = stack_hi[sp]
-        s = hi - lo
-        if s <= 2:
-            if s == 2 and size[perm[lo + 1]] > size[perm[lo]]:
-                t = perm[lo]
-                perm[lo] = perm[lo + 1]
-                perm[lo + 1] = t
-            continue
-        # pivot 0: the largest column; pivot 1: farthest from it; pivot 2: farthest from pivot 1
-        p0 = perm[lo]
-        for q in range(lo, hi):
-            if size[perm[q]] > size[p0]:
-                p0 = perm[q]
-        piv = p0
-        for rep in range(2):
-            far = -1
-            fd = -1
-            for q in range(lo, hi):
-                c = perm[q]
-                d = 0
-                for wd in range(n_words):
-                    d += _popcount(bits[c, wd] ^ bits[piv, wd])
-                dist[q] = d
-                if d > fd:
-                    fd = d
-                    far = c
-            if rep == 0:
-                p1 = far
-                piv = p1
-            else:
-                p2 = far
-        # key = d(c, p1) - d(c, p2): smaller is nearer p1 (dist holds d(c, p1) from the second pass)
-        for q in range(lo, hi):
-            c = perm[q]
-            d2 = 0
-            for wd in range(n_words):
-                d2 += _popcount(bits[c, wd] ^ bits[p2, wd])
-            key[q] = dist[q] - d2
-        idx = np.argsort(key[lo:hi], kind="mergesort")
-        seg = perm[lo:hi].copy()
-        for q in range(s):
-            perm[lo + q] = seg[idx[q]]
-        mid = lo + s // 2
-        stack_lo[sp] = mid
-        stack_hi[sp] = hi
-        sp += 1
-        stack_lo[sp] = lo
-        stack_hi[sp] = mid
-        sp += 1
-    return perm
+    return bisection_order_with(bits, np.zeros((bits.shape[0], 0), dtype=np.int64))
 
 
 @numba.njit(**_JIT)

@@ -111,29 +111,34 @@ def subset_marks(bits, size, ptr, idx, other_ptr, other_idx, key, mark_superset)
                 best_cnt = c
                 best_e = e
         for q in range(other_ptr[best_e], other_ptr[best_e + 1]):
-            b = other_idx[q]
-            if b == a or size[b] < size[a]:
-                continue
-            if mark_superset:
-                if out[b] or (size[b] == size[a] and b < a):
-                    continue
-            else:
-                if key[b] > key[a]:
-                    continue
-                if key[b] == key[a] and size[b] == size[a] and b > a:
-                    continue
-            ok = True
-            for wd in range(n_words):
-                if bits[a, wd] & ~bits[b, wd]:
-                    ok = False
-                    break
-            if ok:
-                if mark_superset:
-                    out[b] = True
-                else:
-                    out[a] = True
-                    break
+            if _mark_pair(a, other_idx[q], bits, size, key, mark_superset, out):
+                break
     return out
+
+
+@numba.njit(**_JIT)
+def _mark_pair(a, b, bits, size, key, mark_superset, out):  # pragma: no cover - compiled
+    """One candidate ``b`` of item ``a`` in :func:`subset_marks` / :func:`subset_marks_bits`: mark
+    ``b`` (a superset of ``a``, rows) or ``a`` (a subset of ``b`` at no lower key, columns) under
+    the relations' tie rules; True when ``a`` is marked (its scan ends)."""
+    if b == a or size[b] < size[a]:
+        return False
+    if mark_superset:
+        if out[b] or (size[b] == size[a] and b < a):
+            return False
+    else:
+        if key[b] > key[a]:
+            return False
+        if key[b] == key[a] and size[b] == size[a] and b > a:
+            return False
+    for wd in range(bits.shape[1]):
+        if bits[a, wd] & ~bits[b, wd]:
+            return False
+    if mark_superset:
+        out[b] = True
+        return False
+    out[a] = True
+    return True
 
 
 @numba.njit(**_JIT)
@@ -262,28 +267,9 @@ def subset_marks_bits(bits, size, ebits, ecount, key, mark_superset):  # pragma:
             while y:
                 b = (np.int64(wq) << 6) + np.int64(_ctz(y))
                 y &= y - np.uint64(1)
-                if b == a or size[b] < size[a]:
-                    continue
-                if mark_superset:
-                    if out[b] or (size[b] == size[a] and b < a):
-                        continue
-                else:
-                    if key[b] > key[a]:
-                        continue
-                    if key[b] == key[a] and size[b] == size[a] and b > a:
-                        continue
-                ok = True
-                for wd in range(n_words):
-                    if bits[a, wd] & ~bits[b, wd]:
-                        ok = False
-                        break
-                if ok:
-                    if mark_superset:
-                        out[b] = True
-                    else:
-                        out[a] = True
-                        done = True
-                        break
+                if _mark_pair(a, b, bits, size, key, mark_superset, out):
+                    done = True
+                    break
             if done:
                 break
     return out
