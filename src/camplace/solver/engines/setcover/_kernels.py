@@ -142,6 +142,18 @@ def _mark_pair(a, b, bits, size, key, mark_superset, out):  # pragma: no cover -
 
 
 @numba.njit(**_JIT)
+def _take_cheaper(i, j, c, c1, j1, c2):  # pragma: no cover - compiled
+    """Row ``i``'s cheapest (``c1``, its column ``j1``, the lowest index among equal costs) and
+    second cheapest (``c2``) alive column so far, given column ``j`` of cost ``c``."""
+    if c < c1[i] or (c == c1[i] and j < j1[i]):
+        c2[i] = c1[i]
+        c1[i] = c
+        j1[i] = j
+    elif c < c2[i]:
+        c2[i] = c
+
+
+@numba.njit(**_JIT)
 def cheaper_cover_marks(cptr, crow, rptr, rcol, cost, alive):  # pragma: no cover - compiled
     """Columns costing strictly more than covering each of their rows by its cheapest other column.
 
@@ -161,15 +173,8 @@ def cheaper_cover_marks(cptr, crow, rptr, rcol, cost, alive):  # pragma: no cove
     for i in range(m):
         for p in range(rptr[i], rptr[i + 1]):
             j = rcol[p]
-            if not alive[j]:
-                continue
-            c = cost[j]
-            if c < c1[i] or (c == c1[i] and j < j1[i]):
-                c2[i] = c1[i]
-                c1[i] = c
-                j1[i] = j
-            elif c < c2[i]:
-                c2[i] = c
+            if alive[j]:
+                _take_cheaper(i, j, cost[j], c1, j1, c2)
     out = np.zeros(n, dtype=np.bool_)
     for j in range(n):
         if not alive[j]:
@@ -295,15 +300,8 @@ def cheaper_cover_marks_bits(cbits, rbits, cost, alive):  # pragma: no cover - c
             while x:
                 j = (np.int64(wd) << 6) + np.int64(_ctz(x))
                 x &= x - np.uint64(1)
-                if not alive[j]:
-                    continue
-                c = cost[j]
-                if c < c1[i] or (c == c1[i] and j < j1[i]):
-                    c2[i] = c1[i]
-                    c1[i] = c
-                    j1[i] = j
-                elif c < c2[i]:
-                    c2[i] = c
+                if alive[j]:
+                    _take_cheaper(i, j, cost[j], c1, j1, c2)
     out = np.zeros(n, dtype=np.bool_)
     for j in range(n):
         if not alive[j]:
