@@ -87,11 +87,19 @@ def small_instances(
 
 
 # ---- oracles for camplace.solver.api (independent of the solver code) -------------------------
+#
+# ``*_by_definition`` are the definitions, point by point and set by set in plain Python; the names
+# the tests import (``mode_objective``, ``brute_force_mode``, ``brute_force_setcover``) compute the
+# same numbers with numpy over every row and many sets at once, bit for bit: each row's term as the
+# definition forms it, the rows added in order (``np.cumsum`` adds left to right, like the loop),
+# and every minimum angle or distance that a vectorised rounding could put on the other side of
+# the threshold decided by the definition's own scalar expression. tests/solver/test_oracle.py
+# checks the two against each other.
 
 
-def mode_objective(dense: np.ndarray, w: np.ndarray, cols: tuple[int, ...], mode: str, views: int = 2,
-                   min_angle_deg: float | None = None, pos: np.ndarray | None = None,
-                   pts: np.ndarray | None = None) -> float:
+def mode_objective_by_definition(dense: np.ndarray, w: np.ndarray, cols: tuple[int, ...], mode: str, views: int = 2,
+                                 min_angle_deg: float | None = None, pos: np.ndarray | None = None,
+                                 pts: np.ndarray | None = None) -> float:
     """Objective of camera set ``cols`` computed point by point from the definitions."""
     total = 0.0
     for i in range(dense.shape[0]):
@@ -123,8 +131,8 @@ def spaced(cols: tuple[int, ...], pos: np.ndarray | None, dmin: float | None) ->
     return all(np.linalg.norm(pos[a] - pos[b]) >= dmin for a, b in itertools.combinations(cols, 2))
 
 
-def brute_force_mode(dense, w, k, mode, *, views=2, min_angle_deg=None, pos=None, pts=None, fixed=(), forbidden=(),
-                     dmin=None) -> float | None:
+def brute_force_mode_by_definition(dense, w, k, mode, *, views=2, min_angle_deg=None, pos=None, pts=None, fixed=(),
+                                   forbidden=(), dmin=None) -> float | None:
     """Best objective over every set of ``k`` new cameras (fixed kept, forbidden avoided); None if none is feasible."""
     n = dense.shape[1]
     free = [j for j in range(n) if j not in fixed and j not in forbidden]
@@ -133,8 +141,123 @@ def brute_force_mode(dense, w, k, mode, *, views=2, min_angle_deg=None, pos=None
         cols = tuple(sorted(set(fixed) | set(new)))
         if not spaced(cols, pos, dmin):
             continue
-        v = mode_objective(dense, w, cols, mode, views, min_angle_deg, pos, pts)
+        v = mode_objective_by_definition(dense, w, cols, mode, views, min_angle_deg, pos, pts)
         best = v if best is None or v > best else best
+    return best
+
+
+def _angle_ok(pos: np.ndarray, pts: np.ndarray, min_angle_deg: float) -> np.ndarray:
+    """(m, n, n) bool: the angle at point i between cameras a and b is at least ``min_angle_deg``
+    (the definition's expression; near the threshold, the definition's own scalar call)."""
+    pos, pts = np.asarray(pos), np.asarray(pts)
+    u = pos[None, :, :] - pts[:, None, :]  # (m, n, 3): point i to camera a
+    cr = np.cross(u[:, :, None, :], u[:, None, :, :])  # (m, n, n, 3)
+    dt = np.einsum("iak,ibk->iab", u, u)
+    ang = np.degrees(np.arctan2(np.sqrt(np.einsum("iabk,iabk->iab", cr, cr)), dt))
+    ok = ang >= min_angle_deg
+    for i, a, b in zip(*np.nonzero(np.abs(ang - min_angle_deg) <= 1e-6 * max(1.0, abs(min_angle_deg))), strict=True):
+        uu, vv = pos[a] - pts[i], pos[b] - pts[i]
+        ok[i, a, b] = np.degrees(np.arctan2(np.linalg.norm(np.cross(uu, vv)), np.dot(uu, vv))) >= min_angle_deg
+    return ok
+
+
+def _row_sums(terms: np.ndarray) -> np.ndarray:
+    """Column sums of (m, b) ``terms`` added row after row (the loop's order, so the same bits)."""
+    terms = np.asarray(terms)
+    if terms.dtype.kind in "biu":  # the loop's 0.0 + an integer weight is a float64
+        terms = terms.astype(np.float64)
+    if terms.shape[0] == 0:
+        return np.zeros(terms.shape[1:])
+    return np.cumsum(terms, axis=0)[-1]
+
+
+class _Sets:
+    """The objective of many camera sets at once (rows of ``cols``, (b, L) int), by the definitions."""
+
+    def __init__(self, dense, w, mode, views=2, min_angle_deg=None, pos=None, pts=None, use=()) -> None:
+        d = dense.toarray() if sp.issparse(dense) else np.asarray(dense)
+        self.seen = d > 0
+        self.q = np.where(self.seen, d, 0) if mode == "quality" else None
+        self.w = np.asarray(w)
+        self.mode, self.views = mode, views
+        self.angle = None
+        if mode not in ("maxcover", "setcover", "quality") and min_angle_deg is not None:
+            use = np.unique(np.asarray(list(use), dtype=np.int64))  # the columns the sets draw from
+            self.slot = np.full(d.shape[1], -1, dtype=np.int64)
+            self.slot[use] = np.arange(use.size)
+            self.angle = _angle_ok(np.asarray(pos)[use], pts, min_angle_deg)
+
+    def values(self, cols: np.ndarray) -> np.ndarray:
+        m = self.seen.shape[0]
+        b, L = cols.shape
+        seen = self.seen[:, cols]  # (m, b, L)
+        w = self.w[:, None]
+        if self.mode in ("maxcover", "setcover"):
+            return _row_sums(np.where(seen.any(axis=2), w, 0.0))
+        if self.mode == "quality":
+            q = self.q[:, cols].max(axis=2) if L else np.zeros((m, b), dtype=self.q.dtype)
+            return _row_sums(w * q)
+        ok = seen.sum(axis=2) >= self.views
+        if self.angle is not None:
+            pair = np.zeros((m, b), dtype=bool)
+            for s, t in itertools.combinations(range(L), 2):
+                pair |= seen[:, :, s] & seen[:, :, t] & self.angle[:, self.slot[cols[:, s]], self.slot[cols[:, t]]]
+            ok &= pair
+        return _row_sums(np.where(ok, w, 0.0))
+
+
+def _spaced_sets(cols: np.ndarray, pos, dmin) -> np.ndarray:
+    """(b,) bool: :func:`spaced` of every row of ``cols`` (the distances by its own expression)."""
+    keep = np.ones(cols.shape[0], dtype=bool)
+    if dmin is None:
+        return keep
+    pos = np.asarray(pos)
+    n = pos.shape[0]
+    far = np.ones((n, n), dtype=bool)
+    for a, b in itertools.combinations(np.unique(cols).tolist(), 2):
+        far[a, b] = far[b, a] = np.linalg.norm(pos[a] - pos[b]) >= dmin
+    for s, t in itertools.combinations(range(cols.shape[1]), 2):
+        keep &= far[cols[:, s], cols[:, t]]
+    return keep
+
+
+def _combos(free: list[int], r: int, fixed) -> np.ndarray:
+    """Every set of ``r`` new cameras from ``free`` with the fixed ones, (b, len(fixed) + r) int."""
+    if r == 0:
+        new = np.zeros((1, 0), dtype=np.int64)  # the one empty set
+    else:
+        new = np.array(list(itertools.combinations(free, r)), dtype=np.int64).reshape(-1, r)
+    fix = np.array(sorted(set(fixed)), dtype=np.int64)
+    return np.hstack([np.broadcast_to(fix, (new.shape[0], fix.size)), new])
+
+
+_BLOCK = 2048
+
+
+def mode_objective(dense: np.ndarray, w: np.ndarray, cols: tuple[int, ...], mode: str, views: int = 2,
+                   min_angle_deg: float | None = None, pos: np.ndarray | None = None,
+                   pts: np.ndarray | None = None) -> float:
+    """Objective of camera set ``cols`` (:func:`mode_objective_by_definition`, the same bits)."""
+    cols = np.asarray(list(cols), dtype=np.int64).reshape(1, -1)
+    sets = _Sets(dense, w, mode, views, min_angle_deg, pos, pts, use=cols.ravel())
+    return float(sets.values(cols)[0])
+
+
+def brute_force_mode(dense, w, k, mode, *, views=2, min_angle_deg=None, pos=None, pts=None, fixed=(), forbidden=(),
+                     dmin=None) -> float | None:
+    """Best objective over every set of ``k`` new cameras (fixed kept, forbidden avoided); None if none is feasible.
+    (:func:`brute_force_mode_by_definition`, the same bits.)"""
+    n = dense.shape[1]
+    free = [j for j in range(n) if j not in fixed and j not in forbidden]
+    sets = _Sets(dense, w, mode, views, min_angle_deg, pos, pts, use=[*free, *fixed])
+    cols = _combos(free, k, fixed)
+    best = None
+    for c0 in range(0, cols.shape[0], _BLOCK):
+        block = cols[c0 : c0 + _BLOCK]
+        block = block[_spaced_sets(block, pos, dmin)]
+        if block.shape[0]:
+            v = float(sets.values(block).max())
+            best = v if best is None or v > best else best
     return best
 
 
@@ -143,7 +266,7 @@ def usable(n, fixed, forbidden, pos=None, dmin=None) -> list[int]:
     return [j for j in range(n) if j not in forbidden and (j in fixed or all(spaced((j, f), pos, dmin) for f in fixed))]
 
 
-def brute_force_setcover(dense, w, costs, fraction=1.0, *, fixed=(), forbidden=(), pos=None, dmin=None):
+def brute_force_setcover_by_definition(dense, w, costs, fraction=1.0, *, fixed=(), forbidden=(), pos=None, dmin=None):
     """Cheapest set of new cameras covering ``fraction`` of the coverable positive weight; None if infeasible."""
     n = dense.shape[1]
     allowed = usable(n, fixed, forbidden, pos, dmin)
@@ -156,10 +279,39 @@ def brute_force_setcover(dense, w, costs, fraction=1.0, *, fixed=(), forbidden=(
             cols = tuple(sorted(set(fixed) | set(new)))
             if not spaced(cols, pos, dmin):
                 continue
-            got = mode_objective(dense, w, cols, "maxcover")
+            got = mode_objective_by_definition(dense, w, cols, "maxcover")
             if got >= target - 1e-9 * max(1.0, target):
                 c = float(sum(costs[j] for j in new))
                 best = c if best is None or c < best else best
+    return best
+
+
+def brute_force_setcover(dense, w, costs, fraction=1.0, *, fixed=(), forbidden=(), pos=None, dmin=None):
+    """Cheapest set of new cameras covering ``fraction`` of the coverable positive weight; None if infeasible.
+    (:func:`brute_force_setcover_by_definition`, the same bits.)"""
+    n = dense.shape[1]
+    allowed = usable(n, fixed, forbidden, pos, dmin)
+    cover = (dense[:, allowed] > 0).any(axis=1) & (w > 0)
+    target = fraction * float(w[cover].sum())
+    free = [j for j in allowed if j not in fixed]
+    sets = _Sets(dense, w, "maxcover")
+    nfix = len(set(fixed))
+    best = None
+    for r in range(len(free) + 1):
+        cols = _combos(free, r, fixed)
+        for c0 in range(0, cols.shape[0], _BLOCK):
+            block = cols[c0 : c0 + _BLOCK]
+            block = block[_spaced_sets(block, pos, dmin)]
+            if not block.shape[0]:
+                continue
+            got = sets.values(block)
+            block = block[got >= target - 1e-9 * max(1.0, target)]
+            if not block.shape[0]:
+                continue
+            new = block[:, nfix:]
+            c = np.cumsum(np.asarray(costs)[new], axis=1)[:, -1] if r else np.zeros(block.shape[0])
+            v = float(c.min())
+            best = v if best is None or v < best else best
     return best
 
 

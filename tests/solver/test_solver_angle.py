@@ -56,8 +56,9 @@ def _enumerate(dense, w, pos, pts, k, views, angle_deg, fixed=(), forbidden=()) 
     return float(vals.max()), vals
 
 
-def _value(dense, w, pos, pts, cols, views, angle_deg) -> float:
-    good = _pair_ok(dense, pos, pts, angle_deg)
+def _value(dense, w, pos, pts, cols, views, angle_deg, good=None) -> float:
+    """The value of camera set ``cols``; ``good``: ``_pair_ok(dense, pos, pts, angle_deg)`` when the caller has it."""
+    good = _pair_ok(dense, pos, pts, angle_deg) if good is None else good
     cols = list(cols)
     cnt = (dense[:, cols] > 0).sum(axis=1)
     return float(w[(cnt >= views) & good[:, cols][:, :, cols].any(axis=(1, 2))].sum())
@@ -617,6 +618,7 @@ def test_ball_refinement_bounds_every_choice_of_a_node_tuple(monkeypatch, seed, 
     brow = np.array([where.get(tuple(tree.pts[b]), -1) if lw[b] > 0 else -1 for b in range(lw.size)])
     assert (brow[lw > 0] >= 0).all()
     n_nodes = tree.lo.shape[0]
+    obs_b, good_b = obs[brow], good[brow]  # the bit rows' observations and pairs, once
     tighter = 0
     for nodes in itertools.combinations_with_replacement(range(n_nodes), 3):
         members = [tree.cols_ord[tree.lo[v]:tree.hi[v]] for v in nodes]
@@ -625,7 +627,7 @@ def test_ball_refinement_bounds_every_choice_of_a_node_tuple(monkeypatch, seed, 
             if len(set(choice)) < 3:
                 continue
             cols = list(choice) + list(fixed)
-            ok = (obs[brow][:, cols].sum(axis=1) >= 2) & good[brow][:, cols][:, :, cols].any(axis=(1, 2))
+            ok = (obs_b[:, cols].sum(axis=1) >= 2) & good_b[:, cols][:, :, cols].any(axis=(1, 2))
             best = max(best, float(lw[ok & (lw > 0)].sum()))
         if best == -np.inf:
             continue
@@ -719,7 +721,8 @@ def test_set_values_equal_the_oracle(seed, views, n_fixed) -> None:
     full = np.concatenate([sets, np.tile(fixed, (sets.shape[0], 1))], axis=1).astype(np.int64)
     got = AK.set_values(ptr, rows, full, w[search], np.ascontiguousarray(pos[cols]), np.ascontiguousarray(pts[search]),
                         views, 20.0, 3)
-    want = [_value(dense, w, pos, pts, cols[s], views, 20.0) for s in full]
+    good = _pair_ok(dense, pos, pts, 20.0)  # the oracle's pairs, once for the 40 sets
+    want = [_value(dense, w, pos, pts, cols[s], views, 20.0, good) for s in full]
     assert got == pytest.approx(want, rel=1e-12, abs=1e-12)
     assert max(want) > 0
 
@@ -759,13 +762,14 @@ def test_climb_ends_at_a_local_optimum_of_its_moves(monkeypatch, seed, views, fi
     near = [inc._near(c, free, pos[free], ae._move_list_size(3)) for c in sel]
     # itself, the 5 others of the 6 nearest, every 2nd of the next 12
     assert all(x[0] == c and x.size == len(set(x.tolist())) == 12 for x, c in zip(near, sel, strict=True))
+    good = _pair_ok(dense, pos, pts, 20.0)  # the oracle's pairs, once for the whole neighbourhood
     for p, qq in itertools.combinations(range(3), 2):
         for a in near[p]:
             for b in near[qq]:
                 s = list(sel)
                 s[p], s[qq] = int(a), int(b)
                 if len(set(s)) == 3:
-                    assert _value(dense, w, pos, pts, list(fixed) + s, views, 20.0) <= value + 1e-12
+                    assert _value(dense, w, pos, pts, list(fixed) + s, views, 20.0, good) <= value + 1e-12
 
 
 def test_climb_improves_a_poor_start() -> None:
