@@ -68,3 +68,18 @@ def test_solve_verb_errors(tmp_path) -> None:
         _run(["solve", str(tmp_path / "missing.npz"), "--k", "2", "-o", str(tmp_path / "s.json")])
     with pytest.raises(CamplaceError):
         _run(["solve", str(tmp_path), "-o", str(tmp_path / "s.json")])
+
+
+def test_solve_keeps_to_the_runs_time_limit_unless_given(tmp_path) -> None:
+    """On a run folder, ``solve`` without ``--time-limit`` keeps to the run's (solution.json's
+    options), as ``camplace run`` did; ``--time-limit`` overrides it; a folder without a
+    solution.json has none."""
+    _folder(tmp_path, np.random.default_rng(3))
+    out = tmp_path / "sol.json"
+    assert _run(["solve", str(tmp_path), "--k", "2", "-o", str(out)]) == 0
+    assert json.loads(out.read_text())["options"]["time_limit_s"] is None
+    (tmp_path / "solution.json").write_text(json.dumps({"options": {"k": 2, "time_limit_s": 7.5}, "event_mode": "all"}))
+    assert _run(["solve", str(tmp_path), "-o", str(out)]) == 0
+    assert json.loads(out.read_text())["options"]["time_limit_s"] == 7.5
+    assert _run(["solve", str(tmp_path), "--time-limit", "3", "-o", str(out)]) == 0
+    assert json.loads(out.read_text())["options"]["time_limit_s"] == 3.0

@@ -85,6 +85,8 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     if k is None:
         raise CamplaceError(f"--k: required (no solution.json in {folder} to take it from)")
     event_mode = args.event_mode or run.get("event_mode", "all")
+    if args.time_limit is None:
+        args.time_limit = run.get("time_limit_s")
     cands, matrix, pts = run_folder.candidates, _nominal_matrix(run_folder), run_folder.points
     weights = run_folder.weights(event_mode)
     seed = _run_seed(folder, instance.defaults.seed)

@@ -113,7 +113,9 @@ def solve_out(args: argparse.Namespace) -> Path:
 
 
 def run_defaults(source: Path) -> dict[str, Any]:
-    """``k`` (new cameras) and ``event_mode`` of the run whose folder holds the matrix, if any."""
+    """``k`` (new cameras), ``event_mode`` and ``time_limit_s`` (seconds; None: none) of the run
+    whose folder holds the matrix, if any: ``camplace solve`` takes them where not given, so a
+    re-solve keeps to the run's time limit as ``camplace run`` did."""
     from camplace.runfolder import SOLUTION_NAME, RunFolder
 
     run = RunFolder(source)
@@ -124,7 +126,9 @@ def run_defaults(source: Path) -> dict[str, Any]:
     k = opts.get("k")
     if k is None and sol.get("mode") != "setcover" and isinstance(sol.get("cameras"), list):
         k = len(sol["cameras"]) - len(opts.get("fixed") or [])
-    return {"k": k, "event_mode": sol.get("event_mode", "all"), "peak_frame": sol.get("peak_frame")}
+    limit = opts.get("time_limit_s")
+    return {"k": k, "event_mode": sol.get("event_mode", "all"), "peak_frame": sol.get("peak_frame"),
+            "time_limit_s": float(limit) if isinstance(limit, (int, float)) and limit > 0 else None}
 
 
 def _peak_weights(source: Path, weights: Any, peak: int | None) -> Any:
@@ -184,6 +188,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise CamplaceError(f"--k: required for mode {args.mode} (no solution.json beside the matrix to take it from)")
     if args.event_mode is None:
         args.event_mode = run.get("event_mode", "all")
+    if args.time_limit is None:
+        args.time_limit = run.get("time_limit_s")
     if args.event_mode == "peak":
         weights = _peak_weights(args.source, weights, run.get("peak_frame"))
     opts = options_from_args(args)

@@ -205,7 +205,8 @@ def add_solver_options(p: argparse.ArgumentParser, *, k_default: str, memory_bud
     p.add_argument("--required-fraction", type=float, default=1.0, dest="required_fraction",
                    help="setcover: share of the coverable weight to observe (default 1)")
     p.add_argument("--engine", choices=ENGINES, default="auto", help="solver engine (default auto)")
-    p.add_argument("--time-limit", type=float, default=None, dest="time_limit", help="solver time limit, seconds")
+    p.add_argument("--time-limit", type=float, default=None, dest="time_limit",
+                   help="solver time limit, seconds (default: run: the instance's; solve: the run's, from its solution.json)")
     p.add_argument("--fixed", default="", help="candidate columns kept as existing cameras, e.g. 3,17 (k new ones are added)")
     p.add_argument("--forbidden", default="", help="candidate columns never chosen, e.g. 5,6")
     p.add_argument("--min-distance", type=float, default=None, dest="min_distance",
