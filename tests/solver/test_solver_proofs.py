@@ -12,6 +12,7 @@ import scipy.sparse as sp
 from camplace.solver import routes
 from camplace.solver._support.deadline import Deadline
 from camplace.solver.api import solve
+from camplace.solver.options import SolveOptions
 
 LIMIT_S = 1.5
 SLACK_S = 1.0  # the "small constant": the checks before the clock starts, the result's stats
@@ -225,3 +226,26 @@ def test_angle_warm_start_from_spread_positions_is_never_worse(monkeypatch) -> N
     assert got.objective == pytest.approx(mode_objective(dense, w, tuple(got.selected), "multiview", 2, 20.0, pos, pts),
                                           abs=1e-12)
     assert got.bound >= got.objective
+
+
+def test_a_model_that_gives_no_bound_proves_nothing(monkeypatch) -> None:
+    """SCIP stopped before its root LP ended (its process killed at the limit) gives no values and
+    no bound: the answer is the greedy hint, ``feasible``, with the cheap bound (valid: at least the
+    enumerated optimum), never ``optimal`` (an infinite bound once passed the optimality test)."""
+    from camplace.solver.result import EngineOutcome
+    from tests.solver._oracle import brute_force_mode
+
+    rng = np.random.default_rng(4)
+    dense = (rng.random((60, 14)) < 0.3).astype(float)
+    w = rng.uniform(0.1, 1.0, 60)
+    pos = rng.normal(size=(14, 3)) * 2
+
+    def stopped(model, backend, deadline=None, hint=None):
+        return EngineOutcome(None, "unknown", np.inf, {"stopped": "killed at the limit"}, engine="mip", values=None)
+
+    monkeypatch.setattr(routes, "solve_model", stopped)
+    res = solve(sp.csr_matrix(dense), w, positions=pos, options=SolveOptions(mode="maxcover", k=3, min_distance_m=0.5,
+                                                                            engine="mip"))
+    best = brute_force_mode(dense, w, 3, "maxcover", pos=pos, dmin=0.5)
+    assert res.status == "feasible" and res.gap > 0
+    assert np.isfinite(res.bound) and res.bound >= best - 1e-9 and res.objective <= best + 1e-9

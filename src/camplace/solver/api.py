@@ -662,7 +662,8 @@ def _result(ctx: EngineOutcome, o: SolveOptions, w: np.ndarray, fixed_t: tuple[i
         bound = max(bound, objective)
         gap = relative_gap(bound, objective)
     scale = 1.0 if minimize else float(w.sum())
-    if selected is not None and status == "feasible" and abs(bound - objective) <= _OPT_TOL * max(abs(bound), scale):
+    if (selected is not None and status == "feasible" and math.isfinite(bound)
+            and abs(bound - objective) <= _OPT_TOL * max(abs(bound), scale)):  # (no bound proves nothing)
         status, bound, gap = "optimal", objective, 0.0
     if selected is None and o.team is not None:  # no team meets the constraints (or none found in time)
         objective, gap = math.nan, math.inf

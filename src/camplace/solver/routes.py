@@ -333,7 +333,11 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
                 status = "feasible"
     if sel is None:
         return EngineOutcome(None, status, math.inf, stats, engine=name, objective=p.fixed_value)
-    bound = out.bound * wmax + const if math.isfinite(out.bound) else math.inf
+    if math.isfinite(out.bound):
+        bound = out.bound * wmax + const
+    else:  # no bound from the model (e.g. SCIP stopped before its root LP ended): the cheap one
+        bound = cheap_bound(q, p.qf, w, p.base, k, mode, views)
+        stats["bound_from"] = "cheap bound (the model gave none)"
     return EngineOutcome(sel, status, bound, stats, engine=name, objective=objective)
 
 
