@@ -19,6 +19,7 @@ from camplace.robust.p10 import order_p10, scenario_values
 from camplace.sampling import CandidateSet
 from camplace.sampling.perturb import IN_SAMPLE_STREAM, OUT_OF_SAMPLE_STREAM, perturb_poses
 from camplace.solver.options import SolveOptions
+from camplace.solver.result import relative_gap
 
 __all__ = [
     "ROBUST_MODES", "make_spec", "spec_record", "stack_scenarios", "scenario_matrix", "solve_robust",
@@ -358,7 +359,7 @@ def _at_least_the_incumbents(mean, stacked: Any, weights: np.ndarray, s_count: i
         return mean
     status = "feasible" if mean.status in ("optimal", "feasible", "unknown") else mean.status
     bound = max(float(mean.bound), best_value)
-    gap = (bound - best_value) / max(abs(bound), 1e-12)
+    gap = relative_gap(bound, best_value)  # (inf without a finite bound, not nan)
     stats = {**mean.stats, "kept_incumbent": {"selected": list(best), "mean": best_value,
                                               "solve_objective": float(mean.objective)}}
     log.info("robust: the mean solve stopped at %.6f, below a starting system's %.6f: keeping that one",
