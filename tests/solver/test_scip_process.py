@@ -97,3 +97,26 @@ def test_ctrl_c_in_the_child_stops_the_run(monkeypatch) -> None:
     monkeypatch.setattr(scip_process, "CHILD_ARGS", ("-c", "import os, signal; os.kill(os.getpid(), signal.SIGINT)"))
     with pytest.raises(KeyboardInterrupt):
         scip_process.solve_in_child(b"", time.time() + 5.0, [], [], 1e-9, 0.0)
+
+
+def test_scip_keeps_to_the_memory_budget(monkeypatch) -> None:
+    """SCIP gets ``limits/memory`` from the memory budget (its tree grows with the time it is
+    given): the value follows ``--memory-budget-gb``, SCIP takes the parameter, the child process
+    receives it, and a model still solves to the enumerated optimum under it."""
+    from camplace.solver._support.memory import memory_budget
+    from ortools.linear_solver import pywraplp
+
+    with memory_budget(300 * 2**20):
+        assert 64 <= linear.scip_memory_mb() <= 300
+    assert scip_process.limit_scip_memory(pywraplp.Solver.CreateSolver("SCIP"), 300)
+    echo = ("import pickle, sys; raw = sys.stdin.buffer.read(); n = int.from_bytes(raw[:8], 'little'); "
+            "sys.stdout.buffer.write(pickle.dumps({'error': 'memory_mb=%s' % pickle.loads(raw[8:8 + n])['memory_mb']}))")
+    monkeypatch.setattr(scip_process, "CHILD_ARGS", ("-c", echo))
+    with pytest.raises(RuntimeError, match="memory_mb=321"):
+        scip_process.solve_in_child(b"", time.time() + 5.0, [], [], 1e-9, 0.0, 321)
+    monkeypatch.undo()
+    a, w = _instance(4)
+    monkeypatch.setattr(linear, "CHILD_MIN_NONZEROS", 0)
+    with memory_budget(400 * 2**20):
+        res = solve(a, w, k=3, engine="mip", time_limit_s=30.0)
+    assert res.status == "optimal" and res.objective == pytest.approx(_enumerated(a, w, 3), rel=1e-12)

@@ -223,13 +223,26 @@ def scip_proto(maximize: bool, variables: Iterable[tuple[float, float, bool, flo
 CHILD_MIN_NONZEROS = 500_000
 
 
+def scip_memory_mb() -> int:
+    """SCIP's ``limits/memory`` (MiB): the memory budget an engine may allocate now
+    (:func:`camplace.solver._support.memory.memory_budget_bytes`: a share of what the machine has
+    available, at most ``--memory-budget-gb``), at least 64. SCIP's branch-and-bound tree grows with
+    the time it is given (a 6e6-nonzero min-distance model of the quick start reached 3.3 GB in 60 s
+    and 3.8 GB in 10 minutes, over its 2.1 GB model estimate): past the limit SCIP stops with its
+    best solution and bound instead of growing until the machine runs out."""
+    from camplace.solver._support.memory import memory_budget_bytes
+
+    return max(64, int(memory_budget_bytes() // 2**20))
+
+
 def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_values: Sequence[float] = (), *,
              no_scip: str = "use engine='cpsat'", since: Callable[[], float] | None = None):
     """Solve an ``MPModelProto`` with SCIP: one thread, the hint, the relative gap ``_OPT_TOL`` and
     what is left of ``deadline`` (the one SCIP set-up of the package: the mode models and the
     max-coverage MIP engine both run here).
 
-    With a time limit and at least :data:`CHILD_MIN_NONZEROS` nonzeros, SCIP runs in a child
+    SCIP keeps to the memory budget (:func:`scip_memory_mb`). With a time limit and at least
+    :data:`CHILD_MIN_NONZEROS` nonzeros, SCIP runs in a child
     process that is stopped at the limit (plus :func:`~camplace.solver.engines.mip.scip_process.grace_s`);
     the proto is consumed (cleared) to free its memory.
 
@@ -266,7 +279,7 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
         data = proto.SerializeToString()
         proto.Clear()  # the child holds the model now
         try:
-            return solve_in_child(data, deadline_epoch, hint_vars, hint_values, _OPT_TOL, build_s)
+            return solve_in_child(data, deadline_epoch, hint_vars, hint_values, _OPT_TOL, build_s, scip_memory_mb())
         except RuntimeError as exc:
             if str(exc).startswith("no SCIP"):
                 raise CamplaceError(f"OR-Tools was built without SCIP; {no_scip}") from None
@@ -278,6 +291,9 @@ def run_scip(proto, deadline: Deadline, hint_vars: Sequence[int] = (), hint_valu
     if err:
         raise RuntimeError(f"SCIP model load failed: {err}")
     solver.SetNumThreads(1)
+    from camplace.solver.engines.mip.scip_process import limit_scip_memory
+
+    limit_scip_memory(solver, scip_memory_mb())
     variables = solver.variables()
     if hint_vars:
         solver.SetHint([variables[i] for i in hint_vars], hint_values)

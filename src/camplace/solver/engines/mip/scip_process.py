@@ -15,6 +15,7 @@ camplace.solver.engines.mip.scip_process`` is the child's side (it reads stdin, 
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import signal
@@ -67,8 +68,17 @@ def grace_s(left_s: float) -> float:
     return 0.2 + 0.01 * max(0.0, left_s)
 
 
+def limit_scip_memory(solver, memory_mb: int) -> bool:
+    """Set SCIP's ``limits/memory`` (MiB) on an OR-Tools SCIP ``solver``; False (and a warning in the
+    log) when SCIP does not take it."""
+    ok = bool(solver.SetSolverSpecificParametersAsString(f"limits/memory = {int(memory_mb)}\n"))
+    if not ok:
+        logging.getLogger(__name__).warning("SCIP did not take its memory limit (%d MiB): it runs without one", int(memory_mb))
+    return ok
+
+
 def solve_in_child(data: bytes, deadline_epoch: float, hint_vars, hint_values, rel_gap: float,
-                   build_s: float) -> ScipRun:
+                   build_s: float, memory_mb: int | None = None) -> ScipRun:
     """Solve a serialised ``MPModelProto`` with SCIP in a child process, stopped at the deadline.
 
     Parameters
@@ -83,6 +93,8 @@ def solve_in_child(data: bytes, deadline_epoch: float, hint_vars, hint_values, r
         SCIP's relative MIP gap.
     build_s : float
         Passed through to :attr:`ScipRun.build_s`.
+    memory_mb : int or None
+        SCIP's ``limits/memory`` (MiB): past it SCIP stops with its best solution (None: SCIP's default).
 
     Returns
     -------
@@ -97,7 +109,8 @@ def solve_in_child(data: bytes, deadline_epoch: float, hint_vars, hint_values, r
         would not load; a crash).
     """
     header = pickle.dumps({"deadline_epoch": float(deadline_epoch), "hint_vars": [int(i) for i in hint_vars],
-                           "hint_values": [float(v) for v in hint_values], "rel_gap": float(rel_gap)})
+                           "hint_values": [float(v) for v in hint_values], "rel_gap": float(rel_gap),
+                           "memory_mb": None if memory_mb is None else int(memory_mb)})
     payload = len(header).to_bytes(8, "little") + header + data
     left = max(0.0, deadline_epoch - time.time())
     proc = subprocess.Popen([sys.executable, *CHILD_ARGS], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -145,6 +158,8 @@ def _child() -> None:
             answer = {"error": f"SCIP model load failed: {err}"}
         else:
             solver.SetNumThreads(1)
+            if req.get("memory_mb"):
+                limit_scip_memory(solver, req["memory_mb"])
             variables = solver.variables()
             if req["hint_vars"]:
                 solver.SetHint([variables[i] for i in req["hint_vars"]], req["hint_values"])
