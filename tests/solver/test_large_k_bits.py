@@ -100,7 +100,7 @@ def test_large_k_column_lists_over_the_budget_go_through_csr(monkeypatch) -> Non
     dense, w, k = next(_cases(5))
     bits = bits_from_csr(sp.csr_matrix(dense))
     pre = pb.presolve_bits(bits, w, k)
-    need = 8 * (pre.nnz + pre.shape[1] + 1) + pre.shape[0]  # reduced_pattern's estimate
+    need = 8 * (pre.nnz + pre.shape[1] + 1)  # reduced_pattern's estimate (int64 lists and pointers)
     with monkeypatch.context() as mp:
         mp.setattr(pb, "memory_budget_bytes", lambda: need - 1)
         got = solve(bits, w, k)

@@ -29,7 +29,7 @@ from camplace._bitops import ctz as _ctz, popcount as _popcount, transpose64 as 
 from camplace._blocks import cuts, run_blocks
 from camplace._cores import thread_count
 
-__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk", "take_rows", "stack_rows", "column_sums"]
+__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk", "take_rows", "stack_rows", "column_sums", "column_rows"]
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
@@ -363,3 +363,47 @@ def column_sums(bits: BitMatrix, values: np.ndarray, workers: int | None = None)
     run_blocks(lambda lo, hi: (_column_sums(bits.words, v, lo, hi, out), bits.release_columns(lo, hi)),
                cuts(n), thread_count(workers))
     return out
+
+
+@numba.njit(**_JIT)
+def _fill_column_rows(words, cols, indptr, lo, hi, indices):  # pragma: no cover - compiled
+    """Rows of columns ``cols[lo:hi]`` (ascending) into ``indices[indptr[i]:indptr[i + 1]]``."""
+    for i in range(lo, hi):
+        j = cols[i]
+        p = indptr[i]
+        for w in range(words.shape[1]):
+            x = words[j, w]
+            base = np.int64(w) << 6
+            while x:
+                indices[p] = base + np.int64(_ctz(x))
+                p += 1
+                x &= x - np.uint64(1)
+
+
+def column_rows(bits, cols: np.ndarray, dtype=np.int32) -> tuple[np.ndarray, np.ndarray]:
+    """The row lists of columns ``cols`` of a BitMatrix, as the CSC matrix of those columns holds them.
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    cols : (nf,) int64
+        Columns, in the order wanted.
+    dtype : numpy integer dtype
+        Of ``indices`` (int32 needs ``m < 2**31``).
+
+    Returns
+    -------
+    indptr : (nf + 1,) int64
+    indices : (nnz,) ``dtype``
+        Column ``cols[i]``'s rows, ascending, in ``indices[indptr[i]:indptr[i + 1]]`` (4 or 8 bytes
+        an observed pair of those columns; the caller checks the memory), filled in blocks of
+        columns on the pool.
+    """
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    indptr = np.zeros(cols.size + 1, dtype=np.int64)
+    np.cumsum(bits.column_counts[cols], out=indptr[1:])
+    indices = np.empty(int(indptr[-1]), dtype=dtype)
+    if indices.size:  # disjoint slices of indices per block: the same at every thread count
+        run_blocks(lambda lo, hi: _fill_column_rows(bits.words, cols, indptr, lo, hi, indices), cuts(cols.size))
+    return indptr, indices

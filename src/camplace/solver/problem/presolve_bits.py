@@ -532,27 +532,22 @@ def reduced_pattern(pre: BitPresolved, what: str = "the presolved instance's col
     -------
     indptr : (n' + 1,) int64
     indices : (nnz',) int64
-        ``8 * (nnz' + n' + 1)`` bytes (and one column's m' bools at a time).
+        ``8 * (nnz' + n' + 1)`` bytes, filled on the pool (:func:`camplace.visibility.bits.column_rows`).
 
     Raises
     ------
     OverBudget
         Over :func:`~camplace.solver._support.memory.memory_budget_bytes` (nothing allocated).
     """
-    from camplace.visibility.bits import BitMatrix, unpack_rows
+    from camplace.visibility.bits import BitMatrix, column_rows
 
     m, n = pre.shape
-    counts = BitMatrix(pre.bits, m).column_counts
-    nnz = int(counts.sum())
-    need, budget = 8 * (nnz + n + 1) + m, memory_budget_bytes()
+    red = BitMatrix(pre.bits, m)
+    nnz = int(red.column_counts.sum())
+    need, budget = 8 * (nnz + n + 1), memory_budget_bytes()
     if need > budget:
         raise OverBudget(need, budget, what)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    indices = np.empty(nnz, dtype=np.int64)
-    for j in range(n):
-        indices[indptr[j]:indptr[j + 1]] = np.flatnonzero(unpack_rows(pre.bits[j], m))
-    return indptr, indices
+    return column_rows(red, np.arange(n, dtype=np.int64), np.int64)
 
 
 def covered_weight(bits, weights: np.ndarray, selected) -> float:

@@ -3,7 +3,7 @@
 
 Works on the free columns' row lists (int32 indices of the CSC matrix, no copy when every column
 is free; of a binary matrix held as column bitsets, :class:`camplace.visibility.bits.BitMatrix`,
-read straight from the bits by :func:`column_rows`: the same ascending lists, no CSR or CSC copy of
+read straight from the bits by :func:`camplace.visibility.bits.column_rows`: the same ascending lists, no CSR or CSC copy of
 the whole matrix) with the rows that do not count (covered by a fixed camera, weight 0) weighted 0: the
 gains of every column against the uncovered rows are one gather and one segmented sum, in chunks
 with reused buffers. Depth first; at a
@@ -27,61 +27,17 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numba
 import numpy as np
 import scipy.sparse as sp
 
-from camplace._bitops import ctz as _ctz
-from camplace._blocks import cuts, run_blocks
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.problem.team import TeamConstraints
+from camplace.visibility.bits import column_rows
 
-__all__ = ["team_branch_and_bound", "column_rows", "count_bound"]
+__all__ = ["team_branch_and_bound", "count_bound"]
 
 _EPS = 1e-12
-_JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
-
-
-@numba.njit(**_JIT)
-def _fill_column_rows(words, cols, indptr, lo, hi, indices):  # pragma: no cover - compiled
-    """Rows of columns ``cols[lo:hi]`` (ascending) into ``indices[indptr[i]:indptr[i + 1]]``."""
-    for i in range(lo, hi):
-        j = cols[i]
-        p = indptr[i]
-        for w in range(words.shape[1]):
-            x = words[j, w]
-            base = np.int64(w) << 6
-            while x:
-                indices[p] = np.int32(base + np.int64(_ctz(x)))
-                p += 1
-                x &= x - np.uint64(1)
-
-
-def column_rows(bits, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The row lists of columns ``cols`` of a BitMatrix, as the CSC matrix of those columns holds them.
-
-    Parameters
-    ----------
-    bits : camplace.visibility.bits.BitMatrix
-        (m, n) with ``m < 2**31``.
-    cols : (nf,) int64
-        Columns, in the order wanted.
-
-    Returns
-    -------
-    indptr : (nf + 1,) int64
-    indices : (nnz,) int32
-        Column ``cols[i]``'s rows, ascending, in ``indices[indptr[i]:indptr[i + 1]]`` (4 bytes an
-        observed pair of those columns; the caller checks the memory).
-    """
-    cols = np.ascontiguousarray(cols, dtype=np.int64)
-    indptr = np.zeros(cols.size + 1, dtype=np.int64)
-    np.cumsum(bits.column_counts[cols], out=indptr[1:])
-    indices = np.empty(int(indptr[-1]), dtype=np.int32)
-    if indices.size:  # disjoint slices of indices per block: the same at every thread count
-        run_blocks(lambda lo, hi: _fill_column_rows(bits.words, cols, indptr, lo, hi, indices), cuts(cols.size))
-    return indptr, indices
 
 
 class _State:
@@ -176,7 +132,7 @@ def team_branch_and_bound(
     none exists the status is ``"dominated"`` (no selection, bound ``incumbent``).
 
     ``q`` is the (m, n) scipy matrix (a stored entry observes) or, for a binary matrix, the
-    :class:`camplace.visibility.bits.BitMatrix` (read by :func:`column_rows`).
+    :class:`camplace.visibility.bits.BitMatrix` (read by :func:`camplace.visibility.bits.column_rows`).
 
     Returns
     -------
