@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 
 import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
+
+log = logging.getLogger(__name__)
 
 _ONES: list[np.ndarray] = [np.ones(0, dtype=np.float32)]
 _ONES_LOCK = threading.Lock()
@@ -25,6 +28,23 @@ def _ones32(n: int) -> np.ndarray:
                 buf = np.ones(max(n, 2 * len(buf)), dtype=np.float32)
                 _ONES[0] = buf
     return buf[:n]
+
+
+_UNBUILT = object()
+
+
+def _packet_scene(triangles: np.ndarray):
+    """An Embree scene for packet casts (:mod:`camplace.visibility._embree`), or None (embreex)."""
+    from camplace.visibility._embree import PacketScene, packet_api
+
+    api = packet_api()
+    if api is None:
+        return None
+    try:
+        return PacketScene(api, triangles)
+    except RuntimeError as exc:  # pragma: no cover - an Embree that refuses the scene
+        log.debug("%s: casting through embreex", exc)
+        return None
 
 
 class RayScene:
@@ -45,10 +65,30 @@ class RayScene:
         self.triangles: np.ndarray = (
             np.concatenate(tris).astype(np.float32) if tris else np.empty((0, 3, 3), dtype=np.float32)
         )
-        self._scene = rtcore_scene.EmbreeScene()
         self._empty = len(self.triangles) == 0
-        if not self._empty:
-            TriangleMesh(self._scene, self.triangles)
+        self._embreex = None  # embreex's scene: first hits, normalised occlusion, and the fallback
+        self._packet = _UNBUILT  # the packet casts' scene (occluded_dir), None where there is none
+        self._lock = threading.Lock()
+
+    @property
+    def _packets(self):
+        """The scene :meth:`occluded_dir` casts packets against, built on first use; None: embreex."""
+        if self._packet is _UNBUILT:
+            with self._lock:
+                if self._packet is _UNBUILT:
+                    self._packet = _packet_scene(self.triangles)
+        return self._packet
+
+    @property
+    def _scene(self) -> rtcore_scene.EmbreeScene:
+        """embreex's scene of the same triangles, built on first use (thread-safe)."""
+        if self._embreex is None:
+            with self._lock:
+                if self._embreex is None:
+                    scene = rtcore_scene.EmbreeScene()
+                    TriangleMesh(scene, self.triangles)
+                    self._embreex = scene
+        return self._embreex
 
     @classmethod
     def from_triangles(cls, triangles: np.ndarray) -> "RayScene":
@@ -110,6 +150,15 @@ class RayScene:
             return out
         o = np.ascontiguousarray(origins, dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
+        if self._packets is not None:
+            from camplace.visibility._castkernels import occluded_packets
+
+            api = self._packets.api
+            done = out if out.flags.c_contiguous and out.dtype == np.bool_ else np.empty(n, dtype=bool)
+            occluded_packets(np.uint64(api.occluded), np.uint64(self._packets.handle), api.width, o, d, done)
+            if done is not out:
+                out[:] = done
+            return out
         res = self._scene.run(o, d, dists=_ones32(n), query="OCCLUDED")
         return np.not_equal(res, -1, out=out)
 
