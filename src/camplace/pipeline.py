@@ -299,7 +299,8 @@ def run(
     memory_budget_gb : float or None
         Stop before computing a visibility matrix estimated to need more memory (default: half the RAM);
         also caps the solver's engines and models (which otherwise use 60 % of the memory available).
-        A binary matrix whose column bitsets do not fit it is kept out of core instead, in ``scratch``.
+        A binary matrix whose column bitsets (or a graded one whose bytes) do not fit it is kept
+        out of core instead, in ``scratch``.
     scratch : path or None
         Folder for the out-of-core files (default: beside ``outdir``, else the system's temporary
         folder); a temporary folder made in it is removed when the run ends, however it ends.

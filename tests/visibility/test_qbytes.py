@@ -162,3 +162,42 @@ def test_guard_allows_a_lean_tree_and_stops_below_it() -> None:
     assert "\n" not in str(err.value)
     got = compute_visibility(inst, cands, pts, chunk_size=16, memory_budget_bytes=pattern_only, quality_tree=False)
     assert got.qbytes is not None
+
+
+def test_out_of_core_bytes_equal_in_memory_and_solve_the_same(tmp_path) -> None:
+    """A graded run over the budget in memory but within it out of core keeps its bytes in a
+    scratch file (pages dropped chunk by chunk) and gives the same bytes, counts, stored file and
+    quantised-tree answer as in memory; the scratch folder is gone afterwards."""
+    from camplace.solver._support.deadline import Deadline
+    from camplace.solver._support.memory import memory_budget
+    from camplace.solver.bytes_route import bytes_outcome
+    from camplace.solver.options import SolveOptions
+    from camplace.visibility.engine import LEAN_TREE, estimate_matrix_bytes
+    from camplace.visibility.scratch import Scratch, mapping_of
+
+    inst, pts, cands = _bunker_graded()
+    m, n = len(pts), len(cands)
+    ref = compute_visibility(inst, cands, pts, chunk_size=16)
+    lean = estimate_matrix_bytes(m, n, 1.0, "bytes", tree=LEAN_TREE)
+    disk = estimate_matrix_bytes(m, n, 1.0, "bytes-disk", tree=LEAN_TREE)
+    assert disk < lean
+    with Scratch(tmp_path) as s:
+        got = compute_visibility(inst, cands, pts, chunk_size=16, memory_budget_bytes=lean - 1, scratch=s)
+        assert s.path is not None and (s.path / "colbytes.u8").exists()
+        assert mapping_of(got.qbytes.values) is not None  # the file's mapping, not a copy
+        np.testing.assert_array_equal(np.asarray(got.qbytes.values), ref.qbytes.values)
+        assert got.stats == ref.stats
+        folder = s.path
+        opts = SolveOptions(mode="quality", k=3)
+        with memory_budget(None):
+            a = bytes_outcome(got.qbytes, pts.weight, opts, Deadline(None))[0]
+            b = bytes_outcome(ref.qbytes, pts.weight, opts, Deadline(None))[0]
+        assert a.selected == b.selected and a.status == b.status == "optimal" and a.objective == b.objective
+        got.save(tmp_path / "out")
+    assert not folder.exists()
+    np.testing.assert_array_equal(camplace.load_visibility(tmp_path / "out").toarray(),
+                                  ref.qbytes.tocsr(np.float32).toarray())
+    with pytest.raises(CamplaceError, match="out of core") as err:  # below even the out-of-core estimate
+        with Scratch(tmp_path) as s:
+            compute_visibility(inst, cands, pts, chunk_size=16, memory_budget_bytes=disk - 1, scratch=s)
+    assert "\n" not in str(err.value)

@@ -345,8 +345,11 @@ def scatter_part(words: np.ndarray, part: ChunkResult) -> ChunkResult:
 
 def compute_chunk_bytes(task: VisibilityTask, scenes, start: int, stop: int, values: np.ndarray) -> ChunkResult:
     """:func:`compute_chunk` of candidates ``start:stop`` written, quantised, straight into
-    ``values`` (only these columns). Returns the counts."""
-    return scatter_part_bytes(task, values, compute_chunk(task, scenes, start, stop))
+    ``values`` (only these columns). Returns the counts. When ``values`` is a scratch file's
+    mapping, the chunk's pages are then dropped from memory."""
+    out = scatter_part_bytes(task, values, compute_chunk(task, scenes, start, stop))
+    release_columns(values, start, stop)
+    return out
 
 
 def compute_chunk_bits(task: VisibilityTask, scenes, start: int, stop: int, words: np.ndarray) -> ChunkResult:
@@ -359,10 +362,11 @@ def compute_chunk_bits(task: VisibilityTask, scenes, start: int, stop: int, word
 
 
 def release_columns(words: np.ndarray, start: int, stop: int) -> None:
-    """Drop columns ``start:stop`` of file-backed column bitsets from this process's memory."""
+    """Drop columns ``start:stop`` of file-backed column bitsets or bytes ((n, w) uint64 or (n, m)
+    uint8) from this process's memory (a no-op in memory)."""
     from camplace.visibility.scratch import release_pages
 
-    row = words.shape[1] * 8
+    row = words.shape[1] * words.itemsize
     release_pages(words, start * row, stop * row)
 
 
@@ -561,7 +565,10 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     adds its inner nodes' table (``(n_cols - 1) x n_rows`` bytes, :func:`camplace.solver.engines.quality.tree.quality_tree_bytes_dense`)
     and the pattern's column bitsets (``B``, its ordering and the run's summary): ``2 C + B``
     (``(1 + tree) C + B``: ``tree = 0`` for a run whose solve reads the pattern, e.g. max coverage,
-    :data:`LEAN_TREE` when the solver keeps rows for large clusters only). All add the per-thread work arrays
+    :data:`LEAN_TREE` when the solver keeps rows for large clusters only). ``bytes-disk`` (out of
+    core): the bytes are in a scratch file (only the chunks in flight resident while they are cast;
+    afterwards the solver's reads keep pages in the page cache, which the kernel reclaims under
+    memory pressure): ``tree C + B``. All add the per-thread work arrays
     (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
 
     ``solve_bytes`` (``bits`` only): the working bytes of the solve the run makes next, besides the
@@ -576,6 +583,8 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
         return int((1 + float(tree)) * cells + words + 16 * n_rows + fixed)
     if layout == "bits-disk":
         return int(16 * n_rows + 64 * n_cols + fixed)
+    if layout == "bytes-disk":
+        return int(float(tree) * n_rows * n_cols + words + 16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
         return int(words + (words if solve_bytes is None else int(solve_bytes)) + 16 * n_rows + fixed)
     nnz = density * n_rows * n_cols
@@ -706,7 +715,7 @@ def compute_visibility(
     # of the work (in process, the other chunks start beside it and are cancelled on a failed check).
 
     def check_pilot(first: ChunkResult, pilot_cols: int) -> None:
-        if pilot_layout == "bytes":  # one byte a cell: checked before the work
+        if pilot_layout in ("bytes", "bytes-disk"):  # one byte a cell: checked before the work
             return
         density = len(first.lcols) / max(1, len(points) * pilot_cols)
         need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout, **solve_kw)
@@ -728,15 +737,23 @@ def compute_visibility(
                      "(%.2f GiB); %.2f GiB with rows for large clusters only (the solver sizes the table to its budget)",
                      need / 2**30, budget / 2**30, lean / 2**30)
             need = lean
-        if need > budget:
+        disk = estimate_matrix_bytes(len(points), n_cand, 1.0, "bytes-disk", tree=LEAN_TREE if quality_tree else 0.0)
+        if need > budget and scratch is not None and disk <= budget:
+            values = scratch.array("colbytes.u8", (n_cand, len(points)), np.uint8)
+            pilot_layout = "bytes-disk"
+            log.info("visibility: quantised columns %.1f MiB out of core in %s (estimated peak %.2f GiB, budget %.2f GiB)",
+                     len(points) * n_cand / 2**20, scratch.path, disk / 2**30, budget / 2**30)
+        elif need > budget:
             raise CamplaceError(
-                f"visibility: the run would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
-                f"candidates, one byte a cell for the matrix and as much for the quality tree), over the memory "
-                f"budget of {budget / 2**30:.1f} GiB (lower --points or --candidates, raise --memory-budget-gb, or "
-                f"set [quality] precision = \"float32\" for a sparse matrix)")
-        log.info("visibility: quantised columns %.1f MiB, estimated peak %.2f GiB", len(points) * n_cand / 2**20,
-                 need / 2**30)
-        values = np.zeros((n_cand, len(points)), dtype=np.uint8)
+                f"visibility: the run would need about {min(need, disk) / 2**30:.1f} GiB ({len(points):_} rows x "
+                f"{n_cand:_} candidates, one byte a cell for the matrix and as much for the quality tree"
+                f"{', out of core' if scratch is not None else ''}), over the memory budget of {budget / 2**30:.1f} GiB "
+                f"(lower --points or --candidates, raise --memory-budget-gb, or set [quality] precision = \"float32\" "
+                f"for a sparse matrix)")
+        else:
+            log.info("visibility: quantised columns %.1f MiB, estimated peak %.2f GiB", len(points) * n_cand / 2**20,
+                     need / 2**30)
+            values = np.zeros((n_cand, len(points)), dtype=np.uint8)
     if use_bits:
         from camplace.visibility.bits import bit_words
 
@@ -776,6 +793,7 @@ def compute_visibility(
                 release_columns(words, a0, b0)
             if values is not None:
                 parts[0] = scatter_part_bytes(task, values, parts[0])
+                release_columns(values, a0, b0)
             if progress is not None:
                 progress(b0 - a0)
         rest = ranges[1:]
@@ -805,6 +823,7 @@ def compute_visibility(
                         release_columns(words, a, b)
                     if values is not None:
                         parts[0] = scatter_part_bytes(task, values, parts[0])
+                        release_columns(values, a, b)
                 if progress is not None:
                     progress(b - a)
                 if i == 0 and idle is not None and len(plan) > 1:

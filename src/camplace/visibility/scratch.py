@@ -1,4 +1,4 @@
-"""The scratch folder of an out-of-core run: column bitsets on disk when they do not fit the budget.
+"""The scratch folder of an out-of-core run: the matrix's columns on disk when they do not fit the budget.
 
 When a binary matrix's column bitsets (:mod:`camplace.visibility.bits`) would take the run past its
 memory budget (``--memory-budget-gb``, default half the RAM), the engine keeps them in a file of
@@ -6,7 +6,10 @@ this folder, mapped into memory (``MAP_SHARED``): each chunk writes its own colu
 its pages from the process (``madvise(MADV_DONTNEED)``; the data stays in the file and the page
 cache, which the kernel writes back and evicts under pressure), and the presolve reads the columns
 back block by block the same way. The budget then bounds the run's resident memory, not the
-instance size.
+instance size. A graded matrix quantised to bytes (:mod:`camplace.visibility.qbytes`) goes the same
+way when even the solver's lean quality tree would not fit beside it: its columns in a file of
+this folder, dropped chunk by chunk as they are cast; the solver's tree then reads them through
+the page cache.
 
 The folder is a fresh temporary folder (``.camplace-scratch-*``) beside the run's output folder,
 or in ``--scratch DIR``; :class:`Scratch` removes it on success, on an error and on Ctrl-C (it is a
@@ -93,8 +96,8 @@ class Scratch:
                 os.close(fd)
         except OSError as exc:
             self.close()
-            raise CamplaceError(f"scratch folder {folder.parent}: cannot hold the {nbytes / 2**30:.2f} GiB of column "
-                                f"bitsets ({exc.strerror or exc}); free space there or give another folder with "
+            raise CamplaceError(f"scratch folder {folder.parent}: cannot hold the {nbytes / 2**30:.2f} GiB of the matrix "
+                                f"columns ({exc.strerror or exc}); free space there or give another folder with "
                                 "--scratch DIR, or raise --memory-budget-gb") from None
         self._maps.append(buf)
         _SHARED[id(buf)] = buf

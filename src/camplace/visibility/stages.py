@@ -290,7 +290,7 @@ def visibility_stage(
     solve_bytes: int | None = None,
 ) -> VisibilityMatrix:
     """Compute (or fetch from the cache) the visibility matrix, with a progress bar (``scratch``: a
-    :class:`~camplace.visibility.scratch.Scratch` for column bitsets over the budget; ``solve_mode``:
+    :class:`~camplace.visibility.scratch.Scratch` for column bitsets or bytes over the budget; ``solve_mode``:
     the mode the run solves next, for the memory estimate of quantised columns: None or
     ``quality`` counts the quality tree; ``solve_bytes``: the working bytes of the solve on column
     bitsets besides them, for their estimate (the pipeline's :func:`camplace.solver.bits_route.bits_solve_bytes`); ``idle``: work
