@@ -233,6 +233,7 @@ def test_p10_on_bits_is_the_enumerated_optimum_without_a_csr(mode: str, k: int, 
     ref = solve_p10(stacked, w, s, SolveOptions(mode=mode, k=k, views=2, time_limit_s=60), incumbents=[tuple(range(k))])
     merged = _csr_merged_blocks(stacked, w, s)
     for res in results:
+        assert isinstance(res.stats["model"], dict)  # the model was built from the merged rows (not skipped)
         assert res.status == "optimal"
         assert res.objective == pytest.approx(best, rel=1e-12)
         assert res.bound >= best - 1e-12
