@@ -393,7 +393,9 @@ def test_p10_swap_search_ends_in_a_swap_local_optimum(mode) -> None:
         return order_p10(scenario_values(stacked, w, S, sel, mode=mode, views=2))
 
     start = (0, 1, 2)
-    sel, value, _ = _swap_search(stacked, w, S, start, mode=mode, views=2, fixed=set(), banned=np.zeros(n, bool),
+    from camplace.visibility.bits import bits_from_csr
+
+    sel, value, _ = _swap_search(bits_from_csr(stacked), w, S, start, mode=mode, views=2, fixed=set(), banned=np.zeros(n, bool),
                                  conflicts=None, deadline=None)
     assert value == pytest.approx(p10(sel), rel=1e-12) and value >= p10(start) - 1e-12
     for out in sel:

@@ -194,6 +194,9 @@ RECORD_RUNS: tuple[tuple[str, ...], ...] = (
     ("run", "comet-flyby", "-o", "{tmp}/fly", "--candidates", "200", "--points", "2000", "--phases", "3", "--speed", "5"),
     ("run", "volcanic-eruption", "-o", "{tmp}/vol", "--candidates", "200", "--points", "2000"),
     ("run", "comet-67p-team", "-o", "{tmp}/team", "--candidates", "60", "--points", "600"),
+    # a robust p10 run: the stacked scenario bits' kernels (robust.kernels, visibility.bits.row_range)
+    ("run", "comet-67p-bunker", "-o", "{tmp}/p10", "--candidates", "60", "--points", "600", "--pose-error", "0.1,5",
+     "--scenarios", "4", "--robust-objective", "p10"),
 )
 
 

@@ -27,7 +27,8 @@ The visibility of the S * n perturbed poses is computed in one pass of the visib
 run's points (a CandidateSet of ``S * n`` poses, scenario-major), then its columns are restacked
 into rows by index arithmetic on the sparse entries (:func:`stack_scenarios`); a binary
 instance's, in the robust stage, as column bitsets (:func:`~camplace.robust.stage.stack_bit_scenarios`,
-no CSR: the mean solve and the per-scenario values read the bits, the p10 model makes a bool CSR).
+no CSR: the mean solve, the per-scenario values and the p10 solve read the bits; a p10 model
+under its size cap makes the CSR of its merged rows only).
 
 Out of sample: the chosen system and the nominal optimum are compared on ``eval_scenarios`` fresh
 installations (another seed stream, :data:`~camplace.sampling.perturb.OUT_OF_SAMPLE_STREAM`):

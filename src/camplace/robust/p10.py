@@ -22,9 +22,17 @@ mean); and the q-th largest of the S per-scenario optima ``f*_s`` (each scenario
 solved by :func:`camplace.solver.api.solve` with its proven bound; x reaches ``p10(x)`` in q
 scenarios and ``f_s(x) <= f*_s`` in each, side constraints other than fixed/forbidden relaxed). Incumbent: the best of the given systems (the mean optimum, the nominal optimum), improved by
 best-improvement single swaps on the p10 objective (:func:`_swap_search`, every candidate's swap
-value in one sparse product). When the model would be too large it is not built and that incumbent
+value in one pass over the column bitsets). When the model would be too large it is not built and that incumbent
 is reported with the bounds above (``stats["model"]`` says why); when an incumbent meets a bound
 it is not needed.
+
+Memory: everything reads the stacked scenarios as column bitsets
+(:class:`camplace.visibility.bits.BitMatrix`, one bit a cell; a CSR input is converted to them).
+Besides them the solve holds a few arrays of one number a stacked row (:func:`p10_bytes`, checked
+before the solve), one scenario's rows at a time (its bits for its own solve and its rows' bitsets
+to merge identical rows, :func:`camplace.solver.problem.presolve_bits.identical_rows`), and, only
+when the model is built (at most ``P10_MODEL_MAX_NNZ`` nonzeros, counted before), the merged rows as
+CSR. No CSR of the whole stacked matrix is made.
 """
 
 from __future__ import annotations
@@ -38,12 +46,13 @@ import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
 from camplace.solver.engines.mip.linear import LinearModel, solve_model
 from camplace.solver.options import SolveOptions
 from camplace.solver.problem.objectives import selected_row_stats
 from camplace.solver.result import SolverResult, relative_gap
 
-__all__ = ["P10_MODES", "order_p10", "scenario_values", "solve_p10"]
+__all__ = ["P10_MODES", "order_p10", "p10_bytes", "scenario_values", "solve_p10"]
 
 P10_MODES = ("maxcover", "multiview")
 #: Largest model (nonzeros of the merged scenario rows) that is built; SCIP slows to a crawl above.
@@ -128,31 +137,95 @@ def _row_stats(stacked: Any, selected: Sequence[int]) -> tuple[np.ndarray, np.nd
     return count, (count > 0).astype(np.float64)
 
 
-def _merged_blocks(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int) -> list[tuple[sp.csr_matrix, np.ndarray]]:
-    """Per scenario: its rows of positive weight with at least one camera, identical rows merged."""
-    m = len(weights)
+def _as_bits(stacked: Any) -> Any:
+    """The stacked matrix as column bitsets: a BitMatrix as it is, a CSR matrix's pattern (entries
+    > 0) converted (``n * ceil(S m / 64) * 8`` bytes, checked against the memory budget first)."""
+    if getattr(stacked, "format", None) == "bits":
+        return stacked
+    from camplace.visibility.bits import bit_words, bits_from_csr
+
+    rows, n = stacked.shape
+    need, budget = 8 * n * bit_words(rows), memory_budget_bytes()
+    if need > budget:
+        memory_fallback(OverBudget(need, budget, "the p10 objective's column bitsets of the scenarios"), None,
+                        asked=False, then=None, fix="use --robust-objective mean, or lower --scenarios, --candidates or --points")
+    return bits_from_csr(stacked)
+
+
+def p10_bytes(m: int, n: int, scenarios: int) -> int:
+    """Working bytes of the p10 solve besides the stacked bits (the largest at once): the row
+    counts of all rows (8 bytes a row), the swap search's counts, scenario numbers, row values and
+    weights (32 bytes a row) and its (n, S) sums, one scenario's bitsets (``n * ceil(m / 64) * 8``) with its rows'
+    bitsets for the merge (:func:`~camplace.solver.problem.presolve_bits.identical_rows_bytes`)."""
+    from camplace.robust.kernels import completion_weights_bytes
+    from camplace.solver.problem.presolve_bits import identical_rows_bytes
+    from camplace.visibility.bits import bit_words
+
+    rows = int(m) * int(scenarios)
+    swap = 32 * rows + completion_weights_bytes(rows, n, scenarios)
+    merge = 8 * n * bit_words(m) + identical_rows_bytes(m, n)
+    return int(8 * rows + max(swap, merge))
+
+
+def _check_p10_memory(m: int, n: int, scenarios: int) -> None:
+    """A one-line error when :func:`p10_bytes` is over the memory budget (before anything is made)."""
+    need, budget = p10_bytes(m, n, scenarios), memory_budget_bytes()
+    if need > budget:
+        memory_fallback(OverBudget(need, budget, "the p10 objective's working arrays"), None, asked=False, then=None,
+                        fix="use --robust-objective mean, or lower --scenarios, --candidates or --points")
+
+
+def _scenario_groups(sub: Any, w: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """One scenario's rows of positive weight with at least one camera, identical rows merged.
+
+    Parameters
+    ----------
+    sub : (m, n) BitMatrix
+        The scenario's rows.
+    w : (m,) float64
+        Point weights.
+    count : (m,) int64
+        Cameras observing each row.
+
+    Returns
+    -------
+    reps : (g,) int64
+        Each merged row's first row (ascending: groups in order of first occurrence).
+    wsum : (g,) float64
+        Its rows' weights, summed in row order.
+    nnz : int
+        Observed pairs of the merged rows.
+    """
+    from camplace.solver.problem.presolve_bits import identical_rows
+
+    live = np.flatnonzero((count > 0) & (w > 0)).astype(np.int64)
+    groups, n_groups = identical_rows(sub, live)
+    first = np.full(n_groups, -1, dtype=np.int64)
+    first[groups[::-1]] = np.arange(groups.size - 1, -1, -1, dtype=np.int64)
+    reps = live[first]
+    wsum = np.bincount(groups, weights=w[live], minlength=n_groups).astype(np.float64)
+    return reps, wsum, int(count[reps].sum())
+
+
+def _merged_csr(stacked: Any, m: int, reps: list[np.ndarray], nnzs: list[int]) -> list[sp.csr_matrix]:
+    """Per scenario s, the rows ``s * m + reps[s]`` (``nnzs[s]`` observed pairs) of the stacked bits
+    as a CSR pattern (sorted column indices), each checked against the memory budget first (an
+    :class:`OverBudget`)."""
+    from camplace.solver.problem.presolve_bits import rows_csr, rows_csr_bytes
+
+    n = stacked.shape[1]
+    cols = np.arange(n, dtype=np.int64)
     out = []
-    for s in range(scenarios):
-        block = stacked[s * m:(s + 1) * m]
-        keep = np.flatnonzero((np.diff(block.indptr) > 0) & (weights > 0))
-        block = block[keep]
-        groups: dict[bytes, int] = {}
-        first, wsum = [], []
-        for r in range(block.shape[0]):
-            key = block.indices[block.indptr[r]:block.indptr[r + 1]].tobytes()
-            g = groups.get(key)
-            if g is None:
-                groups[key] = len(first)
-                first.append(r)
-                wsum.append(float(weights[keep[r]]))
-            else:
-                wsum[g] += float(weights[keep[r]])
-        out.append((block[first], np.asarray(wsum, dtype=np.float64)))
+    for s, (r, nnz) in enumerate(zip(reps, nnzs, strict=True)):
+        need, budget = rows_csr_bytes(r.size, n, nnz) + 8 * stacked.shape[0], memory_budget_bytes()
+        if need > budget:
+            raise OverBudget(need, budget, "the p10 model's merged rows")
+        out.append(rows_csr(stacked, s * m + r, cols))
     return out
 
 
 def _swap_search(
-    stacked: sp.csr_matrix, w: np.ndarray, scenarios: int, start: Sequence[int], *, mode: str, views: int,
+    stacked: Any, w: np.ndarray, scenarios: int, start: Sequence[int], *, mode: str, views: int,
     fixed: set[int], banned: np.ndarray, conflicts: np.ndarray | None, deadline: float | None,
     team: Any = None, k: int | None = None,
 ) -> tuple[tuple[int, ...], float, int]:
@@ -163,15 +236,23 @@ def _swap_search(
 
     For a system minus one camera, the per-scenario value with candidate j added is
     ``base_s + G[j, s]``, ``G = P^T U`` with P the stacked pattern and U the weights of the rows one
-    more view would complete, summed per scenario: every candidate's p10 in one sparse product.
+    more view would complete, summed per scenario: every candidate's p10 in one pass over the
+    column bitsets (:func:`camplace.robust.kernels.completion_weights`).
+
+    Parameters
+    ----------
+    stacked : (S * m, n) camplace.visibility.bits.BitMatrix
+        Stacked scenario bits.
 
     Returns
     -------
     (system, its p10, swaps made)
     """
+    from camplace.robust.kernels import completion_weights
+    from camplace.solver.problem.presolve_bits import row_counts_of
+
     m = len(w)
     need = 1 if mode == "maxcover" else int(views)
-    pattern = sp.csr_matrix((np.ones(stacked.nnz, dtype=np.float64), stacked.indices, stacked.indptr), shape=stacked.shape)
     block = np.arange(scenarios * m) // m
     w_all = np.tile(w, scenarios)
     q_need = math.ceil(QUANTILE * scenarios - 1e-9)
@@ -185,11 +266,11 @@ def _swap_search(
             if deadline is not None and time.perf_counter() > deadline:
                 return tuple(sel), best, swaps
             others = sel[:pos] + sel[pos + 1:]
-            count, _ = selected_row_stats(stacked, others) if others else (np.zeros(scenarios * m, dtype=np.int64), None)
-            base = np.bincount(block, weights=w_all * (count >= need), minlength=scenarios)
+            count = (row_counts_of(stacked, np.array(sorted(set(others)), dtype=np.int64)) if others
+                     else np.zeros(scenarios * m, dtype=np.int64))
+            base = np.bincount(block, weights=w_all * (count >= need), minlength=scenarios)  # in row order
             u = w_all * (count == need - 1)
-            U = sp.csr_matrix((u, (np.arange(scenarios * m), block)), shape=(scenarios * m, scenarios))
-            vals = (pattern.T @ U).toarray() + base[None, :]  # (n, S)
+            vals = completion_weights(stacked, u, scenarios) + base[None, :]  # (n, S)
             p10s = np.partition(vals, scenarios - q_need, axis=1)[:, scenarios - q_need]
             ok = ~banned.copy()
             ok[others] = False
@@ -220,7 +301,7 @@ def _swap_search(
 
 
 def solve_p10(
-    stacked: sp.csr_matrix,
+    stacked: Any,
     weights: np.ndarray,
     scenarios: int,
     options: SolveOptions,
@@ -233,7 +314,8 @@ def solve_p10(
 
     Parameters
     ----------
-    stacked : (S * m, n) scipy.sparse.csr_matrix
+    stacked : (S * m, n) camplace.visibility.bits.BitMatrix or scipy.sparse.csr_matrix
+        Stacked scenarios; a CSR matrix's pattern (entries > 0) is converted to column bitsets.
     weights : (m,) float64
         Point weights of one scenario.
     scenarios : int
@@ -264,7 +346,7 @@ def solve_p10(
         return _solve_p10(stacked, weights, scenarios, options, conflicts, incumbents, mean_bound)
 
 
-def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, options: SolveOptions,
+def _solve_p10(stacked: Any, weights: np.ndarray, scenarios: int, options: SolveOptions,
                conflicts: np.ndarray | None, incumbents: Sequence[Sequence[int]],
                mean_bound: float | None) -> SolverResult:
     """:func:`solve_p10` within the memory budget and the thread count of ``options``."""
@@ -281,6 +363,10 @@ def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, opti
     if engine not in ("auto", "mip"):
         raise CamplaceError(f"robust objective p10: engine {engine} does not apply (the p10 model runs on SCIP: use --engine auto or mip)")
     w = np.asarray(weights, dtype=np.float64)
+    if stacked.shape[0] != len(w) * scenarios:
+        raise CamplaceError(f"stacked matrix has {stacked.shape[0]} rows, expected {scenarios} x {len(w)}")
+    _check_p10_memory(len(w), stacked.shape[1], scenarios)
+    stacked = _as_bits(stacked)
     n = stacked.shape[1]
     total = float(w.sum())
     q_need = math.ceil(QUANTILE * scenarios - 1e-9)
@@ -327,23 +413,39 @@ def _solve_p10(stacked: sp.csr_matrix, weights: np.ndarray, scenarios: int, opti
     scenario_options = SolveOptions(mode=mode, k=k, views=views, fixed=fixed, forbidden=forbidden, time_limit_s=t_share,
                                     memory_budget_bytes=options.memory_budget_bytes, threads=options.threads,
                                     team=team)
-    per_s = []
+    # per scenario: its rows as bits (the solver's bits route reads them), then its merged rows
+    from camplace.visibility.bits import row_range
+
+    row_count = stacked.row_counts()  # (S * m,) cameras observing each row
+    per_s, reps, wsums, nnzs = [], [], [], []
     for s in range(scenarios):
-        r = solve_mode(stacked[s * m:(s + 1) * m], w, options=scenario_options)
+        sub = row_range(stacked, s * m, (s + 1) * m)
+        r = solve_mode(sub, w, options=scenario_options)
         per_s.append(float(r.bound) if math.isfinite(r.bound) else total)
+        rep, wsum, nnz_s = _scenario_groups(sub, w, row_count[s * m:(s + 1) * m])
+        del sub
+        reps.append(rep)
+        wsums.append(wsum)
+        nnzs.append(nnz_s)
+    del row_count
     scen_bound = float(np.sort(per_s)[::-1][q_need - 1])
     stats["bound_per_scenario"] = scen_bound
     bound = min(bound, scen_bound)
 
-    blocks = _merged_blocks(stacked, w, scenarios)
-    nnz = int(sum(b.nnz for b, _ in blocks))
+    nnz = int(sum(nnzs))
     stats["model_nonzeros"] = nnz
     status = "feasible"
+    blocks = None
     if best >= bound - _TOL * max(1.0, abs(bound)):
         stats["model"] = "not needed: an incumbent meets the bound"
     elif nnz > P10_MODEL_MAX_NNZ:
         stats["model"] = f"not built: {nnz} nonzeros > {P10_MODEL_MAX_NNZ} (fewer --scenarios, --points or --candidates)"
     else:
+        try:  # only the merged rows become lists (the model's rows), under the cap just checked
+            blocks = list(zip(_merged_csr(stacked, m, reps, nnzs), wsums, strict=True))
+        except OverBudget as exc:
+            stats["model"] = f"not built: {exc.message}"
+    if blocks is not None:
         model = LinearModel(maximize=True)
         x = model.add_vars(n)
         fixed_set = {int(j) for j in fixed}

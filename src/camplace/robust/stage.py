@@ -300,8 +300,8 @@ def solve_robust(
     ----------
     stacked : (S * m, n) scipy.sparse.csr_matrix or camplace.visibility.bits.BitMatrix
         Scenario-stacked observations (:func:`scenario_matrix`). Bits: the mean solve reads
-        them (:func:`camplace.solver.solve`'s bits route); ``p10`` makes their bool CSR (5 bytes
-        an observed pair, checked against the memory budget).
+        them (:func:`camplace.solver.solve`'s bits route), and so does ``p10``
+        (:func:`camplace.robust.p10.solve_p10`: no CSR of the stacked matrix).
     weights : (m,) float64
         The run's row weights (one scenario).
     spec : RobustSpec
@@ -333,8 +333,6 @@ def solve_robust(
     from camplace.robust.p10 import solve_p10
 
     conflicts = conflict_pairs(np.asarray(positions), float(min_d)) if min_d is not None else None
-    if getattr(stacked, "format", None) == "bits":  # the p10 model reads the scenarios' rows: a bool CSR
-        stacked = _p10_csr(stacked, options.memory_budget_bytes)
     # the options unchanged: the per-scenario solves and the p10 model keep to their memory budget
     # and thread count (the engine was checked by robust_checks: auto or mip)
     return solve_p10(stacked, weights, s_count, options, conflicts=conflicts, incumbents=[mean.selected, *incumbents],
@@ -366,19 +364,6 @@ def _at_least_the_incumbents(mean, stacked: Any, weights: np.ndarray, s_count: i
              float(mean.objective), best_value)
     return replace(mean, selected=best, status=status, objective=best_value, bound=bound, gap=gap,
                                stats=stats)
-
-
-def _p10_csr(stacked: Any, budget_bytes: int | None) -> sp.csr_matrix:
-    """The bool CSR pattern of stacked scenario bits (the p10 model and its swap search read rows),
-    about 5 bytes an observed pair, checked against the memory budget before it is made."""
-    from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes, memory_fallback
-
-    with memory_budget(budget_bytes):
-        need, budget = 5 * int(stacked.nnz) + 8 * (stacked.shape[0] + 1), memory_budget_bytes()
-    if need > budget:
-        memory_fallback(OverBudget(need, budget, "the p10 model's CSR of the scenarios"), None, asked=False, then=None,
-                        fix="use --robust-objective mean, or lower --scenarios, --candidates or --points")
-    return stacked.tocsr(np.bool_)
 
 
 def out_of_sample(

@@ -29,7 +29,8 @@ from camplace._bitops import ctz as _ctz, popcount as _popcount, transpose64 as 
 from camplace._blocks import cuts, run_blocks
 from camplace._cores import thread_count
 
-__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk", "take_rows", "stack_rows", "column_sums", "column_rows"]
+__all__ = ["BitMatrix", "bit_words", "bits_from_csr", "scatter_chunk", "take_rows", "row_range", "stack_rows", "column_sums",
+           "column_rows"]
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 
@@ -305,6 +306,56 @@ def take_rows(bits: BitMatrix, rows: np.ndarray) -> BitMatrix:
             _pack_into(out, lo, _unpack_block(bits, lo, hi)[:, rows])
             bits.release_columns(lo, hi)
     return BitMatrix(out, rows.size)
+
+
+@numba.njit(**_JIT)
+def _shift_rows(words, lo, hi, c0, c1, out):  # pragma: no cover - compiled
+    """Rows ``lo:hi`` of columns ``c0:c1`` of ``words`` into ``out`` (bit ``r - lo``): each output
+    word is two input words shifted by ``lo % 64``, the last one masked past ``hi - lo``."""
+    nw_in = words.shape[1]
+    nw = out.shape[1]
+    w0 = lo >> 6
+    sh = np.uint64(lo & 63)
+    back = np.uint64(64) - sh
+    rest = (hi - lo) & 63
+    last = (np.uint64(1) << np.uint64(rest)) - np.uint64(1) if rest else ~np.uint64(0)
+    for j in range(c0, c1):
+        for w in range(nw):
+            x = words[j, w0 + w] >> sh
+            if sh and w0 + w + 1 < nw_in:
+                x |= words[j, w0 + w + 1] << back
+            if w == nw - 1:
+                x &= last
+            out[j, w] = x
+
+
+def row_range(bits: BitMatrix, lo: int, hi: int, workers: int | None = None) -> BitMatrix:
+    """Rows ``lo:hi`` of a bit matrix (``bits.tocsr()[lo:hi]`` as bits): word shifts, no unpacking.
+
+    Parameters
+    ----------
+    bits : BitMatrix
+        (m, n).
+    lo, hi : int
+        ``0 <= lo <= hi <= m``.
+    workers : int, optional
+        Threads over blocks of columns (the result does not depend on it).
+
+    Returns
+    -------
+    BitMatrix
+        (hi - lo, n): ``n * ceil((hi - lo) / 64) * 8`` bytes (a view-free copy; the caller checks the
+        memory). With ``lo`` a multiple of 64 it is a plain copy of whole words.
+    """
+    m, n = bits.shape
+    lo, hi = int(lo), int(hi)
+    if not 0 <= lo <= hi <= m:
+        raise IndexError(f"row range {lo}:{hi} out of 0:{m}")
+    out = np.empty((n, bit_words(hi - lo)), dtype=np.uint64)
+    if out.size:
+        run_blocks(lambda c0, c1: (_shift_rows(bits.words, lo, hi, c0, c1, out), bits.release_columns(c0, c1)),
+                   cuts(n), thread_count(workers))
+    return BitMatrix(out, hi - lo)
 
 
 def stack_rows(blocks: Sequence[BitMatrix]) -> BitMatrix:

@@ -43,7 +43,8 @@ from camplace.solver.problem.presolve import Presolved, check_weights, restore_c
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight",
            "row_counts_of", "row_bitsets", "layout_bits", "layout_bits_bytes", "rows_csr",
-           "rows_csr_bytes", "reduced_csr", "reduced_csr_bytes", "reduced_pattern"]
+           "rows_csr_bytes", "reduced_csr", "reduced_csr_bytes", "reduced_pattern", "identical_rows",
+           "identical_rows_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -601,6 +602,50 @@ def row_bitsets(bits, rows: np.ndarray, columns: np.ndarray, extra: int = 0, wor
     _run(lambda w0, w1: (_row_bits(bits.words, columns, pos, w0, w1, out), release(0, n)),
          cuts(bits.words.shape[1], _BLOCKS), thread_count(workers))
     return out
+
+
+def identical_rows_bytes(r: int, n: int) -> int:
+    """Peak bytes of :func:`identical_rows` on ``r`` rows of an (m, n) BitMatrix: the rows' bitsets
+    over the n columns, the position map (8 bytes a row of the matrix is not counted: the caller
+    holds that many already) and about 48 bytes a row (hashes, order, labels)."""
+    return int(r * ((n + 63) // 64) * 8 + 48 * r)
+
+
+def identical_rows(bits, rows: np.ndarray, workers: int | None = None) -> tuple[np.ndarray, int]:
+    """Groups of identical rows (over all columns) among some rows of a BitMatrix: the presolve's
+    merge of identical rows (row bitsets by transposes, hashed, compared exactly within a hash).
+
+    Parameters
+    ----------
+    bits : camplace.visibility.bits.BitMatrix
+        (m, n).
+    rows : (r,) int64
+        Distinct rows.
+    workers : int, optional
+        Threads (the groups do not depend on it).
+
+    Returns
+    -------
+    groups : (r,) int64
+        Group of ``rows[t]``, numbered by first occurrence in ``rows`` order (two rows share a
+        group exactly when the same columns observe them).
+    n_groups : int
+
+    Notes
+    -----
+    Holds the rows' bitsets over all columns (:func:`identical_rows_bytes`); the caller checks the budget.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    n = bits.shape[1]
+    if rows.size == 0:
+        return np.zeros(0, dtype=np.int64), 0
+    workers = thread_count(workers)
+    rb = row_bitsets(bits, rows, np.arange(n, dtype=np.int64), workers=workers)
+    h = np.zeros(rows.size, dtype=np.uint64)
+    has = np.zeros(rows.size, dtype=bool)
+    _run(lambda lo, hi: _hash_rows(rb, lo, hi, h, has), cuts(rows.size, _BLOCKS), workers)
+    groups, n_groups = _grouped_rows(rb, np.arange(rows.size, dtype=np.int64), h, workers)
+    return groups, int(n_groups)
 
 
 def rows_csr(bits, rows: np.ndarray, columns: np.ndarray, workers: int | None = None) -> sp.csr_matrix:
