@@ -239,9 +239,9 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         if team is not None:  # a team's branch and bound read the bits too
             ctx, w, fixed_t, forbidden_t = team
             return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
-        if o.mode == "setcover" and o.min_distance_m is None and o.team is None:  # counts from the bits
-            ctx, w, fixed_t, forbidden_t = _setcover_bits(matrix, weights, o, deadline)
-            return _result(ctx, o, w, fixed_t, forbidden_t, np.zeros((0, 2), dtype=np.int64), matrix.shape, t0)
+        if o.mode == "setcover" and o.team is None:  # counts from the bits
+            ctx, w, fixed_t, forbidden_t, conflicts = _setcover_bits(matrix, weights, positions, o, deadline)
+            return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, matrix.shape, t0)
         if _rows_presolve_applies(o):  # the general model (and the rest): CSR of the merged rows only
             got = _rows_presolved(matrix, weights, positions, o, deadline)
             if got is not None:
@@ -260,21 +260,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
     pos = None
     if positions is not None:
         pos = coords(positions, n, "positions", "camera positions")
-    conflicts = np.zeros((0, 2), dtype=np.int64)
-    too_many: str | None = None  # conflicting pairs that would not fit in memory: the fallback's message
-    if min_distance_m is not None:
-        if pos is None:
-            raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
-        n_pairs = conflict_count(pos, float(min_distance_m))
-        need, budget = n_pairs * _CONFLICT_PAIR_BYTES, memory_budget_bytes()
-        if need > budget:
-            too_many = memory_fallback(
-                OverBudget(need, budget, f"min_distance_m={float(min_distance_m):g} ({n_pairs} candidate pairs closer "
-                                         "than that)"), None, asked=engine != "auto", warn=False,
-                then=None if mode == "setcover" else "returning the greedy answer with a bound that ignores the spacing",
-                fix="lower min_distance_m or use fewer candidates")  # logged by _spaced_fallback
-        else:
-            conflicts = conflict_pairs(pos, float(min_distance_m))
+    conflicts, too_many = _conflicts(pos, o)
     pts = None
     if min_angle_deg is not None:
         if pos is None or points is None:
@@ -287,20 +273,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         return _spaced_fallback(q, w, k, mode, views, min_angle_deg, pos, pts, fixed_t, forbidden_t,
                                 float(min_distance_m), engine, too_many, deadline)
 
-    fixed_set = set(fixed_t)
-    banned = set(forbidden_t)
-    for a, b in conflicts.tolist():
-        if a in fixed_set and b in fixed_set:
-            raise CamplaceError(f"fixed cameras {a} and {b} are closer than min_distance_m={min_distance_m}")
-        if a in fixed_set:
-            banned.add(b)
-        elif b in fixed_set:
-            banned.add(a)
-    free = np.ones(n, dtype=bool)
-    free[list(fixed_set | banned)] = False
-    free_cols = np.flatnonzero(free)
-    keep_conf = free[conflicts[:, 0]] & free[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
-    conflicts = conflicts[keep_conf]
+    free_cols, conflicts = _free_columns(n, fixed_t, forbidden_t, conflicts, min_distance_m)
 
     if o.team is not None:  # a camera team (issue 31): its own route, every constraint enforced
         k_team = _team_k(o, n, free_cols)
@@ -334,6 +307,54 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
             ctx = cap_bound(ctx, q, w, views, k + len(fixed_t), np.union1d(free_cols, fixed_t).astype(np.int64), deadline)
 
     return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, (m, n), t0)
+
+
+def _conflicts(pos: np.ndarray | None, o: SolveOptions) -> tuple[np.ndarray, str | None]:
+    """The candidate pairs closer than ``o.min_distance_m`` ((p, 2) int64; none without one) and,
+    when they would not fit in the memory budget, the fallback's message instead (None otherwise;
+    set cover, which has no fallback, and an engine asked by name stop with a one-line error).
+
+    Parameters
+    ----------
+    pos : (n, 3) float64 or None
+        Camera positions, metres.
+    o : SolveOptions
+    """
+    none = np.zeros((0, 2), dtype=np.int64)
+    if o.min_distance_m is None:
+        return none, None
+    if pos is None:
+        raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
+    d = float(o.min_distance_m)
+    n_pairs = conflict_count(pos, d)
+    need, budget = n_pairs * _CONFLICT_PAIR_BYTES, memory_budget_bytes()
+    if need > budget:
+        return none, memory_fallback(
+            OverBudget(need, budget, f"min_distance_m={d:g} ({n_pairs} candidate pairs closer than that)"), None,
+            asked=o.engine != "auto", warn=False,
+            then=None if o.mode == "setcover" else "returning the greedy answer with a bound that ignores the spacing",
+            fix="lower min_distance_m or use fewer candidates")  # logged by _spaced_fallback
+    return conflict_pairs(pos, d), None
+
+
+def _free_columns(n: int, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...], conflicts: np.ndarray,
+                  min_distance_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """The columns a solve may add ((f,) int64: neither fixed, forbidden nor closer than the minimum
+    distance to a fixed camera) and the conflicting pairs among them ((p, 2) int64); a one-line
+    error for two fixed cameras closer than the minimum distance."""
+    fixed_set = set(fixed_t)
+    banned = set(forbidden_t)
+    for a, b in conflicts.tolist():
+        if a in fixed_set and b in fixed_set:
+            raise CamplaceError(f"fixed cameras {a} and {b} are closer than min_distance_m={min_distance_m}")
+        if a in fixed_set:
+            banned.add(b)
+        elif b in fixed_set:
+            banned.add(a)
+    free = np.ones(n, dtype=bool)
+    free[list(fixed_set | banned)] = False
+    keep_conf = free[conflicts[:, 0]] & free[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
+    return np.flatnonzero(free), conflicts[keep_conf]
 
 
 def _checked_columns(weights: Any, o: SolveOptions, m: int, n: int) -> tuple[np.ndarray, tuple[int, ...], tuple[int, ...]]:
@@ -393,25 +414,29 @@ def _team_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> 
     return None if ctx is None else (ctx, w, fixed_t, forbidden_t)
 
 
-def _setcover_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline) -> tuple:
-    """Set cover (no minimum distance, no team) on a binary matrix held as column bitsets: the
-    coverable and fixed-covered rows counted from the bits, and only the rows left to cover made
-    into the CSR pattern the search reads (:func:`~camplace.solver.engines.setcover.mode.setcover`),
-    instead of the whole matrix's CSR and its float64 pattern.
+def _setcover_bits(bits: Any, weights: Any, positions: Any, o: SolveOptions, deadline: Deadline) -> tuple:
+    """Set cover (no team) on a binary matrix held as column bitsets: the coverable and
+    fixed-covered rows counted from the bits, and only the rows left to cover made into the
+    structure the search reads (:func:`~camplace.solver.engines.setcover.mode.setcover`: their row
+    bitsets, or with a minimum distance the bool CSR of those rows that the SCIP / CP-SAT model
+    reads), instead of the whole matrix's CSR and its float64 pattern.
 
     Returns
     -------
-    (EngineOutcome, (m,) float64 weights, fixed, forbidden)
+    (EngineOutcome, (m,) float64 weights, fixed, forbidden, (p, 2) int64 conflicting free pairs)
     """
     m, n = bits.shape
     w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
-    free = np.ones(n, dtype=bool)
-    free[list(set(fixed_t) | set(forbidden_t))] = False
-    ctx = setcover(bits, w, o.costs, o.required_fraction, fixed_t, np.flatnonzero(free), np.zeros((0, 2), dtype=np.int64),
-                   o.engine, deadline, o.search_seed, o.iterations)
-    ctx.stats["matrix"] = "column bitsets (the rows to cover as row bitsets)"
-    return ctx, w, fixed_t, forbidden_t
-
+    pos = None if positions is None else coords(positions, n, "positions", "camera positions")
+    conflicts, _ = _conflicts(pos, o)  # (set cover stops when they do not fit: no fallback)
+    free_cols, conflicts = _free_columns(n, fixed_t, forbidden_t, conflicts, o.min_distance_m)
+    if conflicts.size:  # the model runs directly (otherwise the local search checks its own memory)
+        check_setcover_memory(bits, w, free_cols, conflicts, o.engine)
+    ctx = setcover(bits, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, o.engine, deadline,
+                   o.search_seed, o.iterations)
+    ctx.stats["matrix"] = ("column bitsets (the rows to cover as row bitsets)" if not conflicts.size else
+                           "column bitsets (the rows to cover as a bool CSR for the model)")
+    return ctx, w, fixed_t, forbidden_t, conflicts
 
 def _sides_bits_applies(o: SolveOptions) -> bool:
     """Fixed or forbidden cameras that :func:`_sides_bits` takes on the bits: max coverage (and

@@ -12,7 +12,7 @@ are the objective rows of quality and multiview, shared with the camera-team mod
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -261,12 +261,17 @@ def add_multiview_rows(
                 model.add_row([u[a], u[b]], [1.0, 1.0], hi=1.0)
 
 
-def check_setcover_memory(q: sp.csr_matrix, w: np.ndarray, free_cols: np.ndarray, conflicts: np.ndarray,
+def check_setcover_memory(q: Any, w: np.ndarray, free_cols: np.ndarray, conflicts: np.ndarray,
                            engine: str) -> None:
     """One-line error before building a set-cover model that would not fit in memory (there is no
     cheaper engine to fall back to)."""
     backend = "cpsat" if engine == "cpsat" else "mip"
-    cnt, _ = selected_row_stats(q, free_cols)
+    if getattr(q, "format", None) == "bits":  # column bitsets: the counts from the bits (no CSR)
+        from camplace.solver.problem.presolve_bits import row_counts_of
+
+        cnt = row_counts_of(q, free_cols)
+    else:
+        cnt, _ = selected_row_stats(q, free_cols)
     rows = int(np.count_nonzero((w > 0) & (cnt > 0)))
     entries = int(cnt.sum())
     n_conf = int(conflicts.shape[0])
