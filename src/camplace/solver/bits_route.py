@@ -76,7 +76,7 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.choose import choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
-from camplace.solver.engines.bitset.search import BITSET_MAX_K, bitset_bytes, pairs_layout_bytes, solve_bitset
+from camplace.solver.engines.bitset.search import bitset_bytes, pairs_layout_bytes, solve_bitset
 from camplace.solver.engines.large_k.search import run_large_k
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
@@ -103,14 +103,17 @@ def outcome_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0) -> int | None:
     ``nnz' <= nnz``), as the engine's own check uses the reduced ones.
 
     * max coverage (and quality of a binary matrix), ``k <= 4``: the bit presolve
-      (:func:`~camplace.solver.problem.presolve_bits.presolve_bits_bytes`, about ``2 B``), then the
-      bitset engine's bitsets (:func:`~camplace.solver.engines.bitset.search.bitset_bytes`, one
-      level, without the open tuples, which grow with the search up to a fixed cap and are
-      checked by the engine): the larger of the two; with engine mip or cpsat, the presolved
-      instance's bitsets (at most ``B``) and its max-coverage model
-      (:func:`~camplace.solver.engines.mip.ortools.maxcover_model_size`) instead of the engine's;
-    * multiview, ``k <= 4``: the same with ``min(views, k)`` levels (``(2 + 2 min(views, k)) B``),
-      on the opposite-pairs layout for ``k < 2 views``
+      (:func:`~camplace.solver.problem.presolve_bits.presolve_bits_bytes`, about ``2 B``); the
+      bitset engine then runs on the columns the dominance keeps (at 10,000 x 50,000 on
+      comet-67p-bunker a few hundred: its bitsets on the whole matrix's sizes, 250 MB, would put
+      the estimate at 1.4 times the peak) and checks its bitsets against the budget itself. With
+      engine mip or cpsat, the presolved instance's bitsets (at most ``B``) and its max-coverage
+      model (:func:`~camplace.solver.engines.mip.ortools.maxcover_model_size`) instead: the larger;
+    * multiview, ``k <= 4``: the bit presolve (no dominance: every column stays), then the bitset
+      engine's bitsets (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` with
+      ``min(views, k)`` levels, ``(2 + 2 min(views, k)) B``, without the open tuples, which grow
+      with the search up to a fixed cap and are checked by the engine): the larger of the two; on
+      the opposite-pairs layout for ``k < 2 views``
       (:func:`~camplace.solver.engines.bitset.search.pairs_layout_bytes`: the matching and up to
       two layout rows a row);
     * multiview with a minimum angle: :func:`~camplace.solver.engines.angle.search.angle_bytes` of
@@ -152,6 +155,8 @@ def outcome_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0) -> int | None:
             from camplace.solver.engines.mip.ortools import maxcover_model_size
 
             return max(presolve, words + model_bytes(choice.engine, *maxcover_model_size(m, n, nnz)))
+        if not views_mode:  # the engine runs on the columns the dominance keeps and checks its bitsets itself
+            return presolve
         return max(presolve, bitset_bytes(m, n, levels, k, tuples=False))
     return None
 
