@@ -167,3 +167,20 @@ def test_bytes_bound_the_traced_allocation(name: str) -> None:
     est = bits_solve_bytes(m, n, o, bits.nnz)
     assert peak - base <= est, f"{name}: traced {peak - base} > estimated {est}"
     assert est <= 8 * (peak - base), f"{name}: estimated {est} over 8x the traced {peak - base}"
+
+
+def test_a_model_over_the_budget_is_not_counted_where_the_solve_falls_back(inst) -> None:
+    """Under engine auto a general model over the solver's budget is not built (the greedy answer
+    with a cheap bound, ``stats["memory_fallback"]``): the guard leaves it out, so that it does not
+    stop a run that ends with that answer; asked for by name it is counted (the solve stops)."""
+    bits, w, pos, pts = inst
+    m, n = bits.shape
+    o = replace(_CASES["mindist"][0], memory_budget_bytes=4 << 20)
+    conflicts = conflict_count(pos, o.min_distance_m)
+    model = model_bytes("mip", *cover_model_size(m, n, bits.nnz, conflicts, 0))
+    assert model > 4 << 20
+    counted = _expected("mindist", m, n, bits.nnz, conflicts)
+    assert bits_solve_bytes(m, n, replace(o, engine="mip"), bits.nnz, conflicts) == counted
+    assert bits_solve_bytes(m, n, o, bits.nnz, conflicts) == counted - model
+    res = solve(bits, w, positions=pos, points=pts, options=o)
+    assert "greedy answer" in res.stats["memory_fallback"] and res.status == "feasible"

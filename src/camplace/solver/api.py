@@ -366,6 +366,13 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
       with a minimum angle) and the general model of every row (without the angle's pair rows,
       counted by the model once the matrix is known).
 
+    A general model over the solver's memory budget (``o.memory_budget_bytes`` and
+    :func:`~camplace.solver._support.memory.memory_budget_bytes` now) under engine ``auto`` is
+    not counted: the solve then returns the greedy answer with a cheap bound instead of building it
+    (:func:`~camplace.solver._support.memory.memory_fallback`), so the guard does not stop a run
+    that ends with that answer; asked for by name (mip, cpsat) it is counted, as the solve would
+    stop there.
+
     Parameters
     ----------
     m, n : int
@@ -411,6 +418,10 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
     backend = "cpsat" if o.engine == "cpsat" else "mip"
     free, n_fixed = n - len(set(o.fixed)) - len(set(o.forbidden)), len(set(o.fixed))
     model = model_bytes(backend, *cover_model_size(m, free, nnz, conflicts, n_fixed))
+    if o.engine == "auto" and o.mode != "setcover":
+        with memory_budget(o.memory_budget_bytes):
+            if model > memory_budget_bytes():  # the solve gives the greedy answer instead (routes._model)
+                model = 0
     pairs = _CONFLICT_PAIR_BYTES * conflicts
     if o.team is None and _rows_presolve_applies(o):  # the merged rows' bitsets and bool CSR, then the model
         return max(presolve_bits_bytes(m, n), n * col_bytes + reduced_csr_bytes(m, n, nnz, 1) + pairs + model)

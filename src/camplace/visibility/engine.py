@@ -726,8 +726,8 @@ def compute_visibility(
         need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout, **solve_kw)
         if need > budget:
             raise CamplaceError(
-                f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
-                f"candidates, {100 * density:.1f}% observed in a pilot of {pilot_cols} candidates), over the memory "
+                f"visibility: the matrix and the solve would need about {need / 2**30:.1f} GiB ({len(points):_} rows x "
+                f"{n_cand:_} candidates, {100 * density:.1f}% observed in a pilot of {pilot_cols} candidates), over the memory "
                 f"budget of {budget / 2**30:.1f} GiB (lower --points or --candidates, or raise --memory-budget-gb)"
             )
 
