@@ -184,3 +184,25 @@ def test_a_model_over_the_budget_is_not_counted_where_the_solve_falls_back(inst)
     assert bits_solve_bytes(m, n, o, bits.nnz, conflicts) == counted - model
     res = solve(bits, w, positions=pos, points=pts, options=o)
     assert "greedy answer" in res.stats["memory_fallback"] and res.status == "feasible"
+
+
+def test_the_pipeline_passes_the_routes_bytes_at_the_pilots_density(inst) -> None:
+    """``pipeline.guard_solve_bytes``: the run's options, the observed pairs from the density and
+    the conflicting pairs counted from the candidates' positions."""
+    from camplace.pipeline import guard_solve_bytes
+
+    bits, w, pos, pts = inst
+    m, n = bits.shape
+
+    class Cands:  # what the guard reads of a CandidateSet
+        positions = pos
+
+        def __len__(self) -> int:
+            return n
+
+    for name in ("maxcover", "angle", "k6", "fixed", "mindist", "multiview-fixed", "setcover"):
+        o = _CASES[name][0]
+        conflicts = conflict_count(pos, o.min_distance_m) if o.min_distance_m is not None else 0
+        f = guard_solve_bytes(m, Cands(), o)
+        assert f(0.25) == bits_solve_bytes(m, n, o, round(0.25 * m * n), conflicts)
+        assert f(0.0) == bits_solve_bytes(m, n, o, 0, conflicts)
