@@ -11,11 +11,14 @@ and prints per run:
   outside is not counted), the observed pairs (from ``solution.json``) and bytes per observed pair;
 - the memory guard's estimate (:func:`camplace.visibility.engine.estimate_matrix_bytes`, the
   function the run checks its budget with, evaluated for the same size, thread count and, on
-  column bitsets, the same solve: ``--mode setcover`` and ``--mode multiview`` count their own
-  working memory, :func:`camplace.solver.bits_route.bits_solve_bytes`), the estimate of a set-cover
-  SCIP / CP-SAT model when one ran (``solver_stats["setcover"]["model_bytes"]``, made before the
-  model is built, once the reduced instance is known: the guard cannot know before the cast whether
-  one will run), their sum and its ratio to the measured peak (target: within 25 %);
+  column bitsets, the same solve: :func:`camplace.solver.api.bits_solve_bytes` of the run's options,
+  the observed pairs and the conflicting pairs the run counted, as the pipeline passes it at the
+  pilot's check), the solve's part of it (``solve MB``), the estimate the solve itself made of its
+  model once the presolved instance was known (``model MB``: a set-cover SCIP / CP-SAT model's
+  ``solver_stats["setcover"]["model_bytes"]``, which the guard cannot count before the cast and is
+  added to it; the general model's ``solver_stats["model_estimate"]``, which the guard bounds
+  already, shown only), the estimate and its ratio to the measured peak (target: within 25 %), and
+  when the peak was reached (seconds after the start);
 - the objective and status, and the peak's ratio to the baseline's.
 
 With ``--graded`` the instance is a copy of comet-67p-bunker with ``[quality] mode = "graded"``
@@ -23,10 +26,16 @@ With ``--graded`` the instance is a copy of comet-67p-bunker with ``[quality] mo
 cell (``[quality] precision = "byte"``, the default), and the baseline is the float32 CSR
 (``CAMPLACE_VISIBILITY_LAYOUT=csr``); use ``--mode quality`` for the graded objective.
 
+``--case`` picks a route of the solve on the bits (one row each, several allowed: ``plain``, the
+options given; ``angle``: multiview with a minimum angle of 20 degrees; ``k6``: k = 6, the
+large-k engines; ``fixed``: cameras 3 and 17 fixed; ``mindist``: a minimum distance of 0.5 m, the
+general model on the merged rows).
+
 Usage::
 
     python benchmarks/scale.py [--sizes 2000x10000,10000x50000] [--k 3] [--mode maxcover]
                                [--no-baseline] [--dask ADDRESS] [--threads N] [--graded]
+                               [--case plain,angle,k6,fixed,mindist] [--time-limit S]
 """
 
 from __future__ import annotations
@@ -53,10 +62,32 @@ def tree_rss(proc: psutil.Process) -> int:
     return total
 
 
-def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
+#: the routes ``--case`` picks: the run's extra arguments and the same as SolveOptions fields
+CASES = {
+    "plain": ([], {}),
+    "angle": (["--mode", "multiview", "--min-angle", "20"], {"mode": "multiview", "min_angle_deg": 20.0}),
+    "k6": (["--k", "6"], {"k": 6}),
+    "fixed": (["--fixed", "3,17"], {"fixed": (3, 17)}),
+    "mindist": (["--min-distance", "0.5"], {"min_distance_m": 0.5}),
+}
+
+
+def case_options(args, case: str):
+    """The SolveOptions of a run of ``case`` (the pipeline's, as far as the guard reads them)."""
+    from camplace.solver.options import SolveOptions
+
+    kw = {"mode": args.mode, "k": None if args.mode == "setcover" else args.k, "views": 2}
+    kw.update(CASES[case][1])
+    return SolveOptions(**kw)
+
+
+def run_once(n_cand: int, n_pts: int, args, layout: str, case: str = "plain") -> dict:
     out = Path(tempfile.mkdtemp(prefix="camplace-scale-"))
     cmd = [sys.executable, "-m", "camplace", "run", args.instance, "--candidates", str(n_cand), "--points",
            str(n_pts), "--k", str(args.k), "--mode", args.mode, "--no-cache", "-o", str(out / "run")]
+    cmd += CASES[case][0]
+    if args.time_limit is not None:
+        cmd += ["--time-limit", str(args.time_limit)]
     if args.dask:
         cmd += ["--dask", args.dask]
     if args.threads:
@@ -66,11 +97,14 @@ def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
     child = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     proc = psutil.Process(child.pid)
     peak = 0
+    peak_at = 0.0
     while child.poll() is None:
         try:
-            peak = max(peak, tree_rss(proc))
+            rss = tree_rss(proc)
         except psutil.NoSuchProcess:
             break
+        if rss > peak:
+            peak, peak_at = rss, time.perf_counter() - t0
         time.sleep(0.05)
     wall = time.perf_counter() - t0
     text = child.stdout.read() if child.stdout else ""
@@ -82,23 +116,32 @@ def run_once(n_cand: int, n_pts: int, args, layout: str) -> dict:
     observed = describe(out / "run" / "visibility.cpm")["nnz"]  # the footer alone
     subprocess.run(["rm", "-rf", str(out)], check=False)
     selected = [c.get("index", c.get("candidate")) for c in sol.get("cameras", [])]
-    model = int((sol.get("solver_stats") or {}).get("setcover", {}).get("model_bytes", 0))
-    return {"layout": layout, "wall_s": wall, "peak": peak, "observed": observed, "model": model,
-            "objective": sol.get("objective"), "status": sol.get("status"), "selected": selected}
+    stats = sol.get("solver_stats") or {}
+    model = int(stats.get("setcover", {}).get("model_bytes", 0))
+    general = int((stats.get("model_estimate") or {}).get("bytes", 0))
+    return {"layout": layout, "wall_s": wall, "peak": peak, "peak_at": peak_at, "observed": observed,
+            "model": model, "general": general, "conflicts": int(stats.get("conflict_pairs", 0)),
+            "objective": sol.get("objective"), "status": sol.get("status"), "selected": selected,
+            "engine": sol.get("engine")}
 
 
 def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads: int | None,
-                   graded: bool = False, mode: str = "maxcover", k: int = 3, views: int = 2) -> int:
+                   graded: bool = False, options=None, conflicts: int = 0) -> tuple[int, int]:
+    """The guard's estimate of a run and its solve's part (bytes): what the pipeline passes at the
+    pilot's check, with the run's density and conflicting pairs."""
     from camplace._cores import set_threads
-    from camplace.solver.bits_route import bits_solve, bits_solve_bytes
-    from camplace.solver.options import SolveOptions
+    from camplace.solver.api import bits_solve_bytes
     from camplace.visibility.engine import estimate_matrix_bytes
 
     set_threads(threads)
-    plan = bits_solve(SolveOptions(mode=mode, k=None if mode == "setcover" else k, views=views))
-    solve = {} if plan is None else {"solve_bytes": bits_solve_bytes(n_pts, n_cand, *plan)}  # what the run passes
-    return estimate_matrix_bytes(n_pts, n_cand, density, layout_name(layout, graded),
-                                 tree=1.0 if mode == "quality" else 0.0, **solve)
+    name = layout_name(layout, graded)
+    solve = 0
+    kw = {}
+    if name == "bits" and options is not None:
+        solve = bits_solve_bytes(n_pts, n_cand, options, int(round(density * n_pts * n_cand)), conflicts)
+        kw = {"solve_bytes": solve}
+    mode = "maxcover" if options is None else options.mode
+    return estimate_matrix_bytes(n_pts, n_cand, density, name, tree=1.0 if mode == "quality" else 0.0, **kw), solve
 
 
 def layout_name(layout: str, graded: bool) -> str:
@@ -125,31 +168,37 @@ def main() -> None:
     ap.add_argument("--dask", default=None)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--graded", action="store_true", help="graded quality (quantised bytes against float32 CSR)")
+    ap.add_argument("--case", default="plain", help="comma-separated routes: " + ",".join(CASES))
+    ap.add_argument("--time-limit", type=float, default=None)
     args = ap.parse_args()
     args.instance = graded_instance(Path(tempfile.mkdtemp(prefix="camplace-graded-"))) if args.graded else \
         "comet-67p-bunker"
-    print(f"{'size':>16} {'layout':>6} {'wall s':>8} {'peak MB':>9} {'pairs':>12} {'B/pair':>7} {'guard MB':>8} "
-          f"{'model MB':>8} {'est MB':>8} {'est/peak':>8} {'vs base':>8}  result")
+    print(f"{'size':>16} {'case':>8} {'layout':>6} {'wall s':>8} {'peak MB':>9} {'at s':>6} {'pairs':>12} "
+          f"{'B/pair':>7} {'guard MB':>8} {'solve MB':>8} {'model MB':>8} {'est MB':>8} {'est/peak':>8} "
+          f"{'vs base':>8}  result")
     for size in args.sizes.split(","):
         n_cand, n_pts = (int(v) for v in size.lower().split("x"))
-        runs = [run_once(n_cand, n_pts, args, "auto")]
-        if not args.no_baseline:
-            runs.append(run_once(n_cand, n_pts, args, "csr"))
-        base = runs[1]["peak"] if len(runs) > 1 and "peak" in runs[1] else None
-        for r in runs:
-            if "error" in r:
-                print(f"{size:>16} {r['layout']:>6}  failed: {r['error']}")
-                continue
-            pairs = r["observed"] or 0
-            density = pairs / (n_cand * n_pts) if pairs else 0.0
-            guard = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded, args.mode, args.k)
-            est = guard + r["model"]  # a set-cover model's own estimate (made before building it) on top
-            vs = f"{r['peak'] / base:.2f}" if base else "-"
-            bpp = r["peak"] / pairs if pairs else float("nan")
-            print(f"{size:>16} {layout_name(r['layout'], args.graded):>6} {r['wall_s']:8.1f} "
-                  f"{r['peak'] / 2**20:9.0f} {pairs:12,d} {bpp:7.2f} {guard / 2**20:8.0f} {r['model'] / 2**20:8.0f} "
-                  f"{est / 2**20:8.0f} {est / r['peak']:8.2f} {vs:>8}  "
-                  f"{r['status']} {r['objective']:.6f} {r['selected']}", flush=True)
+        for case in args.case.split(","):
+            runs = [run_once(n_cand, n_pts, args, "auto", case)]
+            if not args.no_baseline:
+                runs.append(run_once(n_cand, n_pts, args, "csr", case))
+            base = runs[1]["peak"] if len(runs) > 1 and "peak" in runs[1] else None
+            for r in runs:
+                if "error" in r:
+                    print(f"{size:>16} {case:>8} {r['layout']:>6}  failed: {r['error']}")
+                    continue
+                pairs = r["observed"] or 0
+                density = pairs / (n_cand * n_pts) if pairs else 0.0
+                guard, solve = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded,
+                                              case_options(args, case), r["conflicts"])
+                est = guard + r["model"]  # a set-cover model's own estimate (made before building it) on top
+                shown = r["model"] or r["general"]
+                vs = f"{r['peak'] / base:.2f}" if base else "-"
+                bpp = r["peak"] / pairs if pairs else float("nan")
+                print(f"{size:>16} {case:>8} {layout_name(r['layout'], args.graded):>6} {r['wall_s']:8.1f} "
+                      f"{r['peak'] / 2**20:9.0f} {r['peak_at']:6.1f} {pairs:12,d} {bpp:7.2f} {guard / 2**20:8.0f} "
+                      f"{solve / 2**20:8.0f} {shown / 2**20:8.0f} {est / 2**20:8.0f} {est / r['peak']:8.2f} {vs:>8}  "
+                      f"{r['status']} {r['engine']} {r['objective']:.6f} {r['selected']}", flush=True)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -416,11 +416,9 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
         cands, pts = sampling_stage(instance, settings)
     timings["sampling"] = time.perf_counter() - t0
 
-    from camplace.solver.bits_route import bits_solve, bits_solve_bytes
     from camplace.visibility.scratch import Scratch
 
-    plan = None if settings.robust is not None else bits_solve(settings.solve_options)
-    solve_bytes = None if plan is None else bits_solve_bytes(len(pts), len(cands), *plan)  # for the guard
+    solve_bytes = None if settings.robust is not None else guard_solve_bytes(len(pts), cands, settings.solve_options)
 
     parent = settings.scratch if settings.scratch is not None else (Path(outdir).resolve().parent if outdir is not None
                                                                     else None)
@@ -441,6 +439,23 @@ def run_settings(instance, settings: RunSettings, *, outdir: str | Path | None =
             write_stage(outdir, instance, solution, matrix_format=settings.matrix_format, reporter=reporter,
                         first_stage_at=first_stage_at)
     return solution
+
+
+def guard_solve_bytes(m: int, cands: CandidateSet, o) -> Callable[[float], int]:
+    """The working bytes of the solve a binary run makes next, for the visibility stage's memory
+    guard: :func:`camplace.solver.api.bits_solve_bytes` of the options ``o`` on ``m`` points and the
+    candidates, as a function of the observed share of cells (the guard's pilot measures it),
+    with the candidate pairs closer than ``o.min_distance_m`` counted from their positions."""
+    from camplace.solver.api import bits_solve_bytes, conflict_count
+
+    n = len(cands)
+    conflicts = 0 if o.min_distance_m is None else conflict_count(np.asarray(cands.positions, dtype=np.float64),
+                                                                  float(o.min_distance_m))
+
+    def solve_bytes(density: float) -> int:
+        return bits_solve_bytes(m, n, o, int(round(float(density) * m * n)), conflicts)
+
+    return solve_bytes
 
 
 def sampling_stage(instance, settings: RunSettings) -> tuple[CandidateSet, "TargetPoints"]:

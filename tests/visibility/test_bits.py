@@ -154,24 +154,42 @@ def test_guard_counts_the_solve_on_bits(problem) -> None:
     """The guard's bits estimate counts the solve the run makes (issue 32: the multiview engine's
     and set cover's working memory): a budget between max coverage's estimate and multiview's
     lets the max-coverage run cast its rays and stops the multiview one before the work."""
-    from camplace.solver.bits_route import bits_solve, bits_solve_bytes
+    from camplace.solver.api import bits_solve_bytes
     from camplace.solver.options import SolveOptions
     from camplace.visibility.engine import estimate_matrix_bytes
 
     inst, pts, cands = problem
     m, n = len(pts), len(cands)
     plain = estimate_matrix_bytes(m, n, 1.0, "bits")
-    mv = bits_solve(SolveOptions(mode="multiview", k=3, views=2))
-    sc = bits_solve(SolveOptions(mode="setcover"))
-    assert mv == ("multiview", 3, 2) and sc == ("setcover", None, 0)
-    assert bits_solve(SolveOptions(mode="maxcover", k=3)) is None
-    assert bits_solve(SolveOptions(mode="multiview", k=3, min_angle_deg=20.0)) is None
     words = n * ((m + 63) // 64) * 8
-    for plan in (mv, sc):
-        got = estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=bits_solve_bytes(m, n, *plan))
-        assert got - plain == bits_solve_bytes(m, n, *plan) - words > 0
-    mv_bytes = bits_solve_bytes(m, n, *mv)
+    for o in (SolveOptions(mode="multiview", k=3, views=2), SolveOptions(mode="setcover")):
+        solve = bits_solve_bytes(m, n, o)
+        got = estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=solve)
+        assert got - plain == solve - words > 0
+        # a function of the density is evaluated at the density given
+        assert estimate_matrix_bytes(m, n, 0.3, "bits", solve_bytes=lambda d: solve + int(d * 1000)) == got + 300
+    mv_bytes = bits_solve_bytes(m, n, SolveOptions(mode="multiview", k=3, views=2))
     budget = (plain + estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=mv_bytes)) // 2
     compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget)
     with pytest.raises(Exception, match="memory budget"):
         compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve_bytes=mv_bytes)
+
+
+def test_guard_checks_the_solve_with_the_pilots_density(problem) -> None:
+    """A solve whose working memory grows with the observed pairs (a function of the density) is
+    not counted before the work (density 0) but is at the pilot's check, with the pilot's density:
+    a budget that the density-free part fits stops the run at the pilot."""
+    from camplace.visibility.engine import estimate_matrix_bytes
+
+    inst, pts, cands = problem
+    m, n = len(pts), len(cands)
+    seen: list[float] = []
+
+    def grows(density: float) -> int:
+        seen.append(density)
+        return int(density * 10**12)  # a terabyte at any observed share: never fits
+
+    budget = estimate_matrix_bytes(m, n, 0.0, "bits", solve_bytes=0) + (1 << 20)
+    with pytest.raises(Exception, match="memory budget"):
+        compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve_bytes=grows)
+    assert seen[0] == 0.0 and any(d > 0 for d in seen[1:])

@@ -81,7 +81,7 @@ from camplace.solver.problem.presolve import check_weights
 from camplace.solver.result import EngineOutcome, SolverResult, jsonable, relative_gap
 from camplace.solver.routes import CoverProblem, fixed_base, run_cover, run_team
 
-__all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count"]
+__all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count", "bits_solve_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -355,6 +355,101 @@ def _free_columns(n: int, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...]
     free[list(fixed_set | banned)] = False
     keep_conf = free[conflicts[:, 0]] & free[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
     return np.flatnonzero(free), conflicts[keep_conf]
+
+
+def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: int = 0) -> int:
+    """Working bytes of :func:`solve` with the options ``o`` on an (m, n) binary matrix of ``nnz``
+    observed pairs held as column bitsets (``B = n x ceil(m / 64) x 8`` bytes), besides the
+    bitsets: what the visibility stage's memory guard adds for the solve the run makes next (the
+    pipeline passes it), following :func:`_solve`'s routes on a BitMatrix in the same order, each
+    from its engine's own estimate. Where a route works on the presolved instance (its size known
+    only after the presolve) the whole matrix's sizes stand for it: an upper bound, as the engines
+    check the reduced sizes before allocating.
+
+    * the bits route (:func:`camplace.solver.bits_route.outcome_bytes`): plain max coverage,
+      multiview with or without a minimum angle, ``4 < k <= 8``;
+    * fixed or forbidden cameras there (:func:`_sides_bits`): the allowed columns' bitsets (a copy,
+      at most ``B``) and the bits route's bytes on them;
+    * set cover without a minimum distance or team:
+      :func:`camplace.solver.engines.setcover.reduce_bits.setcover_bits_bytes`;
+    * a team in max coverage (:func:`_team_bits`): the branch and bound's row lists
+      (:func:`camplace.solver.engines.team.bnb.row_lists_bytes`) or, where another team engine
+      runs, the whole matrix as a bool CSR (5 bytes a pair): the larger (the team engines' own
+      working memory is checked by them and not counted);
+    * a minimum distance, engine mip / cpsat, multiview with fixed cameras and no angle
+      (:func:`_rows_presolved`): the bit presolve, then its merged rows' bitsets (at most ``B``)
+      and bool CSR (:func:`~camplace.solver.problem.presolve_bits.reduced_csr_bytes`), the
+      ``conflicts`` pairs (:data:`_CONFLICT_PAIR_BYTES` each) and the general model
+      (:func:`~camplace.solver.engines.mip.linear.model_bytes` of
+      :func:`~camplace.solver.engines.mip.mode_models.cover_model_size` of every row);
+    * set cover with a minimum distance (:func:`_setcover_bits`): the rows left to cover as the
+      bool CSR the model reads, at most the whole matrix's (5 bytes a pair), the conflicting pairs
+      and the model of every row (counted as below: an upper bound on the set-cover model's size);
+    * the rest (a minimum angle on the general model, a team off the bits): the whole matrix as a
+      bool CSR (5 bytes a pair; float32 values, 4 more, with a minimum angle) and the general model
+      of every row (without the angle's pair rows, counted by the model once the matrix is known).
+
+    A general model over the solver's memory budget (``o.memory_budget_bytes`` and
+    :func:`~camplace.solver._support.memory.memory_budget_bytes` now) under engine ``auto`` is
+    not counted: the solve then returns the greedy answer with a cheap bound instead of building it
+    (:func:`~camplace.solver._support.memory.memory_fallback`), so the guard does not stop a run
+    that ends with that answer; asked for by name (mip, cpsat) it is counted, as the solve would
+    stop there.
+
+    Parameters
+    ----------
+    m, n : int
+        Rows (points) and columns (candidate poses).
+    o : SolveOptions
+        The run's options.
+    nnz : int
+        Observed pairs (0 when not known yet: the parts that do not depend on them).
+    conflicts : int
+        Candidate pairs closer than ``o.min_distance_m``
+        (:func:`~camplace.solver.problem.checks.conflict_count`; 0 without one).
+
+    Returns
+    -------
+    int
+        Bytes.
+    """
+    from camplace.solver.bits_route import bits_applies, outcome_bytes
+    from camplace.solver.engines.mip.linear import model_bytes
+    from camplace.solver.engines.mip.mode_models import cover_model_size
+    from camplace.solver.engines.setcover.reduce_bits import setcover_bits_bytes
+    from camplace.solver.engines.team.bnb import row_lists_bytes
+    from camplace.solver.problem.presolve_bits import presolve_bits_bytes, reduced_csr_bytes
+
+    m, n, nnz, conflicts = int(m), int(n), int(nnz), int(conflicts) if o.min_distance_m is not None else 0
+    col_bytes = ((m + 63) // 64) * 8
+    if o.team is None and o.mode == "setcover" and o.min_distance_m is None:
+        return setcover_bits_bytes(m, n)
+    if o.team is None and o.mode != "setcover" and o.k is not None:
+        if bits_applies(o):
+            got = outcome_bytes(m, n, o, nnz)
+            if got is not None:
+                return got
+        if _sides_bits_applies(o):
+            multiview = o.mode == "multiview"
+            cols = n - len(set(o.forbidden)) - (0 if multiview else len(set(o.fixed)))
+            local = replace(o, forbidden=(), fixed=tuple(range(len(o.fixed))) if multiview else ())
+            got = outcome_bytes(m, cols, local, nnz)
+            if got is not None:  # the allowed columns' copy, the residual weights, the route on them
+                return cols * col_bytes + 8 * m + got
+    if o.team is not None and _team_bits_applies(o):  # the branch and bound on the bits, or (another team engine) the CSR
+        return max(row_lists_bytes(nnz) + 8 * m, 5 * nnz + 8 * (m + 1))
+    backend = "cpsat" if o.engine == "cpsat" else "mip"
+    free, n_fixed = n - len(set(o.fixed)) - len(set(o.forbidden)), len(set(o.fixed))
+    model = model_bytes(backend, *cover_model_size(m, free, nnz, conflicts, n_fixed))
+    if o.engine == "auto" and o.mode != "setcover":
+        with memory_budget(o.memory_budget_bytes):
+            if model > memory_budget_bytes():  # the solve gives the greedy answer instead (routes._model)
+                model = 0
+    pairs = _CONFLICT_PAIR_BYTES * conflicts
+    if o.team is None and _rows_presolve_applies(o):  # the merged rows' bitsets and bool CSR, then the model
+        return max(presolve_bits_bytes(m, n), n * col_bytes + reduced_csr_bytes(m, n, nnz, 1) + pairs + model)
+    values = 4 * nnz if o.min_angle_deg is not None else 0
+    return 5 * nnz + 8 * (m + 1) + values + pairs + model
 
 
 def _checked_columns(weights: Any, o: SolveOptions, m: int, n: int) -> tuple[np.ndarray, tuple[int, ...], tuple[int, ...]]:

@@ -76,7 +76,7 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes
 from camplace.solver.choose import choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
-from camplace.solver.engines.bitset.search import BITSET_MAX_K, bitset_bytes, solve_bitset
+from camplace.solver.engines.bitset.search import bitset_bytes, pairs_layout_bytes, solve_bitset
 from camplace.solver.engines.large_k.search import run_large_k
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
@@ -88,46 +88,95 @@ from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
 
-__all__ = ["bits_applies", "bits_outcome", "binary_value", "bits_solve", "bits_solve_bytes", "load_kernels"]
+__all__ = ["bits_applies", "bits_outcome", "binary_value", "large_k_bits_bytes", "load_kernels", "outcome_bytes"]
 
 log = logging.getLogger(__name__)
 
 
-def bits_solve(o: SolveOptions) -> tuple[str, int | None, int] | None:
-    """The solve a run makes on its column bitsets, for the visibility guard's estimate
-    (:func:`bits_solve_bytes`): ``(mode, k, views)`` for set cover (no minimum distance, no team)
-    and plain multiview (no angle, no fixed, forbidden, distance or team), None otherwise (the
-    guard then counts max coverage's presolve)."""
-    if o.team is not None or o.min_distance_m is not None:
-        return None
-    if o.mode == "setcover":
-        return ("setcover", None, 0)
-    if o.mode == "multiview" and o.min_angle_deg is None and not o.fixed and not o.forbidden:
-        return ("multiview", None if o.k is None else int(o.k), int(o.views))
+def outcome_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0) -> int | None:
+    """Working bytes of :func:`bits_outcome` for the options ``o`` on an (m, n) matrix of ``nnz``
+    observed pairs held as column bitsets (``B = n x ceil(m / 64) x 8`` bytes), besides the bitsets:
+    the estimate the visibility stage's guard adds for the solve (through
+    :func:`camplace.solver.api.bits_solve_bytes`), from the engines' own estimates, made before the
+    matrix exists. Where the engine runs on the presolved instance (its size known only after the
+    presolve), the whole matrix's sizes are used: an upper bound (``m' <= m``, ``n' <= n``,
+    ``nnz' <= nnz``), as the engine's own check uses the reduced ones.
+
+    * max coverage (and quality of a binary matrix), ``k <= 4``: the bit presolve
+      (:func:`~camplace.solver.problem.presolve_bits.presolve_bits_bytes`, about ``2 B``); the
+      bitset engine then runs on the columns the dominance keeps (at 10,000 x 50,000 on
+      comet-67p-bunker a few hundred: its bitsets on the whole matrix's sizes, 250 MB, would put
+      the estimate at 1.4 times the peak) and checks its bitsets against the budget itself. With
+      engine mip or cpsat, the presolved instance's bitsets (at most ``B``) and its max-coverage
+      model (:func:`~camplace.solver.engines.mip.ortools.maxcover_model_size`) instead: the larger;
+    * multiview, ``k <= 4``: the bit presolve (no dominance: every column stays), then the bitset
+      engine's bitsets (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` with
+      ``min(views, k)`` levels, ``(2 + 2 min(views, k)) B``, without the open tuples, which grow
+      with the search up to a fixed cap and are checked by the engine): the larger of the two; on
+      the opposite-pairs layout for ``k < 2 views``
+      (:func:`~camplace.solver.engines.bitset.search.pairs_layout_bytes`: the matching and up to
+      two layout rows a row);
+    * multiview with a minimum angle: :func:`~camplace.solver.engines.angle.search.angle_bytes` of
+      every row and column (fixed ones: ``o.fixed``), with the engine's least number of open
+      tuples (it opens more only as far as its memory budget allows);
+    * ``4 < k <= 8`` (:func:`_large_k`): the bit presolve, then its reduced bitsets (at most ``B``),
+      their column lists (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern_bytes`,
+      8 bytes a pair) and the large-k engines'
+      (:func:`~camplace.solver.engines.large_k.search.large_k_bytes`; multiview adds the bitset
+      engine's bitsets). The SCIP model that may follow is checked against the budget by the
+      engine and skipped when it does not fit (the run keeps the search's answer): not counted.
+
+    Returns
+    -------
+    int or None
+        Bytes; None where :func:`bits_outcome` leaves the solve to another route (the engine choice
+        is the general model): the caller counts that route.
+    """
+    from camplace.solver.choose import ProblemSizes
+    from camplace.solver.engines.angle.search import angle_bytes
+    from camplace.solver.problem.presolve_bits import presolve_bits_bytes
+
+    k, views, fixed = int(o.k), int(o.views), len(o.fixed)
+    words = int(n) * ((int(m) + 63) // 64) * 8
+    presolve = presolve_bits_bytes(m, n)
+    views_mode = o.mode == "multiview"
+    sizes = ProblemSizes(k=k, points=int(m), free=int(n) - fixed, nnz=int(nnz), fixed=fixed, conflicts=0)
+    choice = choose_engine(sizes, o if views_mode else replace(o, mode="maxcover"), 1 << 62)
+    levels = min(views, k) if views_mode else 1
+    if choice.route == "large-k" and not fixed:
+        return max(presolve, large_k_bits_bytes(m, n, nnz, k, levels if views_mode else 0))
+    if choice.route == "angle" and o.min_angle_deg is not None:
+        return angle_bytes(m, n - fixed, fixed, k, views)
+    if choice.route == ("multiview" if views_mode else "maxcover"):
+        if views_mode and 1 < views and k < 2 * views:  # the opposite-pairs layout
+            return max(presolve, pairs_layout_bytes(m, n, levels, k))
+        if not views_mode and choice.engine in ("mip", "cpsat"):  # the max-coverage model of the presolved instance
+            from camplace.solver.engines.mip.linear import model_bytes
+            from camplace.solver.engines.mip.ortools import maxcover_model_size
+
+            return max(presolve, words + model_bytes(choice.engine, *maxcover_model_size(m, n, nnz)))
+        if not views_mode:  # the engine runs on the columns the dominance keeps and checks its bitsets itself
+            return presolve
+        return max(presolve, bitset_bytes(m, n, levels, k, tuples=False))
     return None
 
 
-def bits_solve_bytes(m: int, n: int, mode: str | None = None, k: int | None = None, views: int = 2) -> int:
-    """Working bytes of a solve on an (m, n) matrix held as column bitsets (``B = n x ceil(m / 64) x 8``
-    bytes), besides the bitsets.
+def large_k_bits_bytes(m: int, n: int, nnz: int, k: int, levels: int = 0) -> int:
+    """Bytes :func:`_large_k` holds after the bit presolve on an (m, n) matrix of ``nnz`` pairs
+    (upper bounds: the whole matrix's sizes for the reduced instance's): the reduced bitsets (at
+    most ``B``), their column lists
+    (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern_bytes`), the large-k engines'
+    working memory on them (:func:`~camplace.solver.engines.large_k.search.large_k_bytes` with the
+    pattern) and, for multiview (``levels`` > 0), the bitset engine's ``levels`` level bitsets
+    (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` without its open tuples)."""
+    from camplace.solver.engines.large_k.search import large_k_bytes
+    from camplace.solver.problem.presolve_bits import reduced_pattern_bytes
 
-    * ``setcover``: :func:`camplace.solver.engines.setcover.reduce_bits.setcover_bits_bytes` (the
-      rows to cover as row bitsets and their transposition, about ``2 B``);
-    * ``multiview`` with ``k`` up to :data:`~camplace.solver.engines.bitset.search.BITSET_MAX_K`:
-      the bitset engine's bitsets on the presolved instance, at most ``(2 + 2 min(views, k)) B``
-      (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` without its open tuples, which
-      grow with the search up to a fixed cap and are checked by the engine); at least the presolve's
-      ``B``;
-    * otherwise (max coverage, quality, None): the presolve's working bitsets, at most ``B``.
-    """
     words = int(n) * ((int(m) + 63) // 64) * 8
-    if mode == "setcover":
-        from camplace.solver.engines.setcover.reduce_bits import setcover_bits_bytes
-
-        return setcover_bits_bytes(m, n)
-    if mode == "multiview" and k is not None and 1 <= int(k) <= BITSET_MAX_K:
-        return max(words, bitset_bytes(m, n, min(int(views), int(k)), int(k), tuples=False))
-    return words
+    engine = large_k_bytes(m, n, nnz, pattern=True)
+    if levels:
+        engine += bitset_bytes(m, n, levels, k, tuples=False)
+    return int(words + reduced_pattern_bytes(n, nnz) + engine)
 
 
 def bits_applies(o: SolveOptions) -> bool:

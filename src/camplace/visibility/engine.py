@@ -548,7 +548,7 @@ LEAN_TREE = 1 / 32
 
 
 def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str = "csr", tree: float = 1.0,
-                          solve_bytes: int | None = None) -> int:
+                          solve_bytes: int | Callable[[float], int] | None = None) -> int:
     """Peak bytes of a run with a matrix of this size and density in ``layout``.
 
     ``csr`` (graded values): the chunk results (1 byte a pair, plus 12 bytes a nonempty row of a
@@ -572,9 +572,12 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
 
     ``solve_bytes`` (``bits`` only): the working bytes of the solve the run makes next, besides the
-    bitsets, from the stage that knows the solver (the pipeline: :func:`camplace.solver.bits_route.bits_solve_bytes`:
-    set cover's row bitsets and their transposition, about ``2 B``; the multiview bitset engine's
-    ``(2 + 2 min(views, k)) B``): ``B + solve_bytes``. None: max coverage's presolve, ``2 B``.
+    bitsets, from the stage that knows the solver (the pipeline: :func:`camplace.solver.api.bits_solve_bytes`,
+    e.g. set cover's row bitsets and their transposition, about ``2 B``; the multiview bitset
+    engine's ``(2 + 2 min(views, k)) B``; the general model of a minimum distance, which grows with
+    the observed pairs): ``B + solve_bytes``, a number or a function of the density (the share of
+    observed cells: 0 before the work, the pilot's at the pilot's check). None: max coverage's
+    presolve, ``2 B``.
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
     words = 8 * n_cols * ((n_rows + 63) // 64)
@@ -586,7 +589,8 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     if layout == "bytes-disk":
         return int(float(tree) * n_rows * n_cols + words + 16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":
-        return int(words + (words if solve_bytes is None else int(solve_bytes)) + 16 * n_rows + fixed)
+        solve = words if solve_bytes is None else solve_bytes(density) if callable(solve_bytes) else solve_bytes
+        return int(words + int(solve) + 16 * n_rows + fixed)
     nnz = density * n_rows * n_cols
     return int(10 * nnz + 16 * (n_rows + 1) + fixed)
 
@@ -606,7 +610,7 @@ def compute_visibility(
     scratch=None,
     quality_tree: bool = True,
     idle: Callable[[], object] | None = None,
-    solve_bytes: int | None = None,
+    solve_bytes: int | Callable[[float], int] | None = None,
 ) -> VisibilityMatrix:
     """Build the points x candidates visibility matrix.
 
@@ -643,10 +647,11 @@ def compute_visibility(
         Quantised columns only: the run's solve builds the quality tree over them (``--mode
         quality``), so the memory estimate counts its inner nodes' table too (False: a solve that
         reads the pattern).
-    solve_bytes : int or None
+    solve_bytes : int, callable or None
         Column bitsets only: the working bytes of the solve the run makes next, besides the bitsets,
-        for the memory estimate (:func:`estimate_matrix_bytes`'s ``solve_bytes``; the pipeline
-        gives :func:`camplace.solver.bits_route.bits_solve_bytes`); None: max coverage's presolve.
+        for the memory estimate (:func:`estimate_matrix_bytes`'s ``solve_bytes``: a number or a
+        function of the observed share of cells; the pipeline gives
+        :func:`camplace.solver.api.bits_solve_bytes`); None: max coverage's presolve.
     idle : callable or None
         Called once by this thread while the worker threads cast the chunks (after the first one),
         for work that would otherwise wait for the matrix (the pipeline loads the solver's
@@ -709,7 +714,7 @@ def compute_visibility(
                                     store_path=cache.entry_path(Path(cache_dir), key), timings_s=timings)
     budget = memory_budget_bytes if memory_budget_bytes is not None else available_memory_bytes() // 2
     starts = list(range(0, n_cand, chunk_size))
-    solve_kw = {} if solve_bytes is None else {"solve_bytes": int(solve_bytes)}
+    solve_kw = {} if solve_bytes is None else {"solve_bytes": solve_bytes if callable(solve_bytes) else int(solve_bytes)}
 
     # The first chunk is a pilot: its density is checked against the memory budget before the bulk
     # of the work (in process, the other chunks start beside it and are cancelled on a failed check).
@@ -721,8 +726,8 @@ def compute_visibility(
         need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout, **solve_kw)
         if need > budget:
             raise CamplaceError(
-                f"visibility: the matrix would need about {need / 2**30:.1f} GiB ({len(points):_} rows x {n_cand:_} "
-                f"candidates, {100 * density:.1f}% observed in a pilot of {pilot_cols} candidates), over the memory "
+                f"visibility: the matrix and the solve would need about {need / 2**30:.1f} GiB ({len(points):_} rows x "
+                f"{n_cand:_} candidates, {100 * density:.1f}% observed in a pilot of {pilot_cols} candidates), over the memory "
                 f"budget of {budget / 2**30:.1f} GiB (lower --points or --candidates, or raise --memory-budget-gb)"
             )
 
@@ -757,7 +762,9 @@ def compute_visibility(
     if use_bits:
         from camplace.visibility.bits import bit_words
 
-        need = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits", **solve_kw)  # one bit a cell: known before the work
+        # one bit a cell: known before the work; the solve's part that grows with the observed pairs
+        # (density 0 here) is checked with the pilot's density
+        need = estimate_matrix_bytes(len(points), n_cand, 0.0, "bits", **solve_kw)
         shape = (n_cand, bit_words(len(points)))
         if need > budget and scratch is not None:
             disk = estimate_matrix_bytes(len(points), n_cand, 1.0, "bits-disk")

@@ -287,13 +287,14 @@ def visibility_stage(
     scratch=None,
     solve_mode: str | None = None,
     idle=None,
-    solve_bytes: int | None = None,
+    solve_bytes=None,
 ) -> VisibilityMatrix:
     """Compute (or fetch from the cache) the visibility matrix, with a progress bar (``scratch``: a
     :class:`~camplace.visibility.scratch.Scratch` for column bitsets or bytes over the budget; ``solve_mode``:
     the mode the run solves next, for the memory estimate of quantised columns: None or
     ``quality`` counts the quality tree; ``solve_bytes``: the working bytes of the solve on column
-    bitsets besides them, for their estimate (the pipeline's :func:`camplace.solver.bits_route.bits_solve_bytes`); ``idle``: work
+    bitsets besides them, for their estimate, a number or a function of the observed share of cells
+    (the pipeline's :func:`camplace.solver.api.bits_solve_bytes`); ``idle``: work
     for this thread while the chunks are cast,
     see :func:`~camplace.visibility.engine.compute_visibility`)."""
     from camplace.visibility.cache import default_cache_dir

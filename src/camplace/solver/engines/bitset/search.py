@@ -83,7 +83,7 @@ from camplace.solver.problem.presolve import Presolved
 from camplace.solver.problem.presolve_bits import layout_bits
 from camplace.solver.result import EngineOutcome
 
-__all__ = ["solve_bitset", "bitset_bytes", "BITSET_MAX_K"]
+__all__ = ["solve_bitset", "bitset_bytes", "pairs_layout_bytes", "BITSET_MAX_K"]
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +119,18 @@ def bitset_bytes(m: int, n: int, levels: int, k: int = BITSET_MAX_K, tuples: boo
     stacks for views > 1; they grow with the search, up to 160 MiB at k = 3)."""
     open_b = (_STACK + _FRONTIER_MAX + max((k + 1) * _BATCH, _ROOTS_MAX * _dfs_stack(k, n))) * (8 * k + 8)
     return n * ((m + 63) // 64) * 8 * (2 + 2 * max(1, levels)) + (open_b if tuples else 0)
+
+
+def pairs_layout_bytes(m: int, n: int, levels: int, k: int = BITSET_MAX_K) -> int:
+    """Working memory of the search on the opposite-pairs layout (``views > 1`` and
+    ``k < 2 views``: :func:`_pair_layout`) for ``m`` reduced rows and ``n`` columns: the matching
+    (:func:`~camplace.solver.engines.bitset.pair_cap.opposite_pair_bytes`), the layout's row order,
+    weights and sort keys (up to two layout rows a row, 48 bytes each) and its bitsets
+    (:func:`bitset_bytes` of up to ``2 m + 128`` layout rows, without the open tuples)."""
+    from camplace.solver.engines.bitset.pair_cap import opposite_pair_bytes
+
+    rows = 2 * int(m) + 128
+    return int(opposite_pair_bytes(m, n) + 48 * rows + bitset_bytes(rows, n, levels, k, tuples=False))
 
 
 def _last_mask(m: int) -> np.uint64:

@@ -37,12 +37,21 @@ _OPT_TOL = 1e-9  # relative gap under which a result counts as optimal
 # solves of 10^5..10^6 rows / variables): SCIP about 2.7 kB a variable, 1.7 kB a row, 150 B a
 # nonzero; CP-SAT (2 workers) 0.9 kB, 1.1 kB and 60 B.
 _MODEL_BYTES = {"mip": (2800, 1700, 150), "cpsat": (900, 1100, 70)}
-_MODEL_SEARCH_FACTOR = 1.5  # longer searches (LP, tree, cuts) grow beyond the measured peaks
+# Longer searches (LP, tree, cuts) grow beyond those 3 s peaks. SCIP on the min-distance max-coverage
+# model of comet-67p-bunker with a 60 s limit (the quick start; RSS of the process and the SCIP child
+# sampled each second, less the process's before the model was built): 1.19 GB at 1.58e6 nonzeros
+# (1,000 x 5,000), 3.46 GB at 6.04e6 (2,000 x 10,000; 2.87 GB after 30 s): the child grows in steps
+# with the search (load 1.2 GB, root LP 2.1 GB at 24 s, 2.4 GB at 29 s, 2.9 GB as it stops), about
+# 3.3 times the 3 s figures plus the child's own interpreter and SCIP's fixed tables (250 MB, in a
+# child only: models of CHILD_MIN_NONZEROS or more). CP-SAT: not measured beyond 3 s.
+_MODEL_SEARCH_FACTOR = {"mip": 3.3, "cpsat": 1.5}
 _MODEL_BASE_BYTES = 100 << 20
+_CHILD_BASE_BYTES = 250 << 20
 
 
 def model_bytes(backend: str, n_vars: int, n_rows: int, nnz: int) -> int:
-    """Estimated peak memory of building and solving a model of this size.
+    """Estimated peak memory of building and solving a model of this size (SCIP: within a 60 s
+    search; it grows with the time given, up to ``limits/memory``, :func:`scip_memory_mb`).
 
     Parameters
     ----------
@@ -55,9 +64,11 @@ def model_bytes(backend: str, n_vars: int, n_rows: int, nnz: int) -> int:
     int
         Bytes.
     """
-    per_var, per_row, per_nnz = _MODEL_BYTES["cpsat" if backend == "cpsat" else "mip"]
+    name = "cpsat" if backend == "cpsat" else "mip"
+    per_var, per_row, per_nnz = _MODEL_BYTES[name]
     raw = per_var * float(n_vars) + per_row * float(n_rows) + per_nnz * float(nnz)
-    return int(_MODEL_SEARCH_FACTOR * raw) + _MODEL_BASE_BYTES
+    child = _CHILD_BASE_BYTES if name == "mip" and nnz >= CHILD_MIN_NONZEROS else 0  # (with a time limit)
+    return int(_MODEL_SEARCH_FACTOR[name] * raw) + _MODEL_BASE_BYTES + child
 
 
 @dataclass(frozen=True)
@@ -228,7 +239,7 @@ def scip_memory_mb() -> int:
     (:func:`camplace.solver._support.memory.memory_budget_bytes`: a share of what the machine has
     available, at most ``--memory-budget-gb``), at least 64. SCIP's branch-and-bound tree grows with
     the time it is given (a 6e6-nonzero min-distance model of the quick start reached 3.3 GB in 60 s
-    and 3.8 GB in 10 minutes, over its 2.1 GB model estimate): past the limit SCIP stops with its
+    and 3.8 GB in 10 minutes; :func:`model_bytes` counts about 60 s of it): past the limit SCIP stops with its
     best solution and bound instead of growing until the machine runs out."""
     from camplace.solver._support.memory import memory_budget_bytes
 

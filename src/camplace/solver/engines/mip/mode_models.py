@@ -25,7 +25,7 @@ from camplace.solver.engines.mip.linear import LinearModel, model_bytes
 from camplace.solver.problem.objectives import angle_ok_pairs, selected_row_stats
 from camplace.solver.problem.presolve import as_pattern
 
-__all__ = ["BuildTimeout", "add_level_chain", "add_quality_rows", "add_multiview_rows", "merge_rows", "model_size",
+__all__ = ["BuildTimeout", "add_level_chain", "add_quality_rows", "add_multiview_rows", "merge_rows", "cover_model_size", "model_size",
            "build_model", "check_setcover_memory", "setcover_model"]
 
 _MODEL_BYTES_PER_ROW_MIN = 1000  # no model row costs less (see camplace.solver.engines.mip.linear.model_bytes)
@@ -53,6 +53,17 @@ def merge_rows(a: sp.csr_matrix, w: np.ndarray) -> tuple[sp.csr_matrix, np.ndarr
     return a[first].tocsr() if first else a[:0], np.asarray(wsum, dtype=np.float64)
 
 
+def cover_model_size(rows: int, n_free: int, entries: int, conflicts: int, n_fixed: int = 0) -> tuple[int, int, int]:
+    """Variables, constraints and nonzeros of the max-coverage or multiview model (no angle) of
+    ``rows`` counted rows with ``entries`` matrix entries over ``n_free`` free and ``n_fixed``
+    fixed columns, with ``conflicts`` minimum-distance pairs: a variable per column and per row,
+    a row per counted row, per conflict and the cardinality row. Given the whole matrix's rows and
+    entries it is an upper bound on :func:`model_size` (what the memory guard counts before the
+    matrix exists)."""
+    rows, entries, conflicts = int(rows), int(entries), int(conflicts)
+    return (int(n_free) + int(n_fixed) + rows, 1 + conflicts + rows, int(n_free) + 2 * conflicts + entries + rows)
+
+
 def model_size(
     q: sp.csr_matrix, resid: sp.csr_matrix, resid_w: np.ndarray, w: np.ndarray, mode: str, views: int,
     min_angle_deg: float | None, pos: np.ndarray | None, pts: np.ndarray | None, fixed_t: tuple[int, ...],
@@ -69,17 +80,19 @@ def model_size(
         cnt = np.diff(resid.indptr)
         live = (resid_w > 0) & (cnt > 0)
         entries = int(cnt[live].sum())
-        rows = int(live.sum()) if mode == "maxcover" else entries  # quality: a row per distinct level
-        return n_vars + rows, n_rows + rows, nnz + entries + (rows if mode == "maxcover" else 2 * rows)
+        if mode == "maxcover":
+            return cover_model_size(int(live.sum()), nf, entries, n_conf)
+        rows = entries  # quality: a row per distinct level
+        return n_vars + rows, n_rows + rows, nnz + entries + 2 * rows
     allowed = np.zeros(q.shape[1], dtype=bool)
     allowed[free_cols] = True
     allowed[list(fixed_t)] = True
     nobs, _ = selected_row_stats(q, np.flatnonzero(allowed))
     live = np.flatnonzero((w > 0) & (nobs >= views))
     s = nobs[live].astype(np.int64)
-    n_vars += len(fixed_t)
     if pts is None:
-        return n_vars + live.size, n_rows + live.size, nnz + int(s.sum()) + live.size
+        return cover_model_size(live.size, nf, int(s.sum()), n_conf, len(fixed_t))
+    n_vars += len(fixed_t)
     assert pos is not None
     limit = budget // _MODEL_BYTES_PER_ROW_MIN
     data = q.data.view(np.uint8) if q.data.dtype.kind == "b" else q.data

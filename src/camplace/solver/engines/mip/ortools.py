@@ -33,7 +33,7 @@ from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_
 from camplace.solver.problem.presolve import Presolved
 from camplace.solver.result import EngineOutcome
 
-__all__ = ["solve_mip", "solve_cpsat", "maxcover_model_bytes"]
+__all__ = ["solve_mip", "solve_cpsat", "maxcover_model_bytes", "maxcover_model_size"]
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,15 @@ def maxcover_model_bytes(pre: Presolved, backend: str) -> int:
     else:
         a, rows, _ = pre.source
         nnz = int(np.diff(a.indptr)[rows].sum()) if rows.size else 0
-    return model_bytes(backend, n + m, m + 1, nnz + m + n)
+    return model_bytes(backend, *maxcover_model_size(m, n, nnz))
+
+
+def maxcover_model_size(m: int, n: int, nnz: int) -> tuple[int, int, int]:
+    """Variables, constraints and nonzeros of the max-coverage model of an (m, n) instance of
+    ``nnz`` entries: n + m variables, m + 1 rows, at most nnz + m + n nonzeros (given the whole
+    matrix's sizes, an upper bound for its presolved instance's model)."""
+    m, n, nnz = int(m), int(n), int(nnz)
+    return n + m, m + 1, nnz + m + n
 
 
 def _check_memory(pre: Presolved, backend: str) -> None:

@@ -35,7 +35,7 @@ from camplace.solver._support.memory import OverBudget, memory_budget_bytes, mem
 from camplace.solver.problem.team import TeamConstraints
 from camplace.visibility.bits import column_rows
 
-__all__ = ["team_branch_and_bound", "count_bound"]
+__all__ = ["team_branch_and_bound", "count_bound", "row_lists_bytes"]
 
 _EPS = 1e-12
 
@@ -50,6 +50,13 @@ class _State:
         self.cost = float(team.cost[list(fixed)].sum()) if fixed else 0.0
         self.poses: set[int] = set(team.pose[list(fixed)].tolist()) if (team.pose is not None and fixed) else set()
         self.chosen: list[int] = []
+
+
+def row_lists_bytes(nnz: int) -> int:
+    """Bytes of the branch and bound's row lists read from column bitsets
+    (:func:`camplace.visibility.bits.column_rows`): int32 row indices, 4 bytes a pair of the free
+    columns."""
+    return 4 * int(nnz)
 
 
 def _csc_rows(q, fixed: tuple[int, ...], free_cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,7 +159,7 @@ def team_branch_and_bound(
         if cb <= incumbent + _EPS:  # no team beats the incumbent: proven before reading any row list
             return None, "dominated", math.nan, incumbent, {"columns": int(nf), "nodes": 0, "count_bound": cb}
     if getattr(q, "format", None) == "bits":  # column bitsets: the row lists straight from the bits
-        need, budget = 4 * int(q.column_counts[free_cols].sum()), memory_budget_bytes()
+        need, budget = row_lists_bytes(int(q.column_counts[free_cols].sum())), memory_budget_bytes()
         if need > budget:
             memory_fallback(OverBudget(need, budget, "the team branch and bound's row lists"), None, asked=False,
                             then=None, fix="use engine mip (or fewer candidates / points)")
