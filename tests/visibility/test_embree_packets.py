@@ -4,6 +4,7 @@ one-ray-at-a-time casts (the oracle: the path camplace used before, and the fall
 from __future__ import annotations
 
 import ctypes
+import os
 import subprocess
 import sys
 
@@ -103,3 +104,24 @@ def test_switched_off_casts_through_embreex() -> None:
                              check=True).stdout
         assert out.startswith("[True, False]"), out
         assert packets in out, out
+
+
+def _cast_in_child(queue) -> None:
+    tri, o, d = _scene_and_segments(5, 3000)
+    assert _embree.packet_api() is not _embree._packet_api(os.getppid())  # not the parent's device
+    queue.put((0, RayScene.from_triangles(tri).occluded_dir(o, d)))
+
+
+def test_a_forked_child_makes_its_own_device_and_casts_the_same() -> None:
+    import multiprocessing as mp
+
+    tri, o, d = _scene_and_segments(5, 3000)
+    want = RayScene.from_triangles(tri).occluded_dir(o, d)  # the parent's device exists now
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_cast_in_child, args=(queue,))
+    child.start()
+    _, got = queue.get(timeout=60)
+    child.join(timeout=60)
+    assert child.exitcode == 0
+    assert np.array_equal(got, want)

@@ -97,13 +97,19 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.rtcAttachGeometry.restype, lib.rtcAttachGeometry.argtypes = ctypes.c_uint, [_VP, _VP]
 
 
-@functools.cache
 def packet_api() -> PacketAPI | None:
     """The process's Embree device for packet casts, or None (embreex casts one ray at a time).
 
     None when ``CAMPLACE_EMBREE_PACKETS=0``, when no Embree 4 library is found beside embreex, or
-    when it does not load, make a device or report a version 4.
+    when it does not load, make a device or report a version 4. One device per process: a child
+    made by ``fork`` makes its own (the parent's build threads are not there).
     """
+    return _packet_api(os.getpid())
+
+
+@functools.cache
+def _packet_api(pid: int) -> PacketAPI | None:
+    """:func:`packet_api` of process ``pid``."""
     if os.environ.get("CAMPLACE_EMBREE_PACKETS", "1").strip() in ("0", "false", "no"):
         return None
     path = _library_path()
