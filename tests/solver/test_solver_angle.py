@@ -780,3 +780,57 @@ def test_climb_improves_a_poor_start() -> None:
     inc, _ = _climbed(dense, w, pos, pts, list(worst), 2)
     assert inc.best > float(vals.min()) + 1e-9
     assert inc.best <= best + 1e-9
+
+
+@pytest.mark.parametrize("seed,theta_deg", [(0, 20.0), (1, 20.0), (2, 5.0), (3, 60.0), (4, 120.0), (5, 170.0)])
+def test_ball_row_test_keeps_every_row_a_pair_of_cameras_in_the_balls_may_use(seed, theta_deg) -> None:
+    """The row test of the ball refinement (sines of the arcs, squares instead of square roots, 64
+    rows at once) against arccos in numpy: every row where cameras drawn inside the two balls make
+    the angle is kept, and every row whose directions to the two centres are clearly closer than
+    the angle less both arcs (arc sines) is dropped; so it keeps what the arc formula keeps."""
+    from camplace.solver.engines.angle import _kernels as AK
+
+    rng = np.random.default_rng(seed)
+    theta = np.radians(theta_deg)
+    trig = AK.ball_angle_table(theta)
+    kept = dropped = 0
+    for _ in range(60):
+        centre = rng.normal(size=3)
+        pts = np.ascontiguousarray(centre + rng.normal(scale=rng.uniform(0.05, 1.5), size=(64, 3)))
+        bc = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+        brad = np.linalg.norm(pts - bc, axis=1).max() * (1 + 1e-9) + 1e-12
+        centers, radius = bc[None, :], np.array([brad])
+        balls = []
+        for _ in range(2):
+            c = bc + rng.normal(size=3) * rng.uniform(2.0, 12.0)
+            rho = 0.0 if rng.random() < 0.25 else rng.uniform(0.01, 2.0)
+            balls.append((c, rho))
+        x = np.uint64(rng.integers(0, 2**63, dtype=np.int64)) | np.uint64(1 << 63) if rng.random() < 0.5 else ~np.uint64(0)
+        s = [AK._ball_sin(c[0], c[1], c[2], rho, centers, radius, 0) for c, rho in balls]
+        got = int(AK._ball_bits(x, 0, *balls[0][0], s[0], *balls[1][0], s[1], pts, trig, centers, radius))
+        rows = [t for t in range(64) if int(x) >> t & 1]
+        assert got & ~int(x) == 0
+        # cameras inside the balls: every row where some drawn pair makes the angle is kept
+        cams = [c + rho * rng.uniform(-1, 1, size=(40, 3)) / np.sqrt(3) for c, rho in balls]
+        for t in rows:
+            u = cams[0] - pts[t]
+            v = cams[1] - pts[t]
+            cosang = np.einsum("id,jd->ij", u, v) / np.outer(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
+            if (np.degrees(np.arccos(np.clip(cosang, -1, 1))) >= theta_deg).any():
+                assert got >> t & 1, (t, theta_deg)
+        # the arc formula: rows closer than the angle less both arcs (clearly) are dropped, others kept
+        if max(s) > 1.0:
+            assert got == int(x)
+            continue
+        lim = theta - np.arcsin(s[0]) - np.arcsin(s[1])
+        for t in rows:
+            u = balls[0][0] - pts[t]
+            v = balls[1][0] - pts[t]
+            ang = np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))
+            if ang >= lim - 1e-7:
+                assert got >> t & 1, (t, ang, lim)
+                kept += 1
+            elif ang < lim - 1e-5:
+                assert not got >> t & 1, (t, ang, lim)
+                dropped += 1
+    assert kept > 0 and (dropped > 0 or theta_deg < 10)

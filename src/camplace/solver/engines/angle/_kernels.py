@@ -258,54 +258,80 @@ def node_balls(campos, lo, hi):  # pragma: no cover - compiled
 
 
 @numba.njit(inline="always", **_JIT)
-def _ball_arc(bx, by, bz, rho, centers, radius, wd):  # pragma: no cover - compiled
-    """Radians within which, from any point of block ``wd`` (bounding sphere ``centers[wd]``,
-    ``radius[wd]``), the direction to any camera of a ball (centre, radius ``rho``) lies around the
-    direction to the ball's centre: ``asin(rho / d)`` with ``d`` the least distance from the block's
-    sphere to the centre (``pi`` when they meet; 0 for a single camera)."""
+def _ball_sin(bx, by, bz, rho, centers, radius, wd):  # pragma: no cover - compiled
+    """Sine of the arc within which, from any point of block ``wd`` (bounding sphere
+    ``centers[wd]``, ``radius[wd]``), the direction to any camera of a ball (centre, radius
+    ``rho``) lies around the direction to the ball's centre: ``rho / d`` with ``d`` the least
+    distance from the block's sphere to the centre (2.0 when they meet: any direction; 0 for a
+    single camera). The arc itself, ``asin`` of it, is never computed (:func:`ball_angle_table`
+    holds the margins)."""
     if rho <= 0.0:
         return 0.0
     dx, dy, dz = bx - centers[wd, 0], by - centers[wd, 1], bz - centers[wd, 2]
     d = math.sqrt(dx * dx + dy * dy + dz * dz) - max(radius[wd], 0.0)
     if d <= rho * (1.0 + 1e-9):
-        return math.pi
-    return math.asin(rho / d) + _ALPHA_PAD
+        return 2.0
+    return rho / d
 
 
 @numba.njit(**_JIT)
-def _ball_bits(x, wd, ax, ay, az, arc_a, bx, by, bz, arc_b, pts, theta, centers, radius):  # pragma: no cover - compiled
-    """The bits of ``x`` (rows of word ``wd``) where a camera within ``arc_a`` of the direction to
-    ``(ax, ay, az)`` and one within ``arc_b`` of the direction to ``(bx, by, bz)`` may make the angle
-    ``theta`` (radians): the rows whose directions to the two centres are at least ``theta - arc_a -
-    arc_b`` apart (less a margin for rounding). Every row where such a pair makes the angle is
-    kept (triangle inequality on the sphere of directions). When, from the block's centre, the two
-    centres are that far apart plus both their parallaxes over the block's sphere, every row is
-    kept without a look at the rows (the common case where the angle hardly binds)."""
-    lim = theta - arc_a - arc_b - _ALPHA_PAD
-    if lim <= 0.0:
+def ball_angle_table(theta):  # pragma: no cover - compiled
+    """(3,) float64 for :func:`_ball_bits` and the repeated-node test of :func:`angle_shortfall`:
+    ``cos`` and ``sin`` of ``theta - 3 _ALPHA_PAD`` (the angle less a rounding margin for each of
+    two arcs and for their difference) and ``sin((theta - 3 _ALPHA_PAD) / 2)`` (a node's cameras
+    make no pair among themselves where the sine of its arc is below it), ``theta`` in radians."""
+    t = max(theta - 3.0 * _ALPHA_PAD, 0.0)
+    return np.array([math.cos(t), math.sin(t), math.sin(0.5 * t)])
+
+
+@numba.njit(**_JIT)
+def _ball_bits(x, wd, ax, ay, az, sa, bx, by, bz, sb, pts, trig, centers, radius):  # pragma: no cover - compiled
+    """The bits of ``x`` (rows of word ``wd``) where a camera within arc ``A`` (sine ``sa``; above 1:
+    any direction) of the direction to ``(ax, ay, az)`` and one within arc ``B`` (sine ``sb``) of the
+    direction to ``(bx, by, bz)`` may make the angle ``theta`` (``trig``: :func:`ball_angle_table`):
+    the rows whose directions to the two centres are at least ``lim = theta - A - B`` apart (less
+    the table's margin). Every row where such a pair makes the angle is kept (triangle inequality
+    on the sphere of directions). ``cos(lim)`` and ``sin(lim)`` come from the sines by the addition
+    theorems (no arc sine or cosine a call), and a row's test compares squares (no square root).
+    When, from the block's centre, the two centres are ``lim`` apart plus both their parallaxes
+    over the block's sphere, every row is kept without a look at the rows (the common case where
+    the angle hardly binds)."""
+    if sa > 1.0 or sb > 1.0:
         return x
+    cth, sth = trig[0], trig[1]
+    ca = math.sqrt(max(0.0, 1.0 - sa * sa))
+    cb = math.sqrt(max(0.0, 1.0 - sb * sb))
+    cab = ca * cb - sa * sb  # cos(A + B), A + B in [0, pi]
+    if cab <= cth + 1e-12:
+        return x  # A + B >= theta: any two directions may do
+    sab = sa * cb + ca * sb  # sin(A + B) >= 0
+    cl = cth * cab + sth * sab  # cos(lim), lim = theta - A - B in (0, theta]
+    sl = max(0.0, sth * cab - cth * sab)  # sin(lim)
     cx, cy, cz, rb = centers[wd, 0], centers[wd, 1], centers[wd, 2], max(radius[wd], 0.0)
     ux, uy, uz = ax - cx, ay - cy, az - cz
     vx, vy, vz = bx - cx, by - cy, bz - cz
     nu = math.sqrt(ux * ux + uy * uy + uz * uz)
     nv = math.sqrt(vx * vx + vy * vy + vz * vz)
     if nu > rb * (1.0 + 1e-9) and nv > rb * (1.0 + 1e-9):
-        far = lim + math.asin(min(1.0, rb / nu)) + math.asin(min(1.0, rb / nv)) + _ALPHA_PAD
-        if far < math.pi and ux * vx + uy * vy + uz * vz <= math.cos(far) * nu * nv:
+        su, sv = min(1.0, rb / nu), min(1.0, rb / nv)  # sines of the parallaxes U, V
+        cu, cv = math.sqrt(max(0.0, 1.0 - su * su)), math.sqrt(max(0.0, 1.0 - sv * sv))
+        cp, sp = cu * cv - su * sv, su * cv + cu * sv  # U + V in [0, pi]
+        sfar = sl * cp + cl * sp  # sin(lim + U + V): positive when lim + U + V < pi
+        if sfar > 1e-9 and ux * vx + uy * vy + uz * vz <= (cl * cp - sl * sp - _ALPHA_PAD) * nu * nv:
             return x  # from every point of the block the centres are at least lim apart
-    cl = math.cos(lim)
+    # the angle between u and v is at least lim where uv <= cos(lim) |u| |v|, compared in squares
+    # with the sign kept: uv |uv| <= c |u|^2 |v|^2, c = cos(lim)^2 (1 + 1e-12) or -cos(lim)^2 (1 - 1e-12)
+    c = cl * cl * (1.0 + 1e-12) if cl >= 0.0 else -cl * cl * (1.0 - 1e-12)
     out = np.uint64(0)
     base = wd << 6
-    while x:
-        t = _ctz(x)
+    for t in range(64):  # every row of the word, no branch (vectorised); the rows of x kept below
         r = base + t
         ux, uy, uz = ax - pts[r, 0], ay - pts[r, 1], az - pts[r, 2]
         vx, vy, vz = bx - pts[r, 0], by - pts[r, 1], bz - pts[r, 2]
         uv = ux * vx + uy * vy + uz * vz
-        if uv <= cl * math.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz)):
-            out |= np.uint64(1) << t
-        x &= x - np.uint64(1)
-    return out
+        keep = uv * abs(uv) <= c * ((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz))
+        out |= np.uint64(keep) << np.uint64(t)
+    return out & x
 
 
 @numba.njit(**_JIT)
@@ -363,7 +389,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
     r = fbits.shape[0]
     ng = group_tuple(nodes, k, gnode, gcnt)
     use_balls = balls.shape[0] > 0
-    theta = math.radians(theta_deg)
+    trig = ball_angle_table(math.radians(theta_deg))
     total = 0.0
     for wd in range(n_words):
         if pw <= wd < 2 * pw:
@@ -379,8 +405,8 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                 if gcnt[a] >= 2 and n_levels >= 2:
                     x = levels[1, va, ww] & ~ph
                     if x and self_ok[cones[va, ww, 3]]:
-                        if use_balls and 2.0 * _ball_arc(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3],
-                                                         centers, radius, ww) < theta - _ALPHA_PAD:
+                        if use_balls and _ball_sin(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3],
+                                                   centers, radius, ww) < trig[2] - 1e-12:
                             x = np.uint64(0)  # every two cameras of the node closer than the angle here
                         ph |= x
                 for b in range(a + 1, ng):
@@ -396,11 +422,11 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                             ph |= x
                         elif st == 1:
                             ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2],
-                                             _ball_arc(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
+                                             _ball_sin(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
                                                        radius, ww),
                                              balls[vb, 0], balls[vb, 1], balls[vb, 2],
-                                             _ball_arc(balls[vb, 0], balls[vb, 1], balls[vb, 2], balls[vb, 3], centers,
-                                                       radius, ww), pts, theta, centers, radius)
+                                             _ball_sin(balls[vb, 0], balls[vb, 1], balls[vb, 2], balls[vb, 3], centers,
+                                                       radius, ww), pts, trig, centers, radius)
                 for f in range(r):
                     x = xa & fbits[f, ww] & ~ph
                     if x:
@@ -413,9 +439,9 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                             ph |= x
                         elif st == 1:
                             ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2],
-                                             _ball_arc(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
+                                             _ball_sin(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
                                                        radius, ww),
-                                             fpos[f, 0], fpos[f, 1], fpos[f, 2], 0.0, pts, theta, centers, radius)
+                                             fpos[f, 0], fpos[f, 1], fpos[f, 2], 0.0, pts, trig, centers, radius)
             if views > 2 and ph:
                 acc[0] = ~np.uint64(0)
                 for t in range(1, views + 1):
