@@ -125,3 +125,15 @@ def test_a_forked_child_makes_its_own_device_and_casts_the_same() -> None:
     child.join(timeout=60)
     assert child.exitcode == 0
     assert np.array_equal(got, want)
+
+
+def test_a_library_that_answers_wrongly_is_not_used() -> None:
+    """The start-up test (answers_as_expected) passes on this library and fails when the call does
+    not match the packet's layout (rtcOccluded4 given packets of 16, or 16 given packets of 4)."""
+    from dataclasses import replace
+
+    assert _embree.answers_as_expected(API)
+    widths = dict(_widths())
+    if 4 in widths and 16 in widths:
+        assert not _embree.answers_as_expected(replace(API, width=16, occluded=widths[4]))
+        assert not _embree.answers_as_expected(replace(API, width=4, occluded=widths[16]))

@@ -126,10 +126,40 @@ def _packet_api(pid: int) -> PacketAPI | None:
             return None
         width = next((w for w in (16, 8, 4) if lib.rtcGetDeviceProperty(device, _PROPERTY_NATIVE_RAY[w]) == 1), 1)
         fn = lib.rtcOccluded1 if width == 1 else getattr(lib, f"rtcOccluded{width}")
-        return PacketAPI(lib, int(device), width, int(ctypes.cast(fn, _VP).value), version)
+        api = PacketAPI(lib, int(device), width, int(ctypes.cast(fn, _VP).value), version)
     except (OSError, AttributeError) as exc:  # another build of Embree: embreex casts
         log.debug("embree packets unavailable (%s): casting one ray at a time", exc)
         return None
+    if not answers_as_expected(api):
+        log.warning("Embree %d's packet casts did not answer a test as expected: casting one ray at a time "
+                    "through embreex", api.version)
+        return None
+    return api
+
+
+def answers_as_expected(api: PacketAPI) -> bool:
+    """Whether packet casts through ``api`` give the known answers on one triangle: the square of
+    side 2 in the plane x = 0 (two triangles) and ``2 width + 3`` segments along +x from x = -1,
+    blocked exactly when they reach x = 0 inside the square (a partial last packet included), with
+    no error on the device. Guards against a library whose structures differ from the ones
+    declared here: the cast then falls back to embreex rather than answering wrongly."""
+    from camplace.visibility._castkernels import occluded_packets
+
+    tri = np.array([[[0, -1, -1], [0, 1, -1], [0, 1, 1]], [[0, -1, -1], [0, 1, 1], [0, -1, 1]]], dtype=np.float32)
+    n = 2 * api.width + 3
+    i = np.arange(n)
+    inside = i % 3 != 1  # y within the square or 3 m off it
+    long = i % 4 != 3  # the segment reaches x = +1, or stops at x = -0.5
+    origins = np.column_stack([np.full(n, -1.0), np.where(inside, 0.5 - 0.1 * (i % 5), 3.0), 0.2 - 0.05 * (i % 7)])
+    directions = np.column_stack([np.where(long, 2.0, 0.5), np.zeros(n), np.zeros(n)])
+    got = np.zeros(n, dtype=bool)
+    try:
+        scene = PacketScene(api, tri)
+        occluded_packets(np.uint64(api.occluded), np.uint64(scene.handle), api.width,
+                         origins.astype(np.float32), directions.astype(np.float32), got)
+    except RuntimeError:
+        return False
+    return bool(np.array_equal(got, inside & long) and api.error() == 0)
 
 
 _BUILD_LOCK = threading.Lock()
