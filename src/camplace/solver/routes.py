@@ -367,7 +367,7 @@ WARM_MAX_K = 4
 #: warm-starts itself the same way while it is still large: a coarse-to-fine ladder) ...
 WARM_SHRINK = 4
 #: ... within this share of the time left; its answer is the full search's first incumbent.
-WARM_SHARE = 0.3
+WARM_SHARE = 0.1
 
 
 def warm_subset(p: CoverProblem) -> np.ndarray:
