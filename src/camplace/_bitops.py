@@ -7,7 +7,7 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-__all__ = ["popcount", "ctz", "transpose64"]
+__all__ = ["popcount", "ctz", "transpose64", "fill_lists"]
 
 
 @intrinsic
@@ -57,3 +57,21 @@ def transpose64(a):  # pragma: no cover - compiled
                 a[k + j] ^= t
         j >>= 1
         m ^= m << np.uint64(j)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+def fill_lists(words, which, indptr, lo, hi, indices):  # pragma: no cover - compiled
+    """The set bits of bitsets ``words[which[i]]`` for ``i`` in ``lo:hi``, ascending, into
+    ``indices[indptr[i]:indptr[i + 1]]`` (compressed lists: a CSC matrix's rows of some columns,
+    a CSR matrix's columns of some rows). ``words`` (r, w) uint64, ``which`` (c,) int64,
+    ``indptr`` (c + 1,) int64 from the bitsets' counts, ``indices`` int32 or int64."""
+    for i in range(lo, hi):
+        j = which[i]
+        p = indptr[i]
+        for w in range(words.shape[1]):
+            x = words[j, w]
+            base = np.int64(w) << 6
+            while x:
+                indices[p] = base + np.int64(ctz(x))
+                p += 1
+                x &= x - np.uint64(1)

@@ -25,7 +25,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from camplace._bitops import ctz as _ctz, popcount as _popcount, transpose64 as _transpose64
+from camplace._bitops import ctz as _ctz, fill_lists, popcount as _popcount, transpose64 as _transpose64
 from camplace._blocks import cuts, run_blocks
 from camplace._cores import thread_count
 
@@ -416,21 +416,6 @@ def column_sums(bits: BitMatrix, values: np.ndarray, workers: int | None = None)
     return out
 
 
-@numba.njit(**_JIT)
-def _fill_column_rows(words, cols, indptr, lo, hi, indices):  # pragma: no cover - compiled
-    """Rows of columns ``cols[lo:hi]`` (ascending) into ``indices[indptr[i]:indptr[i + 1]]``."""
-    for i in range(lo, hi):
-        j = cols[i]
-        p = indptr[i]
-        for w in range(words.shape[1]):
-            x = words[j, w]
-            base = np.int64(w) << 6
-            while x:
-                indices[p] = base + np.int64(_ctz(x))
-                p += 1
-                x &= x - np.uint64(1)
-
-
 def column_rows(bits, cols: np.ndarray, dtype=np.int32) -> tuple[np.ndarray, np.ndarray]:
     """The row lists of columns ``cols`` of a BitMatrix, as the CSC matrix of those columns holds them.
 
@@ -456,5 +441,5 @@ def column_rows(bits, cols: np.ndarray, dtype=np.int32) -> tuple[np.ndarray, np.
     np.cumsum(bits.column_counts[cols], out=indptr[1:])
     indices = np.empty(int(indptr[-1]), dtype=dtype)
     if indices.size:  # disjoint slices of indices per block: the same at every thread count
-        run_blocks(lambda lo, hi: _fill_column_rows(bits.words, cols, indptr, lo, hi, indices), cuts(cols.size))
+        run_blocks(lambda lo, hi: fill_lists(bits.words, cols, indptr, lo, hi, indices), cuts(cols.size))
     return indptr, indices

@@ -31,7 +31,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from camplace._bitops import ctz as _ctz, popcount as _popc, transpose64 as _transpose64
+from camplace._bitops import ctz as _ctz, fill_lists, popcount as _popc, transpose64 as _transpose64
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
@@ -374,20 +374,6 @@ def _row_lengths(rb, lo, hi, out):  # pragma: no cover - compiled
         out[i] = s
 
 
-@numba.njit(**_JIT)
-def _row_indices(rb, indptr, lo, hi, indices):  # pragma: no cover - compiled
-    """CSR column indices (ascending) of rows ``lo:hi`` of row bitsets ``rb``."""
-    for i in range(lo, hi):
-        p = indptr[i]
-        for w in range(rb.shape[1]):
-            x = rb[i, w]
-            base = np.int64(w) << 6
-            while x:
-                indices[p] = base + np.int64(_ctz(x))
-                p += 1
-                x &= x - np.uint64(1)
-
-
 def _run(fn, bounds: list[int], workers: int) -> None:
     """``fn(lo, hi)`` for every block of ``bounds`` (:func:`~camplace._blocks.cuts`),
     on the solver's pool of ``workers`` threads."""
@@ -693,7 +679,8 @@ def rows_csr(bits, rows: np.ndarray, columns: np.ndarray, workers: int | None = 
     nnz = int(indptr[-1])
     idt = np.int32 if max(r, c, nnz) < 2**31 - 1 else np.int64
     indices = np.empty(nnz, dtype=idt)
-    _run(lambda lo, hi: _row_indices(rb, indptr, lo, hi, indices), blocks, workers)
+    every = np.arange(r, dtype=np.int64)
+    _run(lambda lo, hi: fill_lists(rb, every, indptr, lo, hi, indices), blocks, workers)
     rb = None  # freed before the caller goes on
     out = sp.csr_matrix((np.ones(nnz), indices, indptr.astype(idt)), shape=(r, c), copy=False)
     out.has_canonical_format = True

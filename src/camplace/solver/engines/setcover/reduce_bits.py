@@ -155,7 +155,8 @@ def _compact(bits: np.ndarray, items: np.ndarray, keep_bits: np.ndarray, workers
 
 def _lists_of(bits: np.ndarray, workers: int) -> tuple[np.ndarray, np.ndarray]:
     """Compressed lists (int64 pointers, int32 indices, ascending) of bitsets."""
-    from camplace.solver.problem.presolve_bits import _row_indices, _row_lengths, _run
+    from camplace._bitops import fill_lists
+    from camplace.solver.problem.presolve_bits import _row_lengths, _run
 
     r = bits.shape[0]
     lengths = np.zeros(r, dtype=np.int64)
@@ -164,7 +165,8 @@ def _lists_of(bits: np.ndarray, workers: int) -> tuple[np.ndarray, np.ndarray]:
     ptr = np.zeros(r + 1, dtype=np.int64)
     np.cumsum(lengths, out=ptr[1:])
     idx = np.empty(int(ptr[-1]), dtype=np.int32)
-    _run(lambda lo, hi: _row_indices(bits, ptr, lo, hi, idx), blocks, workers)
+    rows = np.arange(r, dtype=np.int64)
+    _run(lambda lo, hi: fill_lists(bits, rows, ptr, lo, hi, idx), blocks, workers)
     return ptr, idx
 
 
