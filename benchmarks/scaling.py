@@ -9,6 +9,14 @@ seconds at each T, the speed-up against T = 1 and the serial fraction that speed
 parallel, 1 is serial). It also checks that every thread count gives the same matrix bytes and the
 same objective, bound and cameras.
 
+Two more lines read the serial fractions for a larger machine. ``machine``: a compiled loop with
+no serial part and no memory traffic (:data:`_CALIBRATE`), run under the same ``taskset`` at each
+T: the speed-up the cores themselves give (a shared or virtual machine gives less than T); the
+``fc`` column is then the stage's serial fraction against that ceiling instead of against T (what
+the code itself keeps serial). ``predicted``: the whole process's time at ``--predict`` threads
+(default 16) from Amdahl's law with the fraction measured at the largest T, as a ratio to the
+time at 2 threads (issue 29's goal: >= 6x from 2 to 16).
+
     python benchmarks/scaling.py                       # 10,000 x 50,000 on comet-67p-bunker
     python benchmarks/scaling.py --candidates 2000 --points 20000 --threads 1,2
     python benchmarks/scaling.py --mode multiview --min-angle 20
@@ -66,6 +74,50 @@ def run_once(args: argparse.Namespace, threads: int, cores: list[int], out: Path
     return wall, sol["timings_s"], sol
 
 
+#: the calibration loop (``python -c``): T threads of pure arithmetic, best of five, seconds
+_CALIBRATE = """
+import time, numba, numpy as np
+@numba.njit(parallel=True, cache=False)
+def work(n, reps):
+    out = np.zeros(n)
+    for i in numba.prange(n):
+        s = 0.0
+        x = i * 1e-7
+        for r in range(reps):
+            s += np.sin(x + r * 1e-3)
+        out[i] = s
+    return out
+work(64, 10)
+best = 1e9
+for _ in range(5):
+    t = time.perf_counter(); work(1 << 15, 2000); best = min(best, time.perf_counter() - t)
+print(best)
+"""
+
+
+def machine_seconds(threads: int, cores: list[int]) -> float:
+    """Seconds of the calibration loop (:data:`_CALIBRATE`) on the first ``threads`` allowed cores."""
+    cmd = [sys.executable, "-c", _CALIBRATE]
+    if shutil.which("taskset"):
+        cmd = ["taskset", "-c", ",".join(map(str, cores[:threads])), *cmd]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=True,
+                          env={**os.environ, "NUMBA_NUM_THREADS": str(threads)})
+    return float(proc.stdout.split()[-1])
+
+
+def karp_flatt(speedup: float, scale: float) -> float:
+    """The serial fraction that ``speedup`` implies on ``scale`` times the cores (Karp-Flatt):
+    ``(1/S - 1/p) / (1 - 1/p)``; NaN when undefined."""
+    if not (speedup == speedup and speedup > 0 and scale > 1):
+        return float("nan")
+    return (1 / speedup - 1 / scale) / (1 - 1 / scale)
+
+
+def amdahl(f: float, threads: float) -> float:
+    """Speed-up on ``threads`` cores of work whose serial fraction is ``f`` (Amdahl's law)."""
+    return 1 / (f + (1 - f) / threads)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--instance", default="comet-67p-bunker")
@@ -76,6 +128,7 @@ def main() -> None:
     ap.add_argument("--baseline", default=None,
                     help="another source tree (e.g. /work/main/src) run at the first thread count in every round, "
                          "shown as the column 'base'")
+    ap.add_argument("--predict", type=int, default=16, help="threads to predict the whole process's speed-up at")
     args, extra = ap.parse_known_args()
     args.extra = extra
     cores = sorted(os.sched_getaffinity(0))
@@ -105,6 +158,7 @@ def main() -> None:
                 shutil.rmtree(out)
                 print(f"  round {r} {key}: whole {wall:.1f} s, load {os.getloadavg()[0]:.1f}", flush=True)
         rows = {key: {k: statistics.median(x[k] for x in v) for k in v[0]} for key, v in runs.items()}
+        machine = {t: min(machine_seconds(t, cores) for _ in range(max(1, args.repeat))) for t in counts}
     print(f"load average {os.getloadavg()[0]:.1f} at end")
     if args.baseline:
         print(f"baseline {args.baseline} at {counts[0]} thread(s), against this tree at {counts[0]}: "
@@ -112,16 +166,26 @@ def main() -> None:
                           ("whole", "visibility", "solve", "  presolve", "  search", "  incumbent"))
               + f"; same answer: {'yes' if base_answer == answers[counts[0]] else 'NO ' + str(base_answer)}")
     base = counts[0]
-    head = "".join(f"{f'{t} thr':>9}" for t in counts) + "".join(f"{f'x{t}':>8}{f'f{t}':>7}" for t in counts[1:])
+    ceiling = {t: machine[base] / machine[t] for t in counts}  # the cores' own speed-up over `base`
+    head = "".join(f"{f'{t} thr':>9}" for t in counts) + "".join(f"{f'x{t}':>8}{f'f{t}':>7}{f'fc{t}':>7}"
+                                                                 for t in counts[1:])
     print(f"{'stage (s)':<14}{head}")
     for name in ["whole", *(n for n, _ in STAGES)]:
         line = f"{name:<14}" + "".join(f"{rows[t][name]:>9.2f}" for t in counts)
         for t in counts[1:]:
             s = rows[base][name] / rows[t][name] if rows[t][name] > 0 else float("nan")
-            scale = t / base
-            f = (1 / s - 1 / scale) / (1 - 1 / scale) if s == s and s > 0 else float("nan")
-            line += f"{s:>8.2f}{f:>7.2f}"
+            line += f"{s:>8.2f}{karp_flatt(s, t / base):>7.2f}{karp_flatt(s, ceiling[t]):>7.2f}"
         print(line)
+    print(f"{'machine':<14}" + "".join(f"{machine[t]:>9.3f}" for t in counts)
+          + "".join(f"{ceiling[t]:>8.2f}{karp_flatt(ceiling[t], t / base):>7.2f}{'':>7}" for t in counts[1:]))
+    top = counts[-1]
+    if base == 1 and top > 1 and args.predict > top:
+        s = rows[base]["whole"] / rows[top]["whole"]
+        for label, f in (("f", karp_flatt(s, top)), ("fc", karp_flatt(s, ceiling[top]))):
+            if f == f:
+                print(f"predicted whole at {args.predict} threads from {label}{top} = {f:.3f} (Amdahl): "
+                      f"{amdahl(f, args.predict):.1f}x of 1 thread, {amdahl(f, args.predict) / amdahl(f, 2):.1f}x "
+                      f"of 2 threads")
     same = len(set(answers.values())) == 1 and len(set(matrices.values())) == 1
     print(f"same matrix bytes and answer at every thread count: {'yes' if same else 'NO'} "
           f"({answers[base][0]} {answers[base][1]:.6f}, bound {answers[base][2]:.6f})")
