@@ -68,6 +68,7 @@ CASES = {
     "angle": (["--mode", "multiview", "--min-angle", "20"], {"mode": "multiview", "min_angle_deg": 20.0}),
     "k6": (["--k", "6"], {"k": 6}),
     "fixed": (["--fixed", "3,17"], {"fixed": (3, 17)}),
+    "multiview": (["--mode", "multiview"], {"mode": "multiview"}),
     "mindist": (["--min-distance", "0.5"], {"min_distance_m": 0.5}),
 }
 
@@ -121,6 +122,7 @@ def run_once(n_cand: int, n_pts: int, args, layout: str, case: str = "plain") ->
     general = int((stats.get("model_estimate") or {}).get("bytes", 0))
     return {"layout": layout, "wall_s": wall, "peak": peak, "peak_at": peak_at, "observed": observed,
             "model": model, "general": general, "conflicts": int(stats.get("conflict_pairs", 0)),
+            "stages": stats.get("memory_estimates") or {},
             "objective": sol.get("objective"), "status": sol.get("status"), "selected": selected,
             "engine": sol.get("engine")}
 
@@ -142,6 +144,17 @@ def guard_estimate(n_cand: int, n_pts: int, layout: str, density: float, threads
         kw = {"solve_bytes": solve}
     mode = "maxcover" if options is None else options.mode
     return estimate_matrix_bytes(n_pts, n_cand, density, name, tree=1.0 if mode == "quality" else 0.0, **kw), solve
+
+
+def stage_estimates(n_cand: int, n_pts: int, stages: dict, threads: int | None) -> dict[str, int]:
+    """The run's estimate at each step the solve noted (``solver_stats["memory_estimates"]``: the
+    step's bytes and the bytes held then, the matrix included), as the whole process's: plus the
+    process's base as the guard counts it (:data:`~camplace.visibility.engine.BASE_BYTES` and 16
+    bytes a point; the threads' work arrays are freed with the cast, before the solve)."""
+    from camplace.visibility.engine import BASE_BYTES
+
+    base = BASE_BYTES + 16 * n_pts
+    return {name: base + int(v["held"]) + int(v["bytes"]) for name, v in stages.items()}
 
 
 def layout_name(layout: str, graded: bool) -> str:
@@ -173,9 +186,9 @@ def main() -> None:
     args = ap.parse_args()
     args.instance = graded_instance(Path(tempfile.mkdtemp(prefix="camplace-graded-"))) if args.graded else \
         "comet-67p-bunker"
-    print(f"{'size':>16} {'case':>8} {'layout':>6} {'wall s':>8} {'peak MB':>9} {'at s':>6} {'pairs':>12} "
-          f"{'B/pair':>7} {'guard MB':>8} {'solve MB':>8} {'model MB':>8} {'est MB':>8} {'est/peak':>8} "
-          f"{'vs base':>8}  result")
+    print(f"{'size':>16} {'case':>9} {'layout':>6} {'wall s':>8} {'peak MB':>9} {'at s':>6} {'pairs':>12} "
+          f"{'B/pair':>7} {'guard MB':>8} {'solve MB':>8} {'model MB':>8} {'pre/peak':>8} {'stage':>9} "
+          f"{'stage MB':>8} {'est MB':>8} {'est/peak':>8} {'vs base':>8}  result")
     for size in args.sizes.split(","):
         n_cand, n_pts = (int(v) for v in size.lower().split("x"))
         for case in args.case.split(","):
@@ -191,13 +204,17 @@ def main() -> None:
                 density = pairs / (n_cand * n_pts) if pairs else 0.0
                 guard, solve = guard_estimate(n_cand, n_pts, r["layout"], density, args.threads, args.graded,
                                               case_options(args, case), r["conflicts"])
-                est = guard + r["model"]  # a set-cover model's own estimate (made before building it) on top
+                pre = guard + r["model"]  # a set-cover model's own estimate (made before building it) on top
+                stages = stage_estimates(n_cand, n_pts, r["stages"], args.threads) if r["layout"] == "auto" else {}
+                top = max(stages, key=stages.get) if stages else "-"
+                est = max(pre, stages.get(top, 0))  # the largest estimate the run made, before the cast or after
                 shown = r["model"] or r["general"]
                 vs = f"{r['peak'] / base:.2f}" if base else "-"
                 bpp = r["peak"] / pairs if pairs else float("nan")
-                print(f"{size:>16} {case:>8} {layout_name(r['layout'], args.graded):>6} {r['wall_s']:8.1f} "
+                print(f"{size:>16} {case:>9} {layout_name(r['layout'], args.graded):>6} {r['wall_s']:8.1f} "
                       f"{r['peak'] / 2**20:9.0f} {r['peak_at']:6.1f} {pairs:12,d} {bpp:7.2f} {guard / 2**20:8.0f} "
-                      f"{solve / 2**20:8.0f} {shown / 2**20:8.0f} {est / 2**20:8.0f} {est / r['peak']:8.2f} {vs:>8}  "
+                      f"{solve / 2**20:8.0f} {shown / 2**20:8.0f} {pre / r['peak']:8.2f} {top:>9} "
+                      f"{stages.get(top, 0) / 2**20:8.0f} {est / 2**20:8.0f} {est / r['peak']:8.2f} {vs:>8}  "
                       f"{r['status']} {r['engine']} {r['objective']:.6f} {r['selected']}", flush=True)
 
 

@@ -27,7 +27,8 @@ import scipy.sparse as sp
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import greedy
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback, note_memory
+from camplace.solver.problem.checks import CONFLICT_PAIR_BYTES
 from camplace.solver.choose import EngineChoice, choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
@@ -286,6 +287,8 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
                       p.conflicts, budget)
     need = model_bytes(name, *size)
     stats["model_estimate"] = {"variables": size[0], "rows": size[1], "nonzeros": size[2], "bytes": need}
+    # the pairs kept meanwhile are held
+    note_memory("model", need, extra_held=CONFLICT_PAIR_BYTES * int(p.conflicts.shape[0]), refused=need > budget)
     try:
         if need > budget:
             exc = OverBudget(need, budget, f"the {'SCIP' if name == 'mip' else 'CP-SAT'} model of mode {mode}")
