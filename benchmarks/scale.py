@@ -9,16 +9,24 @@ and prints per run:
 - the size, the wall time, the peak RSS of the process tree (the run and any children, e.g. a
   ``local:N`` Dask cluster, sampled every 50 ms with psutil; a separate scheduler / worker started
   outside is not counted), the observed pairs (from ``solution.json``) and bytes per observed pair;
-- the memory guard's estimate (:func:`camplace.visibility.engine.estimate_matrix_bytes`, the
-  function the run checks its budget with, evaluated for the same size, thread count and, on
-  column bitsets, the same solve: :func:`camplace.solver.api.bits_solve_bytes` of the run's options,
-  the observed pairs and the conflicting pairs the run counted, as the pipeline passes it at the
-  pilot's check), the solve's part of it (``solve MB``), the estimate the solve itself made of its
-  model once the presolved instance was known (``model MB``: a set-cover SCIP / CP-SAT model's
-  ``solver_stats["setcover"]["model_bytes"]``, which the guard cannot count before the cast and is
-  added to it; the general model's ``solver_stats["model_estimate"]``, which the guard bounds
-  already, shown only), the estimate and its ratio to the measured peak (target: within 25 %), and
-  when the peak was reached (seconds after the start);
+- the memory guard's estimate before the cast (``guard MB``:
+  :func:`camplace.visibility.engine.estimate_matrix_bytes`, the function the run checks its budget
+  with, evaluated for the same size, thread count and, on column bitsets, the same solve:
+  :func:`camplace.solver.api.bits_solve_bytes` of the run's options, the observed pairs and the
+  conflicting pairs the run counted, as the pipeline passes it at the pilot's check), the solve's
+  part of it (``solve MB``), the estimate the solve itself made of its model once the presolved
+  instance was known (``model MB``: a set-cover SCIP / CP-SAT model's
+  ``solver_stats["setcover"]["model_bytes"]``, added to the guard; the general model's
+  ``solver_stats["model_estimate"]``, shown only), that figure's ratio to the measured peak
+  (``pre/peak``);
+- the guard's later stages (column bitsets): each estimate the solve noted before allocating,
+  with what it knew then (``solver_stats["memory_estimates"]``: the step's bytes and the bytes held
+  then, the matrix included), plus the process's base (``BASE_BYTES`` and 16 bytes a point; the
+  cast's threads' arrays are freed by then); the largest (``stage``, ``stage MB``), refused steps
+  left out;
+- the run's estimate, the largest of the stages it made (before the cast and after), and its
+  ratio to the measured peak (target: within 25 %), and when the peak was reached (seconds after
+  the start);
 - the objective and status, and the peak's ratio to the baseline's.
 
 With ``--graded`` the instance is a copy of comet-67p-bunker with ``[quality] mode = "graded"``
@@ -28,14 +36,15 @@ cell (``[quality] precision = "byte"``, the default), and the baseline is the fl
 
 ``--case`` picks a route of the solve on the bits (one row each, several allowed: ``plain``, the
 options given; ``angle``: multiview with a minimum angle of 20 degrees; ``k6``: k = 6, the
-large-k engines; ``fixed``: cameras 3 and 17 fixed; ``mindist``: a minimum distance of 0.5 m, the
-general model on the merged rows).
+large-k engines; ``fixed``: cameras 3 and 17 fixed; ``multiview``: multiview, 2 views, the bitset
+engine on the opposite-pairs layout; ``mindist``: a minimum distance of 0.5 m, the general model on
+the merged rows).
 
 Usage::
 
     python benchmarks/scale.py [--sizes 2000x10000,10000x50000] [--k 3] [--mode maxcover]
                                [--no-baseline] [--dask ADDRESS] [--threads N] [--graded]
-                               [--case plain,angle,k6,fixed,mindist] [--time-limit S]
+                               [--case plain,angle,k6,fixed,multiview,mindist] [--time-limit S]
 """
 
 from __future__ import annotations
@@ -154,7 +163,8 @@ def stage_estimates(n_cand: int, n_pts: int, stages: dict, threads: int | None) 
     from camplace.visibility.engine import BASE_BYTES
 
     base = BASE_BYTES + 16 * n_pts
-    return {name: base + int(v["held"]) + int(v["bytes"]) for name, v in stages.items()}
+    return {name: base + int(v["held"]) + int(v["bytes"]) for name, v in stages.items()
+            if not name.endswith("(refused)")}  # a step over the budget did not allocate
 
 
 def layout_name(layout: str, graded: bool) -> str:

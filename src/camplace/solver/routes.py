@@ -274,8 +274,11 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
             adj[a].add(b)
             adj[b].add(a)
     g_base = np.zeros(m) if mode == "quality" else p.base
-    hint_local = greedy(p.resid.tocsc() if mode != "multiview" else p.qf.tocsc(), p.resid_w, mode, views, g_base, k,
-                        np.ones(nf, dtype=bool), adj)
+    src = p.resid if mode != "multiview" else p.qf
+    # the greedy hint reads a CSC copy (as many bytes as the CSR), made while the conflicting pairs are kept
+    note_memory("greedy hint", src.data.nbytes + src.indices.nbytes + src.indptr.nbytes,
+                extra_held=CONFLICT_PAIR_BYTES * int(p.conflicts.shape[0]))
+    hint_local = greedy(src.tocsc(), p.resid_w, mode, views, g_base, k, np.ones(nf, dtype=bool), adj)
     hint_sel = None
     if hint_local is not None:
         hint_sel = p.with_fixed(hint_local)
@@ -385,6 +388,9 @@ def warm_subset(p: CoverProblem) -> np.ndarray:
     wr = np.where(p.resid_w > 0, p.resid_w, 0.0)
     if p.resid.dtype.kind == "f" and p.resid.dtype != wr.dtype:
         wr = wr.astype(p.resid.dtype)  # a ranking: no float64 copy of a float32 matrix
+    # a bool pattern's values are cast to float64 for the product (8 bytes a pair: 852 MiB for the
+    # 1.1e8 pairs of comet-67p-bunker's merged rows at 10,000 x 50,000, the peak of that solve)
+    note_memory("warm ranking", 8 * int(p.resid.nnz) if p.resid.dtype != wr.dtype else 0)
     colw = np.asarray(p.resid.T @ wr).ravel()  # values x weights
     size = max(p.k, -(-p.free_cols.size // WARM_SHRINK))
     top = np.lexsort((np.arange(p.free_cols.size), -colw))[:size]
