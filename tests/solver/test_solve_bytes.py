@@ -272,3 +272,21 @@ def test_the_pipeline_passes_the_routes_bytes_at_the_pilots_density(inst) -> Non
         f = guard_solve_bytes(m, Cands(), o)
         assert f(0.25) == bits_solve_bytes(m, n, o, round(0.25 * m * n), conflicts)
         assert f(0.0) == bits_solve_bytes(m, n, o, 0, conflicts)
+
+
+def test_an_engine_refused_inside_is_noted_refused(inst) -> None:
+    """The angle engine checks its bytes inside (on its countable rows): under a budget it does not
+    fit, the step noted before it is replaced by ``"angle (refused)"`` with the engine's figure, so
+    that the run's estimate does not count an allocation that was not made."""
+    from camplace.solver._support.deadline import Deadline
+    from camplace.solver._support.memory import memory_budget, memory_notes
+    from camplace.solver.bits_route import bits_outcome
+
+    bits, w, pos, pts = inst
+    o = replace(_CASES["angle"][0], memory_budget_bytes=1 << 20, engine="exact")
+    m, n = bits.shape
+    assert angle_bytes(m, n, 0, 3, 2) > 1 << 20
+    with memory_budget(1 << 20), memory_notes() as notes:
+        got = bits_outcome(bits, w, replace(o, time_limit_s=None), Deadline(None), pos, pts)
+    assert got is None  # the bits route leaves it to the CSR route
+    assert "angle" not in notes and notes["angle (refused)"]["bytes"] > 1 << 20

@@ -477,6 +477,7 @@ def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None)
                           np.asarray(p.fixed, dtype=np.int64), p.free, deadline=deadline,
                           budget_bytes=memory_budget_bytes(), start=start)
     except OverBudget as exc:
+        note_memory("angle", exc.need, refused=True)
         log.info("multiview on bits: %s: the CSR route", exc.message)
         return None
     sel = tuple(sorted(set(p.fixed) | {int(j) for j in out.selected}))  # the engine's are the new cameras

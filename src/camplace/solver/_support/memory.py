@@ -200,8 +200,9 @@ def note_memory(stage: str, nbytes: int, extra_held: int = 0, refused: bool = Fa
     (:func:`held_bytes` plus ``extra_held``, e.g. the conflicting pairs the step's caller keeps).
     A stage noted twice (a warm start and the full search) keeps its larger ``held + bytes``.
     A step that does not allocate because its estimate is over the budget (``refused``: it falls
-    back or stops) is recorded as ``"<stage> (refused)"``: not a peak the run reached. Nothing is
-    recorded outside :func:`memory_notes`.
+    back or stops) is recorded as ``"<stage> (refused)"``: not a peak the run reached (an estimate
+    noted for the same stage before the step found it was over, e.g. by an engine that checks
+    inside, is dropped). Nothing is recorded outside :func:`memory_notes`.
 
     Parameters
     ----------
@@ -218,6 +219,7 @@ def note_memory(stage: str, nbytes: int, extra_held: int = 0, refused: bool = Fa
     if notes is None:
         return
     if refused:
+        notes.pop(stage, None)
         stage = f"{stage} (refused)"
     got = {"bytes": int(nbytes), "held": held_bytes() + int(extra_held)}
     old = notes.get(stage)
