@@ -151,28 +151,29 @@ def test_out_of_core_equals_in_memory(problem, tmp_path: Path) -> None:
 
 
 def test_guard_counts_the_solve_on_bits(problem) -> None:
-    """The guard's bits estimate counts the solve the run makes (issue 32: the multiview engine's
-    and set cover's working memory): a budget between max coverage's estimate and multiview's
-    lets the max-coverage run cast its rays and stops the multiview one before the work."""
-    from camplace.solver.api import bits_solve_bytes
-    from camplace.solver.options import SolveOptions
-    from camplace.visibility.engine import estimate_matrix_bytes
+    """The guard's bits estimate counts the solve the run makes (issue 32) after the cast, whose
+    threads' work arrays are freed before it: the base, the bitsets and the larger of the threads'
+    arrays and the solve's bytes. A budget between the threads' figure and a larger solve's lets
+    the run without that solve cast its rays and stops the one with it before the work."""
+    from camplace._cores import thread_count
+    from camplace.visibility.engine import BASE_BYTES, THREAD_BYTES, estimate_matrix_bytes
 
     inst, pts, cands = problem
     m, n = len(pts), len(cands)
-    plain = estimate_matrix_bytes(m, n, 1.0, "bits")
     words = n * ((m + 63) // 64) * 8
-    for o in (SolveOptions(mode="multiview", k=3, views=2), SolveOptions(mode="setcover")):
-        solve = bits_solve_bytes(m, n, o)
+    threads = THREAD_BYTES * thread_count()
+    assert estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=0) == words + 16 * m + BASE_BYTES + threads
+    for solve in (threads // 2, threads + 12345):
         got = estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=solve)
-        assert got - plain == solve - words > 0
+        assert got == words + 16 * m + BASE_BYTES + max(threads, solve)
         # a function of the density is evaluated at the density given
-        assert estimate_matrix_bytes(m, n, 0.3, "bits", solve_bytes=lambda d: solve + int(d * 1000)) == got + 300
-    mv_bytes = bits_solve_bytes(m, n, SolveOptions(mode="multiview", k=3, views=2))
-    budget = (plain + estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=mv_bytes)) // 2
-    compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget)
+        assert estimate_matrix_bytes(m, n, 0.3, "bits", solve_bytes=lambda d: solve + int(d * 1000)) == \
+            words + 16 * m + BASE_BYTES + max(threads, solve + 300)
+    small, large = estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=0), threads + (64 << 20)
+    budget = small + (32 << 20)  # the cast fits; the cast and then a solve 64 MiB over the threads' arrays do not
+    compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve_bytes=threads // 2)
     with pytest.raises(Exception, match="memory budget"):
-        compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve_bytes=mv_bytes)
+        compute_visibility(inst, cands, pts, chunk_size=32, memory_budget_bytes=budget, solve_bytes=large)
 
 
 def test_guard_checks_the_solve_with_the_pilots_density(problem) -> None:

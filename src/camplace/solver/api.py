@@ -70,12 +70,14 @@ from camplace.errors import CamplaceError
 from camplace.names import MODES
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import NearCandidates, greedy
-from camplace.solver._support.memory import OverBudget, memory_budget, memory_budget_bytes, memory_fallback
+from camplace.solver._support.memory import (OverBudget, holding, memory_budget, memory_budget_bytes, memory_fallback,
+                                             memory_notes, note_memory)
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.mip.mode_models import check_setcover_memory
 from camplace.solver.engines.setcover.mode import setcover
 from camplace.solver.options import SolveOptions
-from camplace.solver.problem.checks import conflict_count, conflict_pairs, coords, float_values, index_set, values_matrix
+from camplace.solver.problem.checks import (CONFLICT_PAIR_BYTES, conflict_count, conflict_pairs, coords, float_values,
+                                            index_set, values_matrix)
 from camplace.solver.problem.objectives import cheap_bound, mode_value
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.result import EngineOutcome, SolverResult, jsonable, relative_gap
@@ -86,7 +88,6 @@ __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count", "
 log = logging.getLogger(__name__)
 
 _OPT_TOL = 1e-9
-_CONFLICT_PAIR_BYTES = 200  # a conflicting pair: its array row, the greedy's adjacency sets, temporaries
 
 
 def solve(
@@ -166,7 +167,10 @@ def solve(
         ``selected`` holds fixed and new cameras (sorted original indices); ``objective`` is
         recomputed on the original data; for setcover it is the cost of the new cameras and
         ``bound`` a lower bound. ``stats`` has ``mode``, ``fixed``, ``new`` and, for setcover,
-        ``uncoverable_points`` / ``uncoverable_weight`` / ``covered_fraction``.
+        ``uncoverable_points`` / ``uncoverable_weight`` / ``covered_fraction``; and
+        ``memory_estimates`` (``step -> {"bytes", "held"}``: each step's estimate made before it
+        allocated, with what was known then, beside the bytes the solve held then, the input
+        matrix included; :func:`~camplace.solver._support.memory.note_memory`) when a step made one.
 
     Raises
     ------
@@ -190,8 +194,24 @@ def solve(
             raise CamplaceError(f"solve: give {', '.join(mixed)} inside options=SolveOptions(...), not beside it")
     from camplace._cores import using_threads
 
-    with memory_budget(options.memory_budget_bytes), using_threads(options.threads):
-        return _solve(matrix, weights, positions, points, options)
+    with memory_budget(options.memory_budget_bytes), using_threads(options.threads), memory_notes() as notes, \
+            holding(_matrix_bytes(matrix)):
+        res = _solve(matrix, weights, positions, points, options)
+    if notes:
+        res.stats["memory_estimates"] = {stage: dict(v) for stage, v in notes.items()}
+    return res
+
+
+def _matrix_bytes(matrix: Any) -> int:
+    """Bytes of the arrays of an input matrix (column bitsets or bytes, a sparse matrix's data,
+    indices and pointers, a dense array): what the caller holds while the solve runs."""
+    words = getattr(matrix, "words", None)
+    if words is not None:
+        return int(words.nbytes)
+    parts = [getattr(matrix, name, None) for name in ("data", "indices", "indptr")]
+    if any(p is not None for p in parts):
+        return int(sum(getattr(p, "nbytes", 0) for p in parts if p is not None))
+    return int(getattr(matrix, "nbytes", 0))
 
 
 _DEFAULTS = SolveOptions()
@@ -327,7 +347,7 @@ def _conflicts(pos: np.ndarray | None, o: SolveOptions) -> tuple[np.ndarray, str
         raise CamplaceError("min_distance_m needs the camera positions (positions, shape (n, 3))")
     d = float(o.min_distance_m)
     n_pairs = conflict_count(pos, d)
-    need, budget = n_pairs * _CONFLICT_PAIR_BYTES, memory_budget_bytes()
+    need, budget = n_pairs * CONFLICT_PAIR_BYTES, memory_budget_bytes()
     if need > budget:
         return none, memory_fallback(
             OverBudget(need, budget, f"min_distance_m={d:g} ({n_pairs} candidate pairs closer than that)"), None,
@@ -360,16 +380,26 @@ def _free_columns(n: int, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...]
 def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: int = 0) -> int:
     """Working bytes of :func:`solve` with the options ``o`` on an (m, n) binary matrix of ``nnz``
     observed pairs held as column bitsets (``B = n x ceil(m / 64) x 8`` bytes), besides the
-    bitsets: what the visibility stage's memory guard adds for the solve the run makes next (the
-    pipeline passes it), following :func:`_solve`'s routes on a BitMatrix in the same order, each
-    from its engine's own estimate. Where a route works on the presolved instance (its size known
-    only after the presolve) the whole matrix's sizes stand for it: an upper bound, as the engines
-    check the reduced sizes before allocating.
+    bitsets, as far as they are known before the matrix exists: what the visibility stage's memory
+    guard adds for the solve the run makes next (the pipeline passes it), following
+    :func:`_solve`'s routes on a BitMatrix in the same order, each from its engine's own estimate.
+
+    The guard is checked in stages, each allocation against an estimate made with what is known
+    just before it. This is the first stage, before the cast: it counts what runs on the whole
+    matrix (the presolve, the allowed columns' copy, the angle engine, set cover's bitsets, a
+    team's lists, the conflicting pairs, and the whole matrix's CSR and model on the routes that
+    make them). The engines and models that run on the presolved instance (the bitset and large-k
+    engines, the merged rows' CSR and general model, a max-coverage model) are not counted: its
+    size is known only after the presolve, which the pilot's sample does not predict. Each of them
+    estimates its bytes on the reduced sizes before allocating, checks them against the solver's
+    memory budget (the memory available then: a general model over it gives the greedy answer
+    under engine ``auto``, any other stops with a one-line message) and notes them
+    (``stats["memory_estimates"]``, :func:`~camplace.solver._support.memory.note_memory`).
 
     * the bits route (:func:`camplace.solver.bits_route.outcome_bytes`): plain max coverage,
-      multiview with or without a minimum angle, ``4 < k <= 8``;
+      multiview, ``4 < k <= 8``: the bit presolve; multiview with a minimum angle: the angle engine;
     * fixed or forbidden cameras there (:func:`_sides_bits`): the allowed columns' bitsets (a copy,
-      at most ``B``) and the bits route's bytes on them;
+      at most ``B``), the residual weights and the bits route's bytes on them;
     * set cover without a minimum distance or team:
       :func:`camplace.solver.engines.setcover.reduce_bits.setcover_bits_bytes`;
     * a team in max coverage (:func:`_team_bits`): the branch and bound's row lists
@@ -377,11 +407,8 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
       runs, the whole matrix as a bool CSR (5 bytes a pair): the larger (the team engines' own
       working memory is checked by them and not counted);
     * a minimum distance, engine mip / cpsat, multiview with fixed cameras and no angle
-      (:func:`_rows_presolved`): the bit presolve, then its merged rows' bitsets (at most ``B``)
-      and bool CSR (:func:`~camplace.solver.problem.presolve_bits.reduced_csr_bytes`), the
-      ``conflicts`` pairs (:data:`_CONFLICT_PAIR_BYTES` each) and the general model
-      (:func:`~camplace.solver.engines.mip.linear.model_bytes` of
-      :func:`~camplace.solver.engines.mip.mode_models.cover_model_size` of every row);
+      (:func:`_rows_presolved`): the bit presolve, or the ``conflicts`` pairs
+      (:data:`CONFLICT_PAIR_BYTES` each, counted from the candidates' positions): the larger;
     * set cover with a minimum distance (:func:`_setcover_bits`): the rows left to cover as the
       bool CSR the model reads, at most the whole matrix's (5 bytes a pair), the conflicting pairs
       and the model of every row (counted as below: an upper bound on the set-cover model's size);
@@ -418,7 +445,7 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
     from camplace.solver.engines.mip.mode_models import cover_model_size
     from camplace.solver.engines.setcover.reduce_bits import setcover_bits_bytes
     from camplace.solver.engines.team.bnb import row_lists_bytes
-    from camplace.solver.problem.presolve_bits import presolve_bits_bytes, reduced_csr_bytes
+    from camplace.solver.problem.presolve_bits import presolve_bits_bytes
 
     m, n, nnz, conflicts = int(m), int(n), int(nnz), int(conflicts) if o.min_distance_m is not None else 0
     col_bytes = ((m + 63) // 64) * 8
@@ -438,6 +465,9 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
                 return cols * col_bytes + 8 * m + got
     if o.team is not None and _team_bits_applies(o):  # the branch and bound on the bits, or (another team engine) the CSR
         return max(row_lists_bytes(nnz) + 8 * m, 5 * nnz + 8 * (m + 1))
+    pairs = CONFLICT_PAIR_BYTES * conflicts
+    if o.team is None and _rows_presolve_applies(o):  # the merged rows' CSR and model: noted once they are known
+        return max(presolve_bits_bytes(m, n), pairs)
     backend = "cpsat" if o.engine == "cpsat" else "mip"
     free, n_fixed = n - len(set(o.fixed)) - len(set(o.forbidden)), len(set(o.fixed))
     model = model_bytes(backend, *cover_model_size(m, free, nnz, conflicts, n_fixed))
@@ -445,9 +475,6 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
         with memory_budget(o.memory_budget_bytes):
             if model > memory_budget_bytes():  # the solve gives the greedy answer instead (routes._model)
                 model = 0
-    pairs = _CONFLICT_PAIR_BYTES * conflicts
-    if o.team is None and _rows_presolve_applies(o):  # the merged rows' bitsets and bool CSR, then the model
-        return max(presolve_bits_bytes(m, n), n * col_bytes + reduced_csr_bytes(m, n, nnz, 1) + pairs + model)
     values = 4 * nnz if o.min_angle_deg is not None else 0
     return 5 * nnz + 8 * (m + 1) + values + pairs + model
 
@@ -527,6 +554,10 @@ def _setcover_bits(bits: Any, weights: Any, positions: Any, o: SolveOptions, dea
     free_cols, conflicts = _free_columns(n, fixed_t, forbidden_t, conflicts, o.min_distance_m)
     if conflicts.size:  # the model runs directly (otherwise the local search checks its own memory)
         check_setcover_memory(bits, w, free_cols, conflicts, o.engine)
+    else:
+        from camplace.solver.engines.setcover.reduce_bits import setcover_bits_bytes
+
+        note_memory("setcover", setcover_bits_bytes(m, n))
     ctx = setcover(bits, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, o.engine, deadline,
                    o.search_seed, o.iterations)
     ctx.stats["matrix"] = ("column bitsets (the rows to cover as row bitsets)" if not conflicts.size else
@@ -627,7 +658,9 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
     const = 0.0 if multiview else covered_weight(bits, w, fixed_t)  # the fixed cameras' covered weight
     resid_w = np.where(bits.union(fixed_t), 0.0, w) if fixed_t and not multiview else w
     local = replace(o, forbidden=(), fixed=tuple(int(j) for j in np.searchsorted(cols, fixed_t)) if multiview else ())
-    got = bits_outcome(sub, resid_w, local, deadline, None if full_pos is None else full_pos[cols], pts)
+    copied = 0 if np.shares_memory(sub.words, bits.words) else sub.words.nbytes
+    with holding(copied + resid_w.nbytes):  # the allowed columns' copy, held while the route runs on it
+        got = bits_outcome(sub, resid_w, local, deadline, None if full_pos is None else full_pos[cols], pts)
     if got is None:
         return None
     ctx = got[0]
@@ -676,7 +709,7 @@ def _rows_presolved(bits: Any, weights: Any, positions: Any, o: SolveOptions, de
         None when the presolve's working memory or the merged rows' CSR would not fit in the memory
         budget, or no row is left: the caller converts the whole matrix as before.
     """
-    from camplace.solver.problem.presolve_bits import presolve_bits, presolve_bits_bytes, reduced_csr
+    from camplace.solver.problem.presolve_bits import presolve_bits, presolve_bits_bytes, reduced_csr, reduced_csr_bytes
 
     m, n = bits.shape
     w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
@@ -689,13 +722,16 @@ def _rows_presolved(bits: Any, weights: Any, positions: Any, o: SolveOptions, de
     assert pre.shape[1] == n  # no dominance: every column kept, in order
     if pre.shape[0] == 0:
         return None
-    try:
-        csr = reduced_csr(pre, np.bool_, what="the merged rows as CSR")
-    except OverBudget as exc:
-        log.info("%s: the whole matrix as CSR", exc.message)
-        return None
-    res = _solve(csr, pre.weights, positions, None, o, deadline)
-    del csr
+    with holding(pre.bits.nbytes + pre.weights.nbytes):
+        note_memory("rows CSR", reduced_csr_bytes(pre.shape[0], n, int(pre.nnz), 1))
+        try:
+            csr = reduced_csr(pre, np.bool_, what="the merged rows as CSR")
+        except OverBudget as exc:
+            log.info("%s: the whole matrix as CSR", exc.message)
+            return None
+        with holding(csr.data.nbytes + csr.indices.nbytes + csr.indptr.nbytes):  # the model notes its own bytes
+            res = _solve(csr, pre.weights, positions, None, o, deadline)
+        del csr
     res.stats.update({"matrix": f"column bitsets, rows presolved to {pre.shape[0]} x {n} (that as CSR)",
                       "rows_presolve": dict(pre.stats)})
     return _on_the_bits(res, bits, w, o, fixed_t, forbidden_t, deadline)
@@ -740,6 +776,7 @@ def _column_bits(bits: Any, cols: np.ndarray, what: str) -> Any:
     if cols.size and cols[-1] - cols[0] + 1 == cols.size:
         return BitMatrix(bits.words[int(cols[0]):int(cols[-1]) + 1], m)  # one range: a view
     need, budget = cols.size * bits.words.shape[1] * 8, memory_budget_bytes()
+    note_memory("columns", need)
     if need > budget:
         raise OverBudget(need, budget, what)
     return BitMatrix(bits.words[cols], m)

@@ -72,9 +72,9 @@ import numpy as np
 
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, holding, memory_budget_bytes, note_memory
 from camplace.solver.choose import choose_engine, problem_sizes
-from camplace.solver.engines.angle.search import solve_angle
+from camplace.solver.engines.angle.search import angle_bytes, solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.bitset.search import bitset_bytes, pairs_layout_bytes, solve_bitset
 from camplace.solver.engines.large_k.search import run_large_k
@@ -88,43 +88,39 @@ from camplace.solver.result import EngineOutcome
 from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
 from camplace.visibility.bits import BitMatrix, column_sums
 
-__all__ = ["bits_applies", "bits_outcome", "binary_value", "large_k_bits_bytes", "load_kernels", "outcome_bytes"]
+__all__ = ["bits_applies", "bits_outcome", "binary_value", "large_k_reduced_bytes", "load_kernels",
+           "multiview_engine_bytes", "outcome_bytes"]
 
 log = logging.getLogger(__name__)
 
 
 def outcome_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0) -> int | None:
     """Working bytes of :func:`bits_outcome` for the options ``o`` on an (m, n) matrix of ``nnz``
-    observed pairs held as column bitsets (``B = n x ceil(m / 64) x 8`` bytes), besides the bitsets:
-    the estimate the visibility stage's guard adds for the solve (through
-    :func:`camplace.solver.api.bits_solve_bytes`), from the engines' own estimates, made before the
-    matrix exists. Where the engine runs on the presolved instance (its size known only after the
-    presolve), the whole matrix's sizes are used: an upper bound (``m' <= m``, ``n' <= n``,
-    ``nnz' <= nnz``), as the engine's own check uses the reduced ones.
+    observed pairs held as column bitsets (``B = n x ceil(m / 64) x 8`` bytes), besides the bitsets,
+    as far as they can be known before the matrix exists: the estimate the visibility stage's guard
+    adds for the solve (through :func:`camplace.solver.api.bits_solve_bytes`).
 
-    * max coverage (and quality of a binary matrix), ``k <= 4``: the bit presolve
-      (:func:`~camplace.solver.problem.presolve_bits.presolve_bits_bytes`, about ``2 B``); the
-      bitset engine then runs on the columns the dominance keeps (at 10,000 x 50,000 on
-      comet-67p-bunker a few hundred: its bitsets on the whole matrix's sizes, 250 MB, would put
-      the estimate at 1.4 times the peak) and checks its bitsets against the budget itself. With
-      engine mip or cpsat, the presolved instance's bitsets (at most ``B``) and its max-coverage
-      model (:func:`~camplace.solver.engines.mip.ortools.maxcover_model_size`) instead: the larger;
-    * multiview, ``k <= 4``: the bit presolve (no dominance: every column stays), then the bitset
-      engine's bitsets (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` with
-      ``min(views, k)`` levels, ``(2 + 2 min(views, k)) B``, without the open tuples, which grow
-      with the search up to a fixed cap and are checked by the engine): the larger of the two; on
-      the opposite-pairs layout for ``k < 2 views``
-      (:func:`~camplace.solver.engines.bitset.search.pairs_layout_bytes`: the matching and up to
-      two layout rows a row);
-    * multiview with a minimum angle: :func:`~camplace.solver.engines.angle.search.angle_bytes` of
-      every row and column (fixed ones: ``o.fixed``), with the engine's least number of open
-      tuples (it opens more only as far as its memory budget allows);
-    * ``4 < k <= 8`` (:func:`_large_k`): the bit presolve, then its reduced bitsets (at most ``B``),
-      their column lists (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern_bytes`,
-      8 bytes a pair) and the large-k engines'
-      (:func:`~camplace.solver.engines.large_k.search.large_k_bytes`; multiview adds the bitset
-      engine's bitsets). The SCIP model that may follow is checked against the budget by the
-      engine and skipped when it does not fit (the run keeps the search's answer): not counted.
+    The guard is checked in stages, each allocation against an estimate made with what is known
+    just before it. This is the first: what runs on the whole matrix. The engines that run on the
+    presolved instance are not counted here: its size (rows merged, dominated columns dropped; at
+    10,000 x 50,000 on comet-67p-bunker about a quarter of the pairs) is known only after the
+    presolve, and the visibility pilot's sample does not predict it (the merges and the dominance
+    are between whole rows and columns). They estimate their bytes on the reduced sizes before
+    allocating, check them against the budget (falling back or stopping with a one-line message)
+    and note them (:func:`~camplace.solver._support.memory.note_memory`; the solve's
+    ``stats["memory_estimates"]``): :func:`large_k_reduced_bytes`, :func:`multiview_engine_bytes`,
+    the exact max-coverage engine's bitsets, a max-coverage model.
+
+    * max coverage (and quality of a binary matrix), any k and engine; multiview without a minimum
+      angle: the bit presolve
+      (:func:`~camplace.solver.problem.presolve_bits.presolve_bits_bytes`, about ``2.25 R`` with
+      ``R = m x ceil(n / 64) x 8``); multiview with ``k < 2 views`` (k <= 4): or the bitset engine's
+      opposite-pairs layout, which reads the original rows and every column
+      (:func:`multiview_engine_bytes`: up to two layout rows a row), the larger;
+    * multiview with a minimum angle: the angle engine runs on every row and column (no presolve):
+      :func:`~camplace.solver.engines.angle.search.angle_bytes` of them (fixed ones: ``o.fixed``),
+      with the engine's least number of open tuples (it opens more only as far as its memory budget
+      allows): the engine's own check, with every row for its countable ones.
 
     Returns
     -------
@@ -133,50 +129,59 @@ def outcome_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0) -> int | None:
         is the general model): the caller counts that route.
     """
     from camplace.solver.choose import ProblemSizes
-    from camplace.solver.engines.angle.search import angle_bytes
     from camplace.solver.problem.presolve_bits import presolve_bits_bytes
 
     k, views, fixed = int(o.k), int(o.views), len(o.fixed)
-    words = int(n) * ((int(m) + 63) // 64) * 8
     presolve = presolve_bits_bytes(m, n)
     views_mode = o.mode == "multiview"
     sizes = ProblemSizes(k=k, points=int(m), free=int(n) - fixed, nnz=int(nnz), fixed=fixed, conflicts=0)
     choice = choose_engine(sizes, o if views_mode else replace(o, mode="maxcover"), 1 << 62)
-    levels = min(views, k) if views_mode else 1
     if choice.route == "large-k" and not fixed:
-        return max(presolve, large_k_bits_bytes(m, n, nnz, k, levels if views_mode else 0))
+        return presolve
     if choice.route == "angle" and o.min_angle_deg is not None:
         return angle_bytes(m, n - fixed, fixed, k, views)
+    if choice.route == "multiview" and views_mode and 1 < views and k < 2 * views:
+        return max(presolve, multiview_engine_bytes(m, n, views, k))  # the layout reads the original rows
     if choice.route == ("multiview" if views_mode else "maxcover"):
-        if views_mode and 1 < views and k < 2 * views:  # the opposite-pairs layout
-            return max(presolve, pairs_layout_bytes(m, n, levels, k))
-        if not views_mode and choice.engine in ("mip", "cpsat"):  # the max-coverage model of the presolved instance
-            from camplace.solver.engines.mip.linear import model_bytes
-            from camplace.solver.engines.mip.ortools import maxcover_model_size
-
-            return max(presolve, words + model_bytes(choice.engine, *maxcover_model_size(m, n, nnz)))
-        if not views_mode:  # the engine runs on the columns the dominance keeps and checks its bitsets itself
-            return presolve
-        return max(presolve, bitset_bytes(m, n, levels, k, tuples=False))
+        return presolve
     return None
 
 
-def large_k_bits_bytes(m: int, n: int, nnz: int, k: int, levels: int = 0) -> int:
-    """Bytes :func:`_large_k` holds after the bit presolve on an (m, n) matrix of ``nnz`` pairs
-    (upper bounds: the whole matrix's sizes for the reduced instance's): the reduced bitsets (at
-    most ``B``), their column lists
+def large_k_reduced_bytes(m: int, n: int, nnz: int, k: int, levels: int = 0) -> int:
+    """Bytes :func:`_large_k` allocates after the bit presolve, on its reduced (m, n) instance of
+    ``nnz`` pairs (the sizes the presolve left, known then): the column lists
     (:func:`~camplace.solver.problem.presolve_bits.reduced_pattern_bytes`), the large-k engines'
     working memory on them (:func:`~camplace.solver.engines.large_k.search.large_k_bytes` with the
     pattern) and, for multiview (``levels`` > 0), the bitset engine's ``levels`` level bitsets
-    (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` without its open tuples)."""
+    (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` without its open tuples). The
+    reduced bitsets themselves are held by then (not counted here)."""
     from camplace.solver.engines.large_k.search import large_k_bytes
     from camplace.solver.problem.presolve_bits import reduced_pattern_bytes
 
-    words = int(n) * ((int(m) + 63) // 64) * 8
     engine = large_k_bytes(m, n, nnz, pattern=True)
     if levels:
         engine += bitset_bytes(m, n, levels, k, tuples=False)
-    return int(words + reduced_pattern_bytes(n, nnz) + engine)
+    return int(reduced_pattern_bytes(n, nnz) + engine)
+
+
+def multiview_engine_bytes(m: int, n: int, views: int, k: int, origin_rows: int | None = None) -> int:
+    """Bytes the multiview bitset engine allocates up front on a presolved (m, n) instance: for
+    ``1 < views`` and ``k < 2 views`` the opposite-pairs layout, which reads the original rows
+    (``origin_rows``, default ``m``; :func:`~camplace.solver.engines.bitset.search.pairs_layout_bytes`:
+    up to two layout rows a row), else its bitsets
+    (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` with ``min(views, k)`` levels);
+    not the open tuples, which grow with the search up to a fixed cap that the engine's own
+    budget check counts."""
+    levels = min(int(views), int(k))
+    if 1 < views and k < 2 * views:
+        return pairs_layout_bytes(int(m if origin_rows is None else origin_rows), n, levels, k)
+    return bitset_bytes(m, n, levels, k, tuples=False)
+
+
+def _presolved_bytes(pre) -> int:
+    """Bytes of a bit presolve's reduced instance held while the engines run: its column bitsets
+    and weights."""
+    return int(pre.bits.nbytes + pre.weights.nbytes)
 
 
 def bits_applies(o: SolveOptions) -> bool:
@@ -259,7 +264,8 @@ def _maxcover(bits, w: np.ndarray, k: int, o: SolveOptions, deadline: Deadline) 
         got = _large_k(bits, w, k, o, stats, deadline)
         return None if got is None else replace(got, objective=binary_value(bits, w, got.selected, asked))
     pre = presolve_bits(bits, w, k, deadline=deadline.share(0.5))  # at least half the time left to the search
-    name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline, stats, budget)
+    with holding(_presolved_bytes(pre)):  # the engine checks (and notes) its bytes on the kept columns
+        name, out = run_maxcover_engine(choice.engine, o.engine, pre, deadline, stats, budget)
     sel = tuple(sorted(int(j) for j in pre.original_columns(out.selected))) if out.selected else None
     objective = binary_value(bits, w, sel, asked) if sel else 0.0
     stats.update({"rows_after": pre.shape[0], "cols_after": pre.shape[1], "presolve": dict(pre.stats),
@@ -404,6 +410,18 @@ def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any]
     views = o.mode == "multiview"
     # max coverage: at most half of the time to the dominance, as on the k <= 4 route
     pre = presolve_bits(bits, w, k, dominance=not views, deadline=deadline if views else deadline.share(0.5))
+    with holding(_presolved_bytes(pre)):
+        return _large_k_presolved(bits, w, k, o, stats, deadline, pre)
+
+
+def _large_k_presolved(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any], deadline: Deadline,
+                       pre) -> EngineOutcome | None:
+    """:func:`_large_k` after the bit presolve ``pre``: the reduced instance's column lists and the
+    engines on them, their bytes on the reduced sizes noted first (``"large-k"``:
+    :func:`large_k_reduced_bytes`)."""
+    views = o.mode == "multiview"
+    note_memory("large-k", large_k_reduced_bytes(pre.shape[0], pre.shape[1], int(pre.nnz), k,
+                                                 min(int(o.views), k) if views else 0))
     try:  # the column lists the local searches read (8 bytes a pair), instead of their CSR copies
         pattern = reduced_pattern(pre, what="the presolved instance's column lists (the large-k engines)")
     except OverBudget as exc:
@@ -436,7 +454,10 @@ def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None
         log.info("multiview on bits: the bitset engine needs %.3g GiB (budget %.3g GiB): the CSR route",
                  need / 2**30, budget / 2**30)
         return None
-    out = solve_bitset(pre, views=views, deadline=deadline, start=None if start is None else pre.reduced_columns(start))
+    with holding(_presolved_bytes(pre)):
+        note_memory("bitset", multiview_engine_bytes(mp, np_, views, k, origin_rows=p.bits.shape[0]))
+        out = solve_bitset(pre, views=views, deadline=deadline,
+                           start=None if start is None else pre.reduced_columns(start))
     sel = tuple(int(j) for j in pre.original_columns(out.selected)) if out.selected else None
     stats.update({"rows_after": mp, "cols_after": np_, "presolve": dict(pre.stats), "engine_stats": dict(out.stats)})
     return EngineOutcome(sel, out.status if sel else "unknown", float(out.bound), stats, engine=choice.engine,
@@ -448,11 +469,15 @@ def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None)
     it does not fit in the memory budget."""
     assert p.pos is not None and p.pts is not None and p.o.min_angle_deg is not None
     stats = _choice_stats(p.k, choice)
+    # the engine's own check, with every row for its countable rows (it counts them first)
+    note_memory("angle", angle_bytes(p.bits.shape[0], p.bits.shape[1] - len(p.fixed), len(p.fixed), p.k,
+                                     int(p.o.views)))
     try:
         out = solve_angle(p.bits, p.w, p.k, int(p.o.views), float(p.o.min_angle_deg), p.pos, p.pts,
                           np.asarray(p.fixed, dtype=np.int64), p.free, deadline=deadline,
                           budget_bytes=memory_budget_bytes(), start=start)
     except OverBudget as exc:
+        note_memory("angle", exc.need, refused=True)
         log.info("multiview on bits: %s: the CSR route", exc.message)
         return None
     sel = tuple(sorted(set(p.fixed) | {int(j) for j in out.selected}))  # the engine's are the new cameras

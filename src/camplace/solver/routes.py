@@ -27,7 +27,8 @@ import scipy.sparse as sp
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import greedy
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback, note_memory
+from camplace.solver.problem.checks import CONFLICT_PAIR_BYTES
 from camplace.solver.choose import EngineChoice, choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
@@ -273,8 +274,11 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
             adj[a].add(b)
             adj[b].add(a)
     g_base = np.zeros(m) if mode == "quality" else p.base
-    hint_local = greedy(p.resid.tocsc() if mode != "multiview" else p.qf.tocsc(), p.resid_w, mode, views, g_base, k,
-                        np.ones(nf, dtype=bool), adj)
+    src = p.resid if mode != "multiview" else p.qf
+    # the greedy hint reads a CSC copy (as many bytes as the CSR), made while the conflicting pairs are kept
+    note_memory("greedy hint", src.data.nbytes + src.indices.nbytes + src.indptr.nbytes,
+                extra_held=CONFLICT_PAIR_BYTES * int(p.conflicts.shape[0]))
+    hint_local = greedy(src.tocsc(), p.resid_w, mode, views, g_base, k, np.ones(nf, dtype=bool), adj)
     hint_sel = None
     if hint_local is not None:
         hint_sel = p.with_fixed(hint_local)
@@ -286,6 +290,8 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
                       p.conflicts, budget)
     need = model_bytes(name, *size)
     stats["model_estimate"] = {"variables": size[0], "rows": size[1], "nonzeros": size[2], "bytes": need}
+    # the pairs kept meanwhile are held
+    note_memory("model", need, extra_held=CONFLICT_PAIR_BYTES * int(p.conflicts.shape[0]), refused=need > budget)
     try:
         if need > budget:
             exc = OverBudget(need, budget, f"the {'SCIP' if name == 'mip' else 'CP-SAT'} model of mode {mode}")
@@ -382,6 +388,9 @@ def warm_subset(p: CoverProblem) -> np.ndarray:
     wr = np.where(p.resid_w > 0, p.resid_w, 0.0)
     if p.resid.dtype.kind == "f" and p.resid.dtype != wr.dtype:
         wr = wr.astype(p.resid.dtype)  # a ranking: no float64 copy of a float32 matrix
+    # a bool pattern's values are cast to float64 for the product (8 bytes a pair: 852 MiB for the
+    # 1.1e8 pairs of comet-67p-bunker's merged rows at 10,000 x 50,000, the peak of that solve)
+    note_memory("warm ranking", 8 * int(p.resid.nnz) if p.resid.dtype != wr.dtype else 0)
     colw = np.asarray(p.resid.T @ wr).ravel()  # values x weights
     size = max(p.k, -(-p.free_cols.size // WARM_SHRINK))
     top = np.lexsort((np.arange(p.free_cols.size), -colw))[:size]

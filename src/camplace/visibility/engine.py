@@ -538,7 +538,10 @@ def available_memory_bytes() -> int:
 #: (calibrated with benchmarks/scale.py on comet-67p-bunker, 2 threads: 380-410 MiB in all at
 #: 2,000 x 10,000 and 10,000 x 50,000 besides the bitsets)
 BASE_BYTES = 280 * 2**20
-#: per-thread chunk work arrays and result slabs (culling, segments, Embree batches; kept for reuse)
+#: per-thread chunk work arrays and result slabs (culling, segments, Embree batches; kept for reuse
+#: while the matrix is cast: freed with the visibility stage, before the solve: comet-67p-bunker,
+#: 2 threads, the run's resident bytes fell by 63 MiB at 2,000 x 10,000 and 120-125 MiB at
+#: 10,000 x 50,000 from the cast's peak to the solve's start, /proc sampled every 20 ms)
 THREAD_BYTES = 60 * 2**20
 
 
@@ -569,15 +572,18 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     core): the bytes are in a scratch file (only the chunks in flight resident while they are cast;
     afterwards the solver's reads keep pages in the page cache, which the kernel reclaims under
     memory pressure): ``tree C + B``. All add the per-thread work arrays
-    (:data:`THREAD_BYTES`, kept for the run) and the process's base (:data:`BASE_BYTES`).
+    (:data:`THREAD_BYTES`; ``bits``: or the solve's bytes, the larger) and the process's base
+    (:data:`BASE_BYTES`).
 
     ``solve_bytes`` (``bits`` only): the working bytes of the solve the run makes next, besides the
-    bitsets, from the stage that knows the solver (the pipeline: :func:`camplace.solver.api.bits_solve_bytes`,
-    e.g. set cover's row bitsets and their transposition, about ``2 B``; the multiview bitset
-    engine's ``(2 + 2 min(views, k)) B``; the general model of a minimum distance, which grows with
-    the observed pairs): ``B + solve_bytes``, a number or a function of the density (the share of
-    observed cells: 0 before the work, the pilot's at the pilot's check). None: max coverage's
-    presolve, ``2 B``.
+    bitsets, as far as they are known before the cast, from the stage that knows the solver (the
+    pipeline: :func:`camplace.solver.api.bits_solve_bytes`: e.g. the bit presolve, set cover's row
+    bitsets and their transposition, about ``2 B``, the angle engine; the engines on the presolved
+    instance estimate and check their own bytes once it is known), a number or a function of the
+    density (the share of observed cells: 0 before the work, the pilot's at the pilot's check).
+    The threads' work arrays are freed when the cast ends, before the solve allocates: the bits
+    layout counts the larger of the two, ``B + max(threads' arrays, solve_bytes)`` besides the
+    base. None: ``B`` for the solve (max coverage's presolve, as counted before the solve was known).
     """
     fixed = BASE_BYTES + THREAD_BYTES * thread_count()
     words = 8 * n_cols * ((n_rows + 63) // 64)
@@ -588,9 +594,9 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
         return int(16 * n_rows + 64 * n_cols + fixed)
     if layout == "bytes-disk":
         return int(float(tree) * n_rows * n_cols + words + 16 * n_rows + 64 * n_cols + fixed)
-    if layout == "bits":
+    if layout == "bits":  # the cast's threads' arrays, then (freed) the solve's working bytes
         solve = words if solve_bytes is None else solve_bytes(density) if callable(solve_bytes) else solve_bytes
-        return int(words + int(solve) + 16 * n_rows + fixed)
+        return int(words + 16 * n_rows + BASE_BYTES + max(THREAD_BYTES * thread_count(), int(solve)))
     nnz = density * n_rows * n_cols
     return int(10 * nnz + 16 * (n_rows + 1) + fixed)
 

@@ -4,7 +4,14 @@ How many bytes an engine may allocate (:func:`memory_budget_bytes`, capped by
 :func:`memory_budget`), the error an engine raises before allocating more (:class:`OverBudget`),
 and what happens then, decided in one place (:func:`memory_fallback`): an engine asked for by name,
 or a step with nothing to fall back to, is a one-line error; otherwise a logged warning,
-``stats["memory_fallback"]`` and the next engine."""
+``stats["memory_fallback"]`` and the next engine.
+
+The estimates a solve makes on its way are recorded too (:func:`note_memory`, collected by
+:func:`memory_notes`; :func:`camplace.solver.solve` puts them in ``stats["memory_estimates"]``):
+each step's estimate of what it is about to allocate, made with what is known just before it (the
+presolved sizes for an engine that runs after the presolve), beside the bytes the solve holds
+then (:func:`holding`: the input matrix, a presolved copy, the merged rows' CSR). The largest
+``held + bytes`` over the steps is the solve's estimated peak besides the process's base."""
 
 from __future__ import annotations
 
@@ -16,7 +23,8 @@ from typing import Any, Iterator
 
 from camplace.errors import CamplaceError
 
-__all__ = ["MEMORY_FRACTION", "OverBudget", "memory_budget", "memory_budget_bytes", "memory_fallback"]
+__all__ = ["MEMORY_FRACTION", "OverBudget", "holding", "memory_budget", "memory_budget_bytes", "memory_fallback",
+           "memory_notes", "note_memory"]
 
 log = logging.getLogger(__name__)
 
@@ -146,3 +154,74 @@ def memory_fallback(exc: OverBudget, stats: dict[str, Any] | None, *, asked: boo
     if stats is not None:
         stats["memory_fallback"] = msg
     return msg
+
+
+_NOTES: contextvars.ContextVar[dict[str, dict[str, int]] | None] = contextvars.ContextVar("camplace_memory_notes",
+                                                                                          default=None)
+_HELD: contextvars.ContextVar[int] = contextvars.ContextVar("camplace_memory_held", default=0)
+
+
+@contextlib.contextmanager
+def memory_notes() -> Iterator[dict[str, dict[str, int]]]:
+    """Collect the :func:`note_memory` calls made within this context into the dict yielded
+    (``stage -> {"bytes": estimate, "held": bytes held then}``); nested contexts share the
+    outermost one's dict (a solve within a solve: the warm start, the merged rows)."""
+    outer = _NOTES.get()
+    if outer is not None:
+        yield outer
+        return
+    notes: dict[str, dict[str, int]] = {}
+    token = _NOTES.set(notes)
+    try:
+        yield notes
+    finally:
+        _NOTES.reset(token)
+
+
+@contextlib.contextmanager
+def holding(nbytes: int) -> Iterator[None]:
+    """Within this context the solve holds ``nbytes`` more (an array made and kept while the steps
+    inside run: the input matrix, a presolved copy); :func:`note_memory` records the sum."""
+    token = _HELD.set(_HELD.get() + max(0, int(nbytes)))
+    try:
+        yield
+    finally:
+        _HELD.reset(token)
+
+
+def held_bytes() -> int:
+    """Bytes the enclosing :func:`holding` contexts hold (0 outside them)."""
+    return _HELD.get()
+
+
+def note_memory(stage: str, nbytes: int, extra_held: int = 0, refused: bool = False) -> None:
+    """Record a step's estimate of the bytes it is about to allocate (``nbytes``, the figure it
+    checks against the budget or counts for the run), beside the bytes held then
+    (:func:`held_bytes` plus ``extra_held``, e.g. the conflicting pairs the step's caller keeps).
+    A stage noted twice (a warm start and the full search) keeps its larger ``held + bytes``.
+    A step that does not allocate because its estimate is over the budget (``refused``: it falls
+    back or stops) is recorded as ``"<stage> (refused)"``: not a peak the run reached (an estimate
+    noted for the same stage before the step found it was over, e.g. by an engine that checks
+    inside, is dropped). Nothing is recorded outside :func:`memory_notes`.
+
+    Parameters
+    ----------
+    stage : str
+        The step, e.g. ``"presolve"``, ``"large-k"``, ``"model"``.
+    nbytes : int
+        Its estimate, bytes.
+    extra_held : int
+        Bytes held besides :func:`held_bytes`.
+    refused : bool
+        The estimate is over the budget: the step is not taken.
+    """
+    notes = _NOTES.get()
+    if notes is None:
+        return
+    if refused:
+        notes.pop(stage, None)
+        stage = f"{stage} (refused)"
+    got = {"bytes": int(nbytes), "held": held_bytes() + int(extra_held)}
+    old = notes.get(stage)
+    if old is None or got["bytes"] + got["held"] > old["bytes"] + old["held"]:
+        notes[stage] = got

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback, note_memory
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.mip.ortools import solve_cpsat, solve_mip
 from camplace.solver.problem.presolve import Presolved
@@ -57,6 +57,8 @@ def run_maxcover_engine(name: str, requested: str, pre: Presolved, deadline: Dea
                 have = memory_budget_bytes() if budget is None else budget
                 if need > have:
                     raise OverBudget(need, have, "the exact engine")
+                # noted: what it allocates up front (the open tuples grow with the search, up to the cap checked)
+                note_memory("bitset", bitset_bytes(pre.shape[0], pre.shape[1], 1, pre.k, tuples=False))
                 return name, solve_bitset(pre, deadline=deadline, start=start)
             return name, _FUNCS[name](pre, deadline=deadline)
         except OverBudget as exc:

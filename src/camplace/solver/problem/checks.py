@@ -14,7 +14,8 @@ import scipy.sparse as sp
 
 from camplace.errors import CamplaceError
 
-__all__ = ["values_matrix", "kernel_data", "float_values", "index_set", "coords", "conflict_count", "conflict_pairs"]
+__all__ = ["values_matrix", "kernel_data", "float_values", "index_set", "coords", "conflict_count", "conflict_pairs",
+           "CONFLICT_PAIR_BYTES"]
 
 
 def values_matrix(matrix: Any) -> sp.csr_matrix:
@@ -85,6 +86,11 @@ def coords(arr: Any, rows: int, name: str, what: str) -> np.ndarray:
     if a.shape != (rows, 3) or not np.all(np.isfinite(a)):
         raise CamplaceError(f"{name} must be a finite ({rows}, 3) array of {what}, got shape {a.shape}")
     return a
+
+
+#: bytes of a conflicting candidate pair while a solve keeps them: its array row, the greedy's
+#: adjacency sets, temporaries
+CONFLICT_PAIR_BYTES = 200
 
 
 def conflict_count(positions: np.ndarray, min_distance_m: float) -> int:

@@ -38,7 +38,7 @@ from camplace.errors import CamplaceError
 from camplace.solver._support.bitkernels import renumber_by_first
 from camplace._blocks import cuts, run_blocks, work_cuts
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback, note_memory
 from camplace.solver.problem.presolve import Presolved, check_weights, restore_columns
 
 __all__ = ["BitPresolved", "presolve_bits", "presolve_bits_bytes", "covered_weight",
@@ -773,6 +773,7 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     m, n = bits.shape
     nw = words.shape[1]
     w = check_weights(weights, m)
+    note_memory("presolve", presolve_bits_bytes(m, n))
     if k < 1 or k > n:
         raise CamplaceError(f"k must be between 1 and the number of candidates ({n}), got {k}")
     workers = thread_count(workers)

@@ -28,7 +28,7 @@ import numpy as np
 from camplace._cores import thread_count
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.greedy import greedy_incumbent
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, note_memory
 from camplace.solver.engines.mip.linear import _int_objective, model_bytes, run_cpsat, run_scip, scip_proto
 from camplace.solver.problem.presolve import Presolved
 from camplace.solver.result import EngineOutcome
@@ -109,6 +109,7 @@ def maxcover_model_size(m: int, n: int, nnz: int) -> tuple[int, int, int]:
 def _check_memory(pre: Presolved, backend: str) -> None:
     """Raise :class:`OverBudget` before building a model that would not fit in memory."""
     need, budget = maxcover_model_bytes(pre, backend), memory_budget_bytes()
+    note_memory("model", need, refused=need > budget)
     if need > budget:
         raise OverBudget(need, budget, "the SCIP model" if backend == "mip" else "the CP-SAT model")
 
