@@ -24,7 +24,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from camplace.solver._support.bitkernels import _ctz, _missed_weight, all_leaves, group_tuple, shortfall, shortfall2_grouped, shortfall_fixed, split_tuple
+from camplace.solver._support.bitkernels import _ctz, _missed_weight, all_leaves, group_tuple, shortfall, shortfall2_grouped, shortfall_fixed, split_tuple, split_tuple_by
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
 _PJIT = dict(_JIT, parallel=True)
@@ -555,7 +555,7 @@ def _level(nodes, k, lo, hi):  # pragma: no cover - compiled
 @numba.njit(**_PJIT)
 def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos, fbits, fcones, fpos, fpair, w, planes, mask, total,
            best, margin, colmax, fixed_colsum, pw, pts, possible, always, self_ok, theta_deg, cos_t, dirs, par, refine,
-           sample, rest, balls, centers, radius):  # pragma: no cover - compiled
+           sample, rest, balls, centers, radius, split_score):  # pragma: no cover - compiled
     """Refine (if it is due) and split every tuple of ``front`` (F, k + 1) once and bound the children.
 
     A tuple's last entry says whether its bound already holds the angle (1) or is the count
@@ -587,6 +587,11 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
         The largest bound left in the open set (-inf if none).
     balls, centers, radius
         See :func:`angle_shortfall` (the refinement tests rows against the nodes' balls).
+    split_score : (N,) float64
+        A tuple of a level where the refinement is on splits its node of two or more columns with
+        the largest score (:func:`~camplace.solver._support.bitkernels.split_tuple_by`; the
+        engine's: the ball's radius, :func:`camplace.solver.engines.angle.search.split_score`),
+        one of another level its largest node (:func:`~camplace.solver._support.bitkernels.split_tuple`).
 
     Returns
     -------
@@ -647,7 +652,10 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
                     requeued[f] = 1
                     continue
         kids = children[f, :, :k]
-        n_kids = split_tuple(tup, lo, hi, left, right, kids)
+        if refine[_level(tup, k, lo, hi)]:  # the angle binds here: the widest ball first
+            n_kids = split_tuple_by(tup, split_score, lo, hi, left, right, kids)
+        else:  # the count bound decides: the largest node first
+            n_kids = split_tuple(tup, lo, hi, left, right, kids)
         made[f] = n_kids
         for q in range(n_kids):
             child = kids[q]

@@ -24,6 +24,10 @@ over the columns, in parallel batches, here best-first), with the angle added to
   lie within ``asin(radius / distance)`` of the direction to the ball's centre, so two nodes
   whose centres are closer than the angle less both arcs make no pair there (the poses of one
   position: radius 0, never a pair among themselves).
+* **Splits.** A tuple of a level where the cone refinement is on is split at its node with the
+  widest ball (:func:`split_score`; ties the node of more columns), not its largest node: the
+  balls' width is the refinement's slack; elsewhere (the angle hardly binds, the count bound
+  decides) at its largest node.
 * **Bound steps.** A child tuple gets the count bound first (rows ``views`` of its cameras may
   observe, angles ignored: :func:`~camplace.solver.engines.angle._kernels.count_shortfall`), which prunes
   most losers without reading a cone; a survivor whose nodes all hold camera pairs making the
@@ -226,6 +230,23 @@ def _position_levels(xyz: np.ndarray) -> np.ndarray:
     if span <= 0:
         return np.zeros((xyz.shape[0], 3), dtype=np.int64)
     return np.ascontiguousarray(np.floor((xyz - lo) * (_POSITION_BITS / span)).astype(np.int64))
+
+
+def split_score(balls: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(N,) float64: the score by which a tuple picks the node it splits
+    (:func:`~camplace.solver._support.bitkernels.split_tuple_by`, the largest score among its nodes of
+    two or more columns): the radius of the node's ball around its camera positions (``balls``
+    (N, 4), metres; :func:`~camplace.solver.engines.angle._kernels.node_balls`), ties the node of
+    more columns (``hi - lo``). The balls' width is what the angle refinement loses (two nodes
+    whose balls are wide lose the angle's rows), so the widest is split first; any choice keeps
+    every column set in exactly one child. Used on the levels where the refinement is on
+    (:func:`~camplace.solver.engines.angle._kernels.expand`; elsewhere the largest node is split):
+    comet-flyby at 2,000 / 8,000 / 32,000 positions, bound after 200 / 200 / 150 fixed batches
+    0.0027-0.0038 lower than splitting the largest node; comet-67p-bunker, every surface point,
+    2,000 x 10,000: proven with 4.31 M bounds instead of 4.17 M (5.19 M with the ball on every
+    level); 10,000 x 50,000 at 120 s: bound 0.4739-0.4741 instead of 0.4736 (docs/solver.md,
+    seventh round)."""
+    return np.ascontiguousarray(balls[:, 3] + 1e-9 * (hi - lo).astype(np.float64))
 
 
 def _sphere_directions(p: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -553,6 +574,8 @@ class _Tree:
         with ctrl_c_deferred():
             AK.node_cones(self.campos, slot, self.left, self.right, centers, radius, self.cones)
             self.balls = AK.node_balls(self.campos, self.lo, self.hi)
+            # the node a tuple splits: the widest ball (the angle's slack), ties the larger node
+            self.split_score = split_score(self.balls, self.lo, self.hi)
             lap("cones")
             self.fbits = q.build_bits(rows, fmap, fixed.size)
             self.fcones = np.empty((fixed.size, n_words, 4), dtype=np.int16)
@@ -593,7 +616,7 @@ class _Tree:
                 self.fbits, self.fcones, self.fpos, self.fpair, self.lw, self.planes, self.mask, self.total, best,
                 margin, self.colmax, self.fixed_colsum, self.pw, self.pts, possible, always, self_ok, self.theta_deg,
                 self.cos_t, self.dirs, self.par, self.refine, _REFINE_SAMPLE, rest, self.balls, self.blocks[0],
-                self.blocks[1])
+                self.blocks[1], self.split_score)
         self._learn(refined, cut)
         return children, value, leaf, int(n_made), int(n_exact), int(n_cheap), int(n_free), int(n_angle), int(n_back)
 
