@@ -17,6 +17,7 @@ import pytest
 from camplace.solver.api import bits_solve_bytes, solve
 from camplace.solver.bits_route import large_k_reduced_bytes
 from camplace.solver.engines.angle.search import angle_bytes
+from camplace.solver.engines.bitset.pair_cap import opposite_pair_bytes
 from camplace.solver.engines.bitset.search import pairs_layout_bytes
 from camplace.solver.engines.large_k.search import large_k_bytes
 from camplace.solver.engines.mip.linear import model_bytes
@@ -57,14 +58,14 @@ def _expected(name: str, m: int, n: int, nnz: int, conflicts: int) -> int:
     """What runs on the whole matrix on the route each case takes (the oracle of the dispatch):
     the engines on the presolved instance are noted by the solve, not counted before the cast."""
     pre = presolve_bits_bytes(m, n)
-    if name in ("maxcover", "k6", "k6-multiview", "mip"):  # the presolve; its engine checks itself
+    # the presolve; its engine checks itself (multiview, k = 3 < 2 views: the opposite-pairs matching
+    # and layout on the original rows too, checked and noted once their sizes are known)
+    if name in ("maxcover", "k6", "k6-multiview", "mip", "multiview"):
         return pre
-    if name == "multiview":  # k = 3 < 2 views: the opposite-pairs layout, on the original rows
-        return max(pre, pairs_layout_bytes(m, n, 2, 3))
     if name == "angle":
-        return angle_bytes(m, n, 0, 3, 2)
+        return angle_bytes(m, n, 0, 3, 2, layout_rows=m)
     if name == "angle-fixed":
-        return (n - 1) * _col(m) + 8 * m + angle_bytes(m, n - 2, 1, 3, 2)  # forbidden 5: the others copied, 4 fixed
+        return (n - 1) * _col(m) + 8 * m + angle_bytes(m, n - 2, 1, 3, 2, layout_rows=m)  # forbidden 5: the others copied, 4 fixed
     if name == "fixed":
         return (n - 2) * _col(m) + 8 * m + presolve_bits_bytes(m, n - 2)
     if name == "setcover":
@@ -290,3 +291,62 @@ def test_an_engine_refused_inside_is_noted_refused(inst) -> None:
         got = bits_outcome(bits, w, replace(o, time_limit_s=None), Deadline(None), pos, pts)
     assert got is None  # the bits route leaves it to the CSR route
     assert "angle" not in notes and notes["angle (refused)"]["bytes"] > 1 << 20
+
+
+def test_the_pairs_layout_is_noted_at_the_size_the_matching_made() -> None:
+    """Multiview with k = 3 < 2 views: the opposite-pairs matching and layout, on the original
+    rows, are noted once their sizes are known (not counted before the cast, where only the
+    bound of two layout rows a point is known): the layout's figure is the bitset engine's bytes
+    of the rows it was built with, under that bound. A budget between the plain search's bytes
+    on the presolved rows (merged 8 to 1 here) and the layout's on the original rows skips the
+    layout (noted refused) and the search runs on the plain layout, to the same optimum."""
+    from camplace.solver.engines.bitset.search import bitset_bytes
+
+    bits, w, pos, pts = _repeated(1500, 64, 8)
+    m, n = bits.shape
+    o = replace(_CASES["multiview"][0], engine="exact")
+    res = solve(bits, w, options=o)
+    notes = res.stats["memory_estimates"]
+    pairs = res.stats["engine_stats"]["opposite_pairs"]
+    assert "skipped" not in pairs and pairs["matched_share"] >= 0.05  # the layout was built
+    assert "opposite pairs" in notes and "pairs layout" in notes
+    got = notes["pairs layout"]["bytes"]
+    # its rows: between the countable rows and two a row plus the padding
+    assert bitset_bytes(pairs["rows"], n, 2, 3, tuples=False) <= got < pairs_layout_bytes(m, n, 2, 3)
+    assert notes["opposite pairs"]["bytes"] == opposite_pair_bytes(pairs["rows"], n)
+    plain = bitset_bytes(res.stats["rows_after"], res.stats["cols_after"], 2, 3)  # the engine's check
+    layout = bitset_bytes(pairs["rows"], n, 2, 3)  # the layout's check, at least
+    assert plain < layout
+    budget = (plain + layout) // 2
+    again = solve(bits, w, options=replace(o, memory_budget_bytes=budget))
+    assert "pairs layout (refused)" in again.stats["memory_estimates"]
+    assert "pairs layout" not in again.stats["memory_estimates"]
+    assert again.status == res.status == "optimal"
+    assert again.objective == pytest.approx(res.objective, rel=1e-12)
+
+
+def test_the_angle_engine_checks_its_layout_once_the_points_are_matched(inst) -> None:
+    """The angle engine's bytes in two steps: on the plain layout (one bit row a countable row)
+    before anything is allocated, then on the opposite-pairs layout's rows once the points are
+    matched; the noted figure is the second. A budget between the two searches the plain layout
+    instead (a valid, looser bound): the same proven optimum."""
+    from camplace.solver.engines.angle.search import _FRONTIER_MIN
+
+    bits, w, pos, pts = inst
+    m, n = bits.shape
+    o = replace(_CASES["angle"][0], engine="exact")
+    res = solve(bits, w, positions=pos, points=pts, options=o)
+    es = res.stats["engine_stats"]
+    rows, bit_rows = es["rows"], es["bit_rows"]
+    assert es["pair_words"] > 0 and bit_rows > rows  # the opposite-pairs layout, more bit rows than points
+    plain = angle_bytes(rows, n, 0, 3, 2, _FRONTIER_MIN, rows)
+    paired = angle_bytes(rows, n, 0, 3, 2, _FRONTIER_MIN, bit_rows)
+    assert res.stats["memory_estimates"]["angle"]["bytes"] == paired
+    assert plain < paired <= angle_bytes(rows, n, 0, 3, 2)  # at most the bound of two bit rows a row
+    budget = (plain + paired) // 2
+    again = solve(bits, w, positions=pos, points=pts, options=replace(o, memory_budget_bytes=budget))
+    ea = again.stats["engine_stats"]
+    assert "skipped" in ea["opposite_pairs"] and ea["pair_words"] == 0 and ea["bit_rows"] == rows
+    assert again.stats["memory_estimates"]["angle"]["bytes"] == plain
+    assert again.status == res.status == "optimal"
+    assert again.objective == pytest.approx(res.objective, rel=1e-12)

@@ -76,7 +76,7 @@ from camplace.solver._support.memory import OverBudget, holding, memory_budget_b
 from camplace.solver.choose import choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import angle_bytes, solve_angle
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
-from camplace.solver.engines.bitset.search import bitset_bytes, pairs_layout_bytes, solve_bitset
+from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.large_k.search import run_large_k
 from camplace.solver.engines.maxcover import run_maxcover_engine
 from camplace.solver.options import SolveOptions
@@ -114,13 +114,18 @@ def outcome_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0) -> int | None:
     * max coverage (and quality of a binary matrix), any k and engine; multiview without a minimum
       angle: the bit presolve
       (:func:`~camplace.solver.problem.presolve_bits.presolve_bits_bytes`, about ``2.25 R`` with
-      ``R = m x ceil(n / 64) x 8``); multiview with ``k < 2 views`` (k <= 4): or the bitset engine's
-      opposite-pairs layout, which reads the original rows and every column
-      (:func:`multiview_engine_bytes`: up to two layout rows a row), the larger;
+      ``R = m x ceil(n / 64) x 8``). Multiview with ``k < 2 views`` (k <= 4) also matches opposite
+      points and builds the opposite-pairs layout on the original rows, whose size the matching
+      decides (one layout row a point on comet-67p-bunker, up to two in general): both are
+      optional (the engine skips them when they would not fit and searches the plain layout, a
+      valid and looser bound) and check and note their bytes once known
+      (:func:`~camplace.solver.engines.bitset.pair_cap.match_opposite`, the engine's layout);
     * multiview with a minimum angle: the angle engine runs on every row and column (no presolve):
       :func:`~camplace.solver.engines.angle.search.angle_bytes` of them (fixed ones: ``o.fixed``),
       with the engine's least number of open tuples (it opens more only as far as its memory budget
-      allows): the engine's own check, with every row for its countable ones.
+      allows) on the plain layout, one bit row a row: the engine's first check, with every row for
+      its countable ones. Its opposite-pairs layout (up to two bit rows a row) is checked and
+      noted by the engine once the points are matched (the plain layout when it does not fit).
 
     Returns
     -------
@@ -139,9 +144,7 @@ def outcome_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0) -> int | None:
     if choice.route == "large-k" and not fixed:
         return presolve
     if choice.route == "angle" and o.min_angle_deg is not None:
-        return angle_bytes(m, n - fixed, fixed, k, views)
-    if choice.route == "multiview" and views_mode and 1 < views and k < 2 * views:
-        return max(presolve, multiview_engine_bytes(m, n, views, k))  # the layout reads the original rows
+        return angle_bytes(m, n - fixed, fixed, k, views, layout_rows=m)  # the plain layout: one bit row a row
     if choice.route == ("multiview" if views_mode else "maxcover"):
         return presolve
     return None
@@ -164,18 +167,15 @@ def large_k_reduced_bytes(m: int, n: int, nnz: int, k: int, levels: int = 0) -> 
     return int(reduced_pattern_bytes(n, nnz) + engine)
 
 
-def multiview_engine_bytes(m: int, n: int, views: int, k: int, origin_rows: int | None = None) -> int:
-    """Bytes the multiview bitset engine allocates up front on a presolved (m, n) instance: for
-    ``1 < views`` and ``k < 2 views`` the opposite-pairs layout, which reads the original rows
-    (``origin_rows``, default ``m``; :func:`~camplace.solver.engines.bitset.search.pairs_layout_bytes`:
-    up to two layout rows a row), else its bitsets
-    (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` with ``min(views, k)`` levels);
-    not the open tuples, which grow with the search up to a fixed cap that the engine's own
-    budget check counts."""
-    levels = min(int(views), int(k))
-    if 1 < views and k < 2 * views:
-        return pairs_layout_bytes(int(m if origin_rows is None else origin_rows), n, levels, k)
-    return bitset_bytes(m, n, levels, k, tuples=False)
+def multiview_engine_bytes(m: int, n: int, views: int, k: int) -> int:
+    """Bytes the multiview bitset engine allocates up front on a presolved (m, n) instance: its
+    bitsets (:func:`~camplace.solver.engines.bitset.search.bitset_bytes` with ``min(views, k)``
+    levels); not the open tuples, which grow with the search up to a fixed cap that the engine's
+    own budget check counts. For ``1 < views`` and ``k < 2 views`` the engine may search the
+    opposite-pairs layout instead, on the original rows: its size is known once the points are
+    matched, and the engine checks and notes it then
+    (:func:`~camplace.solver.engines.bitset.search.pairs_layout_bytes` is its bound before)."""
+    return bitset_bytes(m, n, min(int(views), int(k)), k, tuples=False)
 
 
 def _presolved_bytes(pre) -> int:
@@ -455,7 +455,7 @@ def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None
                  need / 2**30, budget / 2**30)
         return None
     with holding(_presolved_bytes(pre)):
-        note_memory("bitset", multiview_engine_bytes(mp, np_, views, k, origin_rows=p.bits.shape[0]))
+        note_memory("bitset", multiview_engine_bytes(mp, np_, views, k))  # the pairs layout: noted by the engine
         out = solve_bitset(pre, views=views, deadline=deadline,
                            start=None if start is None else pre.reduced_columns(start))
     sel = tuple(int(j) for j in pre.original_columns(out.selected)) if out.selected else None
@@ -469,9 +469,7 @@ def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None)
     it does not fit in the memory budget."""
     assert p.pos is not None and p.pts is not None and p.o.min_angle_deg is not None
     stats = _choice_stats(p.k, choice)
-    # the engine's own check, with every row for its countable rows (it counts them first)
-    note_memory("angle", angle_bytes(p.bits.shape[0], p.bits.shape[1] - len(p.fixed), len(p.fixed), p.k,
-                                     int(p.o.views)))
+    # the engine notes its bytes itself: on its countable rows, then with its layout's rows
     try:
         out = solve_angle(p.bits, p.w, p.k, int(p.o.views), float(p.o.min_angle_deg), p.pos, p.pts,
                           np.asarray(p.fixed, dtype=np.int64), p.free, deadline=deadline,

@@ -72,7 +72,7 @@ from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as K
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
-from camplace.solver._support.memory import OverBudget
+from camplace.solver._support.memory import OverBudget, note_memory
 from camplace.solver.engines.angle import _kernels as AK
 from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bytes
 from camplace.solver.problem.presolve_bits import layout_bits, row_counts_of
@@ -117,17 +117,22 @@ _POSITION_BITS = 4096
 _DEPTH_FIRST_SHARE = 0.5  # depth-first (newest chunks) while more than this share of the cap is open
 
 
-def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_tuples: int = _FRONTIER_MIN) -> int:
+def angle_bytes(rows: int, n_cols: int, n_fixed: int, k: int, views: int, open_tuples: int = _FRONTIER_MIN,
+                layout_rows: int | None = None) -> int:
     """Working memory of :func:`solve_angle` for ``rows`` countable rows and ``n_cols`` columns.
 
-    The opposite-pairs layout can hold up to twice as many bit rows as countable rows; counted
+    ``layout_rows``: the bit rows of the layout searched: ``rows`` for the plain layout (one a
+    countable row), the opposite-pairs layout's once the points are matched (a pair is a row on
+    each side, a residual one more: up to twice as many bit rows as countable rows, the bound
+    counted when None). Counted
     here: the column bitsets and their ordered copy (and, while the order is made, the positions'
     grid levels), ``min(views, k)`` level bitsets and an 8-byte
     cone per tree node and 64-row block (and a float64 working copy per thread), the points of the
     layout, the pair matching's row bitsets, ``open_tuples`` open tuples of the search (which
     stops there, with a valid bound) and the incumbent's climb (:meth:`_Incumbent.climb`).
     """
-    words = (2 * int(rows) + 127) // 64 + 2
+    bit_rows = 2 * int(rows) + 127 if layout_rows is None else int(layout_rows)  # r + pairs (<= r) + padding
+    words = (bit_rows + 63) // 64 + 2
     nodes = 2 * max(int(n_cols), 1) - 1 + int(n_fixed)
     levels = max(1, min(int(views), int(k)))
     bits = words * 8 * (2 * int(n_cols) + levels * nodes) + int(n_cols) * 3 * 8 * 2
@@ -760,13 +765,13 @@ def solve_angle(
     const = float(w[ok_fixed].sum())
     lap("rows")
     search = np.flatnonzero((w > 0) & ~ok_fixed & (seen >= views) & (seen_free > 0))
-    need = angle_bytes(search.size, free.size, fixed.size, k, views, _FRONTIER_MIN)
+    # checked in two steps: here on the plain layout (one bit row a countable row: the least the
+    # search needs), then on the opposite-pairs layout once the points are matched (its rows known)
+    need = angle_bytes(search.size, free.size, fixed.size, k, views, _FRONTIER_MIN, search.size)
     if need > budget_bytes:
         raise OverBudget(need, budget_bytes, "the angle engine")
-    # as many open tuples as the budget allows (the search stops there with a valid bound)
-    cap = int(max(_FRONTIER_MIN, min(_FRONTIER_MAX, _FRONTIER_MIN + (budget_bytes - need) // _tuple_bytes(k))))
-    need = angle_bytes(search.size, free.size, fixed.size, k, views, cap)
-    stats.update({"rows": int(search.size), "memory_estimate_bytes": need, "open_tuples_max": cap})
+    note_memory("angle", need)
+    stats["rows"] = int(search.size)
     pos_w = w[w > 0]
     unit = float(pos_w[0]) if pos_w.size and np.all(pos_w == pos_w[0]) else None
     wu = np.zeros(m)
@@ -819,8 +824,18 @@ def solve_angle(
         if share >= _PAIRS_MIN_SHARE:
             layout = _pairs_layout(match, unit, seen, pts)
         del match
+        if layout is not None and angle_bytes(search.size, free.size, fixed.size, k, views, _FRONTIER_MIN,
+                                              layout.rows.size) > budget_bytes:
+            stats["opposite_pairs"]["skipped"] = f"{layout.rows.size} layout rows over the memory budget"
+            layout = None  # the plain layout: a valid bound, less tight
     if layout is None:
         layout = _plain_layout(search, wu, pts, seen)
+    # as many open tuples as the budget allows (the search stops there with a valid bound)
+    need = angle_bytes(search.size, free.size, fixed.size, k, views, _FRONTIER_MIN, layout.rows.size)
+    note_memory("angle", need)  # the layout's rows known (the open tuples at their least, as above)
+    cap = int(max(_FRONTIER_MIN, min(_FRONTIER_MAX, _FRONTIER_MIN + (budget_bytes - need) // _tuple_bytes(k))))
+    need = angle_bytes(search.size, free.size, fixed.size, k, views, cap, layout.rows.size)
+    stats.update({"memory_estimate_bytes": need, "open_tuples_max": cap})
     lap("layout")
     tree = _Tree(q, pos, pts, layout, free, fixed, colw, k, views, theta_deg, unit is not None, lap)
     stats.update({"bit_rows": int(layout.rows.size), "words": int(tree.levels.shape[2]), "pair_words": int(layout.pw),

@@ -34,7 +34,7 @@ import numpy as np
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as _bk
 from camplace.solver._support.deadline import Deadline
-from camplace.solver._support.memory import memory_budget_bytes
+from camplace.solver._support.memory import memory_budget_bytes, note_memory
 from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve import canonical_csr, check_weights
 from camplace.solver.problem.presolve_bits import row_bitsets, row_counts_of
@@ -179,8 +179,10 @@ def match_opposite(
     need = opposite_pair_bytes(rows.size, cols.size)
     if need > memory_budget_bytes():
         stats["skipped"] = f"row bitsets need {need / 2**30:.1f} GiB"
+        note_memory("opposite pairs", need, refused=True)
         stats["time_s"] = time.perf_counter() - t0
         return OppositePairs(none, np.zeros(0), rows, w[rows].astype(np.float64), countable, stats)
+    note_memory("opposite pairs", need)  # the countable rows known: their row bitsets and the matching
     if order_seed is None:
         rows = rows[np.argsort(-w[rows], kind="stable")]  # heaviest first: they gain most from a partner
     else:

@@ -76,7 +76,7 @@ from camplace._blocks import run_blocks
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.greedy import greedy_swap
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes
+from camplace.solver._support.memory import OverBudget, memory_budget_bytes, note_memory
 from camplace.solver.engines.bitset.pair_cap import match_opposite
 from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve import Presolved
@@ -312,7 +312,12 @@ def _pair_layout(pre: Presolved, views: int, deadline: Deadline, stats: dict[str
     need = bitset_bytes(rows.size, pre.shape[1], min(views, pre.k), pre.k)
     if need > memory_budget_bytes():
         stats["opposite_pairs"]["skipped"] = f"layout bitsets need {need / 2**30:.1f} GiB"
+        note_memory("pairs layout", need, refused=True)
         return None
+    # the layout's size, known now (up to two rows a point before the matching): its bitsets and
+    # tree without the open tuples, beside its row order, weights and sort keys (48 bytes a layout row)
+    note_memory("pairs layout", bitset_bytes(rows.size, pre.shape[1], min(views, pre.k), pre.k, tuples=False)
+                + 48 * rows.size)
     if origin is not None:
         try:
             bits = layout_bits(origin, rows, col_map, pre.shape[1])
