@@ -70,8 +70,8 @@ from camplace.errors import CamplaceError
 from camplace.names import MODES
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import NearCandidates, greedy
-from camplace.solver._support.memory import (OverBudget, holding, memory_budget, memory_budget_bytes, memory_fallback,
-                                             memory_notes, note_memory)
+from camplace.solver._support.memory import (OverBudget, holding, matrix_bytes, memory_budget, memory_budget_bytes,
+                                             memory_fallback, memory_notes, note_memory)
 from camplace.solver.engines.bitset.pair_cap import cap_applies, cap_bound, cap_deadline
 from camplace.solver.engines.mip.mode_models import check_setcover_memory
 from camplace.solver.engines.setcover.mode import setcover
@@ -195,23 +195,11 @@ def solve(
     from camplace._cores import using_threads
 
     with memory_budget(options.memory_budget_bytes), using_threads(options.threads), memory_notes() as notes, \
-            holding(_matrix_bytes(matrix)):
+            holding(matrix_bytes(matrix)):
         res = _solve(matrix, weights, positions, points, options)
     if notes:
         res.stats["memory_estimates"] = {stage: dict(v) for stage, v in notes.items()}
     return res
-
-
-def _matrix_bytes(matrix: Any) -> int:
-    """Bytes of the arrays of an input matrix (column bitsets or bytes, a sparse matrix's data,
-    indices and pointers, a dense array): what the caller holds while the solve runs."""
-    words = getattr(matrix, "words", None)
-    if words is not None:
-        return int(words.nbytes)
-    parts = [getattr(matrix, name, None) for name in ("data", "indices", "indptr")]
-    if any(p is not None for p in parts):
-        return int(sum(getattr(p, "nbytes", 0) for p in parts if p is not None))
-    return int(getattr(matrix, "nbytes", 0))
 
 
 _DEFAULTS = SolveOptions()
@@ -727,9 +715,10 @@ def _rows_presolved(bits: Any, weights: Any, positions: Any, o: SolveOptions, de
         try:
             csr = reduced_csr(pre, np.bool_, what="the merged rows as CSR")
         except OverBudget as exc:
+            note_memory("rows CSR", exc.need, refused=True)
             log.info("%s: the whole matrix as CSR", exc.message)
             return None
-        with holding(csr.data.nbytes + csr.indices.nbytes + csr.indptr.nbytes):  # the model notes its own bytes
+        with holding(matrix_bytes(csr)):  # the model notes its own bytes
             res = _solve(csr, pre.weights, positions, None, o, deadline)
         del csr
     res.stats.update({"matrix": f"column bitsets, rows presolved to {pre.shape[0]} x {n} (that as CSR)",
@@ -776,7 +765,7 @@ def _column_bits(bits: Any, cols: np.ndarray, what: str) -> Any:
     if cols.size and cols[-1] - cols[0] + 1 == cols.size:
         return BitMatrix(bits.words[int(cols[0]):int(cols[-1]) + 1], m)  # one range: a view
     need, budget = cols.size * bits.words.shape[1] * 8, memory_budget_bytes()
-    note_memory("columns", need)
+    note_memory("columns", need, refused=need > budget)
     if need > budget:
         raise OverBudget(need, budget, what)
     return BitMatrix(bits.words[cols], m)

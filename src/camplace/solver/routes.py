@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from camplace.errors import CamplaceError
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.greedy import greedy
-from camplace.solver._support.memory import OverBudget, memory_budget_bytes, memory_fallback, note_memory
+from camplace.solver._support.memory import OverBudget, matrix_bytes, memory_budget_bytes, memory_fallback, note_memory
 from camplace.solver.problem.checks import CONFLICT_PAIR_BYTES
 from camplace.solver.choose import EngineChoice, choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
@@ -276,7 +276,7 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
     g_base = np.zeros(m) if mode == "quality" else p.base
     src = p.resid if mode != "multiview" else p.qf
     # the greedy hint reads a CSC copy (as many bytes as the CSR), made while the conflicting pairs are kept
-    note_memory("greedy hint", src.data.nbytes + src.indices.nbytes + src.indptr.nbytes,
+    note_memory("greedy hint", matrix_bytes(src),
                 extra_held=CONFLICT_PAIR_BYTES * int(p.conflicts.shape[0]))
     hint_local = greedy(src.tocsc(), p.resid_w, mode, views, g_base, k, np.ones(nf, dtype=bool), adj)
     hint_sel = None

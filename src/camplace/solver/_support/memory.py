@@ -23,8 +23,8 @@ from typing import Any, Iterator
 
 from camplace.errors import CamplaceError
 
-__all__ = ["MEMORY_FRACTION", "OverBudget", "holding", "memory_budget", "memory_budget_bytes", "memory_fallback",
-           "memory_notes", "note_memory"]
+__all__ = ["MEMORY_FRACTION", "OverBudget", "holding", "matrix_bytes", "memory_budget", "memory_budget_bytes",
+           "memory_fallback", "memory_notes", "note_memory"]
 
 log = logging.getLogger(__name__)
 
@@ -187,6 +187,18 @@ def holding(nbytes: int) -> Iterator[None]:
         yield
     finally:
         _HELD.reset(token)
+
+
+def matrix_bytes(matrix: Any) -> int:
+    """Bytes of the arrays of a matrix (column bitsets or bytes, a sparse matrix's data, indices
+    and pointers, a dense array): what its holder keeps while a step runs, or a copy of it costs."""
+    words = getattr(matrix, "words", None)
+    if words is not None:
+        return int(words.nbytes)
+    parts = [getattr(matrix, name, None) for name in ("data", "indices", "indptr")]
+    if any(p is not None for p in parts):
+        return int(sum(getattr(p, "nbytes", 0) for p in parts if p is not None))
+    return int(getattr(matrix, "nbytes", 0))
 
 
 def held_bytes() -> int:
