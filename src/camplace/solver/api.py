@@ -256,8 +256,8 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
                 return got
         matrix = matrix.tocsr(np.bool_)  # the other routes read CSR (the bool pattern: 5 bytes a pair)
     q = values_matrix(matrix)
-    if q.dtype == np.bool_ and (mode == "quality" or min_angle_deg is not None):
-        # these engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
+    if q.dtype == np.bool_ and mode == "quality":
+        # quality's engines read values: a bool pattern becomes float32 ones (4 bytes a pair)
         need, budget = 4 * int(q.nnz), memory_budget_bytes()
         if need > budget:
             memory_fallback(OverBudget(need, budget, "the float32 values of the matrix"), None, asked=False, then=None,
@@ -401,8 +401,9 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
       bool CSR the model reads, at most the whole matrix's (5 bytes a pair), the conflicting pairs
       and the model of every row (counted as below: an upper bound on the set-cover model's size);
     * the rest (a minimum angle on the general model, a team off the bits): the whole matrix as a
-      bool CSR (5 bytes a pair; float32 values, 4 more, with a minimum angle) and the general model
-      of every row (without the angle's pair rows, counted by the model once the matrix is known).
+      bool CSR (5 bytes a pair; the angle's kernels and models read the pattern, no float values)
+      and the general model of every row (without the angle's pair rows, counted by the model once
+      the matrix is known).
 
     A general model over the solver's memory budget (``o.memory_budget_bytes`` and
     :func:`~camplace.solver._support.memory.memory_budget_bytes` now) under engine ``auto`` is
@@ -463,8 +464,7 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
         with memory_budget(o.memory_budget_bytes):
             if model > memory_budget_bytes():  # the solve gives the greedy answer instead (routes._model)
                 model = 0
-    values = 4 * nnz if o.min_angle_deg is not None else 0
-    return 5 * nnz + 8 * (m + 1) + values + pairs + model
+    return 5 * nnz + 8 * (m + 1) + pairs + model  # the bool pattern (the angle reads it too) and the model
 
 
 def _checked_columns(weights: Any, o: SolveOptions, m: int, n: int) -> tuple[np.ndarray, tuple[int, ...], tuple[int, ...]]:

@@ -75,6 +75,7 @@ from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.memory import OverBudget, note_memory
 from camplace.solver.engines.angle import _kernels as AK
 from camplace.solver.engines.bitset.pair_cap import match_opposite, opposite_pair_bytes
+from camplace.solver.problem.checks import kernel_data
 from camplace.solver.problem.presolve_bits import layout_bits, row_counts_of
 from camplace.visibility.bits import column_sums
 from camplace.solver.result import EngineOutcome
@@ -298,6 +299,7 @@ class _Rows:
         self.q = q
         self.bits = getattr(q, "format", None) == "bits"
         self.shape = q.shape
+        self.data = None if self.bits else kernel_data(q)  # a bool pattern as uint8, as the other kernels read it
 
     def row_status(self, sel: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int,
                    theta_deg: float) -> tuple[np.ndarray, np.ndarray]:
@@ -307,7 +309,7 @@ class _Rows:
         with ctrl_c_deferred():
             if self.bits:
                 return AK.row_status_bits(q.words, q.shape[0], sel, pos, pts, views, theta_deg)
-            return AK.row_status(q.indptr, q.indices, q.data, sel, pos, pts, views, theta_deg)
+            return AK.row_status(q.indptr, q.indices, self.data, sel, pos, pts, views, theta_deg)
 
     def gains(self, wu: np.ndarray, sel: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int, theta_deg: float,
               count: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -317,7 +319,7 @@ class _Rows:
         with ctrl_c_deferred():
             if self.bits:
                 return AK.gains_bits(q.words, q.shape[0], wu, sel, pos, pts, views, theta_deg, count, ok, 4)
-            return AK.gains(q.indptr, q.indices, q.data, wu, sel, pos, pts, views, theta_deg, count, ok, 4)
+            return AK.gains(q.indptr, q.indices, self.data, wu, sel, pos, pts, views, theta_deg, count, ok, 4)
 
     def column_weights(self, rows: np.ndarray, w_rows: np.ndarray) -> np.ndarray:
         """(n,) float64: per column, the summed ``w_rows`` of the ``rows`` (ascending) it observes."""
@@ -327,7 +329,7 @@ class _Rows:
             wz[rows] = w_rows
             return column_sums(q, wz)  # the other rows add 0.0: the same sums
         with ctrl_c_deferred():
-            return AK.column_weights(q.indptr, q.indices, q.data, rows, w_rows, q.shape[1])
+            return AK.column_weights(q.indptr, q.indices, self.data, rows, w_rows, q.shape[1])
 
     def seen(self, allowed: np.ndarray) -> np.ndarray:
         """(m,) int64: the ``allowed`` ((n,) bool) columns observing each row."""
@@ -335,7 +337,7 @@ class _Rows:
         if self.bits:
             return row_counts_of(q, np.flatnonzero(allowed))
         with ctrl_c_deferred():
-            return K.selected_row_stats(q.indptr, q.indices, q.data, allowed)[0]
+            return K.selected_row_stats(q.indptr, q.indices, self.data, allowed)[0]
 
     def build_bits(self, rows: np.ndarray, col_map: np.ndarray, n_cols: int) -> np.ndarray:
         """Column bitsets over ``rows`` (-1: padding) of the mapped columns: ``(n_cols, ceil(len(rows) / 64))``."""
@@ -343,7 +345,7 @@ class _Rows:
         if self.bits:
             return layout_bits(q, rows, col_map, n_cols)
         with ctrl_c_deferred():
-            return K.build_bits(q.indptr, q.indices, q.data, rows, col_map, n_cols)
+            return K.build_bits(q.indptr, q.indices, self.data, rows, col_map, n_cols)
 
 
     def column_lists(self, row_id: np.ndarray, local: np.ndarray, n_local: int) -> tuple[np.ndarray, np.ndarray]:
@@ -353,7 +355,7 @@ class _Rows:
         q = self.q
         if not self.bits:
             with ctrl_c_deferred():
-                return AK.column_lists(q.indptr, q.indices, q.data, row_id, local, n_local)
+                return AK.column_lists(q.indptr, q.indices, self.data, row_id, local, n_local)
         cols = np.empty(n_local, dtype=np.int64)
         want = np.flatnonzero(local >= 0)
         cols[local[want]] = want
