@@ -183,6 +183,20 @@ class CoverProblem:
         """multiview with a minimum angle and no minimum-distance conflicts: the angle engine applies."""
         return self.mode == "multiview" and self.min_angle_deg is not None and self.conflicts.shape[0] == 0
 
+    @property
+    def spaced_angle(self) -> bool:
+        """multiview with a minimum angle and minimum-distance conflicts: the angle engine applies to
+        the problem without the spacing (:func:`_angle_spaced`)."""
+        return self.mode == "multiview" and self.min_angle_deg is not None and self.conflicts.shape[0] > 0
+
+    def neighbours(self) -> dict[int, set[int]]:
+        """The free candidates closer than the minimum distance to each one (original indices)."""
+        out: dict[int, set[int]] = {}
+        for a, b in self.conflicts.tolist():
+            out.setdefault(a, set()).add(b)
+            out.setdefault(b, set()).add(a)
+        return out
+
 
 Runner = Callable[[CoverProblem, EngineChoice], "EngineOutcome | None"]
 
@@ -218,6 +232,104 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> EngineOutcome
     sel = tuple(sorted(set(p.fixed_t) | set(out.selected)))
     p.stats["engine_stats"] = dict(out.stats)
     return EngineOutcome(sel, out.status, float(out.bound), p.stats, engine="exact", objective=p.value(sel))
+
+
+#: The share of the time left that :func:`_angle_spaced` gives the angle engine on the problem
+#: without the spacing; the spaced answers take the rest.
+_RELAXED_SHARE = 0.5
+
+
+def spaced_angle_greedy(p: CoverProblem, keep: Sequence[int], deadline: Deadline) -> tuple[int, ...] | None:
+    """New cameras for multiview with a minimum angle and a minimum distance, in O(m + n) memory:
+    ``keep`` (free, pairwise spaced columns), then one camera at a time the best addition with exact
+    angles (:func:`~camplace.solver.engines.angle.search.greedy_angle` with k = 1, the cameras
+    chosen so far fixed) among the free columns not closer than the minimum distance to a chosen one.
+
+    Parameters
+    ----------
+    p : CoverProblem
+        Its ``conflicts`` are the pairs closer than the minimum distance.
+    keep : sequence of int
+        New cameras to start from (original indices).
+    deadline : Deadline
+        Each addition takes at most a third of the time left.
+
+    Returns
+    -------
+    tuple of int or None
+        ``p.k`` new cameras (original indices, sorted), pairwise spaced; None when the spacing
+        leaves too few candidates.
+    """
+    assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
+    nbr = p.neighbours()
+    chosen = [int(j) for j in keep]
+    banned = set(chosen).union(*(nbr.get(j, set()) for j in chosen))
+    while len(chosen) < p.k:
+        allowed = p.free_cols[~np.isin(p.free_cols, np.fromiter(banned, dtype=np.int64, count=len(banned)))]
+        if allowed.size == 0:
+            return None
+        fixed = np.asarray(sorted(set(p.fixed_t) | set(chosen)), dtype=np.int64)
+        new = greedy_angle(p.q, p.w, 1, p.views, float(p.min_angle_deg), p.pos, p.pts, fixed, allowed,
+                           deadline=deadline.share(1 / 3))
+        if len(new) != 1:
+            return None
+        chosen.append(int(new[0]))
+        banned |= {int(new[0])} | nbr.get(int(new[0]), set())
+    return tuple(sorted(chosen))
+
+
+def _angle_spaced(p: CoverProblem, hint: tuple[int, ...] | None) -> EngineOutcome | None:
+    """Multiview with a minimum angle and a minimum distance when the general model does not fit
+    (``auto``): the exact angle engine on the same problem without the minimum distance, within
+    :data:`_RELAXED_SHARE` of the time left. Dropping a constraint only widens the choice, so its
+    bound (valid wherever it stops) bounds the spaced problem too, and its answer, when spaced, is
+    the spaced optimum whenever it is proven. Otherwise the answer is the best of the ``hint``
+    (the spaced greedy that ignores the angle, fixed cameras included), that answer repaired (its
+    cameras kept in turn while spaced, the rest filled by :func:`spaced_angle_greedy`) and the
+    spaced greedy from scratch, all valued exactly; the bound is the smaller of the engine's and the
+    cheap one.
+
+    Returns
+    -------
+    EngineOutcome or None
+        None when the angle engine does not fit in memory either (the caller returns the greedy
+        answer with the cheap bound).
+    """
+    assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
+    fixed = np.asarray(p.fixed_t, dtype=np.int64)
+    try:
+        out = solve_angle(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts, fixed, p.free_cols,
+                          deadline=p.deadline.share(_RELAXED_SHARE), budget_bytes=memory_budget_bytes(), start=p.start)
+    except OverBudget as exc:
+        log.info("%s: the greedy answer", exc.message)
+        return None
+    new = [int(j) for j in out.selected if int(j) not in set(p.fixed_t)]
+    nbr = p.neighbours()
+    spaced = not any(nbr.get(a, set()) & set(new) for a in new)
+    cheap = cheap_bound(p.q, p.qf, p.w, p.base, p.k, p.mode, p.views)
+    bound = min(float(out.bound), cheap)
+    p.stats["engine_stats"] = dict(out.stats)
+    p.stats["spacing_relaxed"] = {"status": out.status, "bound": float(out.bound), "spaced": spaced,
+                                  "objective": p.value(tuple(sorted(set(p.fixed_t) | set(new))))}
+    if spaced:
+        sel = tuple(sorted(set(p.fixed_t) | set(new)))
+        return EngineOutcome(sel, out.status, bound, p.stats, engine="exact", objective=p.value(sel))
+    keep: list[int] = []
+    for j in new:  # the relaxed answer's cameras, kept while spaced
+        if not nbr.get(j, set()) & set(keep):
+            keep.append(j)
+    cands = [hint] if hint is not None else []
+    for start in (keep, ()):
+        got = spaced_angle_greedy(p, start, p.deadline)
+        if got is not None:
+            cands.append(tuple(sorted(set(p.fixed_t) | set(got))))
+    if not cands:
+        return None
+    values = [p.value(c) for c in cands]
+    best = int(np.argmax(values))
+    p.stats["spacing_relaxed"]["answers"] = [float(v) for v in values]
+    return EngineOutcome(cands[best], "feasible", max(bound, values[best]), p.stats, engine="exact",
+                         objective=values[best])
 
 
 def _multiview(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:
@@ -302,6 +414,13 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
                 got = _angle(p)
                 if got is not None:
                     return got
+            if p.spaced_angle:  # the angle engine without the spacing (a relaxation), then spaced answers
+                memory_fallback(exc, stats, asked=p.engine == name, fix=fix,
+                                then="the exact angle engine without the minimum distance (its bound holds), "
+                                     "then spaced answers with exact angles")
+                got = _angle_spaced(p, hint_sel)
+                if got is not None:
+                    return got
             memory_fallback(exc, stats, asked=p.engine == name, then="returning the greedy answer with a cheap bound",
                             fix=fix)
             raise BuildTimeout(f"skipped: {exc.message}")
@@ -310,12 +429,15 @@ def _model(p: CoverProblem, choice: EngineChoice, name: str | None = None, angle
     except BuildTimeout as exc:
         stats["model_build"] = (str(exc) or "interrupted by the time limit") + ": greedy answer, cheap bound"
         bound = cheap_bound(q, p.qf, w, p.base, k, mode, views)
-        if p.angle_ok:  # the greedy above ignores the angle; this one counts it (O(m + n) memory)
+        if p.angle_ok or p.spaced_angle:  # the greedy above ignores the angle; this one counts it (O(m + n) memory)
             assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
-            new = greedy_angle(q, w, k, views, float(p.min_angle_deg), p.pos, p.pts,
-                               np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline)
+            if p.angle_ok:
+                new = greedy_angle(q, w, k, views, float(p.min_angle_deg), p.pos, p.pts,
+                                   np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline)
+            else:
+                new = spaced_angle_greedy(p, (), p.deadline) or ()
             cand = tuple(sorted(set(p.fixed_t) | set(new)))
-            if hint_sel is None or p.value(cand) > p.value(hint_sel):
+            if new and (hint_sel is None or p.value(cand) > p.value(hint_sel)):
                 hint_sel = cand
         if hint_sel is None:
             return EngineOutcome(None, "unknown", bound, stats, engine=name, objective=p.fixed_value)

@@ -1,0 +1,113 @@
+"""Multiview with a minimum angle and a minimum distance when the general model does not fit
+(routes._angle_spaced): the angle engine on the problem without the spacing gives a valid bound
+(and, when its proven answer is spaced, the spaced optimum); otherwise the answer is the best of
+spaced answers with exact angles. Checked against the enumeration of every spaced set."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import camplace.solver.routes as routes
+from camplace.solver.api import solve
+from camplace.solver.problem.objectives import mode_value
+from tests.solver._oracle import brute_force_mode, spaced
+
+
+def _case(seed: int):
+    """(dense (m, n) float32 0/1, weights (m,), positions (n, 3) m, points (m, 3) m): cameras on a
+    ring around the points, some of them close together (so that a minimum distance binds)."""
+    rng = np.random.default_rng(seed)
+    m, n = 40, 11
+    ang = np.sort(rng.random(n)) * 2 * np.pi
+    pos = np.column_stack([6 * np.cos(ang), 6 * np.sin(ang), rng.normal(size=n)])
+    pts = rng.normal(size=(m, 3))
+    dense = (rng.random((m, n)) < 0.5).astype(np.float32)
+    w = rng.random(m) + 0.05
+    return dense, w, pos, pts
+
+
+def _refuse_model(mp) -> None:
+    """Every general model over the memory budget (the angle engine still fits)."""
+    mp.setattr(routes, "model_bytes", lambda *a, **k: 1 << 60)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("dmin", [1.0, 4.0, 7.0])
+def test_spaced_angle_against_enumeration(seed, dmin, monkeypatch) -> None:
+    dense, w, pos, pts = _case(seed)
+    fixed = (0,) if seed % 2 else ()
+    k = 2 if fixed else 3
+    kw = dict(k=k, mode="multiview", views=2, min_angle_deg=30.0, positions=pos, points=pts, min_distance_m=dmin,
+              fixed=fixed, time_limit_s=60)
+    best = brute_force_mode(dense, w, k, "multiview", views=2, min_angle_deg=30.0, pos=pos, pts=pts, fixed=fixed,
+                            dmin=dmin)
+    # the relaxation: new cameras spaced from the fixed ones (those columns are not free), not from each other
+    near_fixed = tuple(j for j in range(pos.shape[0]) if j not in fixed
+                       and any(np.linalg.norm(pos[j] - pos[f]) < dmin for f in fixed))
+    relaxed = brute_force_mode(dense, w, k, "multiview", views=2, min_angle_deg=30.0, pos=pos, pts=pts, fixed=fixed,
+                               forbidden=near_fixed)
+    with monkeypatch.context() as mp:
+        _refuse_model(mp)
+        got = solve(sp.csr_matrix(dense), w, **kw)
+    if "spacing_relaxed" not in got.stats:  # no pair of free candidates closer: the angle engine itself
+        assert got.stats.get("conflict_pairs", 0) == 0 and best == relaxed
+        assert got.status == "optimal" and got.objective == pytest.approx(best, rel=1e-12)
+        return
+    info = got.stats["spacing_relaxed"]
+    if best is None:  # no spaced set of k: no answer may be spaced
+        assert got.selected is None or not spaced(got.selected, pos, dmin)
+        return
+    assert got.selected is not None and spaced(got.selected, pos, dmin) and set(fixed) <= set(got.selected)
+    assert len(got.selected) == k + len(fixed)
+    assert got.objective == pytest.approx(mode_value(dense, w, got.selected, mode="multiview", views=2,
+                                                     min_angle_deg=30.0, positions=pos, points=pts), rel=1e-12)
+    assert got.objective <= best * (1 + 1e-12)
+    assert got.bound >= best * (1 - 1e-12)  # valid for the spaced problem
+    assert info["bound"] == pytest.approx(relaxed, rel=1e-9) and info["status"] == "optimal"  # proven relaxation
+    if info["spaced"]:  # the relaxed optimum is spaced: the spaced optimum, proven
+        assert got.status == "optimal" and got.objective == pytest.approx(best, rel=1e-12)
+        assert best == pytest.approx(relaxed, rel=1e-12)
+    else:
+        assert relaxed > best * (1 - 1e-12) and got.status == "feasible"
+        assert got.bound == pytest.approx(relaxed, rel=1e-9)
+
+
+def test_both_branches_are_taken(monkeypatch) -> None:
+    """The cases above reach a spaced relaxed optimum and a repaired one (the test is not vacuous)."""
+    seen = set()
+    for seed, dmin in itertools.product([1, 2, 3, 4, 5], [1.0, 4.0, 7.0]):
+        dense, w, pos, pts = _case(seed)
+        with monkeypatch.context() as mp:
+            _refuse_model(mp)
+            got = solve(sp.csr_matrix(dense), w, k=3, mode="multiview", views=2, min_angle_deg=30.0, positions=pos,
+                        points=pts, min_distance_m=dmin, time_limit_s=60)
+        if "spacing_relaxed" in got.stats:
+            seen.add(got.stats["spacing_relaxed"]["spaced"])
+    assert seen == {True, False}
+
+
+def test_spaced_greedy_keeps_the_spacing_and_the_start() -> None:
+    dense, w, pos, pts = _case(7)
+    from camplace.solver.api import _free_columns
+    from camplace.solver.options import SolveOptions
+    from camplace.solver._support.deadline import Deadline
+    from camplace.solver.problem.checks import conflict_pairs
+
+    dmin = 4.0
+    conflicts = conflict_pairs(pos, dmin)
+    free, conflicts = _free_columns(pos.shape[0], (), (), conflicts, dmin)
+    p = routes.CoverProblem(sp.csr_matrix(dense), w, 3, "multiview", 2, 30.0, pos, pts, (), free, conflicts,
+                            SolveOptions(k=3, mode="multiview"), Deadline(None))
+    keep = (int(conflicts[0, 0]),)
+    got = routes.spaced_angle_greedy(p, keep, Deadline(None))
+    assert got is not None and len(got) == 3 and keep[0] in got and spaced(got, pos, dmin)
+    # no spaced set of 3 at a distance larger than the ring: None
+    far = conflict_pairs(pos, 100.0)
+    free2, far = _free_columns(pos.shape[0], (), (), far, 100.0)
+    p2 = routes.CoverProblem(sp.csr_matrix(dense), w, 3, "multiview", 2, 30.0, pos, pts, (), free2, far,
+                             SolveOptions(k=3, mode="multiview"), Deadline(None))
+    assert routes.spaced_angle_greedy(p2, (), Deadline(None)) is None
