@@ -111,3 +111,17 @@ def test_spaced_greedy_keeps_the_spacing_and_the_start() -> None:
     p2 = routes.CoverProblem(sp.csr_matrix(dense), w, 3, "multiview", 2, 30.0, pos, pts, (), free2, far,
                              SolveOptions(k=3, mode="multiview"), Deadline(None))
     assert routes.spaced_angle_greedy(p2, (), Deadline(None)) is None
+
+
+def test_guard_counts_the_relaxation() -> None:
+    """Before the cast, a model over the budget with an angle and a distance (``auto``) is counted
+    as the angle engine that runs instead, beside the bool pattern."""
+    from camplace.solver.api import bits_solve_bytes
+    from camplace.solver.engines.angle.search import angle_bytes
+    from camplace.solver.options import SolveOptions
+
+    m, n, nnz = 10_000, 2_000, 8_000_000
+    o = SolveOptions(mode="multiview", k=3, views=2, min_angle_deg=20.0, min_distance_m=0.5,
+                     memory_budget_bytes=1 << 30)  # the model (4.3 GiB without the angle's rows) over it
+    got = bits_solve_bytes(m, n, o, nnz, conflicts=5_000)
+    assert got == 5 * nnz + 8 * (m + 1) + 200 * 5_000 + angle_bytes(m, n, 0, 3, 2, layout_rows=m)

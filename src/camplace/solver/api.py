@@ -403,7 +403,9 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
     * the rest (a minimum angle on the general model, a team off the bits): the whole matrix as a
       bool CSR (5 bytes a pair; the angle's kernels and models read the pattern, no float values)
       and the general model of every row (without the angle's pair rows, counted by the model once
-      the matrix is known).
+      the matrix is known); a model over the budget under ``auto`` with a minimum angle and a
+      minimum distance: the angle engine that runs instead on the problem without the spacing
+      (``routes._angle_spaced``; :func:`~camplace.solver.engines.angle.search.angle_bytes`).
 
     A general model over the solver's memory budget (``o.memory_budget_bytes`` and
     :func:`~camplace.solver._support.memory.memory_budget_bytes` now) under engine ``auto`` is
@@ -464,6 +466,12 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
         with memory_budget(o.memory_budget_bytes):
             if model > memory_budget_bytes():  # the solve gives the greedy answer instead (routes._model)
                 model = 0
+    if (model == 0 and o.mode == "multiview" and o.min_angle_deg is not None and o.min_distance_m is not None
+            and o.k is not None):
+        from camplace.solver.engines.angle.search import angle_bytes  # the spacing's relaxation (routes._angle_spaced)
+
+        fixed = len(set(o.fixed))
+        model = angle_bytes(m, n - fixed - len(set(o.forbidden)), fixed, int(o.k), int(o.views), layout_rows=m)
     return 5 * nnz + 8 * (m + 1) + pairs + model  # the bool pattern (the angle reads it too) and the model
 
 
