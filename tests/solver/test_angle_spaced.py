@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+import camplace.solver.engines.mip.linear as linear
 import camplace.solver.routes as routes
 from camplace.solver.api import solve
 from camplace.solver.problem.objectives import mode_value
+from camplace.visibility.bits import bits_from_csr
 from tests.solver._oracle import brute_force_mode, spaced
+from tests.solver.test_large_k_bits import watch_tocsr
 
 
 def _case(seed: int):
@@ -33,11 +36,13 @@ def _case(seed: int):
 def _refuse_model(mp) -> None:
     """Every general model over the memory budget (the angle engine still fits)."""
     mp.setattr(routes, "model_bytes", lambda *a, **k: 1 << 60)
+    mp.setattr(linear, "model_bytes", lambda *a, **k: 1 << 60)
 
 
+@pytest.mark.parametrize("layout", ["csr", "bits"])
 @pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
 @pytest.mark.parametrize("dmin", [1.0, 4.0, 7.0])
-def test_spaced_angle_against_enumeration(seed, dmin, monkeypatch) -> None:
+def test_spaced_angle_against_enumeration(layout, seed, dmin, monkeypatch) -> None:
     dense, w, pos, pts = _case(seed)
     fixed = (0,) if seed % 2 else ()
     k = 2 if fixed else 3
@@ -52,12 +57,19 @@ def test_spaced_angle_against_enumeration(seed, dmin, monkeypatch) -> None:
                                forbidden=near_fixed)
     with monkeypatch.context() as mp:
         _refuse_model(mp)
-        got = solve(sp.csr_matrix(dense), w, **kw)
+        if layout == "bits":
+            bits = bits_from_csr(sp.csr_matrix(dense))
+            watch_tocsr(mp, bits)  # the whole matrix never becomes CSR
+            got = solve(bits, w, **kw)
+        else:
+            got = solve(sp.csr_matrix(dense), w, **kw)
     if "spacing_relaxed" not in got.stats:  # no pair of free candidates closer: the angle engine itself
         assert got.stats.get("conflict_pairs", 0) == 0 and best == relaxed
+        assert layout == "csr" or got.stats["matrix"].startswith("column bitsets")
         assert got.status == "optimal" and got.objective == pytest.approx(best, rel=1e-12)
         return
     info = got.stats["spacing_relaxed"]
+    assert layout == "csr" or got.stats["matrix"] == "column bitsets (no CSR copy)"
     if best is None:  # no spaced set of k: no answer may be spaced
         assert got.selected is None or not spaced(got.selected, pos, dmin)
         return
@@ -115,7 +127,7 @@ def test_spaced_greedy_keeps_the_spacing_and_the_start() -> None:
 
 def test_guard_counts_the_relaxation() -> None:
     """Before the cast, a model over the budget with an angle and a distance (``auto``) is counted
-    as the angle engine that runs instead, beside the bool pattern."""
+    as the angle engine that runs instead on the bits, beside the conflicting pairs."""
     from camplace.solver.api import bits_solve_bytes
     from camplace.solver.engines.angle.search import angle_bytes
     from camplace.solver.options import SolveOptions
@@ -124,4 +136,32 @@ def test_guard_counts_the_relaxation() -> None:
     o = SolveOptions(mode="multiview", k=3, views=2, min_angle_deg=20.0, min_distance_m=0.5,
                      memory_budget_bytes=1 << 30)  # the model (4.3 GiB without the angle's rows) over it
     got = bits_solve_bytes(m, n, o, nnz, conflicts=5_000)
-    assert got == 5 * nnz + 8 * (m + 1) + 200 * 5_000 + angle_bytes(m, n, 0, 3, 2, layout_rows=m)
+    assert got == 200 * 5_000 + angle_bytes(m, n, 0, 3, 2, layout_rows=m)  # on the bits: no CSR
+
+
+@pytest.mark.parametrize("m", [300, 6_000])
+def test_model_estimate_on_bits_against_the_csr_count(m, monkeypatch) -> None:
+    """The angle model's size counted on sampled rows of the bits equals the CSR route's count
+    (every row taken: m = 300) or is within 10 % of it (2,048 of 6,000 rows sampled)."""
+    import camplace.solver.api as api
+    from camplace.solver.engines.mip.linear import model_bytes
+    from camplace.solver.engines.mip.mode_models import model_size
+    from camplace.solver.options import SolveOptions
+    from camplace.solver.problem.checks import conflict_pairs
+
+    rng = np.random.default_rng(m)
+    n = 30
+    dense = (rng.random((m, n)) < 0.4).astype(np.float32)
+    w = np.where(rng.random(m) < 0.1, 0.0, rng.random(m))
+    pos, pts = rng.normal(size=(n, 3)) * 5, rng.normal(size=(m, 3))
+    o = SolveOptions(k=3, mode="multiview", views=2, min_angle_deg=25.0, min_distance_m=2.0)
+    conflicts = conflict_pairs(pos, 2.0)
+    free = np.arange(n, dtype=np.int64)
+    monkeypatch.setattr(api, "memory_budget_bytes", lambda: 1 << 50)  # nothing truncates the counts
+    q = sp.csr_matrix(dense)
+    want = model_bytes("mip", *model_size(q, q, w, w, "multiview", 2, 25.0, pos, pts, (), free, conflicts, 1 << 50))
+    got = api._angle_model_bytes(bits_from_csr(q), w, o, pos, pts, (), free, conflicts)
+    if m <= api._MODEL_SAMPLE_ROWS:
+        assert got == want
+    else:
+        assert got == pytest.approx(want, rel=0.1) and got != want

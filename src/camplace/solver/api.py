@@ -250,6 +250,10 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         if o.mode == "setcover" and o.team is None:  # counts from the bits
             ctx, w, fixed_t, forbidden_t, conflicts = _setcover_bits(matrix, weights, positions, o, deadline)
             return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, matrix.shape, t0)
+        spaced = _spaced_angle_bits(matrix, weights, o, deadline, positions, points) if _spaced_angle_applies(o) else None
+        if spaced is not None:  # an angle and a distance: the angle engine on the bits, without the spacing
+            ctx, w, fixed_t, forbidden_t, conflicts = spaced
+            return _result(ctx, o, w, fixed_t, forbidden_t, conflicts, matrix.shape, t0)
         if _rows_presolve_applies(o):  # the general model (and the rest): CSR of the merged rows only
             got = _rows_presolved(matrix, weights, positions, o, deadline)
             if got is not None:
@@ -404,8 +408,9 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
       bool CSR (5 bytes a pair; the angle's kernels and models read the pattern, no float values)
       and the general model of every row (without the angle's pair rows, counted by the model once
       the matrix is known); a model over the budget under ``auto`` with a minimum angle and a
-      minimum distance: the angle engine that runs instead on the problem without the spacing
-      (``routes._angle_spaced``; :func:`~camplace.solver.engines.angle.search.angle_bytes`).
+      minimum distance: the conflicting pairs and the angle engine that runs instead on the bits,
+      without the spacing (:func:`_spaced_angle_bits`;
+      :func:`~camplace.solver.engines.angle.search.angle_bytes`).
 
     A general model over the solver's memory budget (``o.memory_budget_bytes`` and
     :func:`~camplace.solver._support.memory.memory_budget_bytes` now) under engine ``auto`` is
@@ -466,12 +471,11 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
         with memory_budget(o.memory_budget_bytes):
             if model > memory_budget_bytes():  # the solve gives the greedy answer instead (routes._model)
                 model = 0
-    if (model == 0 and o.mode == "multiview" and o.min_angle_deg is not None and o.min_distance_m is not None
-            and o.k is not None):
-        from camplace.solver.engines.angle.search import angle_bytes  # the spacing's relaxation (routes._angle_spaced)
+    if model == 0 and o.team is None and _spaced_angle_applies(o) and o.k is not None:
+        from camplace.solver.engines.angle.search import angle_bytes  # the spacing's relaxation on the bits
 
         fixed = len(set(o.fixed))
-        model = angle_bytes(m, n - fixed - len(set(o.forbidden)), fixed, int(o.k), int(o.views), layout_rows=m)
+        return pairs + angle_bytes(m, n - fixed - len(set(o.forbidden)), fixed, int(o.k), int(o.views), layout_rows=m)
     return 5 * nnz + 8 * (m + 1) + pairs + model  # the bool pattern (the angle reads it too) and the model
 
 
@@ -614,18 +618,10 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
 
     m, n = bits.shape
     w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
-    k = o.k
-    if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
-        raise CamplaceError(f"k must be an integer number of cameras for mode {o.mode!r}, got {k!r}")
-    k = int(k)
     free = np.ones(n, dtype=bool)
     free[list(set(fixed_t) | set(forbidden_t))] = False
     free_cols = np.flatnonzero(free)
-    if k < (0 if fixed_t else 1):
-        raise CamplaceError(f"k must be at least {0 if fixed_t else 1}, got {k}")
-    if k > free_cols.size:
-        raise CamplaceError(f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
-                            "(lower k, or forbid/fix fewer cameras)")
+    k = _checked_k(o, fixed_t, free_cols)
     multiview = o.mode == "multiview"
     full_pos = pts = None
     if o.min_angle_deg is not None:
@@ -665,6 +661,121 @@ def _sides_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, po
     ctx.stats["matrix"] = f"column bitsets of the {cols.size} allowed columns (no CSR copy)"
     return (EngineOutcome(sel, ctx.status, float(ctx.bound) + const, ctx.stats, engine=ctx.engine,
                           objective=objective), w, fixed_t, forbidden_t)
+
+
+def _spaced_angle_applies(o: SolveOptions) -> bool:
+    """Multiview with a minimum angle and a minimum distance under ``auto``, without a team:
+    :func:`_spaced_angle_bits` may take it on the bits."""
+    return (o.team is None and o.mode == "multiview" and o.min_angle_deg is not None and o.min_distance_m is not None
+            and o.engine == "auto")
+
+
+def _spaced_angle_bits(bits: Any, weights: Any, o: SolveOptions, deadline: Deadline, positions: Any,
+                       points: Any) -> tuple | None:
+    """Multiview with a minimum angle and a minimum distance on a binary matrix held as column
+    bitsets, without a CSR copy, where the general model would not fit:
+    :func:`~camplace.solver.engines.angle.spaced.solve_spaced_angle` (the angle engine on the
+    problem without the spacing, whose bound holds for it; then spaced answers with exact angles),
+    reading the bits, valued on them (:func:`~camplace.solver.problem.objectives.bits_views_value`).
+
+    Returns
+    -------
+    (EngineOutcome, (m,) float64 weights, fixed, forbidden, conflicts (p, 2) int64) or None
+        None where the CSR route decides as before: the general model may fit in the memory budget
+        (its size without the angle's pair rows under the budget: small instances, where SCIP
+        proves the spaced optimum), too many conflicting pairs (its spaced fallback), or the angle
+        engine does not fit.
+    """
+    from camplace.solver.engines.angle.spaced import solve_spaced_angle
+    from camplace.solver.problem.objectives import bits_views_value
+
+    m, n = bits.shape
+    w, fixed_t, forbidden_t = _checked_columns(weights, o, m, n)
+    if positions is None or points is None:
+        raise CamplaceError("min_angle_deg needs camera positions (positions (n, 3)) and point positions (points (m, 3))")
+    pos = coords(positions, n, "positions", "camera positions")
+    pts = coords(points, m, "points", "point positions")
+    conflicts, too_many = _conflicts(pos, o)
+    if too_many is not None:
+        return None
+    free_cols, conflicts = _free_columns(n, fixed_t, forbidden_t, conflicts, o.min_distance_m)
+    k = _checked_k(o, fixed_t, free_cols)
+    if k == 0:
+        return None
+    model = _angle_model_bytes(bits, w, o, pos, pts, fixed_t, free_cols, conflicts)
+    if model <= memory_budget_bytes():
+        return None  # it may fit: the CSR route builds and checks it
+    views = int(o.views)
+
+    def value(sel: tuple[int, ...]) -> float:
+        return bits_views_value(bits, w, sel, views, o.min_angle_deg, pos, pts) if sel else 0.0
+
+    try:
+        got = solve_spaced_angle(bits, w, k, views, float(o.min_angle_deg), pos, pts, fixed_t, free_cols, conflicts,
+                                 value, deadline, memory_budget_bytes())
+    except OverBudget as exc:
+        log.info("%s: the CSR route", exc.message)
+        return None
+    if got is None:
+        return None
+    stats = {"k": k, "engine_choice": {"engine": "exact", "route": "angle",
+                                       "reason": "auto: a minimum angle and a minimum distance, the general model "
+                                                 "over the memory budget: the angle engine without the spacing (a "
+                                                 "valid bound), then spaced answers"},
+             "matrix": "column bitsets (no CSR copy)", "model_estimate": {"bytes": model},
+             "engine_stats": got.stats.pop("engine_stats"), "spacing_relaxed": got.stats}
+    ctx = EngineOutcome(got.selected, got.status, got.bound, stats, engine="exact", objective=got.objective)
+    return ctx, w, fixed_t, forbidden_t, conflicts
+
+
+#: :func:`_angle_model_bytes` counts the angle's rows on at most this many sampled points.
+_MODEL_SAMPLE_ROWS = 2048
+
+
+def _angle_model_bytes(bits: Any, w: np.ndarray, o: SolveOptions, pos: np.ndarray, pts: np.ndarray,
+                       fixed_t: tuple[int, ...], free_cols: np.ndarray, conflicts: np.ndarray) -> int:
+    """Estimated bytes of the general model of multiview with a minimum angle on a BitMatrix, without
+    its CSR: :func:`~camplace.solver.engines.mip.mode_models.model_size` (a row for every pair of
+    a point's observers that may make the angle) counted exactly on up to
+    :data:`_MODEL_SAMPLE_ROWS` of the points that can count (weight > 0, at least ``views``
+    allowed observers), drawn with a fixed seed and read as a bool CSR of those rows only, and
+    scaled to all of them; the cameras' and the spacing's parts counted whole. Like the CSR
+    route's count, it stops once the model could not fit in the memory budget (then a lower
+    bound, over the budget)."""
+    from camplace.solver.engines.mip.linear import model_bytes
+    from camplace.solver.engines.mip.mode_models import model_size
+    from camplace.solver.problem.presolve_bits import row_counts_of
+    from camplace.visibility.bits import take_rows
+
+    allowed = np.union1d(free_cols, np.asarray(fixed_t, dtype=np.int64))
+    live = np.flatnonzero((w > 0) & (row_counts_of(bits, allowed) >= int(o.views)))
+    if live.size == 0:
+        return 0
+    take = min(live.size, _MODEL_SAMPLE_ROWS)
+    rows = live if take == live.size else np.sort(np.random.default_rng(0).choice(live, size=take, replace=False))
+    sub = take_rows(bits, rows).tocsr(np.bool_)
+    scale = live.size / rows.size
+    # (the count stops, as the CSR route's, once the scaled model could not fit in the budget anyway)
+    got = model_size(sub, sub, w[rows], w[rows], "multiview", int(o.views), o.min_angle_deg, pos, pts[rows], fixed_t,
+                     free_cols, conflicts, int(memory_budget_bytes() / scale) + 1)
+    n_conf = int(conflicts.shape[0])
+    base = (free_cols.size + len(fixed_t), 1 + n_conf, free_cols.size + 2 * n_conf)  # the cameras and the spacing
+    return model_bytes("mip", *(int(b + (g - b) * scale) for b, g in zip(base, got, strict=True)))
+
+
+def _checked_k(o: SolveOptions, fixed_t: tuple[int, ...], free_cols: np.ndarray) -> int:
+    """``o.k`` checked for a k-camera mode: an integer, at least 1 (0 with fixed cameras), at most
+    the allowed candidates; a one-line error otherwise."""
+    k = o.k
+    if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
+        raise CamplaceError(f"k must be an integer number of cameras for mode {o.mode!r}, got {k!r}")
+    k = int(k)
+    if k < (0 if fixed_t else 1):
+        raise CamplaceError(f"k must be at least {0 if fixed_t else 1}, got {k}")
+    if k > free_cols.size:
+        raise CamplaceError(f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
+                            "(lower k, or forbid/fix fewer cameras)")
+    return k
 
 
 def _rows_presolve_applies(o: SolveOptions) -> bool:

@@ -31,6 +31,7 @@ from camplace.solver._support.memory import OverBudget, matrix_bytes, memory_bud
 from camplace.solver.problem.checks import CONFLICT_PAIR_BYTES
 from camplace.solver.choose import EngineChoice, choose_engine, problem_sizes
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
+from camplace.solver.engines.angle.spaced import neighbours, solve_spaced_angle, spaced_greedy
 from camplace.solver.engines.bitset.search import bitset_bytes, solve_bitset
 from camplace.solver.engines.large_k.search import run_large_k
 from camplace.solver.engines.maxcover import run_maxcover_engine
@@ -189,14 +190,6 @@ class CoverProblem:
         the problem without the spacing (:func:`_angle_spaced`)."""
         return self.mode == "multiview" and self.min_angle_deg is not None and self.conflicts.shape[0] > 0
 
-    def neighbours(self) -> dict[int, set[int]]:
-        """The free candidates closer than the minimum distance to each one (original indices)."""
-        out: dict[int, set[int]] = {}
-        for a, b in self.conflicts.tolist():
-            out.setdefault(a, set()).add(b)
-            out.setdefault(b, set()).add(a)
-        return out
-
 
 Runner = Callable[[CoverProblem, EngineChoice], "EngineOutcome | None"]
 
@@ -234,102 +227,35 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> EngineOutcome
     return EngineOutcome(sel, out.status, float(out.bound), p.stats, engine="exact", objective=p.value(sel))
 
 
-#: The share of the time left that :func:`_angle_spaced` gives the angle engine on the problem
-#: without the spacing; the spaced answers take the rest.
-_RELAXED_SHARE = 0.5
-
-
 def spaced_angle_greedy(p: CoverProblem, keep: Sequence[int], deadline: Deadline) -> tuple[int, ...] | None:
-    """New cameras for multiview with a minimum angle and a minimum distance, in O(m + n) memory:
-    ``keep`` (free, pairwise spaced columns), then one camera at a time the best addition with exact
-    angles (:func:`~camplace.solver.engines.angle.search.greedy_angle` with k = 1, the cameras
-    chosen so far fixed) among the free columns not closer than the minimum distance to a chosen one.
-
-    Parameters
-    ----------
-    p : CoverProblem
-        Its ``conflicts`` are the pairs closer than the minimum distance.
-    keep : sequence of int
-        New cameras to start from (original indices).
-    deadline : Deadline
-        Each addition takes at most a third of the time left.
-
-    Returns
-    -------
-    tuple of int or None
-        ``p.k`` new cameras (original indices, sorted), pairwise spaced; None when the spacing
-        leaves too few candidates.
-    """
+    """:func:`~camplace.solver.engines.angle.spaced.spaced_greedy` on ``p`` (its conflicting pairs
+    the minimum distance): ``p.k`` pairwise spaced new cameras starting from ``keep``, or None."""
     assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
-    nbr = p.neighbours()
-    chosen = [int(j) for j in keep]
-    banned = set(chosen).union(*(nbr.get(j, set()) for j in chosen))
-    while len(chosen) < p.k:
-        allowed = p.free_cols[~np.isin(p.free_cols, np.fromiter(banned, dtype=np.int64, count=len(banned)))]
-        if allowed.size == 0:
-            return None
-        fixed = np.asarray(sorted(set(p.fixed_t) | set(chosen)), dtype=np.int64)
-        new = greedy_angle(p.q, p.w, 1, p.views, float(p.min_angle_deg), p.pos, p.pts, fixed, allowed,
-                           deadline=deadline.share(1 / 3))
-        if len(new) != 1:
-            return None
-        chosen.append(int(new[0]))
-        banned |= {int(new[0])} | nbr.get(int(new[0]), set())
-    return tuple(sorted(chosen))
+    return spaced_greedy(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts, p.fixed_t, p.free_cols,
+                         neighbours(p.conflicts), keep, deadline)
 
 
 def _angle_spaced(p: CoverProblem, hint: tuple[int, ...] | None) -> EngineOutcome | None:
     """Multiview with a minimum angle and a minimum distance when the general model does not fit
-    (``auto``): the exact angle engine on the same problem without the minimum distance, within
-    :data:`_RELAXED_SHARE` of the time left. Dropping a constraint only widens the choice, so its
-    bound (valid wherever it stops) bounds the spaced problem too, and its answer, when spaced, is
-    the spaced optimum whenever it is proven. Otherwise the answer is the best of the ``hint``
-    (the spaced greedy that ignores the angle, fixed cameras included), that answer repaired (its
-    cameras kept in turn while spaced, the rest filled by :func:`spaced_angle_greedy`) and the
-    spaced greedy from scratch, all valued exactly; the bound is the smaller of the engine's and the
-    cheap one.
-
-    Returns
-    -------
-    EngineOutcome or None
-        None when the angle engine does not fit in memory either (the caller returns the greedy
-        answer with the cheap bound).
-    """
+    (``auto``): :func:`~camplace.solver.engines.angle.spaced.solve_spaced_angle` (the angle engine
+    without the spacing, a valid bound; then spaced answers with exact angles, the distance-aware
+    greedy ``hint`` among them); the bound is the smaller of its and the cheap one. None when the
+    angle engine does not fit in memory either (the caller returns the greedy answer)."""
     assert p.pos is not None and p.pts is not None and p.min_angle_deg is not None
-    fixed = np.asarray(p.fixed_t, dtype=np.int64)
     try:
-        out = solve_angle(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts, fixed, p.free_cols,
-                          deadline=p.deadline.share(_RELAXED_SHARE), budget_bytes=memory_budget_bytes(), start=p.start)
+        got = solve_spaced_angle(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts, p.fixed_t, p.free_cols,
+                                 p.conflicts, p.value, p.deadline, memory_budget_bytes(), start=p.start,
+                                 hints=() if hint is None else (hint,))
     except OverBudget as exc:
         log.info("%s: the greedy answer", exc.message)
         return None
-    new = [int(j) for j in out.selected if int(j) not in set(p.fixed_t)]
-    nbr = p.neighbours()
-    spaced = not any(nbr.get(a, set()) & set(new) for a in new)
-    cheap = cheap_bound(p.q, p.qf, p.w, p.base, p.k, p.mode, p.views)
-    bound = min(float(out.bound), cheap)
-    p.stats["engine_stats"] = dict(out.stats)
-    p.stats["spacing_relaxed"] = {"status": out.status, "bound": float(out.bound), "spaced": spaced,
-                                  "objective": p.value(tuple(sorted(set(p.fixed_t) | set(new))))}
-    if spaced:
-        sel = tuple(sorted(set(p.fixed_t) | set(new)))
-        return EngineOutcome(sel, out.status, bound, p.stats, engine="exact", objective=p.value(sel))
-    keep: list[int] = []
-    for j in new:  # the relaxed answer's cameras, kept while spaced
-        if not nbr.get(j, set()) & set(keep):
-            keep.append(j)
-    cands = [hint] if hint is not None else []
-    for start in (keep, ()):
-        got = spaced_angle_greedy(p, start, p.deadline)
-        if got is not None:
-            cands.append(tuple(sorted(set(p.fixed_t) | set(got))))
-    if not cands:
+    if got is None:
         return None
-    values = [p.value(c) for c in cands]
-    best = int(np.argmax(values))
-    p.stats["spacing_relaxed"]["answers"] = [float(v) for v in values]
-    return EngineOutcome(cands[best], "feasible", max(bound, values[best]), p.stats, engine="exact",
-                         objective=values[best])
+    p.stats["engine_stats"] = got.stats.pop("engine_stats")
+    p.stats["spacing_relaxed"] = got.stats
+    bound = min(got.bound, cheap_bound(p.q, p.qf, p.w, p.base, p.k, p.mode, p.views))
+    return EngineOutcome(got.selected, got.status, max(bound, got.objective), p.stats, engine="exact",
+                         objective=got.objective)
 
 
 def _multiview(p: CoverProblem, choice: EngineChoice) -> EngineOutcome | None:

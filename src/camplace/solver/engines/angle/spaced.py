@@ -1,0 +1,182 @@
+"""Multiview with a minimum angle and a minimum distance between the cameras, where the general
+model (a row for every point and pair of cameras that may make the angle) does not fit.
+
+The exact angle engine (:func:`~camplace.solver.engines.angle.search.solve_angle`) runs on the
+same problem without the minimum distance. Dropping a constraint only widens the choice, so the
+engine's bound (valid wherever it stops) bounds the spaced problem too, and its answer, when its
+cameras are spaced and proven optimal, is the spaced optimum. Otherwise the answer is the best of
+the caller's ``hints``, the engine's answer repaired (its cameras kept in turn while spaced, the
+rest filled by :func:`spaced_greedy`) and :func:`spaced_greedy` from scratch, each valued exactly.
+
+The matrix is what the angle engine reads: a canonical CSR matrix or column bitsets
+(:class:`camplace.visibility.bits.BitMatrix`), so the same search serves the CSR route
+(:func:`camplace.solver.routes._angle_spaced`) and the bits route (:func:`camplace.solver.api._solve`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from camplace.solver._support.deadline import Deadline
+from camplace.solver._support.memory import OverBudget
+from camplace.solver.engines.angle.search import greedy_angle, solve_angle
+
+__all__ = ["SpacedAngle", "neighbours", "spaced_greedy", "solve_spaced_angle", "RELAXED_SHARE"]
+
+log = logging.getLogger(__name__)
+
+#: The share of the time left that the angle engine gets on the problem without the spacing; the
+#: spaced answers take the rest.
+RELAXED_SHARE = 0.5
+
+
+@dataclass
+class SpacedAngle:
+    """What :func:`solve_spaced_angle` found.
+
+    Attributes
+    ----------
+    selected : tuple of int
+        Fixed and new cameras (original indices, sorted), pairwise spaced.
+    status : {"optimal", "feasible"}
+    bound : float
+        Valid upper bound on the spaced problem's objective.
+    objective : float
+        ``value(selected)``.
+    stats : dict
+        ``status``, ``bound``, ``objective`` and ``spaced`` of the engine on the relaxed problem,
+        ``answers`` (the values of the spaced answers compared, when its answer was not spaced)
+        and ``engine_stats`` (the engine's own).
+    """
+
+    selected: tuple[int, ...]
+    status: str
+    bound: float
+    objective: float
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+def neighbours(conflicts: np.ndarray) -> dict[int, set[int]]:
+    """The candidates closer than the minimum distance to each one.
+
+    Parameters
+    ----------
+    conflicts : (p, 2) int64
+        Pairs of candidates closer than the minimum distance (original indices).
+    """
+    out: dict[int, set[int]] = {}
+    for a, b in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2).tolist():
+        out.setdefault(a, set()).add(b)
+        out.setdefault(b, set()).add(a)
+    return out
+
+
+def spaced_greedy(q: Any, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
+                  pts: np.ndarray, fixed: Sequence[int], free: np.ndarray, nbr: dict[int, set[int]],
+                  keep: Sequence[int], deadline: Deadline) -> tuple[int, ...] | None:
+    """``k`` new cameras in O(m + n) memory: ``keep`` (free, pairwise spaced columns), then one
+    camera at a time the best addition with exact angles (:func:`greedy_angle` with k = 1, the
+    cameras chosen so far fixed) among the free columns not closer than the minimum distance to a
+    chosen one.
+
+    Parameters
+    ----------
+    q : (m, n) scipy.sparse.csr_matrix or BitMatrix
+    w : (m,) float64
+    k, views : int
+    min_angle_deg : float
+    pos : (n, 3) float64
+        Camera positions, metres.
+    pts : (m, 3) float64
+        Point positions, metres.
+    fixed : sequence of int
+        Fixed cameras (the free columns are already spaced from them).
+    free : (f,) int64
+        Columns the new cameras may be chosen from.
+    nbr : dict of int to set of int
+        :func:`neighbours` of the conflicting pairs among the free columns.
+    keep : sequence of int
+        New cameras to start from.
+    deadline : Deadline
+        Each addition takes at most a third of the time left.
+
+    Returns
+    -------
+    tuple of int or None
+        The new cameras (original indices, sorted); None when the spacing leaves too few candidates.
+    """
+    free = np.asarray(free, dtype=np.int64)
+    chosen = [int(j) for j in keep]
+    banned = set(chosen).union(*(nbr.get(j, set()) for j in chosen))
+    while len(chosen) < k:
+        allowed = free[~np.isin(free, np.fromiter(banned, dtype=np.int64, count=len(banned)))]
+        if allowed.size == 0:
+            return None
+        base = np.asarray(sorted({int(j) for j in fixed} | set(chosen)), dtype=np.int64)
+        new = greedy_angle(q, w, 1, views, float(min_angle_deg), pos, pts, base, allowed, deadline=deadline.share(1 / 3))
+        if len(new) != 1:
+            return None
+        chosen.append(int(new[0]))
+        banned |= {int(new[0])} | nbr.get(int(new[0]), set())
+    return tuple(sorted(chosen))
+
+
+def solve_spaced_angle(q: Any, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
+                       pts: np.ndarray, fixed: Sequence[int], free: np.ndarray, conflicts: np.ndarray,
+                       value: Callable[[tuple[int, ...]], float], deadline: Deadline, budget_bytes: int, *,
+                       start: Sequence[int] | None = None,
+                       hints: Sequence[tuple[int, ...]] = ()) -> SpacedAngle | None:
+    """The spaced problem's answer and a valid bound (see the module docstring); None when no
+    spaced answer was found (the spacing leaves fewer than ``k`` cameras and no hint is given).
+
+    Parameters
+    ----------
+    q, w, k, views, min_angle_deg, pos, pts, fixed, free
+        As :func:`spaced_greedy`.
+    conflicts : (p, 2) int64
+        Pairs of free columns closer than the minimum distance.
+    value : callable
+        The objective of a set of cameras (fixed ones included, original indices).
+    deadline : Deadline
+    budget_bytes : int
+        The angle engine's memory budget.
+    start : sequence of int, optional
+        New cameras for the engine's first incumbent (any set: the relaxed problem takes it).
+    hints : sequence of tuple of int
+        Spaced answers (fixed cameras included) found otherwise, compared with the others.
+
+    Raises
+    ------
+    OverBudget
+        The angle engine does not fit in ``budget_bytes`` (the caller falls back).
+    """
+    fixed_set = {int(j) for j in fixed}
+    out = solve_angle(q, w, k, views, float(min_angle_deg), pos, pts, np.asarray(sorted(fixed_set), dtype=np.int64),
+                      free, deadline=deadline.share(RELAXED_SHARE), budget_bytes=budget_bytes, start=start)
+    new = [int(j) for j in out.selected if int(j) not in fixed_set]
+    nbr = neighbours(conflicts)
+    spaced = not any(nbr.get(a, set()) & set(new) for a in new)
+    relaxed_sel = tuple(sorted(fixed_set | set(new)))
+    stats: dict[str, Any] = {"status": out.status, "bound": float(out.bound), "spaced": spaced,
+                             "objective": value(relaxed_sel), "engine_stats": dict(out.stats)}
+    if spaced:
+        return SpacedAngle(relaxed_sel, out.status, float(out.bound), stats["objective"], stats)
+    keep: list[int] = []
+    for j in new:  # the relaxed answer's cameras, kept while spaced
+        if not nbr.get(j, set()) & set(keep):
+            keep.append(j)
+    cands = [tuple(h) for h in hints]
+    for first in (keep, ()):
+        got = spaced_greedy(q, w, k, views, min_angle_deg, pos, pts, sorted(fixed_set), free, nbr, first, deadline)
+        if got is not None:
+            cands.append(tuple(sorted(fixed_set | set(got))))
+    if not cands:
+        return None
+    values = [value(c) for c in cands]
+    best = int(np.argmax(values))
+    stats["answers"] = [float(v) for v in values]
+    return SpacedAngle(cands[best], "feasible", max(float(out.bound), values[best]), values[best], stats)
