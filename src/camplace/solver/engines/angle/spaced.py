@@ -30,8 +30,9 @@ __all__ = ["SpacedAngle", "neighbours", "spaced_greedy", "solve_spaced_angle", "
 log = logging.getLogger(__name__)
 
 #: The share of the time left that the angle engine gets on the problem without the spacing; the
-#: spaced answers take the rest.
-RELAXED_SHARE = 0.5
+#: spaced answers (needed only when its answer is not spaced) take the rest. At half, a spaced
+#: answer at comet-67p-bunker 10,000 x 50,000 (60 s) ended the solve after 31 s with a 3.6 % gap.
+RELAXED_SHARE = 0.85
 
 
 @dataclass
