@@ -298,16 +298,7 @@ def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptio
         ctx = setcover(q, w, o.costs, o.required_fraction, fixed_t, free_cols, conflicts, engine, deadline,
                        o.search_seed, o.iterations)
     else:
-        if k is None or isinstance(k, bool) or not isinstance(k, numbers.Integral):
-            raise CamplaceError(f"k must be an integer number of cameras for mode {mode!r}, got {k!r}")
-        k = int(k)
-        if k < (0 if fixed_t else 1):
-            raise CamplaceError(f"k must be at least {0 if fixed_t else 1}, got {k}")
-        if k > free_cols.size:
-            raise CamplaceError(
-                f"cannot choose k={k} new cameras from {free_cols.size} allowed candidates "
-                "(lower k, or forbid/fix fewer cameras)"
-            )
+        k = _checked_k(o, fixed_t, free_cols)
         # multiview with fewer cameras than 2 x views: opposite points cap the bound when the search
         # leaves a gap (pair_cap); the engines then leave a little of the time limit for the cap.
         cap = mode == "multiview" and cap_applies(k + len(fixed_t), views)
