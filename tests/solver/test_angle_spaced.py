@@ -165,3 +165,34 @@ def test_model_estimate_on_bits_against_the_csr_count(m, monkeypatch) -> None:
         assert got == want
     else:
         assert got == pytest.approx(want, rel=0.1) and got != want
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_spaced_swaps_end_at_a_local_optimum(seed) -> None:
+    """From a poor spaced start the swaps climb, stay spaced, value exactly, and end where no single
+    spaced exchange of one camera (enumerated) gains."""
+    from camplace.solver._support.deadline import Deadline
+    from camplace.solver.engines.angle.spaced import neighbours, spaced_swaps
+    from camplace.solver.problem.checks import conflict_pairs
+
+    dense, w, pos, pts = _case(seed)
+    n, dmin = pos.shape[0], 4.0
+    conflicts = conflict_pairs(pos, dmin)
+    nbr = neighbours(conflicts)
+    free = np.arange(n, dtype=np.int64)
+    q = sp.csr_matrix(dense)
+
+    def value(sel):
+        return mode_value(q, w, list(sel), mode="multiview", views=2, min_angle_deg=30.0, positions=pos, points=pts)
+
+    spaced_sets = [c for c in itertools.combinations(range(n), 3) if spaced(c, pos, dmin)]
+    start = min(spaced_sets, key=value)
+    sel, val, rounds = spaced_swaps(q, w, 2, 30.0, pos, pts, (), free, nbr, list(start), value, value(start),
+                                    Deadline(None))
+    assert spaced(sel, pos, dmin) and len(sel) == 3 and val == value(sel) and val > value(start) and rounds >= 2
+    for i in range(3):
+        others = [j for t, j in enumerate(sel) if t != i]
+        for j in range(n):
+            c = tuple(sorted([*others, j]))
+            if j not in sel and spaced(c, pos, dmin):
+                assert value(c) <= val * (1 + 1e-12) + 1e-12, (sel, c)

@@ -25,7 +25,7 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
 
-__all__ = ["SpacedAngle", "neighbours", "spaced_greedy", "solve_spaced_angle", "RELAXED_SHARE"]
+__all__ = ["SpacedAngle", "neighbours", "spaced_greedy", "spaced_swaps", "solve_spaced_angle", "RELAXED_SHARE"]
 
 log = logging.getLogger(__name__)
 
@@ -180,4 +180,51 @@ def solve_spaced_angle(q: Any, w: np.ndarray, k: int, views: int, min_angle_deg:
     values = [value(c) for c in cands]
     best = int(np.argmax(values))
     stats["answers"] = [float(v) for v in values]
-    return SpacedAngle(cands[best], "feasible", max(float(out.bound), values[best]), values[best], stats)
+    sel, val, rounds = spaced_swaps(q, w, views, min_angle_deg, pos, pts, sorted(fixed_set), free, nbr,
+                                    [j for j in cands[best] if j not in fixed_set], value, values[best], deadline)
+    stats["swap_rounds"] = rounds
+    return SpacedAngle(sel, "feasible", max(float(out.bound), val), val, stats)
+
+
+def spaced_swaps(q: Any, w: np.ndarray, views: int, min_angle_deg: float, pos: np.ndarray, pts: np.ndarray,
+                 fixed: Sequence[int], free: np.ndarray, nbr: dict[int, set[int]], new: Sequence[int],
+                 value: Callable[[tuple[int, ...]], float], current: float,
+                 deadline: Deadline) -> tuple[tuple[int, ...], float, int]:
+    """Spaced 1-swaps: each new camera in turn is replaced by the best spaced addition to the others
+    (:func:`spaced_greedy` from them), moving to the first exchange that gains, until none does or
+    the deadline passes.
+
+    Parameters
+    ----------
+    q, w, views, min_angle_deg, pos, pts, fixed, free, nbr
+        As :func:`spaced_greedy`.
+    new : sequence of int
+        Pairwise spaced new cameras to start from.
+    value : callable
+        The objective of a set of cameras (fixed ones included).
+    current : float
+        ``value`` of ``new`` with the fixed cameras.
+    deadline : Deadline
+
+    Returns
+    -------
+    (selected, objective, rounds)
+        The fixed and new cameras (sorted), their value and the rounds made.
+    """
+    fixed_set = {int(j) for j in fixed}
+    new = [int(j) for j in new]
+    rounds, moved = 0, True
+    while moved and not deadline.expired():
+        moved = False
+        rounds += 1
+        for i in range(len(new)):
+            others = new[:i] + new[i + 1:]
+            got = spaced_greedy(q, w, len(new), views, min_angle_deg, pos, pts, sorted(fixed_set), free, nbr, others,
+                                deadline)
+            if got is None or set(got) == set(new):
+                continue
+            v = value(tuple(sorted(fixed_set | set(got))))
+            if v > current:
+                new, current, moved = list(got), v, True
+                break
+    return tuple(sorted(fixed_set | set(new))), current, rounds
