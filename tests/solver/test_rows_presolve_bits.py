@@ -19,6 +19,13 @@ from tests.solver._oracle import brute_force_mode
 from tests.solver.test_large_k_bits import watch_tocsr
 
 
+@pytest.fixture(autouse=True)
+def _spaced_route_only(monkeypatch):
+    """These tests are of the spaced route itself: the relaxation first (api._relaxed_first, a
+    proven spaced optimum returned before it) is tested in tests/solver/test_spacing_relaxed.py."""
+    monkeypatch.setattr(api, "_relaxation_applies", lambda o: False)
+
+
 def _cases(seed: int):
     """(dense (m, n) float32, weights (m,), camera positions (n, 3) m): duplicated rows to merge,
     zero weights (dead rows), a row no camera observes, equal weights once."""

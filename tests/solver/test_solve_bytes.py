@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+import camplace.solver.api as api
 from camplace.solver.api import bits_solve_bytes, solve
 from camplace.solver.bits_route import large_k_reduced_bytes
 from camplace.solver.engines.angle.search import angle_bytes
@@ -108,9 +109,12 @@ def _reported(res, key: str) -> str:
 
 
 @pytest.mark.parametrize("name", sorted(_CASES))
-def test_bytes_follow_the_route_the_solve_takes(inst, name: str) -> None:
-    """The estimate is the engine's own for the route the solve then reports taking."""
+def test_bytes_follow_the_route_the_solve_takes(inst, name: str, monkeypatch) -> None:
+    """The estimate is the engine's own for the route the solve then reports taking (a minimum
+    distance: its spaced route; the relaxation that runs first counts the plain route's bytes,
+    not more here)."""
     bits, w, pos, pts = inst
+    monkeypatch.setattr(api, "_relaxation_applies", lambda o: False)
     o, (key, want) = _CASES[name]
     m, n = bits.shape
     conflicts = conflict_count(pos, o.min_distance_m) if o.min_distance_m is not None else 0
@@ -228,7 +232,7 @@ def test_a_budget_between_the_whole_matrix_figure_and_the_reduced_one_refuses_no
     assert not str(under.stats.get("matrix", "")).endswith("(their column lists)")
 
 
-def test_a_model_over_the_budget_is_refused_once_its_size_is_known(inst) -> None:
+def test_a_model_over_the_budget_is_refused_once_its_size_is_known(inst, monkeypatch) -> None:
     """The merged rows' general model is not counted before the cast (its size is known after the
     presolve); the solve estimates it then, notes it and checks it: over the budget under engine
     auto, the greedy answer with a cheap bound (``stats["memory_fallback"]``); asked for by name,
@@ -237,6 +241,7 @@ def test_a_model_over_the_budget_is_refused_once_its_size_is_known(inst) -> None
 
     bits, w, pos, pts = inst
     m, n = bits.shape
+    monkeypatch.setattr(api, "_relaxation_applies", lambda o: False)  # the spaced route itself
     o = replace(_CASES["mindist"][0], memory_budget_bytes=4 << 20)
     conflicts = conflict_count(pos, o.min_distance_m)
     assert bits_solve_bytes(m, n, o, bits.nnz, conflicts) == bits_solve_bytes(m, n, replace(o, engine="mip"),

@@ -196,7 +196,7 @@ def solve(
 
     with memory_budget(options.memory_budget_bytes), using_threads(options.threads), memory_notes() as notes, \
             holding(matrix_bytes(matrix)):
-        res = _solve(matrix, weights, positions, points, options)
+        res = _relaxed_first(matrix, weights, positions, points, options)
     if notes:
         res.stats["memory_estimates"] = {stage: dict(v) for stage, v in notes.items()}
     return res
@@ -213,6 +213,93 @@ def _is_default(name: str, value: Any) -> bool:
         return value is None or len(value) == 0
     return value is getattr(_DEFAULTS, name) or (type(value) is type(getattr(_DEFAULTS, name))
                                                   and value == getattr(_DEFAULTS, name))
+
+
+#: The share of the time limit that :func:`_relaxed_first` gives the problem without its minimum
+#: distance; the spaced route takes what is left.
+RELAXED_SPACING_SHARE = 0.3
+
+
+def _relaxation_applies(o: SolveOptions) -> bool:
+    """A minimum distance in max coverage, quality or multiview without an angle, under ``auto``,
+    without a team: :func:`_relaxed_first` solves without the distance first. (With an angle the
+    angle route relaxes the distance itself: :mod:`camplace.solver.engines.angle.spaced`.)"""
+    return (o.min_distance_m is not None and o.mode in ("maxcover", "quality", "multiview") and o.min_angle_deg is None
+            and o.team is None and o.engine == "auto" and o.k is not None)
+
+
+def _relaxed_first(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions) -> SolverResult:
+    """:func:`_solve`, a minimum distance relaxed first (:func:`_relaxation_applies`): the same
+    problem without the spacing between new cameras (those closer than the distance to a fixed
+    camera forbidden), on the exact routes that read the bits, within
+    :data:`RELAXED_SPACING_SHARE` of the time limit. Dropping a constraint only widens the choice:
+    a proven optimum whose cameras are spaced is the spaced optimum (returned at once, without the
+    general model), and otherwise the relaxed bound (its optimum, or its bound when stopped) bounds
+    the spaced problem, so the spaced route's answer keeps the smaller bound.
+    ``stats["spacing_relaxed"]`` gives the relaxed status, objective, bound, whether its cameras
+    were spaced and its time."""
+    deadline = Deadline(o.time_limit_s)
+    if not _relaxation_applies(o) or positions is None:
+        return _solve(matrix, weights, positions, points, o, deadline)
+    n = matrix.shape[1]
+    pos = coords(positions, n, "positions", "camera positions")
+    d = float(o.min_distance_m)
+    fixed = index_set(o.fixed, n, "fixed")
+    near = set()
+    for f in fixed:  # new cameras stay spaced from the fixed ones (the route's free columns)
+        near.update(np.flatnonzero(np.linalg.norm(pos - pos[f], axis=1) < d).tolist())
+    relaxed_o = replace(o, min_distance_m=None, forbidden=tuple(sorted((set(o.forbidden) | near) - set(fixed))))
+    t = time.perf_counter()
+    try:
+        relaxed = _solve(matrix, weights, positions, points, relaxed_o, deadline.share(RELAXED_SPACING_SHARE))
+    except CamplaceError:  # (e.g. too few candidates once spaced from the fixed ones): the route says it
+        return _solve(matrix, weights, positions, points, o, deadline)
+    sel = np.asarray(relaxed.selected, dtype=np.int64)
+    gaps = np.linalg.norm(pos[sel][:, None, :] - pos[sel][None, :, :], axis=2)[np.triu_indices(sel.size, 1)]
+    spaced = relaxed.status in ("optimal", "feasible") and bool(np.all(gaps >= d))
+    info = {"status": relaxed.status, "objective": relaxed.objective, "bound": relaxed.bound, "spaced": spaced,
+            "time_s": time.perf_counter() - t}
+    if spaced and relaxed.status == "optimal":
+        relaxed.stats["spacing_relaxed"] = info
+        relaxed.stats["min_distance_m"] = d
+        return replace(relaxed, time_s=deadline.elapsed())
+    res = _solve(matrix, weights, positions, points, o, deadline)
+    scale = float(check_weights(weights, matrix.shape[0]).sum())
+    return _spaced_best(res, relaxed, spaced, info, scale, deadline.elapsed())
+
+
+def _spaced_best(res: SolverResult, relaxed: SolverResult, spaced: bool, info: dict, scale: float,
+                 elapsed: float) -> SolverResult:
+    """The answer of a problem with a minimum distance from its own route's result ``res`` and the
+    relaxed one (:func:`_relaxed_first`): the better spaced answer (the relaxed one only when its
+    cameras are ``spaced``), with the smaller of the two valid bounds; optimal when they meet.
+
+    Parameters
+    ----------
+    res, relaxed : SolverResult
+    spaced : bool
+        Whether the relaxed answer's cameras are spaced.
+    info : dict
+        ``stats["spacing_relaxed"]``.
+    scale : float
+        The weights' sum (the optimality tolerance's scale, as :func:`_result`'s).
+    elapsed : float
+        The whole solve's seconds.
+    """
+    found = ("optimal", "feasible")
+    best = res
+    if spaced and (res.status not in found or relaxed.objective > res.objective):
+        best = replace(relaxed, stats={**relaxed.stats, "spaced_route": {"status": res.status,
+                                                                          "objective": res.objective,
+                                                                          "bound": res.bound}})
+    best.stats["spacing_relaxed"] = info
+    if best.status not in found:
+        return replace(best, time_s=elapsed)
+    bound = min(res.bound if res.status in found else math.inf, relaxed.bound if relaxed.status in found else math.inf)
+    bound = max(bound, best.objective)
+    if abs(bound - best.objective) <= _OPT_TOL * max(abs(bound), scale):
+        return replace(best, status="optimal", bound=best.objective, gap=0.0, time_s=elapsed)
+    return replace(best, status="feasible", bound=bound, gap=relative_gap(bound, best.objective), time_s=elapsed)
 
 
 def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions,
@@ -391,7 +478,9 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
       working memory is checked by them and not counted);
     * a minimum distance, engine mip / cpsat, multiview with fixed cameras and no angle
       (:func:`_rows_presolved`): the bit presolve, or the ``conflicts`` pairs
-      (:data:`CONFLICT_PAIR_BYTES` each, counted from the candidates' positions): the larger;
+      (:data:`CONFLICT_PAIR_BYTES` each, counted from the candidates' positions): the larger; under
+      ``auto`` with a minimum distance (:func:`_relaxed_first`), the larger of that and the route
+      of the same options without the distance, which runs first;
     * set cover with a minimum distance (:func:`_setcover_bits`): the rows left to cover as the
       bool CSR the model reads, at most the whole matrix's (5 bytes a pair), the conflicting pairs
       and the model of every row (counted as below: an upper bound on the set-cover model's size);
@@ -427,6 +516,13 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
     int
         Bytes.
     """
+    if _relaxation_applies(o):  # the problem without the distance first (_relaxed_first), then the spaced route
+        return max(_route_bytes(m, n, replace(o, min_distance_m=None), nnz, 0), _route_bytes(m, n, o, nnz, conflicts))
+    return _route_bytes(m, n, o, nnz, conflicts)
+
+
+def _route_bytes(m: int, n: int, o: SolveOptions, nnz: int, conflicts: int) -> int:
+    """:func:`bits_solve_bytes` of the route :func:`_solve` takes with ``o`` (no relaxation first)."""
     from camplace.solver.bits_route import bits_applies, outcome_bytes
     from camplace.solver.engines.mip.linear import model_bytes
     from camplace.solver.engines.mip.mode_models import cover_model_size

@@ -1,0 +1,109 @@
+"""A minimum distance relaxed first (api._relaxed_first): the problem without the spacing between
+new cameras is solved on its exact route; a proven optimum whose cameras are spaced is the spaced
+optimum, returned without the general model; otherwise the spaced route runs and keeps the smaller
+of the two valid bounds. Checked against the enumeration of every spaced set, on CSR and on bits."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import camplace.solver.api as api
+from camplace.solver.api import bits_solve_bytes, solve
+from camplace.solver.options import SolveOptions
+from camplace.solver.result import SolverResult
+from camplace.visibility.bits import bits_from_csr
+from tests.solver._oracle import brute_force_mode, spaced
+
+
+def _case(seed: int, graded: bool = False):
+    """(dense (m, n) float32, weights (m,), positions (n, 3) m): 10 cameras, half of them in
+    close pairs (so that a distance of 1-2 m binds on some optima and not on others)."""
+    rng = np.random.default_rng(seed)
+    m, n = 36, 10
+    base = rng.normal(size=(n // 2, 3)) * 4.0
+    pos = np.concatenate([base, base + rng.normal(size=base.shape) * 0.4])
+    dense = (rng.random((m, n)) < 0.35).astype(np.float32)
+    if graded:
+        dense *= rng.choice([0.25, 0.5, 1.0], size=dense.shape).astype(np.float32)
+    w = np.where(rng.random(m) < 0.1, 0.0, rng.random(m) + 0.1)
+    return dense, w, pos
+
+
+_KWS = [
+    dict(mode="maxcover", k=3),
+    dict(mode="maxcover", k=3, fixed=(1,)),
+    dict(mode="quality", k=3),
+    dict(mode="multiview", k=3, views=2),
+]
+
+
+# (bits hold binary matrices only: quality, graded here, on CSR)
+@pytest.mark.parametrize("layout,kw", [(lay, kw) for kw in _KWS for lay in ("csr", "bits")
+                                       if not (lay == "bits" and kw["mode"] == "quality")])
+def test_relaxed_first_against_enumeration(layout, kw) -> None:
+    seen = set()
+    graded = kw["mode"] == "quality"
+    for seed, dmin in itertools.product(range(4), (0.9, 2.0, 4.0)):
+        dense, w, pos = _case(seed, graded)
+        q = sp.csr_matrix(dense)
+        mat = bits_from_csr(q) if layout == "bits" else q
+        o = SolveOptions(min_distance_m=dmin, time_limit_s=60, **kw)
+        got = solve(mat, w, positions=pos, options=o)
+        best = brute_force_mode(dense, w, kw["k"], kw["mode"], views=kw.get("views", 2), pos=pos,
+                                fixed=kw.get("fixed", ()), dmin=dmin)
+        info = got.stats["spacing_relaxed"]
+        seen.add(info["spaced"])
+        assert got.status == "optimal" and spaced(got.selected, pos, dmin)
+        assert got.objective == pytest.approx(best, rel=1e-12, abs=1e-12)
+        assert info["bound"] >= best * (1 - 1e-12)  # the relaxation bounds the spaced problem
+        if info["spaced"]:  # proven at once, without the general model
+            assert "model_estimate" not in got.stats and got.engine == "exact"
+            assert info["objective"] == pytest.approx(best, rel=1e-12, abs=1e-12)
+        else:
+            assert info["objective"] >= best * (1 - 1e-12)
+    assert seen == {True, False}  # both branches taken
+
+
+def _res(objective: float, bound: float, status: str = "feasible", sel=(1, 2)) -> SolverResult:
+    return SolverResult(selected=sel, status=status, objective=objective, bound=bound, gap=0.0, engine="x",
+                        time_s=0.0, stats={})
+
+
+def test_spaced_best_keeps_the_better_answer_and_the_smaller_bound() -> None:
+    info = {"spaced": True}
+    # the spaced route stopped below a spaced relaxed answer (stopped too): the relaxed answer, the smaller bound
+    got = api._spaced_best(_res(0.5, 0.9), _res(0.6, 0.8, sel=(3, 4)), True, info, 1.0, 2.0)
+    assert (got.selected, got.status, got.objective, got.bound) == ((3, 4), "feasible", 0.6, 0.8)
+    assert got.gap == pytest.approx(0.25) and got.stats["spaced_route"]["objective"] == 0.5 and got.time_s == 2.0
+    # relaxed answer not spaced: the route's answer, its bound lowered to the relaxed optimum
+    got = api._spaced_best(_res(0.5, 0.9), _res(0.7, 0.7, "optimal", sel=(3, 4)), False, {"spaced": False}, 1.0, 2.0)
+    assert (got.selected, got.status, got.bound) == ((1, 2), "feasible", 0.7)
+    # the bounds meet the answer: optimal
+    got = api._spaced_best(_res(0.7, 0.9), _res(0.7, 0.7, "optimal", sel=(3, 4)), False, {"spaced": False}, 1.0, 2.0)
+    assert (got.status, got.bound, got.gap) == ("optimal", 0.7, 0.0)
+    # nothing spaced found: the route's status as it is
+    none = SolverResult(selected=(), status="infeasible", objective=float("nan"), bound=float("inf"),
+                        gap=float("inf"), engine="x", time_s=0.0, stats={})
+    got = api._spaced_best(none, _res(0.7, 0.7, "optimal"), False, {"spaced": False}, 1.0, 2.0)
+    assert got.status == "infeasible"
+
+
+def test_relaxation_applies_only_where_it_helps() -> None:
+    assert api._relaxation_applies(SolveOptions(mode="maxcover", k=3, min_distance_m=1.0))
+    for o in (SolveOptions(mode="maxcover", k=3), SolveOptions(mode="maxcover", k=3, min_distance_m=1.0, engine="mip"),
+              SolveOptions(mode="multiview", k=3, min_distance_m=1.0, min_angle_deg=20.0),
+              SolveOptions(mode="setcover", min_distance_m=1.0)):
+        assert not api._relaxation_applies(o)
+
+
+def test_guard_counts_both_routes() -> None:
+    m, n, nnz, conflicts = 5_000, 300, 400_000, 2_000
+    o = SolveOptions(mode="maxcover", k=3, min_distance_m=1.0)
+    want = max(api._route_bytes(m, n, replace(o, min_distance_m=None), nnz, 0), api._route_bytes(m, n, o, nnz, conflicts))
+    assert bits_solve_bytes(m, n, o, nnz, conflicts) == want
+    assert want >= api._route_bytes(m, n, o, nnz, conflicts)
