@@ -10,10 +10,18 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+import camplace.solver.api as api
 from camplace.errors import CamplaceError
 from camplace.solver.api import solve
 from camplace.visibility.bits import bits_from_csr
 from tests.solver.test_large_k_bits import watch_tocsr
+
+
+@pytest.fixture(autouse=True)
+def _spaced_route_only(monkeypatch):
+    """These tests are of the spaced route itself: the relaxation first (api._relaxed_first, a
+    proven spaced optimum returned before it) is tested in tests/solver/test_spacing_relaxed.py."""
+    monkeypatch.setattr(api, "_relaxation_applies", lambda o: False)
 
 
 def _cheapest_spaced_cover(dense: np.ndarray, w: np.ndarray, cost: np.ndarray, pos: np.ndarray, dmin: float,

@@ -95,9 +95,10 @@ def test_spaced_best_keeps_the_better_answer_and_the_smaller_bound() -> None:
 
 def test_relaxation_applies_only_where_it_helps() -> None:
     assert api._relaxation_applies(SolveOptions(mode="maxcover", k=3, min_distance_m=1.0))
+    assert api._relaxation_applies(SolveOptions(mode="setcover", min_distance_m=1.0))
     for o in (SolveOptions(mode="maxcover", k=3), SolveOptions(mode="maxcover", k=3, min_distance_m=1.0, engine="mip"),
               SolveOptions(mode="multiview", k=3, min_distance_m=1.0, min_angle_deg=20.0),
-              SolveOptions(mode="setcover", min_distance_m=1.0)):
+              SolveOptions(mode="setcover", min_distance_m=1.0, engine="cpsat")):
         assert not api._relaxation_applies(o)
 
 
@@ -107,3 +108,29 @@ def test_guard_counts_both_routes() -> None:
     want = max(api._route_bytes(m, n, replace(o, min_distance_m=None), nnz, 0), api._route_bytes(m, n, o, nnz, conflicts))
     assert bits_solve_bytes(m, n, o, nnz, conflicts) == want
     assert want >= api._route_bytes(m, n, o, nnz, conflicts)
+
+
+@pytest.mark.parametrize("layout", ["csr", "bits"])
+def test_relaxed_first_set_cover_against_enumeration(layout) -> None:
+    """Set cover with a minimum distance: the cheapest spaced cover (unit costs), the relaxed
+    optimum a valid lower bound; both branches taken."""
+    from tests.solver._oracle import brute_force_setcover
+
+    seen = set()
+    for seed, dmin in itertools.product(range(4), (2.0, 6.0, 8.0)):
+        dense, w, pos = _case(seed)
+        dense[:, 0] = np.where(dense.sum(axis=1) == 0, 1.0, dense[:, 0])  # every row coverable
+        q = sp.csr_matrix(dense)
+        mat = bits_from_csr(q) if layout == "bits" else q
+        o = SolveOptions(mode="setcover", min_distance_m=dmin, required_fraction=0.8, time_limit_s=60)
+        got = solve(mat, w, positions=pos, options=o)
+        best = brute_force_setcover(dense, w, np.ones(dense.shape[1]), 0.8, pos=pos, dmin=dmin)
+        info = got.stats["spacing_relaxed"]
+        if best is None:  # no spaced cover (the relaxed one is not spaced)
+            assert got.status == "infeasible" and not info["spaced"]
+            continue
+        seen.add(info["spaced"])
+        assert got.status == "optimal" and spaced(got.selected, pos, dmin)
+        assert got.objective == pytest.approx(best)
+        assert info["bound"] <= got.objective + 1e-9  # a lower bound on the spaced cover
+    assert seen == {True, False}

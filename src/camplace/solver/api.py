@@ -221,11 +221,11 @@ RELAXED_SPACING_SHARE = 0.3
 
 
 def _relaxation_applies(o: SolveOptions) -> bool:
-    """A minimum distance in max coverage, quality or multiview without an angle, under ``auto``,
-    without a team: :func:`_relaxed_first` solves without the distance first. (With an angle the
+    """A minimum distance in max coverage, quality, multiview without an angle or set cover, under
+    ``auto``, without a team: :func:`_relaxed_first` solves without the distance first. (With an angle the
     angle route relaxes the distance itself: :mod:`camplace.solver.engines.angle.spaced`.)"""
-    return (o.min_distance_m is not None and o.mode in ("maxcover", "quality", "multiview") and o.min_angle_deg is None
-            and o.team is None and o.engine == "auto" and o.k is not None)
+    return (o.min_distance_m is not None and o.min_angle_deg is None and o.team is None and o.engine == "auto"
+            and (o.mode == "setcover" or (o.mode in ("maxcover", "quality", "multiview") and o.k is not None)))
 
 
 def _relaxed_first(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions) -> SolverResult:
@@ -264,15 +264,18 @@ def _relaxed_first(matrix: Any, weights: Any, positions: Any, points: Any, o: So
         relaxed.stats["min_distance_m"] = d
         return replace(relaxed, time_s=deadline.elapsed())
     res = _solve(matrix, weights, positions, points, o, deadline)
+    if o.mode == "setcover":
+        return _spaced_best(res, relaxed, spaced, info, 1.0, deadline.elapsed(), minimize=True)
     scale = float(check_weights(weights, matrix.shape[0]).sum())
     return _spaced_best(res, relaxed, spaced, info, scale, deadline.elapsed())
 
 
 def _spaced_best(res: SolverResult, relaxed: SolverResult, spaced: bool, info: dict, scale: float,
-                 elapsed: float) -> SolverResult:
+                 elapsed: float, minimize: bool = False) -> SolverResult:
     """The answer of a problem with a minimum distance from its own route's result ``res`` and the
     relaxed one (:func:`_relaxed_first`): the better spaced answer (the relaxed one only when its
-    cameras are ``spaced``), with the smaller of the two valid bounds; optimal when they meet.
+    cameras are ``spaced``), with the tighter of the two valid bounds (the smaller upper bound, or
+    for set cover, ``minimize``, the larger lower bound); optimal when they meet.
 
     Parameters
     ----------
@@ -287,19 +290,23 @@ def _spaced_best(res: SolverResult, relaxed: SolverResult, spaced: bool, info: d
         The whole solve's seconds.
     """
     found = ("optimal", "feasible")
+    sign = -1.0 if minimize else 1.0  # larger sign * objective is better
     best = res
-    if spaced and (res.status not in found or relaxed.objective > res.objective):
+    if spaced and (res.status not in found or sign * relaxed.objective > sign * res.objective):
         best = replace(relaxed, stats={**relaxed.stats, "spaced_route": {"status": res.status,
                                                                           "objective": res.objective,
                                                                           "bound": res.bound}})
     best.stats["spacing_relaxed"] = info
     if best.status not in found:
         return replace(best, time_s=elapsed)
-    bound = min(res.bound if res.status in found else math.inf, relaxed.bound if relaxed.status in found else math.inf)
-    bound = max(bound, best.objective)
+    bound = sign * min(sign * res.bound if res.status in found else math.inf,
+                       sign * relaxed.bound if relaxed.status in found else math.inf)
+    bound = sign * max(sign * bound, sign * best.objective)
     if abs(bound - best.objective) <= _OPT_TOL * max(abs(bound), scale):
         return replace(best, status="optimal", bound=best.objective, gap=0.0, time_s=elapsed)
-    return replace(best, status="feasible", bound=bound, gap=relative_gap(bound, best.objective), time_s=elapsed)
+    gap = (max(0.0, (best.objective - bound) / max(abs(best.objective), 1e-12)) if minimize
+           else relative_gap(bound, best.objective))
+    return replace(best, status="feasible", bound=bound, gap=gap, time_s=elapsed)
 
 
 def _solve(matrix: Any, weights: Any, positions: Any, points: Any, o: SolveOptions,
