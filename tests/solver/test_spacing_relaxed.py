@@ -61,6 +61,7 @@ def test_relaxed_first_against_enumeration(layout, kw) -> None:
         assert got.status == "optimal" and spaced(got.selected, pos, dmin)
         assert got.objective == pytest.approx(best, rel=1e-12, abs=1e-12)
         assert info["bound"] >= best * (1 - 1e-12)  # the relaxation bounds the spaced problem
+        assert got.stats["forbidden"] == [] and got.stats["fixed"] == list(kw.get("fixed", ()))
         if info["spaced"]:  # proven at once, without the general model
             assert "model_estimate" not in got.stats and got.engine == "exact"
             assert info["objective"] == pytest.approx(best, rel=1e-12, abs=1e-12)

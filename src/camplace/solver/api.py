@@ -254,6 +254,7 @@ def _relaxed_first(matrix: Any, weights: Any, positions: Any, points: Any, o: So
         relaxed = _solve(matrix, weights, positions, points, relaxed_o, deadline.share(RELAXED_SPACING_SHARE))
     except CamplaceError:  # (e.g. too few candidates once spaced from the fixed ones): the route says it
         return _solve(matrix, weights, positions, points, o, deadline)
+    relaxed.stats["forbidden"] = list(index_set(o.forbidden, n, "forbidden"))  # the caller's (not those near fixed)
     sel = np.asarray(relaxed.selected, dtype=np.int64)
     gaps = np.linalg.norm(pos[sel][:, None, :] - pos[sel][None, :, :], axis=2)[np.triu_indices(sel.size, 1)]
     spaced = relaxed.status in ("optimal", "feasible") and bool(np.all(gaps >= d))
