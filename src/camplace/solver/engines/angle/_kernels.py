@@ -291,7 +291,8 @@ def _ball_sin(bx, by, bz, rho, centers, radius, wd):  # pragma: no cover - compi
     ``rho``) lies around the direction to the ball's centre: ``rho / d`` with ``d`` the least
     distance from the block's sphere to the centre (2.0 when they meet: any direction; 0 for a
     single camera). The arc itself, ``asin`` of it, is never computed (:func:`ball_angle_table`
-    holds the margins)."""
+    holds the margins). Used by the repeated-node test of :func:`angle_shortfall` (the pairs'
+    test, :func:`_ball_bits`, takes the arcs row by row)."""
     if rho <= 0.0:
         return 0.0
     dx, dy, dz = bx - centers[wd, 0], by - centers[wd, 1], bz - centers[wd, 2]
@@ -330,15 +331,24 @@ def _ball_bits(x, wd, ax, ay, az, ra, bx, by, bz, rb, pts, trig, centers, radius
     30's eighth round the arcs were taken from the block's sphere, one per block: a block 55 m
     across seen from 30 m had arcs of any width and kept every row.)
 
-    When, from the block's centre, the two centres are ``theta`` apart plus both their parallaxes
-    over the block's sphere, every row is kept without a look at the rows (the common case where
-    the angle hardly binds)."""
+    Every row is kept without a look at the rows where the least arcs over the block's sphere,
+    ``asin(r / (d + rk))`` (``d``: the centre's distance from the block's centre, ``rk`` its
+    radius), already sum to ``theta`` (coarse nodes close by), and where, from the block's centre,
+    the two centres are ``theta`` apart plus both their parallaxes over the block's sphere (the
+    common case where the angle hardly binds): both give what the row test would."""
     cth, sth = trig[0], trig[1]
     cx, cy, cz, rk = centers[wd, 0], centers[wd, 1], centers[wd, 2], max(radius[wd], 0.0)
     ux, uy, uz = ax - cx, ay - cy, az - cz
     vx, vy, vz = bx - cx, by - cy, bz - cz
     nu = math.sqrt(ux * ux + uy * uy + uz * uz)
     nv = math.sqrt(vx * vx + vy * vy + vz * vz)
+    # from every row's point the arcs are at least asin(r / (d + rk)): when those reach the angle
+    # (or a ball holds the whole block), the row test keeps every row
+    sa, sb = ra / (nu + rk), rb / (nv + rk)
+    if sa >= 1.0 or sb >= 1.0:
+        return x
+    if math.sqrt(1.0 - sa * sa) * math.sqrt(1.0 - sb * sb) - sa * sb <= cth - 1e-12:
+        return x
     if nu > rk * (1.0 + 1e-9) and nv > rk * (1.0 + 1e-9):
         su, sv = min(1.0, rk / nu), min(1.0, rk / nv)  # sines of the parallaxes U, V
         cu, cv = math.sqrt(max(0.0, 1.0 - su * su)), math.sqrt(max(0.0, 1.0 - sv * sv))
