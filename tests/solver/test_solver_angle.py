@@ -874,3 +874,43 @@ def test_self_row_test_keeps_every_row_two_cameras_of_a_ball_may_use(seed, theta
                 assert not got >> t & 1
                 dropped += 1
     assert kept > 0 and dropped > 0
+
+
+def test_node_balls_hold_their_cameras_are_no_wider_than_the_box_centre_and_thread_independent() -> None:
+    """Every node's ball holds all its cameras (numpy distances), its radius is at most the
+    bounding box centre's (the steps keep the smallest radius met, the box centre first) and at
+    least half the node's diameter, a single camera's ball is the camera (radius 0), and the balls
+    are bit-identical at one and two threads."""
+    import numba
+
+    from camplace.solver._support import bitkernels as K
+    from camplace.solver.engines.angle import _kernels as AK
+
+    rng = np.random.default_rng(3)
+    pos = np.ascontiguousarray(rng.normal(size=(200, 3)) * [30.0, 8.0, 6.0])
+    bits = np.ascontiguousarray(rng.integers(0, 2**62, size=(200, 4)).astype(np.uint64))
+    lo, hi, left, right, _ = K.build_tree(bits, 2)
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = AK.node_balls(pos, lo, hi)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = AK.node_balls(pos, lo, hi)
+    finally:
+        numba.set_num_threads(old)
+    assert np.array_equal(one, two)
+    tighter = 0
+    for v in range(lo.size):
+        p = pos[lo[v]:hi[v]]
+        d = np.linalg.norm(p - one[v, :3], axis=1)
+        assert (d <= one[v, 3]).all()
+        if p.shape[0] == 1:
+            assert one[v, 3] == 0.0 and np.array_equal(one[v, :3], p[0])
+            continue
+        box = 0.5 * (p.min(axis=0) + p.max(axis=0))
+        r_box = np.linalg.norm(p - box, axis=1).max()
+        diam = max(np.linalg.norm(a - b) for a in p for b in p) if p.shape[0] <= 40 else 0.0
+        assert one[v, 3] <= r_box * (1 + 1e-9) + 1e-12
+        assert one[v, 3] >= 0.5 * diam * (1 - 1e-9)
+        tighter += one[v, 3] < 0.99 * r_box
+    assert tighter > 0
