@@ -784,19 +784,21 @@ def test_climb_improves_a_poor_start() -> None:
 
 @pytest.mark.parametrize("seed,theta_deg", [(0, 20.0), (1, 20.0), (2, 5.0), (3, 60.0), (4, 120.0), (5, 170.0)])
 def test_ball_row_test_keeps_every_row_a_pair_of_cameras_in_the_balls_may_use(seed, theta_deg) -> None:
-    """The row test of the ball refinement (sines of the arcs, squares instead of square roots, 64
-    rows at once) against arccos in numpy: every row where cameras drawn inside the two balls make
-    the angle is kept, and every row whose directions to the two centres are clearly closer than
-    the angle less both arcs (arc sines) is dropped; so it keeps what the arc formula keeps."""
+    """The row test of the ball refinement (arcs from each row's distance by the tangent lengths,
+    64 rows at once, a block shortcut) against arcsin and arccos in numpy: every row where cameras
+    drawn inside the two balls make the angle is kept, every row whose directions to the two
+    centres are clearly closer than the angle less both arcs ``asin(radius / distance)`` from that
+    row's point is dropped, and the others are kept; blocks wide enough to meet the balls
+    included (the old test took the arcs from the block's sphere and kept all of those)."""
     from camplace.solver.engines.angle import _kernels as AK
 
     rng = np.random.default_rng(seed)
     theta = np.radians(theta_deg)
     trig = AK.ball_angle_table(theta)
     kept = dropped = 0
-    for _ in range(60):
+    for _ in range(80):
         centre = rng.normal(size=3)
-        pts = np.ascontiguousarray(centre + rng.normal(scale=rng.uniform(0.05, 1.5), size=(64, 3)))
+        pts = np.ascontiguousarray(centre + rng.normal(scale=rng.uniform(0.05, 4.0), size=(64, 3)))
         bc = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
         brad = np.linalg.norm(pts - bc, axis=1).max() * (1 + 1e-9) + 1e-12
         centers, radius = bc[None, :], np.array([brad])
@@ -806,8 +808,7 @@ def test_ball_row_test_keeps_every_row_a_pair_of_cameras_in_the_balls_may_use(se
             rho = 0.0 if rng.random() < 0.25 else rng.uniform(0.01, 2.0)
             balls.append((c, rho))
         x = np.uint64(rng.integers(0, 2**63, dtype=np.int64)) | np.uint64(1 << 63) if rng.random() < 0.5 else ~np.uint64(0)
-        s = [AK._ball_sin(c[0], c[1], c[2], rho, centers, radius, 0) for c, rho in balls]
-        got = int(AK._ball_bits(x, 0, *balls[0][0], s[0], *balls[1][0], s[1], pts, trig, centers, radius))
+        got = int(AK._ball_bits(x, 0, *balls[0][0], balls[0][1], *balls[1][0], balls[1][1], pts, trig, centers, radius))
         rows = [t for t in range(64) if int(x) >> t & 1]
         assert got & ~int(x) == 0
         # cameras inside the balls: every row where some drawn pair makes the angle is kept
@@ -818,15 +819,17 @@ def test_ball_row_test_keeps_every_row_a_pair_of_cameras_in_the_balls_may_use(se
             cosang = np.einsum("id,jd->ij", u, v) / np.outer(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
             if (np.degrees(np.arccos(np.clip(cosang, -1, 1))) >= theta_deg).any():
                 assert got >> t & 1, (t, theta_deg)
-        # the arc formula: rows closer than the angle less both arcs (clearly) are dropped, others kept
-        if max(s) > 1.0:
-            assert got == int(x)
-            continue
-        lim = theta - np.arcsin(s[0]) - np.arcsin(s[1])
+        # the arc formula from each row's point: rows clearly closer than the angle less both arcs
+        # are dropped, the others kept (a point inside a ball: kept)
         for t in rows:
             u = balls[0][0] - pts[t]
             v = balls[1][0] - pts[t]
-            ang = np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))
+            du, dv = np.linalg.norm(u), np.linalg.norm(v)
+            if du <= balls[0][1] or dv <= balls[1][1]:
+                assert got >> t & 1
+                continue
+            lim = theta - np.arcsin(balls[0][1] / du) - np.arcsin(balls[1][1] / dv)
+            ang = np.arccos(np.clip(u @ v / (du * dv), -1, 1))
             if ang >= lim - 1e-7:
                 assert got >> t & 1, (t, ang, lim)
                 kept += 1
@@ -834,3 +837,80 @@ def test_ball_row_test_keeps_every_row_a_pair_of_cameras_in_the_balls_may_use(se
                 assert not got >> t & 1, (t, ang, lim)
                 dropped += 1
     assert kept > 0 and (dropped > 0 or theta_deg < 10)
+
+
+@pytest.mark.parametrize("seed,theta_deg", [(0, 20.0), (1, 5.0), (2, 90.0)])
+def test_self_row_test_keeps_every_row_two_cameras_of_a_ball_may_use(seed, theta_deg) -> None:
+    """The repeated node's row test against numpy: rows where two cameras drawn in the ball make the
+    angle are kept; rows where the ball's diameter subtends clearly less than the angle
+    (``2 asin(radius / distance)``) are dropped."""
+    from camplace.solver.engines.angle import _kernels as AK
+
+    rng = np.random.default_rng(seed)
+    trig = AK.ball_angle_table(np.radians(theta_deg))
+    kept = dropped = 0
+    for _ in range(40):
+        pts = np.ascontiguousarray(rng.normal(scale=rng.uniform(0.5, 5.0), size=(64, 3)))
+        c = rng.normal(size=3) * rng.uniform(2.0, 12.0)
+        rho = rng.uniform(0.1, 3.0)
+        x = ~np.uint64(0)
+        got = int(AK._self_bits(x, 0, c[0], c[1], c[2], rho, pts, trig))
+        cams = c + rho * rng.normal(size=(60, 3)) / np.sqrt(3) * 0.57
+        cams = c + (cams - c) * np.minimum(1.0, rho / np.linalg.norm(cams - c, axis=1))[:, None]
+        for t in range(64):
+            u = cams - pts[t]
+            u /= np.linalg.norm(u, axis=1)[:, None]
+            if (np.degrees(np.arccos(np.clip(u @ u.T, -1, 1))) >= theta_deg).any():
+                assert got >> t & 1
+            d = np.linalg.norm(c - pts[t])
+            if d <= rho:
+                assert got >> t & 1
+                continue
+            span = 2 * np.arcsin(rho / d)
+            if span >= np.radians(theta_deg) - 1e-7:
+                assert got >> t & 1
+                kept += 1
+            elif span < np.radians(theta_deg) - 1e-5:
+                assert not got >> t & 1
+                dropped += 1
+    assert kept > 0 and dropped > 0
+
+
+def test_node_balls_hold_their_cameras_are_no_wider_than_the_box_centre_and_thread_independent() -> None:
+    """Every node's ball holds all its cameras (numpy distances), its radius is at most the
+    bounding box centre's (the steps keep the smallest radius met, the box centre first) and at
+    least half the node's diameter, a single camera's ball is the camera (radius 0), and the balls
+    are bit-identical at one and two threads."""
+    import numba
+
+    from camplace.solver._support import bitkernels as K
+    from camplace.solver.engines.angle import _kernels as AK
+
+    rng = np.random.default_rng(3)
+    pos = np.ascontiguousarray(rng.normal(size=(200, 3)) * [30.0, 8.0, 6.0])
+    bits = np.ascontiguousarray(rng.integers(0, 2**62, size=(200, 4)).astype(np.uint64))
+    lo, hi, left, right, _ = K.build_tree(bits, 2)
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = AK.node_balls(pos, lo, hi)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = AK.node_balls(pos, lo, hi)
+    finally:
+        numba.set_num_threads(old)
+    assert np.array_equal(one, two)
+    tighter = 0
+    for v in range(lo.size):
+        p = pos[lo[v]:hi[v]]
+        d = np.linalg.norm(p - one[v, :3], axis=1)
+        assert (d <= one[v, 3]).all()
+        if p.shape[0] == 1:
+            assert one[v, 3] == 0.0 and np.array_equal(one[v, :3], p[0])
+            continue
+        box = 0.5 * (p.min(axis=0) + p.max(axis=0))
+        r_box = np.linalg.norm(p - box, axis=1).max()
+        diam = max(np.linalg.norm(a - b) for a in p for b in p) if p.shape[0] <= 40 else 0.0
+        assert one[v, 3] <= r_box * (1 + 1e-9) + 1e-12
+        assert one[v, 3] >= 0.5 * diam * (1 - 1e-9)
+        tighter += one[v, 3] < 0.99 * r_box
+    assert tighter > 0

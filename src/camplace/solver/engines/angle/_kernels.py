@@ -229,29 +229,56 @@ def _pair_bits(x, exact, c1, i1, c2, i2, wd, possible, always, pa, pb, pts, thet
     return _exact_bits(x, wd, pa, pb, pts, theta_deg, cos_t)
 
 
-@numba.njit(**_JIT)
+_BALL_STEPS = 48  # centre steps of node_balls (Badoiu-Clarkson) after the bounding box's centre
+
+
+@numba.njit(**_PJIT)
 def node_balls(campos, lo, hi):  # pragma: no cover - compiled
     """(N, 4) float64: a ball (centre, radius) around the camera positions of every tree node
-    (columns ``lo[v]:hi[v]`` of ``campos``, tree order); radius 0 for a single camera, else padded
-    so that it is never too small."""
+    (columns ``lo[v]:hi[v]`` of ``campos``, tree order); radius 0 for a single camera, else the
+    largest distance from the centre, padded so that it is never too small.
+
+    The centre starts at the bounding box's centre and takes :data:`_BALL_STEPS` steps towards
+    the farthest camera (``c += (far - c) / (i + 2)``, Badoiu-Clarkson: towards the smallest
+    enclosing ball); the centre of the smallest radius met is kept. Any centre gives a valid ball;
+    on comet-flyby at 32,000 positions the radii are 7-9 % below the box centre's (nodes of 6 to
+    384 columns), and the refinement's arcs with them. In parallel over the nodes (each on its
+    own: the same balls at every thread count)."""
     n_nodes = lo.shape[0]
     out = np.zeros((n_nodes, 4))
-    for v in range(n_nodes):
+    for v in prange(n_nodes):
         a, b = lo[v], hi[v]
-        for d in range(3):
-            mn = campos[a, d]
-            mx = campos[a, d]
-            for c in range(a + 1, b):
-                mn = min(mn, campos[c, d])
-                mx = max(mx, campos[c, d])
-            out[v, d] = 0.5 * (mn + mx)
         if b - a == 1:
             for d in range(3):
                 out[v, d] = campos[a, d]
             continue
+        c = np.empty(3)
+        for d in range(3):
+            mn = campos[a, d]
+            mx = campos[a, d]
+            for j in range(a + 1, b):
+                mn = min(mn, campos[j, d])
+                mx = max(mx, campos[j, d])
+            c[d] = 0.5 * (mn + mx)
+        best = np.inf
+        for i in range(_BALL_STEPS + 1):
+            r2 = -1.0
+            far = a
+            for j in range(a, b):
+                dx, dy, dz = campos[j, 0] - c[0], campos[j, 1] - c[1], campos[j, 2] - c[2]
+                q = dx * dx + dy * dy + dz * dz
+                if q > r2:
+                    r2 = q
+                    far = j
+            if r2 < best:
+                best = r2
+                out[v, 0], out[v, 1], out[v, 2] = c[0], c[1], c[2]
+            for d in range(3):
+                c[d] += (campos[far, d] - c[d]) / (i + 2)
+        # the radius from the kept centre, computed again (the same sums) and padded
         r2 = 0.0
-        for c in range(a, b):
-            dx, dy, dz = campos[c, 0] - out[v, 0], campos[c, 1] - out[v, 1], campos[c, 2] - out[v, 2]
+        for j in range(a, b):
+            dx, dy, dz = campos[j, 0] - out[v, 0], campos[j, 1] - out[v, 1], campos[j, 2] - out[v, 2]
             r2 = max(r2, dx * dx + dy * dy + dz * dz)
         out[v, 3] = math.sqrt(r2) * (1.0 + 1e-9) + 1e-12
     return out
@@ -264,7 +291,8 @@ def _ball_sin(bx, by, bz, rho, centers, radius, wd):  # pragma: no cover - compi
     ``rho``) lies around the direction to the ball's centre: ``rho / d`` with ``d`` the least
     distance from the block's sphere to the centre (2.0 when they meet: any direction; 0 for a
     single camera). The arc itself, ``asin`` of it, is never computed (:func:`ball_angle_table`
-    holds the margins)."""
+    holds the margins). Used by the repeated-node test of :func:`angle_shortfall` (the pairs'
+    test, :func:`_ball_bits`, takes the arcs row by row)."""
     if rho <= 0.0:
         return 0.0
     dx, dy, dz = bx - centers[wd, 0], by - centers[wd, 1], bz - centers[wd, 2]
@@ -285,51 +313,85 @@ def ball_angle_table(theta):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _ball_bits(x, wd, ax, ay, az, sa, bx, by, bz, sb, pts, trig, centers, radius):  # pragma: no cover - compiled
-    """The bits of ``x`` (rows of word ``wd``) where a camera within arc ``A`` (sine ``sa``; above 1:
-    any direction) of the direction to ``(ax, ay, az)`` and one within arc ``B`` (sine ``sb``) of the
-    direction to ``(bx, by, bz)`` may make the angle ``theta`` (``trig``: :func:`ball_angle_table`):
-    the rows whose directions to the two centres are at least ``lim = theta - A - B`` apart (less
-    the table's margin). Every row where such a pair makes the angle is kept (triangle inequality
-    on the sphere of directions). ``cos(lim)`` and ``sin(lim)`` come from the sines by the addition
-    theorems (no arc sine or cosine a call), and a row's test compares squares (no square root).
-    When, from the block's centre, the two centres are ``lim`` apart plus both their parallaxes
-    over the block's sphere, every row is kept without a look at the rows (the common case where
-    the angle hardly binds)."""
-    if sa > 1.0 or sb > 1.0:
-        return x
+def _ball_bits(x, wd, ax, ay, az, ra, bx, by, bz, rb, pts, trig, centers, radius):  # pragma: no cover - compiled
+    """The bits of ``x`` (rows of word ``wd``) where a camera in the ball around ``(ax, ay, az)``
+    of radius ``ra`` and one in the ball around ``(bx, by, bz)`` of radius ``rb`` (metres; 0: one
+    camera) may make the angle ``theta`` (``trig``: :func:`ball_angle_table`).
+
+    From a row's point ``p``, a camera of the first ball lies within ``A = asin(ra / |u|)`` of the
+    direction ``u`` to its centre (``|u|``: the distance from that point, not from the block's
+    sphere), one of the second within ``B = asin(rb / |v|)`` of ``v``, so a pair makes at most the
+    angle between ``u`` and ``v`` plus ``A + B`` (triangle inequality on the sphere of directions):
+    a row is kept where that reaches ``theta`` less the table's margin, or where ``p`` is inside a
+    ball. Per row, with the tangent lengths ``P = sqrt(|u|^2 - ra^2)``, ``Q = sqrt(|v|^2 - rb^2)``:
+    ``cos(A + B) |u| |v| = P Q - ra rb`` and ``sin(A + B) |u| |v| = ra Q + rb P``, so
+    ``sin(theta - A - B) |u| |v|`` (at most 0: ``A + B >= theta``, kept) and
+    ``cos(theta - A - B) |u| |v|`` (kept where ``u . v`` is at most it) need two square roots a row
+    and no arc sine; all 64 rows of the word at once (vectorised), masked by ``x``. (Until issue
+    30's eighth round the arcs were taken from the block's sphere, one per block: a block 55 m
+    across seen from 30 m had arcs of any width and kept every row.)
+
+    Every row is kept without a look at the rows where the least arcs over the block's sphere,
+    ``asin(r / (d + rk))`` (``d``: the centre's distance from the block's centre, ``rk`` its
+    radius), already sum to ``theta`` (coarse nodes close by), and where, from the block's centre,
+    the two centres are ``theta`` apart plus both their parallaxes over the block's sphere (the
+    common case where the angle hardly binds): both give what the row test would."""
     cth, sth = trig[0], trig[1]
-    ca = math.sqrt(max(0.0, 1.0 - sa * sa))
-    cb = math.sqrt(max(0.0, 1.0 - sb * sb))
-    cab = ca * cb - sa * sb  # cos(A + B), A + B in [0, pi]
-    if cab <= cth + 1e-12:
-        return x  # A + B >= theta: any two directions may do
-    sab = sa * cb + ca * sb  # sin(A + B) >= 0
-    cl = cth * cab + sth * sab  # cos(lim), lim = theta - A - B in (0, theta]
-    sl = max(0.0, sth * cab - cth * sab)  # sin(lim)
-    cx, cy, cz, rb = centers[wd, 0], centers[wd, 1], centers[wd, 2], max(radius[wd], 0.0)
+    cx, cy, cz, rk = centers[wd, 0], centers[wd, 1], centers[wd, 2], max(radius[wd], 0.0)
     ux, uy, uz = ax - cx, ay - cy, az - cz
     vx, vy, vz = bx - cx, by - cy, bz - cz
     nu = math.sqrt(ux * ux + uy * uy + uz * uz)
     nv = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if nu > rb * (1.0 + 1e-9) and nv > rb * (1.0 + 1e-9):
-        su, sv = min(1.0, rb / nu), min(1.0, rb / nv)  # sines of the parallaxes U, V
+    # from every row's point the arcs are at least asin(r / (d + rk)): when those reach the angle
+    # (or a ball holds the whole block), the row test keeps every row
+    sa, sb = ra / (nu + rk), rb / (nv + rk)
+    if sa >= 1.0 or sb >= 1.0:
+        return x
+    if math.sqrt(1.0 - sa * sa) * math.sqrt(1.0 - sb * sb) - sa * sb <= cth - 1e-12:
+        return x
+    if nu > rk * (1.0 + 1e-9) and nv > rk * (1.0 + 1e-9):
+        su, sv = min(1.0, rk / nu), min(1.0, rk / nv)  # sines of the parallaxes U, V
         cu, cv = math.sqrt(max(0.0, 1.0 - su * su)), math.sqrt(max(0.0, 1.0 - sv * sv))
         cp, sp = cu * cv - su * sv, su * cv + cu * sv  # U + V in [0, pi]
-        sfar = sl * cp + cl * sp  # sin(lim + U + V): positive when lim + U + V < pi
-        if sfar > 1e-9 and ux * vx + uy * vy + uz * vz <= (cl * cp - sl * sp - _ALPHA_PAD) * nu * nv:
-            return x  # from every point of the block the centres are at least lim apart
-    # the angle between u and v is at least lim where uv <= cos(lim) |u| |v|, compared in squares
-    # with the sign kept: uv |uv| <= c |u|^2 |v|^2, c = cos(lim)^2 (1 + 1e-12) or -cos(lim)^2 (1 - 1e-12)
-    c = cl * cl * (1.0 + 1e-12) if cl >= 0.0 else -cl * cl * (1.0 - 1e-12)
+        sfar = sth * cp + cth * sp  # sin(theta + U + V): positive when theta + U + V < pi
+        if sfar > 1e-9 and ux * vx + uy * vy + uz * vz <= (cth * cp - sth * sp - _ALPHA_PAD) * nu * nv:
+            return x  # from every point of the block the centres are at least theta apart
+    ra2, rb2, rab = ra * ra * (1.0 + 1e-9), rb * rb * (1.0 + 1e-9), ra * rb
     out = np.uint64(0)
     base = wd << 6
     for t in range(64):  # every row of the word, no branch (vectorised); the rows of x kept below
         r = base + t
         ux, uy, uz = ax - pts[r, 0], ay - pts[r, 1], az - pts[r, 2]
         vx, vy, vz = bx - pts[r, 0], by - pts[r, 1], bz - pts[r, 2]
+        nu2 = ux * ux + uy * uy + uz * uz
+        nv2 = vx * vx + vy * vy + vz * vz
         uv = ux * vx + uy * vy + uz * vz
-        keep = uv * abs(uv) <= c * ((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz))
+        tp = math.sqrt(max(nu2 - ra2, 0.0))
+        tq = math.sqrt(max(nv2 - rb2, 0.0))
+        cab = tp * tq - rab  # cos(A + B) |u| |v|
+        sab = ra * tq + rb * tp  # sin(A + B) |u| |v|
+        tol = 1e-12 * (nu2 + nv2)
+        keep = ((sth * cab - cth * sab <= tol) | (uv <= cth * cab + sth * sab + tol)
+                | (nu2 <= ra2) | (nv2 <= rb2))
+        out |= np.uint64(keep) << np.uint64(t)
+    return out & x
+
+
+@numba.njit(**_JIT)
+def _self_bits(x, wd, ax, ay, az, ra, pts, trig):  # pragma: no cover - compiled
+    """The bits of ``x`` (rows of word ``wd``) where two cameras in one ball (centre ``(ax, ay,
+    az)``, radius ``ra``) may make the angle ``theta``: from a row's point at distance ``d`` from
+    the centre they are at most ``2 asin(ra / d)`` apart, so a row is kept where ``ra / d`` is at
+    least ``sin(theta / 2)`` less the table's margin (``trig[2]``; compared in squares), or where
+    the point is inside the ball. All 64 rows at once, masked by ``x``."""
+    s2 = trig[2] * trig[2] * (1.0 - 1e-9)
+    ra2 = ra * ra
+    out = np.uint64(0)
+    base = wd << 6
+    for t in range(64):
+        r = base + t
+        ux, uy, uz = ax - pts[r, 0], ay - pts[r, 1], az - pts[r, 2]
+        keep = ra2 >= s2 * (ux * ux + uy * uy + uz * uz)
         out |= np.uint64(keep) << np.uint64(t)
     return out & x
 
@@ -408,6 +470,8 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                         if use_balls and _ball_sin(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3],
                                                    centers, radius, ww) < trig[2] - 1e-12:
                             x = np.uint64(0)  # every two cameras of the node closer than the angle here
+                        elif use_balls:  # row by row, from each row's distance
+                            x = _self_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], pts, trig)
                         ph |= x
                 for b in range(a + 1, ng):
                     vb = gnode[b]
@@ -421,12 +485,9 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                         if st == 2:
                             ph |= x
                         elif st == 1:
-                            ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2],
-                                             _ball_sin(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
-                                                       radius, ww),
-                                             balls[vb, 0], balls[vb, 1], balls[vb, 2],
-                                             _ball_sin(balls[vb, 0], balls[vb, 1], balls[vb, 2], balls[vb, 3], centers,
-                                                       radius, ww), pts, trig, centers, radius)
+                            ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3],
+                                             balls[vb, 0], balls[vb, 1], balls[vb, 2], balls[vb, 3], pts, trig,
+                                             centers, radius)
                 for f in range(r):
                     x = xa & fbits[f, ww] & ~ph
                     if x:
@@ -438,9 +499,7 @@ def angle_shortfall(levels, cones, nodes, k, views, lo, campos, fbits, fcones, f
                         if st == 2:
                             ph |= x
                         elif st == 1:
-                            ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2],
-                                             _ball_sin(balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3], centers,
-                                                       radius, ww),
+                            ph |= _ball_bits(x, ww, balls[va, 0], balls[va, 1], balls[va, 2], balls[va, 3],
                                              fpos[f, 0], fpos[f, 1], fpos[f, 2], 0.0, pts, trig, centers, radius)
             if views > 2 and ph:
                 acc[0] = ~np.uint64(0)

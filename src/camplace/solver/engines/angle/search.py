@@ -21,9 +21,10 @@ over the columns, in parallel batches, here best-first), with the angle added to
 * **Balls.** Where blocks are wide (comet-flyby: blocks 5-55 m across seen from 20-50 m, so even
   a single camera's cone is about 20 degrees wide), the cone refinement tests the doubtful rows
   one by one against a ball around each node's camera positions: from a point, a node's cameras
-  lie within ``asin(radius / distance)`` of the direction to the ball's centre, so two nodes
-  whose centres are closer than the angle less both arcs make no pair there (the poses of one
-  position: radius 0, never a pair among themselves).
+  lie within ``asin(radius / distance)`` of the direction to the ball's centre (the distance
+  from that point: each row its own arcs), so two nodes whose centres are closer than the angle
+  less both arcs make no pair there (the poses of one position: radius 0, never a pair among
+  themselves).
 * **Splits.** A tuple of a level where the cone refinement is on is split at its node with the
   widest ball (:func:`split_score`; ties the node of more columns), not its largest node: the
   balls' width is the refinement's slack; elsewhere (the angle hardly binds, the count bound
