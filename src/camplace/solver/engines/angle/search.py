@@ -94,7 +94,6 @@ _RUNG_INCUMBENT_SHARE = 1.0
 #: left than that the engine returns its incumbent at once (the set-up is not interruptible)
 _SETUP_COST = 4.0  # greedy + swaps stop after this share of the time limit
 _STARTS = 3  # greedy starts (the heaviest columns)
-_GREEDY_WITH_START = True
 _SWAP_ROUNDS = 20
 #: the incumbent's large-neighbourhood search (:meth:`_Incumbent.climb`): the moves of a camera are
 #: the _LNS_NEAR free columns nearest its position and every _LNS_FAR-th of the next
@@ -846,8 +845,7 @@ def solve_angle(
     left = deadline.remaining()
     # a greedy start costs about k passes over the matrix (like the first): with a warm start and not
     # the time for one, the warm start alone is the incumbent
-    if not (start_ok and (not _GREEDY_WITH_START
-                          or left is not None and left <= (k + _SETUP_COST) * stats["times_s"]["rows"])):
+    if not (start_ok and left is not None and left <= (k + _SETUP_COST) * stats["times_s"]["rows"]):
         inc.run(k, colw)  # at least one greedy start of its own
     greedy = inc.best_set
     if start_ok:
