@@ -272,3 +272,30 @@ def test_a_model_that_gives_no_bound_proves_nothing(monkeypatch) -> None:
     best = brute_force_mode(dense, w, 3, "maxcover", pos=pos, dmin=0.5)
     assert res.status == "feasible" and res.gap > 0
     assert np.isfinite(res.bound) and res.bound >= best - 1e-9 and res.objective <= best + 1e-9
+
+
+def test_angle_ladder_answers_never_fall_from_rung_to_rung(monkeypatch) -> None:
+    """A three-level warm start (144 -> 36 -> 9 columns: the runs with a quarter and a sixteenth
+    of the positions) with the full search given no time: each level's answer is at least its
+    rung's, and the one returned is its exact value (mode_objective, angles from arctan2)."""
+    from tests.solver._oracle import mode_objective
+
+    q, w, pos, pts = _poses_instance(48, 150, 5)
+    run = routes.ROUTES["angle"]
+
+    def interrupted(p, choice):
+        if p.free_cols.size > 100:
+            p.deadline = Deadline(0.0)
+        return run(p, choice)
+
+    monkeypatch.setitem(routes.ROUTES, "angle", interrupted)
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 20)
+    got = solve(q, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, time_limit_s=30.0)
+    warm = got.stats["warm_start"]
+    inner = warm["inner"]
+    assert (warm["columns"], inner["columns"]) == (36, 9)
+    assert got.objective >= warm["objective"] - 1e-12 >= inner["objective"] - 2e-12
+    assert warm["objective"] > 0  # (three positions of the 9 columns may make no 20 degree pair)
+    assert got.objective == pytest.approx(
+        mode_objective(q.toarray(), w, tuple(got.selected), "multiview", 2, 20.0, pos, pts), abs=1e-12)
+    assert got.bound >= got.objective

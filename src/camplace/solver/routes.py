@@ -373,8 +373,11 @@ WARM_MAX_K = 4
 #: ... the best 1 / WARM_SHRINK of its free candidates by the weight they observe (that solve
 #: warm-starts itself the same way while it is still large: a coarse-to-fine ladder) ...
 WARM_SHRINK = 4
-#: ... within this share of the time left; its answer is the full search's first incumbent.
+#: ... within this share of the time left; its answer is the full search's first incumbent. A rung
+#: (a warm start's solve, which does not search when the angle engine runs it) gives its own warm
+#: start RUNG_WARM_SHARE of its time: the smaller rungs are not starved by shares of shares
 WARM_SHARE = 0.15
+RUNG_WARM_SHARE = 0.4
 
 
 def warm_subset(p: CoverProblem) -> np.ndarray:
@@ -431,7 +434,8 @@ def spread_subset(free_cols: np.ndarray, pos: np.ndarray, shrink: int) -> np.nda
 
 
 def _warm_started(p: CoverProblem) -> EngineOutcome:
-    """Solve ``p`` on :func:`warm_subset` first (``WARM_SHARE`` of the time left), offer that
+    """Solve ``p`` on :func:`warm_subset` first (``WARM_SHARE`` of the time left, ``RUNG_WARM_SHARE``
+    when ``p`` is itself a rung), offer that
     answer to the full search as its first incumbent (``p.start``), and keep the better of the
     two: the answer is at least as good as the subset's, and the bound is the full search's."""
     sub_free = warm_subset(p)
@@ -443,7 +447,8 @@ def _warm_started(p: CoverProblem) -> EngineOutcome:
     sub = CoverProblem(p.q[:, cols].tocsr(), p.w, p.k, p.mode, p.views, p.min_angle_deg,
                        None if p.pos is None else p.pos[cols], p.pts,
                        tuple(int(j) for j in np.searchsorted(cols, np.asarray(p.fixed_t, dtype=np.int64))),
-                       np.searchsorted(cols, sub_free), conflicts, p.options, p.deadline.share(WARM_SHARE),
+                       np.searchsorted(cols, sub_free), conflicts, p.options,
+                       p.deadline.share(RUNG_WARM_SHARE if p.rung else WARM_SHARE),
                        stats={"k": p.k}, rung=True)
     got = run_cover(sub)
     got_sel = None if got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))

@@ -88,8 +88,9 @@ _PAIRS_MIN_SHARE = 0.05  # opposite-pairs layout when it matches at least this s
 _PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
 _INCUMBENT_SHARE = 0.1
 #: greedy + swaps of a warm start's rung (``rung=True``: a solve whose answer is the first incumbent of
-#: a larger one) stop after this share of its time instead: its incumbent is what it is for
-_RUNG_INCUMBENT_SHARE = 1.0
+#: a larger one) stop after this share of its time instead, its climbs at its end, and a rung with a
+#: warm start of its own does not search: its incumbent is what it is for
+_RUNG_INCUMBENT_SHARE = 0.7
 #: the layout and the tree cost about this many times the first pass over the rows: with less time
 #: left than that the engine returns its incumbent at once (the set-up is not interruptible)
 _SETUP_COST = 4.0  # greedy + swaps stop after this share of the time limit
@@ -97,11 +98,12 @@ _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
 #: the incumbent's large-neighbourhood search (:meth:`_Incumbent.climb`): the moves of a camera are
 #: the _LNS_NEAR free columns nearest its position and every _LNS_FAR-th of the next
-#: _LNS_NEAR * _LNS_FAR (fewer when k is large: about _LNS_SETS single moves a round at most); pairs
-#: of moves take the _LNS_TOP best single moves of each list (fewer when k is large: about
-#: _LNS_SETS pairs a round), within _LNS_SHARE of the time left
+#: _LNS_NEAR * _LNS_FAR (fewer when k is large: about _LNS_COLS columns in all the lists, whose rows a
+#: round holds); pairs of moves take the _LNS_TOP best single moves of each list (fewer when k is
+#: large: about _LNS_SETS pairs a round), within _LNS_SHARE of the time left
 _LNS_NEAR = 96
 _LNS_FAR = 8
+_LNS_COLS = 600
 _LNS_TOP = 32
 _LNS_SETS = 20_000
 _LNS_SHARE = 0.1
@@ -411,8 +413,11 @@ class _Incumbent:
         if v > self.best:
             self.best, self.best_set = v, tuple(sorted(sel))
 
-    def run(self, k: int, colw: np.ndarray) -> None:
+    def run(self, k: int, colw: np.ndarray) -> tuple[int, ...]:
+        """Greedy from each of the :data:`_STARTS` heaviest columns, then :meth:`swaps`; each set
+        offered. Returns the best of them (original columns, sorted; empty if none was made)."""
         order = np.argsort(-np.where(self.allowed, colw, -np.inf), kind="stable")[: int(self.allowed.sum())]
+        best, best_set = -math.inf, ()
         for s0 in order[:_STARTS]:
             if self.expired() and self.best_set:
                 break
@@ -423,22 +428,34 @@ class _Incumbent:
                 # no gain yet (a first camera alone makes no pair): the heaviest remaining column
                 j = int(np.argmax(g)) if np.max(g) > 0 else next(int(c) for c in order if int(c) not in sel)
                 sel.append(j)
-            for _ in range(_SWAP_ROUNDS):
-                if self.expired():
-                    break
-                improved = False
-                for p in range(k):
-                    others = sel[:p] + sel[p + 1 :]
-                    g = self.gain(others)
-                    cur = g[sel[p]]
-                    g[sel] = -np.inf
-                    j = int(np.argmax(g))
-                    if g[j] > cur + self.margin:
-                        sel[p] = j
-                        improved = True
-                if not improved:
-                    break
+            sel = self.swaps(sel)
             self.offer(sel)
+            v = self.value(sel)
+            if v > best:
+                best, best_set = v, tuple(sorted(sel))
+        return best_set
+
+    def swaps(self, sel: Sequence[int]) -> list[int]:
+        """1-swaps from ``sel``: each camera in turn replaced by the free column of the largest gain
+        (one pass over the matrix, :meth:`gain`) while that gains more than the margin, at most
+        :data:`_SWAP_ROUNDS` rounds, until the incumbent's stop. Returns the cameras."""
+        sel = list(sel)
+        for _ in range(_SWAP_ROUNDS):
+            if self.expired():
+                break
+            improved = False
+            for p in range(len(sel)):
+                others = sel[:p] + sel[p + 1 :]
+                g = self.gain(others)
+                cur = g[sel[p]]
+                g[sel] = -np.inf
+                j = int(np.argmax(g))
+                if g[j] > cur + self.margin:
+                    sel[p] = j
+                    improved = True
+            if not improved:
+                break
+        return sel
 
     def climb(self, sel: Sequence[int], stop: Deadline, round_s: float = 0.0) -> None:
         """Large-neighbourhood search from the cameras ``sel`` (original columns, free), offered
@@ -509,8 +526,8 @@ class _Incumbent:
 
 def _move_list_size(k: int) -> int:
     """Entries of each camera's move list in :meth:`_Incumbent.climb`: all of them (``1 + 2
-    _LNS_NEAR``), or fewer so that the single moves make about :data:`_LNS_SETS` sets."""
-    return int(min(1 + 2 * _LNS_NEAR, max(2, _LNS_SETS // max(1, k))))
+    _LNS_NEAR``), or fewer so that the lists hold about :data:`_LNS_COLS` columns in all."""
+    return int(min(1 + 2 * _LNS_NEAR, max(2, _LNS_COLS // max(1, k))))
 
 
 def _top_size(k: int) -> int:
@@ -779,8 +796,9 @@ def solve_angle(
         subset of the candidates: offered as the first incumbent (the answer is never worse).
     rung : bool
         This solve is a warm start's rung (its answer the first incumbent of a solve on more
-        candidates): greedy + swaps may use all of its time (:data:`_RUNG_INCUMBENT_SHARE`), the
-        search gets what is left.
+        candidates): with a time limit, greedy + swaps may use :data:`_RUNG_INCUMBENT_SHARE` of
+        its time and the climbs the rest; with a ``start`` too (a middle rung) it returns the
+        incumbent without a search (status ``"feasible"``, every countable row as the bound).
 
     Returns
     -------
@@ -842,26 +860,46 @@ def solve_angle(
     inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, inc_stop)
     lap("column_weights")
     start_ok = start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all()
+    rows_s = stats["times_s"]["rows"]
+
+    def climb_stop() -> Deadline:
+        return Deadline(None) if total is None else deadline if rung else deadline.share(_LNS_SHARE)
+
+    if start_ok:
+        # a warm start: the search starts at least there. Climbed, then 1-swaps from the climbed set
+        # (a few passes over the matrix, where a greedy start of its own takes k and its swaps many
+        # more), climbed again when they moved (comet-flyby, 8,000 positions: the 2,000-position
+        # optimum 0.52776 climbs to 0.53620, swaps to 0.53746)
+        assert start is not None
+        first = sorted(int(j) for j in start)
+        stats["start"] = const + inc.value(first) * scale
+        inc.offer(first)
+        inc.climb(first, climb_stop(), rows_s)
+        swapped = sorted(inc.swaps(list(inc.best_set)))
+        if tuple(swapped) != inc.best_set:
+            inc.offer(swapped)
+            inc.climb(swapped, climb_stop(), rows_s)
+        stats["start_climbed"] = const + inc.best * scale
     left = deadline.remaining()
     # a greedy start costs about k passes over the matrix (like the first): with a warm start and not
-    # the time for one, the warm start alone is the incumbent
-    if not (start_ok and left is not None and left <= (k + _SETUP_COST) * stats["times_s"]["rows"]):
-        inc.run(k, colw)  # at least one greedy start of its own
-    greedy = inc.best_set
-    if start_ok:
-        assert start is not None
-        stats["start"] = const + inc.value(sorted(int(j) for j in start)) * scale
-        inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
-    stats["incumbent_before_climb"] = const + inc.best * scale
-    # the large-neighbourhood search from the warm start and from the greedy sets' best: other basins
-    # (comet-flyby, 8,000 positions: the warm start 0.53089 climbed to 0.53746, the greedy 0.53387 not at all)
-    seeds = [sorted(int(j) for j in start)] if start_ok and start is not None else []
-    seeds += [list(greedy)] if greedy and greedy not in {tuple(x) for x in seeds} else []
-    for seed in seeds:
-        inc.climb(seed, Deadline(None) if total is None else deadline.share(_LNS_SHARE), stats["times_s"]["rows"])
+    # the time for one (or none left of the incumbent's share), the warm start alone is the incumbent
+    greedy: tuple[int, ...] = ()
+    if not (start_ok and (inc.expired() or left is not None and left <= (k + _SETUP_COST) * rows_s)):
+        greedy = inc.run(k, colw)  # at least one greedy start of its own without a warm start
+    stats["incumbent_before_climb"] = const + max(inc.value(list(greedy)) if greedy else -math.inf,
+                                                  inc.value(first) if start_ok else -math.inf) * scale
+    # the large-neighbourhood search from the greedy sets' best too: another basin (comet-flyby,
+    # 8,000 positions: the warm start 0.53089 climbed to 0.53746, the greedy 0.53387 not at all)
+    if greedy:
+        inc.climb(list(greedy), climb_stop(), rows_s)
     stats["initial_incumbent"] = const + inc.best * scale
     stats["lns_rounds"] = inc.lns_rounds
     lap("incumbent")
+    if rung and start_ok and total is not None:
+        # a warm start's middle rung (itself warm-started): the larger solve takes its answer, not its
+        # bound (every countable row); the bottom rung, small, searches what is left of its time
+        stats.update({"stopped": "rung", "skipped": "search", "bound_evaluations": 0})
+        return EngineOutcome(inc.best_set, "feasible", const + float(wu.sum()) * scale, stats)
     left = deadline.remaining()
     if left is not None and left <= _SETUP_COST * stats["times_s"]["rows"]:
         # no time for the layout and the tree (compiled, not interruptible): the incumbent, and every
