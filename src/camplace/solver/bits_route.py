@@ -85,8 +85,7 @@ from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_pattern
 from camplace.solver.result import EngineOutcome
-from camplace.solver.routes import (RUNG_WARM_SHARE, WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm,
-                                    spread_subset)
+from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHRINK, keep_warm, spread_subset, warm_share
 from camplace.visibility.bits import BitMatrix, column_sums
 
 __all__ = ["bits_applies", "bits_outcome", "binary_value", "large_k_reduced_bytes", "load_kernels",
@@ -492,8 +491,8 @@ def _warm_started(p: _Views, deadline: Deadline, rung: bool = False) -> EngineOu
     """:func:`camplace.solver.routes._warm_started` on bits: solve the columns
     :func:`camplace.solver.routes.warm_subset` picks first (with a minimum angle every pose of the
     first ``1 / WARM_SHRINK`` of the positions, else the ``1 / WARM_SHRINK`` observing the most weight, their
-    weights summed in the CSR route's order) within ``WARM_SHARE`` of the time left (``RUNG_WARM_SHARE``
-    when this is itself a rung), offer its
+    weights summed in the CSR route's order) within :func:`camplace.solver.routes.warm_share` of
+    the time left, offer its
     answer to the full search as the first incumbent and keep the better.
 
     The subset's bitsets are a copy (``columns x ceil(m / 64) x 8`` bytes, checked against the
@@ -510,7 +509,7 @@ def _warm_started(p: _Views, deadline: Deadline, rung: bool = False) -> EngineOu
     if need > budget:
         log.info("multiview on bits: no warm start (the subset's bitsets need %.3g GiB)", need / 2**30)
         return _search(p, deadline, warm=False, rung=rung)
-    got = _search(p.columns(cols), deadline.share(RUNG_WARM_SHARE if rung else WARM_SHARE), rung=True)
+    got = _search(p.columns(cols), deadline.share(warm_share(p.angle, rung)), rung=True)
     got_sel = None if got is None or got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
     warm: dict[str, Any] = {}
     if got is not None:

@@ -373,11 +373,22 @@ WARM_MAX_K = 4
 #: ... the best 1 / WARM_SHRINK of its free candidates by the weight they observe (that solve
 #: warm-starts itself the same way while it is still large: a coarse-to-fine ladder) ...
 WARM_SHRINK = 4
-#: ... within this share of the time left; its answer is the full search's first incumbent. A rung
-#: (a warm start's solve, which does not search when the angle engine runs it) gives its own warm
-#: start RUNG_WARM_SHARE of its time: the smaller rungs are not starved by shares of shares
-WARM_SHARE = 0.15
+#: ... within this share of the time left (ANGLE_WARM_SHARE with a minimum angle); its answer is the
+#: full search's first incumbent. With a minimum angle a rung (a warm start's solve, which the angle
+#: engine does not search when it is warm-started itself) gives its own warm start RUNG_WARM_SHARE of
+#: its time: the smaller rungs are not starved by shares of shares
+WARM_SHARE = 0.1
+ANGLE_WARM_SHARE = 0.15
 RUNG_WARM_SHARE = 0.4
+
+
+def warm_share(angle: bool, rung: bool) -> float:
+    """The share of the time left that a warm start's solve gets: :data:`WARM_SHARE`, with a
+    minimum angle :data:`ANGLE_WARM_SHARE`, or :data:`RUNG_WARM_SHARE` when that solve is for a
+    rung itself (``rung``)."""
+    if not angle:
+        return WARM_SHARE
+    return RUNG_WARM_SHARE if rung else ANGLE_WARM_SHARE
 
 
 def warm_subset(p: CoverProblem) -> np.ndarray:
@@ -434,8 +445,7 @@ def spread_subset(free_cols: np.ndarray, pos: np.ndarray, shrink: int) -> np.nda
 
 
 def _warm_started(p: CoverProblem) -> EngineOutcome:
-    """Solve ``p`` on :func:`warm_subset` first (``WARM_SHARE`` of the time left, ``RUNG_WARM_SHARE``
-    when ``p`` is itself a rung), offer that
+    """Solve ``p`` on :func:`warm_subset` first (:func:`warm_share` of the time left), offer that
     answer to the full search as its first incumbent (``p.start``), and keep the better of the
     two: the answer is at least as good as the subset's, and the bound is the full search's."""
     sub_free = warm_subset(p)
@@ -448,7 +458,7 @@ def _warm_started(p: CoverProblem) -> EngineOutcome:
                        None if p.pos is None else p.pos[cols], p.pts,
                        tuple(int(j) for j in np.searchsorted(cols, np.asarray(p.fixed_t, dtype=np.int64))),
                        np.searchsorted(cols, sub_free), conflicts, p.options,
-                       p.deadline.share(RUNG_WARM_SHARE if p.rung else WARM_SHARE),
+                       p.deadline.share(warm_share(p.angle_ok and p.pos is not None, p.rung)),
                        stats={"k": p.k}, rung=True)
     got = run_cover(sub)
     got_sel = None if got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
