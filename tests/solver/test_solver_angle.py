@@ -772,6 +772,77 @@ def test_climb_ends_at_a_local_optimum_of_its_moves(monkeypatch, seed, views, fi
                     assert _value(dense, w, pos, pts, list(fixed) + s, views, 20.0, good) <= value + 1e-12
 
 
+@pytest.mark.parametrize("seed,views", [(0, 2), (3, 2), (5, 3)])
+def test_climb_pairs_only_the_best_single_moves(monkeypatch, seed, views) -> None:
+    """With pairs of moves taken among each list's 3 best single moves, the climb still ends
+    where no single move of its full lists is better (each valued by the oracle), nor any pair
+    of moves both strictly among the 3 best single moves of their lists (ties at the cut may
+    fall either way); its value is the oracle's and at least the start's."""
+    monkeypatch.setattr(ae, "_LNS_NEAR", 6)
+    monkeypatch.setattr(ae, "_LNS_FAR", 2)
+    monkeypatch.setattr(ae, "_LNS_TOP", 3)
+    assert ae._top_size(3) == 3
+    dense, w, pos, pts = _aims_instance(200, 14, seed)
+    rng = np.random.default_rng(seed)
+    n = dense.shape[1]
+    start = sorted(int(c) for c in rng.choice(n, size=3, replace=False))
+    inc, free = _climbed(dense, w, pos, pts, start, views)
+    sel = list(inc.best_set)
+    value = _value(dense, w, pos, pts, sel, views, 20.0)
+    assert inc.best == pytest.approx(value, rel=1e-12)
+    assert value >= _value(dense, w, pos, pts, start, views, 20.0) - 1e-12
+    near = [inc._near(c, free, pos[free], ae._move_list_size(3)) for c in sel]
+    good = _pair_ok(dense, pos, pts, 20.0)
+    strict = []  # each list's moves strictly among its 3 best single moves (by the oracle)
+    for p in range(3):
+        one = {}
+        for a in near[p]:
+            s = list(sel)
+            s[p] = int(a)
+            if len(set(s)) == 3:
+                one[int(a)] = _value(dense, w, pos, pts, s, views, 20.0, good)
+                assert one[int(a)] <= value + 1e-12  # no single move of the whole list is better
+        vals = sorted(one.values(), reverse=True)
+        cut = vals[2] if len(vals) > 2 else -np.inf
+        strict.append([a for a, v in one.items() if v > cut + 1e-12])
+    assert sum(len(x) for x in strict) > 0
+    for p, qq in itertools.combinations(range(3), 2):
+        for a in strict[p]:
+            for b in strict[qq]:
+                s = list(sel)
+                s[p], s[qq] = a, b
+                if len(set(s)) == 3:
+                    assert _value(dense, w, pos, pts, s, views, 20.0, good) <= value + 1e-12
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_middle_rung_returns_its_climbed_start_valued_exactly(seed) -> None:
+    """A middle rung (``rung=True`` with a ``start`` and a time limit) climbs and swaps from its
+    start and returns without a search: feasible, every countable row as the bound, an answer at
+    least the start's, and every value it reports (start, start climbed, the incumbent) the
+    arctan2 enumeration's of the sets they name."""
+    dense, w, pos, pts = _aims_instance(200, 14, seed)
+    q = sp.csr_matrix(dense)
+    n = dense.shape[1]
+    rng = np.random.default_rng(seed)
+    start = sorted(int(c) for c in rng.choice(n, size=3, replace=False))
+    out = ae.solve_angle(q, w, 3, 2, 20.0, pos, pts, np.zeros(0, dtype=np.int64), np.arange(n),
+                         deadline=Deadline(30.0), budget_bytes=memory_budget_bytes(), start=start, rung=True)
+    st_ = out.stats
+    assert out.status == "feasible" and st_["skipped"] == "search" and st_["bound_evaluations"] == 0
+    good = _pair_ok(dense, pos, pts, 20.0)
+    value = _value(dense, w, pos, pts, list(out.selected), 2, 20.0, good)
+    assert st_["start"] == pytest.approx(_value(dense, w, pos, pts, start, 2, 20.0, good), rel=1e-12)
+    assert st_["initial_incumbent"] == pytest.approx(value, rel=1e-12)
+    assert st_["start"] - 1e-12 <= st_["start_climbed"] <= value + 1e-12
+    best, _ = _enumerate(dense, w, pos, pts, 3, 2, 20.0)
+    assert value <= best + 1e-12 and out.bound >= best - 1e-12
+    # the same call without ``rung`` searches, and proves the enumerated optimum
+    full = ae.solve_angle(q, w, 3, 2, 20.0, pos, pts, np.zeros(0, dtype=np.int64), np.arange(n),
+                          deadline=Deadline(30.0), budget_bytes=memory_budget_bytes(), start=start)
+    assert full.status == "optimal" and full.bound == pytest.approx(best, rel=1e-12)
+
+
 def test_climb_improves_a_poor_start() -> None:
     """The climb moves: from the worst enumerated set of a small instance it reaches a better one."""
     dense, w, pos, pts = _aims_instance(200, 8, 6)

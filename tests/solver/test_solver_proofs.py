@@ -164,16 +164,39 @@ def test_warm_start_keeps_the_minimum_distance(full_search_interrupted) -> None:
     assert got.bound >= got.objective
 
 
-def test_spread_subset_keeps_every_pose_of_every_fourth_position() -> None:
+def test_spread_subset_keeps_every_pose_of_the_first_quarter_of_the_positions() -> None:
+    """The warm start's subset with a minimum angle: every pose (free) of the first quarter
+    (rounded up) of the distinct positions, in the order the columns first show them."""
     rng = np.random.default_rng(2)
-    path = rng.uniform(-5.0, 5.0, size=(40, 3))
-    pos = np.repeat(path, 3, axis=0)  # three poses a position
-    free = np.setdiff1d(np.arange(120), [7, 8, 50])
+    path = rng.uniform(-5.0, 5.0, size=(41, 3))
+    pos = np.repeat(path, 3, axis=0)[rng.permutation(123)]  # poses of a position not side by side
+    free = np.setdiff1d(np.arange(123), [7, 8, 50])
     got = routes.spread_subset(free, pos, 4)
-    ranks = {tuple(p): r for r, p in enumerate(sorted(map(tuple, path)))}
-    want = [c for c in free if ranks[tuple(pos[c])] % 4 == 0]
-    assert got.tolist() == want
-    assert 30 <= got.size <= 30  # 10 positions of 3 poses
+    order = []  # the positions in the order the free columns first show them
+    for c in free:
+        if not any(np.array_equal(pos[c], p) for p in order):
+            order.append(pos[c])
+    first = order[:11]  # 41 positions (some may have no free pose left: then fewer), a quarter rounded up
+    want = [int(c) for c in free if any(np.array_equal(pos[c], p) for p in first)]
+    assert len(order) == 41 and got.tolist() == want
+    assert 30 <= got.size <= 33
+
+
+@pytest.mark.parametrize("sampler", ["sobol", "uniform", "chaotic"])
+def test_spread_subset_is_the_run_with_a_quarter_of_the_positions(sampler) -> None:
+    """Every sampler's sequence for more positions starts with its sequence for fewer, so the
+    subset of a run's candidates (positions x aims, as ``candidates_from_positions`` lays them
+    out) is exactly the run with a quarter of the positions: the warm start's rungs are the
+    coarser runs of the same seed."""
+    from camplace.sampling import candidates_from_positions, sample_positions
+
+    aims = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    lo, hi = np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 3.0])
+    big = candidates_from_positions(sample_positions(sampler, 400, lo, hi, seed=5), aims)
+    small = candidates_from_positions(sample_positions(sampler, 100, lo, hi, seed=5), aims)
+    got = routes.spread_subset(np.arange(big.positions.shape[0]), big.positions, 4)
+    assert got.size == small.positions.shape[0] == 300
+    assert np.array_equal(big.positions[got], small.positions)
 
 
 def _poses_instance(n_pos: int, m: int, seed: int):
@@ -249,3 +272,30 @@ def test_a_model_that_gives_no_bound_proves_nothing(monkeypatch) -> None:
     best = brute_force_mode(dense, w, 3, "maxcover", pos=pos, dmin=0.5)
     assert res.status == "feasible" and res.gap > 0
     assert np.isfinite(res.bound) and res.bound >= best - 1e-9 and res.objective <= best + 1e-9
+
+
+def test_angle_ladder_answers_never_fall_from_rung_to_rung(monkeypatch) -> None:
+    """A three-level warm start (144 -> 36 -> 9 columns: the runs with a quarter and a sixteenth
+    of the positions) with the full search given no time: each level's answer is at least its
+    rung's, and the one returned is its exact value (mode_objective, angles from arctan2)."""
+    from tests.solver._oracle import mode_objective
+
+    q, w, pos, pts = _poses_instance(48, 150, 5)
+    run = routes.ROUTES["angle"]
+
+    def interrupted(p, choice):
+        if p.free_cols.size > 100:
+            p.deadline = Deadline(0.0)
+        return run(p, choice)
+
+    monkeypatch.setitem(routes.ROUTES, "angle", interrupted)
+    monkeypatch.setattr(routes, "WARM_MIN_COLS", 20)
+    got = solve(q, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, time_limit_s=30.0)
+    warm = got.stats["warm_start"]
+    inner = warm["inner"]
+    assert (warm["columns"], inner["columns"]) == (36, 9)
+    assert got.objective >= warm["objective"] - 1e-12 >= inner["objective"] - 2e-12
+    assert warm["objective"] > 0  # (three positions of the 9 columns may make no 20 degree pair)
+    assert got.objective == pytest.approx(
+        mode_objective(q.toarray(), w, tuple(got.selected), "multiview", 2, 20.0, pos, pts), abs=1e-12)
+    assert got.bound >= got.objective

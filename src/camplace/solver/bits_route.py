@@ -85,7 +85,7 @@ from camplace.solver.problem.objectives import bits_views_value
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.problem.presolve_bits import covered_weight, presolve_bits, reduced_pattern
 from camplace.solver.result import EngineOutcome
-from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHARE, WARM_SHRINK, keep_warm, spread_subset
+from camplace.solver.routes import WARM_MAX_K, WARM_MIN_COLS, WARM_SHRINK, keep_warm, spread_subset, warm_share
 from camplace.visibility.bits import BitMatrix, column_sums
 
 __all__ = ["bits_applies", "bits_outcome", "binary_value", "large_k_reduced_bytes", "load_kernels",
@@ -353,13 +353,14 @@ def _multiview(p: _Views, deadline: Deadline) -> EngineOutcome | None:
 
 
 def _search(p: _Views, deadline: Deadline, warm: bool = True,
-            start: tuple[int, ...] | None = None) -> EngineOutcome | None:
+            start: tuple[int, ...] | None = None, rung: bool = False) -> EngineOutcome | None:
     """The route on ``p.bits``: with ``warm``, warm-started as :func:`camplace.solver.routes.run_cover`
     warm-starts it (more than ``WARM_MIN_COLS`` columns, k <= ``WARM_MAX_K``, a time limit); then
-    the engine (:func:`_bitset` or :func:`_angle`), from ``start`` (k original columns) when given."""
+    the engine (:func:`_bitset` or :func:`_angle`), from ``start`` (k original columns) when given;
+    ``rung``: a warm start's rung (the angle engine's ``rung``)."""
     n_free = p.bits.shape[1] - len(p.fixed)
     if warm and p.k <= WARM_MAX_K and n_free > WARM_MIN_COLS and deadline.limit is not None:
-        return _warm_started(p, deadline)
+        return _warm_started(p, deadline, rung)
     choice = choose_engine(problem_sizes(p.bits, p.k, n_free, len(p.fixed), 0, "multiview"), p.o,
                            memory_budget_bytes())
     if choice.route == "large-k" and not p.fixed:  # (choose_engine: never with fixed cameras or the angle)
@@ -367,7 +368,9 @@ def _search(p: _Views, deadline: Deadline, warm: bool = True,
         return None if got is None else replace(got, objective=p.value(got.selected))
     if choice.route != ("angle" if p.angle else "multiview"):
         return None
-    return (_angle if p.angle else _bitset)(p, choice, deadline, start)
+    if p.angle:
+        return _angle(p, choice, deadline, start, rung)
+    return _bitset(p, choice, deadline, start)
 
 
 def _large_k(bits, w: np.ndarray, k: int, o: SolveOptions, stats: dict[str, Any],
@@ -464,7 +467,8 @@ def _bitset(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None
                          objective=p.value(sel))
 
 
-def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None) -> EngineOutcome | None:
+def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None,
+           rung: bool = False) -> EngineOutcome | None:
     """:func:`camplace.solver.routes._angle` on bits: the angle engine reading the bitsets; None when
     it does not fit in the memory budget."""
     assert p.pos is not None and p.pts is not None and p.o.min_angle_deg is not None
@@ -473,7 +477,7 @@ def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None)
     try:
         out = solve_angle(p.bits, p.w, p.k, int(p.o.views), float(p.o.min_angle_deg), p.pos, p.pts,
                           np.asarray(p.fixed, dtype=np.int64), p.free, deadline=deadline,
-                          budget_bytes=memory_budget_bytes(), start=start)
+                          budget_bytes=memory_budget_bytes(), start=start, rung=rung)
     except OverBudget as exc:
         note_memory("angle", exc.need, refused=True)
         log.info("multiview on bits: %s: the CSR route", exc.message)
@@ -483,11 +487,12 @@ def _angle(p: _Views, choice, deadline: Deadline, start: tuple[int, ...] | None)
     return EngineOutcome(sel, out.status, float(out.bound), stats, engine="exact", objective=p.value(sel))
 
 
-def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
+def _warm_started(p: _Views, deadline: Deadline, rung: bool = False) -> EngineOutcome | None:
     """:func:`camplace.solver.routes._warm_started` on bits: solve the columns
-    :func:`camplace.solver.routes.warm_subset` picks first (with a minimum angle every pose of every
-    ``WARM_SHRINK``-th position, else the ``1 / WARM_SHRINK`` observing the most weight, their
-    weights summed in the CSR route's order) within ``WARM_SHARE`` of the time left, offer its
+    :func:`camplace.solver.routes.warm_subset` picks first (with a minimum angle every pose of the
+    first ``1 / WARM_SHRINK`` of the positions, else the ``1 / WARM_SHRINK`` observing the most weight, their
+    weights summed in the CSR route's order) within :func:`camplace.solver.routes.warm_share` of
+    the time left, offer its
     answer to the full search as the first incumbent and keep the better.
 
     The subset's bitsets are a copy (``columns x ceil(m / 64) x 8`` bytes, checked against the
@@ -503,8 +508,8 @@ def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
     need, budget = cols.size * p.bits.words.shape[1] * 8, memory_budget_bytes()
     if need > budget:
         log.info("multiview on bits: no warm start (the subset's bitsets need %.3g GiB)", need / 2**30)
-        return _search(p, deadline, warm=False)
-    got = _search(p.columns(cols), deadline.share(WARM_SHARE))
+        return _search(p, deadline, warm=False, rung=rung)
+    got = _search(p.columns(cols), deadline.share(warm_share(p.angle, rung)), rung=True)
     got_sel = None if got is None or got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
     warm: dict[str, Any] = {}
     if got is not None:
@@ -513,7 +518,7 @@ def _warm_started(p: _Views, deadline: Deadline) -> EngineOutcome | None:
         if "warm_start" in got.stats:
             warm["inner"] = got.stats["warm_start"]
     start = None if got_sel is None else tuple(sorted(set(got_sel) - set(p.fixed)))  # its new cameras
-    out = _search(p, deadline, warm=False, start=start)
+    out = _search(p, deadline, warm=False, start=start, rung=rung)
     if out is None:
         return None
     if warm:

@@ -138,6 +138,7 @@ class CoverProblem:
     deadline: Deadline
     stats: dict[str, Any] = field(default_factory=dict)
     start: tuple[int, ...] | None = None
+    rung: bool = False
 
     def __post_init__(self) -> None:
         n = self.q.shape[1]
@@ -218,7 +219,7 @@ def _angle(p: CoverProblem, choice: EngineChoice | None = None) -> EngineOutcome
     try:
         out = solve_angle(p.q, p.w, p.k, p.views, float(p.min_angle_deg), p.pos, p.pts,
                           np.asarray(p.fixed_t, dtype=np.int64), p.free_cols, deadline=p.deadline,
-                          budget_bytes=memory_budget_bytes(), start=p.start)
+                          budget_bytes=memory_budget_bytes(), start=p.start, rung=p.rung)
     except OverBudget as exc:
         _exact_fallback(p, exc)
         return None
@@ -420,15 +421,29 @@ WARM_MAX_K = 4
 #: ... the best 1 / WARM_SHRINK of its free candidates by the weight they observe (that solve
 #: warm-starts itself the same way while it is still large: a coarse-to-fine ladder) ...
 WARM_SHRINK = 4
-#: ... within this share of the time left; its answer is the full search's first incumbent.
+#: ... within this share of the time left (ANGLE_WARM_SHARE with a minimum angle); its answer is the
+#: full search's first incumbent. With a minimum angle a rung (a warm start's solve, which the angle
+#: engine does not search when it is warm-started itself) gives its own warm start RUNG_WARM_SHARE of
+#: its time: the smaller rungs are not starved by shares of shares
 WARM_SHARE = 0.1
+ANGLE_WARM_SHARE = 0.15
+RUNG_WARM_SHARE = 0.4
+
+
+def warm_share(angle: bool, rung: bool) -> float:
+    """The share of the time left that a warm start's solve gets: :data:`WARM_SHARE`, with a
+    minimum angle :data:`ANGLE_WARM_SHARE`, or :data:`RUNG_WARM_SHARE` when that solve is for a
+    rung itself (``rung``)."""
+    if not angle:
+        return WARM_SHARE
+    return RUNG_WARM_SHARE if rung else ANGLE_WARM_SHARE
 
 
 def warm_subset(p: CoverProblem) -> np.ndarray:
     """The free candidates of the warm start's smaller solve: the ``1 / WARM_SHRINK`` observing the
     most weight (``p.resid_w`` times the matrix values, a heuristic ranking; ties: the lower index),
-    sorted original column indices; with a minimum angle, those at every ``WARM_SHRINK``-th
-    position instead (:func:`spread_subset`)."""
+    sorted original column indices; with a minimum angle, every pose of the first
+    ``1 / WARM_SHRINK`` of the positions instead (:func:`spread_subset`: the coarser run)."""
     if p.angle_ok and p.pos is not None:
         spread = spread_subset(p.free_cols, p.pos, WARM_SHRINK)
         if spread.size >= p.k:
@@ -446,16 +461,21 @@ def warm_subset(p: CoverProblem) -> np.ndarray:
 
 
 def spread_subset(free_cols: np.ndarray, pos: np.ndarray, shrink: int) -> np.ndarray:
-    """Every pose of every ``shrink``-th distinct position of the free candidates (positions in
-    lexicographic order, the first kept): a thinner sample of the same spread, as a run with
-    fewer candidate positions would draw. The heaviest columns crowd where the target passes
-    closest, where pairs seldom make a minimum angle (comet-flyby at 2,000 positions: their warm
-    start 0.5123 against 0.5275 from the engine's own greedy).
+    """Every pose of the first ``1 / shrink`` of the free candidates' distinct positions, in the
+    order the columns first show them (at least one position): the candidates a run with
+    ``shrink`` times fewer positions draws, since every sampler's sequence for a larger count
+    starts with its sequence for a smaller one (:func:`camplace.visibility.stages.make_run_candidates`),
+    so the warm start's rungs are the coarser runs themselves (comet-flyby: 32,000 positions go
+    8,000 -> 2,000 -> 500, the ladder of issue 30) and a thinner sample of the same spread. The
+    heaviest columns instead crowd where the target passes closest, where pairs seldom make a
+    minimum angle (comet-flyby at 2,000 positions: their warm start 0.5123 against 0.5275 from the
+    engine's own greedy). Until issue 30's eighth round every ``shrink``-th position in
+    lexicographic order, not the coarser run.
 
     Parameters
     ----------
     free_cols : (f,) int64
-        Free candidates (original column indices).
+        Free candidates (original column indices, sorted).
     pos : (n, 3) float64
         Positions of all candidates.
     shrink : int
@@ -465,12 +485,15 @@ def spread_subset(free_cols: np.ndarray, pos: np.ndarray, shrink: int) -> np.nda
     (s,) int64
         Sorted original column indices, at least one position's poses.
     """
-    _, group = np.unique(pos[free_cols], axis=0, return_inverse=True)
-    return np.sort(free_cols[group.ravel() % shrink == 0])
+    _, first, group = np.unique(pos[free_cols], axis=0, return_index=True, return_inverse=True)
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)  # positions in the columns' order
+    keep = max(1, -(-first.size // shrink))
+    return np.sort(free_cols[rank[group.ravel()] < keep])
 
 
 def _warm_started(p: CoverProblem) -> EngineOutcome:
-    """Solve ``p`` on :func:`warm_subset` first (``WARM_SHARE`` of the time left), offer that
+    """Solve ``p`` on :func:`warm_subset` first (:func:`warm_share` of the time left), offer that
     answer to the full search as its first incumbent (``p.start``), and keep the better of the
     two: the answer is at least as good as the subset's, and the bound is the full search's."""
     sub_free = warm_subset(p)
@@ -482,8 +505,9 @@ def _warm_started(p: CoverProblem) -> EngineOutcome:
     sub = CoverProblem(p.q[:, cols].tocsr(), p.w, p.k, p.mode, p.views, p.min_angle_deg,
                        None if p.pos is None else p.pos[cols], p.pts,
                        tuple(int(j) for j in np.searchsorted(cols, np.asarray(p.fixed_t, dtype=np.int64))),
-                       np.searchsorted(cols, sub_free), conflicts, p.options, p.deadline.share(WARM_SHARE),
-                       stats={"k": p.k})
+                       np.searchsorted(cols, sub_free), conflicts, p.options,
+                       p.deadline.share(warm_share(p.angle_ok and p.pos is not None, p.rung)),
+                       stats={"k": p.k}, rung=True)
     got = run_cover(sub)
     got_sel = None if got.selected is None else tuple(sorted(int(cols[j]) for j in got.selected))
     warm = {"columns": int(sub_free.size), "status": got.status, "objective": float(got.objective),

@@ -89,6 +89,10 @@ _FLOAT_MARGIN = 1e-9
 _PAIRS_MIN_SHARE = 0.05  # opposite-pairs layout when it matches at least this share of the weight
 _PAIRS_TIME_SHARE = 0.1  # ... and the matching stops after this share of the time limit
 _INCUMBENT_SHARE = 0.1
+#: greedy + swaps of a warm start's rung (``rung=True``: a solve whose answer is the first incumbent of
+#: a larger one) stop after this share of its time instead, its climbs at its end, and a rung with a
+#: warm start of its own does not search: its incumbent is what it is for
+_RUNG_INCUMBENT_SHARE = 0.7
 #: the layout and the tree cost about this many times the first pass over the rows: with less time
 #: left than that the engine returns its incumbent at once (the set-up is not interruptible)
 _SETUP_COST = 4.0  # greedy + swaps stop after this share of the time limit
@@ -96,10 +100,13 @@ _STARTS = 3  # greedy starts (the heaviest columns)
 _SWAP_ROUNDS = 20
 #: the incumbent's large-neighbourhood search (:meth:`_Incumbent.climb`): the moves of a camera are
 #: the _LNS_NEAR free columns nearest its position and every _LNS_FAR-th of the next
-#: _LNS_NEAR * _LNS_FAR (fewer when k is large: about _LNS_SETS sets a round at most), within
-#: _LNS_SHARE of the time left
-_LNS_NEAR = 24
+#: _LNS_NEAR * _LNS_FAR (fewer when k is large: about _LNS_COLS columns in all the lists, whose rows a
+#: round holds); pairs of moves take the _LNS_TOP best single moves of each list (fewer when k is
+#: large: about _LNS_SETS pairs a round), within _LNS_SHARE of the time left
+_LNS_NEAR = 96
 _LNS_FAR = 8
+_LNS_COLS = 600
+_LNS_TOP = 32
 _LNS_SETS = 20_000
 _LNS_SHARE = 0.1
 _CHUNK = 4096  # tuples per stack entry
@@ -409,8 +416,11 @@ class _Incumbent:
         if v > self.best:
             self.best, self.best_set = v, tuple(sorted(sel))
 
-    def run(self, k: int, colw: np.ndarray) -> None:
+    def run(self, k: int, colw: np.ndarray) -> tuple[int, ...]:
+        """Greedy from each of the :data:`_STARTS` heaviest columns, then :meth:`swaps`; each set
+        offered. Returns the best of them (original columns, sorted; empty if none was made)."""
         order = np.argsort(-np.where(self.allowed, colw, -np.inf), kind="stable")[: int(self.allowed.sum())]
+        best, best_set = -math.inf, ()
         for s0 in order[:_STARTS]:
             if self.expired() and self.best_set:
                 break
@@ -421,33 +431,47 @@ class _Incumbent:
                 # no gain yet (a first camera alone makes no pair): the heaviest remaining column
                 j = int(np.argmax(g)) if np.max(g) > 0 else next(int(c) for c in order if int(c) not in sel)
                 sel.append(j)
-            for _ in range(_SWAP_ROUNDS):
-                if self.expired():
-                    break
-                improved = False
-                for p in range(k):
-                    others = sel[:p] + sel[p + 1 :]
-                    g = self.gain(others)
-                    cur = g[sel[p]]
-                    g[sel] = -np.inf
-                    j = int(np.argmax(g))
-                    if g[j] > cur + self.margin:
-                        sel[p] = j
-                        improved = True
-                if not improved:
-                    break
+            sel = self.swaps(sel)
             self.offer(sel)
+            v = self.value(sel)
+            if v > best:
+                best, best_set = v, tuple(sorted(sel))
+        return best_set
+
+    def swaps(self, sel: Sequence[int]) -> list[int]:
+        """1-swaps from ``sel``: each camera in turn replaced by the free column of the largest gain
+        (one pass over the matrix, :meth:`gain`) while that gains more than the margin, at most
+        :data:`_SWAP_ROUNDS` rounds, until the incumbent's stop. Returns the cameras."""
+        sel = list(sel)
+        for _ in range(_SWAP_ROUNDS):
+            if self.expired():
+                break
+            improved = False
+            for p in range(len(sel)):
+                others = sel[:p] + sel[p + 1 :]
+                g = self.gain(others)
+                cur = g[sel[p]]
+                g[sel] = -np.inf
+                j = int(np.argmax(g))
+                if g[j] > cur + self.margin:
+                    sel[p] = j
+                    improved = True
+            if not improved:
+                break
+        return sel
 
     def climb(self, sel: Sequence[int], stop: Deadline, round_s: float = 0.0) -> None:
         """Large-neighbourhood search from the cameras ``sel`` (original columns, free), offered
         when it ends: each round evaluates exactly (:func:`~camplace.solver.engines.angle._kernels.set_values`,
-        the rule of :meth:`value`) every set that replaces one or two of the cameras by columns
-        near them (:meth:`_near`, :func:`_moves`), and moves to the best while it gains more than
-        the margin. Candidates sampled more finely hold better sets close to a coarse answer: the
-        moves climb there. A round (not interruptible) starts only while more than ``round_s``
-        seconds (an estimate: the caller's, then the longest round so far) are left before
-        ``stop``. Memory: the search rows of the columns in the move lists (4 bytes a row, at
-        most :func:`lns_columns` columns) and 4 chunks of (rows, k + fixed + 1) int32 scratch."""
+        the rule of :meth:`value`) every set that replaces one camera by a column of its move
+        list (:meth:`_near`), then every set that replaces one or two cameras by columns among the
+        :func:`_top_size` best single moves of their lists (:func:`_best_moves`, :func:`_moves`),
+        and moves to the best while it gains more than the margin. Candidates sampled more
+        finely hold better sets close to a coarse answer: the moves climb there. A round (not
+        interruptible) starts only while more than ``round_s`` seconds (an estimate: the
+        caller's, then the longest round so far) are left before ``stop``. Memory: the search
+        rows of the columns in the move lists (4 bytes a row, at most :func:`lns_columns`
+        columns) and 4 chunks of (rows, k + fixed + 1) int32 scratch."""
         free = np.flatnonzero(self.allowed)
         sel = sorted(int(c) for c in sel)
         k = len(sel)
@@ -458,7 +482,7 @@ class _Incumbent:
         row_id = np.full(self.q.shape[0], -1, dtype=np.int64)
         row_id[search] = np.arange(search.size)
         w_s, pts_s = self.wu[search], np.ascontiguousarray(self.pts[search])
-        size = _move_list_size(k)
+        size, top = _move_list_size(k), _top_size(k)
         cur = -math.inf
         while not stop.expired() and (stop.remaining() is None or stop.remaining() > round_s):
             t0 = time.perf_counter()
@@ -466,12 +490,21 @@ class _Incumbent:
             cols = np.unique(np.concatenate(near + [self.fixed]))
             local = np.full(self.q.shape[1], -1, dtype=np.int64)
             local[cols] = np.arange(cols.size)
-            sets = _moves(local[np.asarray(sel)], [local[c] for c in near])
-            full = np.concatenate([sets, np.broadcast_to(local[self.fixed], (sets.shape[0], self.fixed.size))], axis=1)
+            lsel, lnear = local[np.asarray(sel)], [local[c] for c in near]
+            fixed_l = local[self.fixed]
+            cpos = np.ascontiguousarray(self.pos[cols])
+
+            def values(sets: np.ndarray) -> np.ndarray:
+                full = np.concatenate([sets, np.broadcast_to(fixed_l, (sets.shape[0], fixed_l.size))], axis=1)
+                return AK.set_values(ptr, rows, np.ascontiguousarray(full), w_s, cpos, pts_s, self.views,
+                                     self.theta_deg, 4)
+
             with ctrl_c_deferred():
                 ptr, rows = self.q.column_lists(row_id, local, cols.size)
-                vals = AK.set_values(ptr, rows, np.ascontiguousarray(full), w_s, np.ascontiguousarray(self.pos[cols]),
-                                     pts_s, self.views, self.theta_deg, 4)
+                singles, owner = _singles(lsel, lnear)
+                one = values(singles)
+                pairs = _moves(lsel, _best_moves(lsel, lnear, singles, owner, one, top))
+                sets, vals = np.concatenate([singles, pairs]), np.concatenate([one, values(pairs)])
             self.lns_rounds += 1
             round_s = max(round_s, time.perf_counter() - t0)
             cur = max(cur, float(vals[0]))  # the first set is the current one
@@ -496,14 +529,50 @@ class _Incumbent:
 
 def _move_list_size(k: int) -> int:
     """Entries of each camera's move list in :meth:`_Incumbent.climb`: all of them (``1 + 2
-    _LNS_NEAR``), or fewer so that the pairs of lists make about :data:`_LNS_SETS` sets."""
+    _LNS_NEAR``), or fewer so that the lists hold about :data:`_LNS_COLS` columns in all."""
+    return int(min(1 + 2 * _LNS_NEAR, max(2, _LNS_COLS // max(1, k))))
+
+
+def _top_size(k: int) -> int:
+    """Entries of each camera's list of best single moves that :meth:`_Incumbent.climb` pairs:
+    :data:`_LNS_TOP`, or fewer so that the pairs of lists make about :data:`_LNS_SETS` sets."""
     pairs = max(1, k * (k - 1) // 2)
-    return int(min(1 + 2 * _LNS_NEAR, max(2, math.isqrt(_LNS_SETS // pairs))))
+    return int(min(_LNS_TOP, max(2, math.isqrt(_LNS_SETS // pairs))))
 
 
 def lns_columns(k: int, n_cols: int) -> int:
     """Columns (besides the fixed ones) whose rows :meth:`_Incumbent.climb` holds at most."""
     return int(min(n_cols, k * _move_list_size(k)))
+
+
+def _singles(sel: np.ndarray, near: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The single moves of :meth:`_Incumbent.climb`: for each entry ``p`` of ``sel`` (k,), every
+    set replacing it by one of ``near[p]``, with no column twice (``near[p]`` starts with
+    ``sel[p]``: the first set is ``sel`` itself). Returns the sets (S, k) int64 and the entry
+    each replaces (S,) int64."""
+    out, owner = [], []
+    for p in range(sel.size):
+        grid = np.repeat(sel[None, :], near[p].size, axis=0)
+        grid[:, p] = near[p]
+        out.append(grid)
+        owner.append(np.full(near[p].size, p, dtype=np.int64))
+    sets, who = np.concatenate(out), np.concatenate(owner)
+    ok = (np.diff(np.sort(sets, axis=1), axis=1) > 0).all(axis=1)
+    return np.ascontiguousarray(sets[ok]), who[ok]
+
+
+def _best_moves(sel: np.ndarray, near: list[np.ndarray], singles: np.ndarray, owner: np.ndarray,
+                values: np.ndarray, top: int) -> list[np.ndarray]:
+    """Each entry's list of moves for the pairs of :meth:`_Incumbent.climb`: itself first, then
+    the columns of ``near[p]`` whose single moves (``singles`` (S, k), replacing entry
+    ``owner``, of value ``values``) are worth the most (ties: nearer first), ``top`` in all."""
+    out = []
+    for p in range(sel.size):
+        mine = np.flatnonzero(owner == p)  # in list order: nearer first
+        order = mine[np.argsort(-values[mine], kind="stable")]
+        got = singles[order, p]
+        out.append(np.concatenate([[sel[p]], got[got != sel[p]]])[:top].astype(np.int64))
+    return out
 
 
 def _moves(sel: np.ndarray, near: list[np.ndarray]) -> np.ndarray:
@@ -692,6 +761,7 @@ def solve_angle(
     deadline: Deadline | None = None,
     budget_bytes: int,
     start: Sequence[int] | None = None,
+    rung: bool = False,
 ) -> EngineOutcome:
     """Best ``k`` new cameras for multi-view coverage with a minimum triangulation angle.
 
@@ -727,6 +797,11 @@ def solve_angle(
     start : sequence of int, optional
         ``k`` new cameras (original column indices, free) found elsewhere, e.g. by a solve on a
         subset of the candidates: offered as the first incumbent (the answer is never worse).
+    rung : bool
+        This solve is a warm start's rung (its answer the first incumbent of a solve on more
+        candidates): with a time limit, greedy + swaps may use :data:`_RUNG_INCUMBENT_SHARE` of
+        its time and the climbs the rest; with a ``start`` too (a middle rung) it returns the
+        incumbent without a search (status ``"feasible"``, every countable row as the bound).
 
     Returns
     -------
@@ -742,7 +817,7 @@ def solve_angle(
     deadline = as_deadline(deadline)
     since = stopwatch(deadline)
     total = None if deadline.limit is None else deadline.remaining()  # the steps' shares are of this
-    inc_stop = deadline.share(_INCUMBENT_SHARE)
+    inc_stop = deadline.share(_RUNG_INCUMBENT_SHARE if rung else _INCUMBENT_SHARE)
     matrix = q
     q = _Rows(q)
     m, n = q.shape
@@ -788,26 +863,46 @@ def solve_angle(
     inc = _Incumbent(q, wu, pos, pts, views, theta_deg, fixed, free, margin, inc_stop)
     lap("column_weights")
     start_ok = start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all()
+    rows_s = stats["times_s"]["rows"]
+
+    def climb_stop() -> Deadline:
+        return Deadline(None) if total is None else deadline if rung else deadline.share(_LNS_SHARE)
+
+    if start_ok:
+        # a warm start: the search starts at least there. Climbed, then 1-swaps from the climbed set
+        # (a few passes over the matrix, where a greedy start of its own takes k and its swaps many
+        # more), climbed again when they moved (comet-flyby, 8,000 positions: the 2,000-position
+        # optimum 0.52776 climbs to 0.53620, swaps to 0.53746)
+        assert start is not None
+        first = sorted(int(j) for j in start)
+        stats["start"] = const + inc.value(first) * scale
+        inc.offer(first)
+        inc.climb(first, climb_stop(), rows_s)
+        swapped = sorted(inc.swaps(list(inc.best_set)))
+        if tuple(swapped) != inc.best_set:
+            inc.offer(swapped)
+            inc.climb(swapped, climb_stop(), rows_s)
+        stats["start_climbed"] = const + inc.best * scale
     left = deadline.remaining()
     # a greedy start costs about k passes over the matrix (like the first): with a warm start and not
-    # the time for one, the warm start alone is the incumbent
-    if not (start_ok and left is not None and left <= (k + _SETUP_COST) * stats["times_s"]["rows"]):
-        inc.run(k, colw)  # at least one greedy start of its own
-    greedy = inc.best_set
-    if start_ok:
-        assert start is not None
-        stats["start"] = const + inc.value(sorted(int(j) for j in start)) * scale
-        inc.offer(sorted(int(j) for j in start))  # a warm start: the search starts at least there
-    stats["incumbent_before_climb"] = const + inc.best * scale
-    # the large-neighbourhood search from the warm start and from the greedy sets' best: other basins
-    # (comet-flyby, 8,000 positions: the warm start 0.53089 climbed to 0.53746, the greedy 0.53387 not at all)
-    seeds = [sorted(int(j) for j in start)] if start_ok and start is not None else []
-    seeds += [list(greedy)] if greedy and greedy not in {tuple(x) for x in seeds} else []
-    for seed in seeds:
-        inc.climb(seed, Deadline(None) if total is None else deadline.share(_LNS_SHARE), stats["times_s"]["rows"])
+    # the time for one (or none left of the incumbent's share), the warm start alone is the incumbent
+    greedy: tuple[int, ...] = ()
+    if not (start_ok and (inc.expired() or left is not None and left <= (k + _SETUP_COST) * rows_s)):
+        greedy = inc.run(k, colw)  # at least one greedy start of its own without a warm start
+    stats["incumbent_before_climb"] = const + max(inc.value(list(greedy)) if greedy else -math.inf,
+                                                  inc.value(first) if start_ok else -math.inf) * scale
+    # the large-neighbourhood search from the greedy sets' best too: another basin (comet-flyby,
+    # 8,000 positions: the warm start 0.53089 climbed to 0.53746, the greedy 0.53387 not at all)
+    if greedy:
+        inc.climb(list(greedy), climb_stop(), rows_s)
     stats["initial_incumbent"] = const + inc.best * scale
     stats["lns_rounds"] = inc.lns_rounds
     lap("incumbent")
+    if rung and start_ok and total is not None:
+        # a warm start's middle rung (itself warm-started): the larger solve takes its answer, not its
+        # bound (every countable row); the bottom rung, small, searches what is left of its time
+        stats.update({"stopped": "rung", "skipped": "search", "bound_evaluations": 0})
+        return EngineOutcome(inc.best_set, "feasible", const + float(wu.sum()) * scale, stats)
     left = deadline.remaining()
     if left is not None and left <= _SETUP_COST * stats["times_s"]["rows"]:
         # no time for the layout and the tree (compiled, not interruptible): the incumbent, and every
