@@ -214,6 +214,19 @@ def _poses_instance(n_pos: int, m: int, seed: int):
     return sp.csr_matrix(seen.astype(np.float32)), rng.uniform(0.5, 1.5, m), pos, pts
 
 
+def _interrupt_full_search(monkeypatch, above: int = 100) -> None:
+    """The angle route given no time on more than ``above`` free columns (the full search), its
+    warm-start levels left alone."""
+    run = routes.ROUTES["angle"]
+
+    def interrupted(p, choice):
+        if p.free_cols.size > above:
+            p.deadline = Deadline(0.0)
+        return run(p, choice)
+
+    monkeypatch.setitem(routes.ROUTES, "angle", interrupted)
+
+
 def test_angle_warm_start_from_spread_positions_is_never_worse(monkeypatch) -> None:
     """Multiview with a minimum angle: the warm start solves every fourth position (all its
     poses); with the full search given no time, the answer is still at least the optimum of that
@@ -223,14 +236,7 @@ def test_angle_warm_start_from_spread_positions_is_never_worse(monkeypatch) -> N
     from tests.solver._oracle import mode_objective
 
     q, w, pos, pts = _poses_instance(48, 150, 4)
-    run = routes.ROUTES["angle"]
-
-    def interrupted(p, choice):
-        if p.free_cols.size > 100:
-            p.deadline = Deadline(0.0)
-        return run(p, choice)
-
-    monkeypatch.setitem(routes.ROUTES, "angle", interrupted)
+    _interrupt_full_search(monkeypatch)
     monkeypatch.setattr(routes, "WARM_MIN_COLS", 100)
     got = solve(q, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, time_limit_s=30.0)
     warm = got.stats["warm_start"]
@@ -281,14 +287,7 @@ def test_angle_ladder_answers_never_fall_from_rung_to_rung(monkeypatch) -> None:
     from tests.solver._oracle import mode_objective
 
     q, w, pos, pts = _poses_instance(48, 150, 5)
-    run = routes.ROUTES["angle"]
-
-    def interrupted(p, choice):
-        if p.free_cols.size > 100:
-            p.deadline = Deadline(0.0)
-        return run(p, choice)
-
-    monkeypatch.setitem(routes.ROUTES, "angle", interrupted)
+    _interrupt_full_search(monkeypatch)
     monkeypatch.setattr(routes, "WARM_MIN_COLS", 20)
     got = solve(q, w, 3, mode="multiview", views=2, min_angle_deg=20.0, positions=pos, points=pts, time_limit_s=30.0)
     warm = got.stats["warm_start"]
