@@ -411,14 +411,17 @@ class _Incumbent:
         g[~self.allowed] = -np.inf
         return g
 
-    def offer(self, sel: list[int]) -> None:
+    def offer(self, sel: list[int]) -> float:
+        """Keep ``sel`` if it beats the incumbent; returns its value (:meth:`value`)."""
         v = self.value(sel)
         if v > self.best:
             self.best, self.best_set = v, tuple(sorted(sel))
+        return v
 
-    def run(self, k: int, colw: np.ndarray) -> tuple[int, ...]:
+    def run(self, k: int, colw: np.ndarray) -> tuple[tuple[int, ...], float]:
         """Greedy from each of the :data:`_STARTS` heaviest columns, then :meth:`swaps`; each set
-        offered. Returns the best of them (original columns, sorted; empty if none was made)."""
+        offered. Returns the best of them (original columns, sorted; empty if none was made) and
+        its value (-inf if none)."""
         order = np.argsort(-np.where(self.allowed, colw, -np.inf), kind="stable")[: int(self.allowed.sum())]
         best, best_set = -math.inf, ()
         for s0 in order[:_STARTS]:
@@ -432,11 +435,10 @@ class _Incumbent:
                 j = int(np.argmax(g)) if np.max(g) > 0 else next(int(c) for c in order if int(c) not in sel)
                 sel.append(j)
             sel = self.swaps(sel)
-            self.offer(sel)
-            v = self.value(sel)
+            v = self.offer(sel)
             if v > best:
                 best, best_set = v, tuple(sorted(sel))
-        return best_set
+        return best_set, best
 
     def swaps(self, sel: Sequence[int]) -> list[int]:
         """1-swaps from ``sel``: each camera in turn replaced by the free column of the largest gain
@@ -864,6 +866,7 @@ def solve_angle(
     lap("column_weights")
     start_ok = start is not None and len({int(j) for j in start}) == k and np.isin(np.asarray(start), free).all()
     rows_s = stats["times_s"]["rows"]
+    first_v = greedy_v = -math.inf  # the warm start's and the greedy sets' values (none yet)
 
     def climb_stop() -> Deadline:
         return Deadline(None) if total is None else deadline if rung else deadline.share(_LNS_SHARE)
@@ -875,8 +878,8 @@ def solve_angle(
         # optimum 0.52776 climbs to 0.53620, swaps to 0.53746)
         assert start is not None
         first = sorted(int(j) for j in start)
-        stats["start"] = const + inc.value(first) * scale
-        inc.offer(first)
+        first_v = inc.offer(first)
+        stats["start"] = const + first_v * scale
         inc.climb(first, climb_stop(), rows_s)
         swapped = sorted(inc.swaps(list(inc.best_set)))
         if tuple(swapped) != inc.best_set:
@@ -888,9 +891,8 @@ def solve_angle(
     # the time for one (or none left of the incumbent's share), the warm start alone is the incumbent
     greedy: tuple[int, ...] = ()
     if not (start_ok and (inc.expired() or left is not None and left <= (k + _SETUP_COST) * rows_s)):
-        greedy = inc.run(k, colw)  # at least one greedy start of its own without a warm start
-    stats["incumbent_before_climb"] = const + max(inc.value(list(greedy)) if greedy else -math.inf,
-                                                  inc.value(first) if start_ok else -math.inf) * scale
+        greedy, greedy_v = inc.run(k, colw)  # at least one greedy start of its own without a warm start
+    stats["incumbent_before_climb"] = const + max(greedy_v, first_v) * scale
     # the large-neighbourhood search from the greedy sets' best too: another basin (comet-flyby,
     # 8,000 positions: the warm start 0.53089 climbed to 0.53746, the greedy 0.53387 not at all)
     if greedy:
