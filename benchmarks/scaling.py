@@ -15,7 +15,9 @@ T: the speed-up the cores themselves give (a shared or virtual machine gives les
 ``fc`` column is then the stage's serial fraction against that ceiling instead of against T (what
 the code itself keeps serial). ``predicted``: the whole process's time at ``--predict`` threads
 (default 16) from Amdahl's law with the fraction measured at the largest T, as a ratio to the
-time at 2 threads (issue 29's goal: >= 6x from 2 to 16).
+time at 2 threads (issue 29's goal: >= 6x from 2 to 16). ``embree``: Embree's own speed-up,
+6,000,000 occlusion segments of the instance cast through the visibility stage's packet path from
+T Python threads (:data:`_CALIBRATE_EMBREE`): the ceiling of the visibility stage on these cores.
 
     python benchmarks/scaling.py                       # 10,000 x 50,000 on comet-67p-bunker
     python benchmarks/scaling.py --candidates 2000 --points 20000 --threads 1,2
@@ -95,9 +97,42 @@ print(best)
 """
 
 
-def machine_seconds(threads: int, cores: list[int]) -> float:
-    """Seconds of the calibration loop (:data:`_CALIBRATE`) on the first ``threads`` allowed cores."""
-    cmd = [sys.executable, "-c", _CALIBRATE]
+#: Embree's own ceiling (``python -c``, argv: instance, threads): 6,000,000 occlusion segments from
+#: the sampling volume to target vertices of the instance's first frame, cast through the same packet
+#: path as the visibility stage (:meth:`RayScene.occluded_dir`) from ``threads`` Python threads in
+#: chunks of 65,536; best of three, seconds
+_CALIBRATE_EMBREE = """
+import sys, time
+from concurrent.futures import ThreadPoolExecutor
+import numpy as np
+from camplace.instance import resolve_instance
+from camplace.visibility.engine import frame_scene
+inst = resolve_instance(sys.argv[1], seed=None)
+threads = int(sys.argv[2])
+scene = frame_scene(inst, 0)
+rng = np.random.default_rng(0)
+n = 6_000_000
+lo, hi = np.asarray(inst.volume.min_m), np.asarray(inst.volume.max_m)
+o = (lo + rng.random((n, 3)) * (hi - lo)).astype(np.float32)
+v, _ = inst.target_world(0)
+d = (np.asarray(v)[rng.integers(0, len(v), n)] - o).astype(np.float32)
+out = np.empty(n, dtype=bool)
+step = 65_536
+def cast(a):
+    scene.occluded_dir(o[a:a + step], d[a:a + step], out[a:a + step])
+cast(0)
+best = 1e9
+with ThreadPoolExecutor(threads) as pool:
+    for _ in range(3):
+        t = time.perf_counter(); list(pool.map(cast, range(0, n, step))); best = min(best, time.perf_counter() - t)
+print(best)
+"""
+
+
+def machine_seconds(threads: int, cores: list[int], script: str = _CALIBRATE, args: tuple = ()) -> float:
+    """Seconds of a calibration script (:data:`_CALIBRATE`, :data:`_CALIBRATE_EMBREE`) on the first
+    ``threads`` allowed cores."""
+    cmd = [sys.executable, "-c", script, *map(str, args)]
     if shutil.which("taskset"):
         cmd = ["taskset", "-c", ",".join(map(str, cores[:threads])), *cmd]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=True,
@@ -159,6 +194,7 @@ def main() -> None:
                 print(f"  round {r} {key}: whole {wall:.1f} s, load {os.getloadavg()[0]:.1f}", flush=True)
         rows = {key: {k: statistics.median(x[k] for x in v) for k in v[0]} for key, v in runs.items()}
         machine = {t: min(machine_seconds(t, cores) for _ in range(max(1, args.repeat))) for t in counts}
+        embree = {t: machine_seconds(t, cores, _CALIBRATE_EMBREE, (args.instance, t)) for t in counts}
     print(f"load average {os.getloadavg()[0]:.1f} at end")
     if args.baseline:
         print(f"baseline {args.baseline} at {counts[0]} thread(s), against this tree at {counts[0]}: "
@@ -178,6 +214,9 @@ def main() -> None:
         print(line)
     print(f"{'machine':<14}" + "".join(f"{machine[t]:>9.3f}" for t in counts)
           + "".join(f"{ceiling[t]:>8.2f}{karp_flatt(ceiling[t], t / base):>7.2f}{'':>7}" for t in counts[1:]))
+    print(f"{'embree':<14}" + "".join(f"{embree[t]:>9.3f}" for t in counts)
+          + "".join(f"{embree[base] / embree[t]:>8.2f}{karp_flatt(embree[base] / embree[t], t / base):>7.2f}{'':>7}"
+                    for t in counts[1:]))
     top = counts[-1]
     if base == 1 and top > 1 and args.predict > top:
         s = rows[base]["whole"] / rows[top]["whole"]
