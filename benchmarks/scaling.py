@@ -47,6 +47,7 @@ STAGES = (
     ("setup", "setup"),
     ("sampling", "sampling"),
     ("visibility", "visibility"),
+    ("  cast", "visibility.cast"),
     ("solve", "solve"),
     ("  presolve", "solver.presolve.time_s"),
     ("  search", "solver.engine_stats.time_search_s"),

@@ -702,6 +702,7 @@ def compute_visibility(
         matrix = vis.matrix[:, back].tocsr()
         matrix.sort_indices()
         return VisibilityMatrix(matrix=matrix, points=points, stats=vis.stats, timings_s=vis.timings_s)
+    t_prepare = time.perf_counter()
     task, scenes = make_task(instance, candidates, points, quantised=use_bytes)
     if chunk_size is None:
         chunk_size = default_chunk_size(task)
@@ -792,6 +793,8 @@ def compute_visibility(
             log.info("visibility: column bitsets %.1f MiB, estimated peak %.2f GiB", 8 * shape[0] * shape[1] / 2**20,
                      need / 2**30)
             words = np.zeros(shape, dtype=np.uint64)
+    t_cast = time.perf_counter()
+    timings["visibility.prepare"] = t_cast - t_prepare
     if dask_address is not None:
         if task.cam_model is not None:  # chunks end at the model boundaries
             ranges = [(a + s, a + e) for _, a, b in task.model_ranges() for s, e in chunk_plan(b - a, chunk_size, 1)]
@@ -843,6 +846,8 @@ def compute_visibility(
                     _while_waiting(idle)
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
+    t_finish = time.perf_counter()
+    timings["visibility.cast"] = t_finish - t_cast
     bits = qbytes = None
     if words is not None or values is not None:
         from camplace.visibility.bits import BitMatrix
@@ -867,6 +872,7 @@ def compute_visibility(
         parts.clear()
         if task.min_target_px > 0:
             matrix, total = drop_small_views(instance, candidates, points, matrix, total)
+    timings["visibility.finish"] = time.perf_counter() - t_finish
     store_path = None
     if key is not None:
         t0 = time.perf_counter()
