@@ -145,3 +145,33 @@ def test_chunk_plan_covers_every_candidate_once_in_order(n: int, size: int, work
     assert plan[0] == (0, min(size, n))  # the pilot keeps its size
     assert all(b0 == a1 for (_, b0), (a1, _) in zip(plan, plan[1:]))
     assert plan[-1][1] == n and all(0 < b - a <= min(size, 256) for a, b in plan)
+
+
+def test_bits_set_straight_equal_the_pair_lists(flyby) -> None:
+    """A chunk's bits set straight from its pairs (``compute_chunk(..., words)``, the
+    :func:`_kernels.set_bits` pass) equal its pair list scattered (``compact`` then
+    ``scatter_chunk``) and the CSR assembled from the same chunks, with the same counts, for
+    chunks of every width (uint8 and uint16 local columns)."""
+    from camplace.visibility.bits import bit_words
+    from camplace.visibility.engine import scatter_part
+
+    inst, pts, cands = flyby
+    task, scenes = make_task(inst, cands, pts, quantised=False)
+    n, m = len(cands), len(pts)
+    for width in (1, 37, 300):
+        straight = np.zeros((n, bit_words(m)), dtype=np.uint64)
+        listed = np.zeros_like(straight)
+        parts = []
+        for s in range(0, n, width):
+            e = min(s + width, n)
+            a = compute_chunk(task, scenes, s, e, straight)
+            b = compute_chunk(task, scenes, s, e)
+            assert a.counts == b.counts
+            assert len(a.lcols) == 0 and a.counts["observed"] == len(b.lcols)
+            parts.append(b)
+            scatter_part(listed, b)
+        assert np.array_equal(straight, listed), width
+        csr = assemble(task, parts)[0]
+        dense = np.unpackbits(straight.view(np.uint8), axis=1, bitorder="little")[:, :m].T.astype(bool)
+        assert int(dense.sum()) == csr.nnz > 10_000
+        assert np.array_equal(dense, csr.toarray() != 0), width

@@ -272,6 +272,41 @@ def compact(kept, per_cam, slot, blocked, live_rows, row_cursor, rowids, offsets
 
 
 @numba.njit(**_JIT)
+def set_bits(kept, per_cam, slot, blocked, live_rows, col0, words):  # pragma: no cover - compiled
+    """Set the bits of a chunk's unblocked pairs straight in the column bitsets (what
+    :func:`compact` then :func:`camplace.visibility.bits.scatter_chunk` do, in one pass and with
+    no pair list: camera-major, so each camera's column is written in one run).
+
+    Parameters
+    ----------
+    kept, per_cam, slot, blocked
+        From :func:`cull`, :func:`build_segments` and the casts.
+    live_rows : (l,) int64
+        Global row of each live row.
+    col0 : int
+        Global column of the chunk's first camera.
+    words : (n, W) uint64
+        Written in place: only the chunk's columns.
+
+    Returns
+    -------
+    int
+        Unblocked pairs (bits set).
+    """
+    j = 0
+    n = 0
+    for c in range(per_cam.shape[0]):
+        col = col0 + c
+        for _ in range(per_cam[c]):
+            if not blocked[slot[j]]:
+                r = live_rows[kept[j]]
+                words[col, r >> 6] |= np.uint64(1) << np.uint64(r & 63)
+                n += 1
+            j += 1
+    return n
+
+
+@numba.njit(**_JIT)
 def pair_quality(r, col, positions, normals, emitter, cam_pos, fx, required_px_per_m):  # pragma: no cover - compiled
     """The graded observation quality of row ``r`` seen from camera ``col``, float32:
     ``min(1, fx / (d * required_px_per_m)) * cos(theta)`` (``cos(theta) = 1`` for emitters), floored

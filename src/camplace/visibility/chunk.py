@@ -402,8 +402,10 @@ def _scratch(bufs: dict, name: str, shape: int | tuple[int, ...], dtype) -> np.n
     return buf[:size].reshape(shape)
 
 
-def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int) -> "ChunkResult":
-    """Observed pairs of candidates ``start:stop``.
+def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int,
+                  words: np.ndarray | None = None) -> "ChunkResult":
+    """Observed pairs of candidates ``start:stop`` (``words``: column bitsets, (n, W) uint64, whose
+    columns ``start:stop`` get the pairs' bits instead; the result then holds the counts alone).
 
     Culling and segment building run in compiled, GIL-free kernels
     (:mod:`camplace.visibility._kernels`); cameras that hold a frame's whole live point set
@@ -414,7 +416,7 @@ def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start:
     bufs = _take_scratch()
     try:
         with ctrl_c_deferred():  # (in the main thread only: the Dask pilot, direct calls)
-            return _compute_chunk(task, scenes, start, stop, bufs)
+            return _compute_chunk(task, scenes, start, stop, bufs, words)
     finally:
         _give_scratch(bufs)
 
@@ -427,7 +429,8 @@ def _cameras_enclosed(cam: np.ndarray, planes: np.ndarray, side: np.ndarray, sca
     return bool(np.all(np.abs(dist) > tol) and np.all((dist > 0.0) == side))
 
 
-def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int, bufs: dict) -> "ChunkResult":
+def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int, bufs: dict,
+                   words: np.ndarray | None = None) -> "ChunkResult":
     """:func:`compute_chunk` with the work arrays ``bufs``."""
     from camplace.visibility import _kernels
 
@@ -474,6 +477,9 @@ def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start
                     continue
                 scene.occluded_dir(origins[a:b], directions[a:b], out=blocked[a:b])
                 counts["cast"] += b - a
+    if words is not None:  # column bitsets: the bits set straight from the pairs, no pair list
+        counts["observed"] = int(_kernels.set_bits(kept, per_cam, slot, blocked, live, start, words))
+        return ChunkResult(start, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)
     n_obs = q - int(np.count_nonzero(blocked))
     lcols = _arena_empty(n_obs, np.uint8 if nc <= 256 else np.uint16)
     rowids, row_offsets = _scratch(bufs, "rowids", len(live), np.int32), _scratch(bufs, "row_offsets", len(live) + 1, np.int64)

@@ -353,10 +353,10 @@ def compute_chunk_bytes(task: VisibilityTask, scenes, start: int, stop: int, val
 
 
 def compute_chunk_bits(task: VisibilityTask, scenes, start: int, stop: int, words: np.ndarray) -> ChunkResult:
-    """:func:`compute_chunk` of candidates ``start:stop`` scattered straight into ``words`` (only
+    """:func:`compute_chunk` of candidates ``start:stop`` set straight in ``words`` (only
     these columns are written: chunks run on threads side by side). Returns the counts. When
     ``words`` is a scratch file's mapping, the chunk's pages are then dropped from memory."""
-    out = scatter_part(words, compute_chunk(task, scenes, start, stop))
+    out = compute_chunk(task, scenes, start, stop, words)
     release_columns(words, start, stop)
     return out
 
