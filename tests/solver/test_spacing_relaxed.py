@@ -135,3 +135,54 @@ def test_relaxed_first_set_cover_against_enumeration(layout) -> None:
         assert got.objective == pytest.approx(best)
         assert info["bound"] <= got.objective + 1e-9  # a lower bound on the spaced cover
     assert seen == {True, False}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_free_columns_against_the_pairs_one_by_one(seed: int) -> None:
+    """The columns a spaced solve may add and the conflicts among them (``api._free_columns``, numpy
+    masks) equal the pairs read one by one: neither fixed, forbidden nor closer than the minimum
+    distance to a fixed camera; two fixed cameras closer than it are a one-line error naming the
+    first such pair."""
+    from camplace.errors import CamplaceError
+    from camplace.solver import api
+
+    rng = np.random.default_rng(seed)
+    n = 60
+    pairs = np.unique(np.sort(rng.integers(0, n, size=(150, 2)), axis=1), axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]].astype(np.int64)
+    conflicted = set(pairs.ravel().tolist())
+    lonely = [j for j in range(n) if j not in conflicted]
+    fixed = tuple(sorted({int(pairs[0, 0]), *(lonely[:1])}))
+    forbidden = tuple(int(j) for j in rng.choice(n, 5, replace=False) if j not in fixed)
+    banned = set(forbidden)
+    for a, b in pairs.tolist():
+        if a in fixed:
+            banned.add(b)
+        elif b in fixed:
+            banned.add(a)
+    want_free = [j for j in range(n) if j not in fixed and j not in banned]
+    free, kept = api._free_columns(n, fixed, forbidden, pairs, 1.0)
+    assert free.tolist() == want_free and int(pairs[0, 1]) not in want_free
+    assert kept.tolist() == [[a, b] for a, b in pairs.tolist() if a in want_free and b in want_free]
+    free0, kept0 = api._free_columns(n, fixed, forbidden, np.zeros((0, 2), dtype=np.int64), 1.0)
+    assert free0.tolist() == [j for j in range(n) if j not in fixed and j not in forbidden] and kept0.size == 0
+    with pytest.raises(CamplaceError, match=rf"fixed cameras {pairs[1, 0]} and {pairs[1, 1]} are closer"):
+        api._free_columns(n, (*fixed, *(int(x) for x in pairs[1])), (), pairs, 1.0)
+
+
+def test_neighbours_are_the_pairs_read_one_by_one() -> None:
+    """``spaced.neighbours`` (adjacency lists over the candidate index) gives, for every candidate,
+    the set a dict of sets filled pair by pair gives, and the default for one with no pair."""
+    from camplace.solver.engines.angle.spaced import neighbours
+
+    rng = np.random.default_rng(3)
+    pairs = rng.integers(0, 40, size=(120, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    want: dict[int, set[int]] = {}
+    for a, b in pairs.tolist():
+        want.setdefault(a, set()).add(b)
+        want.setdefault(b, set()).add(a)
+    nbr = neighbours(pairs)
+    for j in range(-1, 45):
+        assert nbr.get(j, set()) == want.get(j, set()), j
+    assert nbr.get(999) is None and neighbours(np.zeros((0, 2), dtype=np.int64)).get(0, "none") == "none"

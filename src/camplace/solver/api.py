@@ -440,17 +440,19 @@ def _free_columns(n: int, fixed_t: tuple[int, ...], forbidden_t: tuple[int, ...]
     """The columns a solve may add ((f,) int64: neither fixed, forbidden nor closer than the minimum
     distance to a fixed camera) and the conflicting pairs among them ((p, 2) int64); a one-line
     error for two fixed cameras closer than the minimum distance."""
-    fixed_set = set(fixed_t)
-    banned = set(forbidden_t)
-    for a, b in conflicts.tolist():
-        if a in fixed_set and b in fixed_set:
-            raise CamplaceError(f"fixed cameras {a} and {b} are closer than min_distance_m={min_distance_m}")
-        if a in fixed_set:
-            banned.add(b)
-        elif b in fixed_set:
-            banned.add(a)
-    free = np.ones(n, dtype=bool)
-    free[list(fixed_set | banned)] = False
+    is_fixed = np.zeros(n, dtype=bool)
+    is_fixed[list(fixed_t)] = True
+    fa = is_fixed[conflicts[:, 0]] if conflicts.size else np.zeros(0, dtype=bool)
+    fb = is_fixed[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
+    both = np.flatnonzero(fa & fb)
+    if len(both):
+        a, b = (int(x) for x in conflicts[both[0]])
+        raise CamplaceError(f"fixed cameras {a} and {b} are closer than min_distance_m={min_distance_m}")
+    free = ~is_fixed
+    free[list(forbidden_t)] = False
+    if conflicts.size:  # a candidate closer than the minimum distance to a fixed camera
+        free[conflicts[fa, 1]] = False
+        free[conflicts[fb, 0]] = False
     keep_conf = free[conflicts[:, 0]] & free[conflicts[:, 1]] if conflicts.size else np.zeros(0, dtype=bool)
     return np.flatnonzero(free), conflicts[keep_conf]
 

@@ -25,7 +25,7 @@ from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import OverBudget
 from camplace.solver.engines.angle.search import greedy_angle, solve_angle
 
-__all__ = ["SpacedAngle", "neighbours", "spaced_greedy", "spaced_swaps", "solve_spaced_angle", "RELAXED_SHARE"]
+__all__ = ["SpacedAngle", "Neighbours", "neighbours", "spaced_greedy", "spaced_swaps", "solve_spaced_angle", "RELAXED_SHARE"]
 
 log = logging.getLogger(__name__)
 
@@ -61,23 +61,47 @@ class SpacedAngle:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
-def neighbours(conflicts: np.ndarray) -> dict[int, set[int]]:
-    """The candidates closer than the minimum distance to each one.
+class Neighbours:
+    """The candidates closer than the minimum distance to each one: adjacency lists over the
+    candidate index (CSR, built with two numpy passes; a Python set is made only for the few
+    candidates asked for, as ``get`` of a dict of sets would return it).
 
     Parameters
     ----------
     conflicts : (p, 2) int64
         Pairs of candidates closer than the minimum distance (original indices).
     """
-    out: dict[int, set[int]] = {}
-    for a, b in np.asarray(conflicts, dtype=np.int64).reshape(-1, 2).tolist():
-        out.setdefault(a, set()).add(b)
-        out.setdefault(b, set()).add(a)
-    return out
+
+    def __init__(self, conflicts: np.ndarray) -> None:
+        pairs = np.asarray(conflicts, dtype=np.int64).reshape(-1, 2)
+        ends = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        others = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        n = int(ends.max()) + 1 if len(ends) else 0
+        self._indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(ends, minlength=n), out=self._indptr[1:])
+        self._others = others[np.argsort(ends, kind="stable")]
+
+    def get(self, j: int, default: Any = None) -> Any:
+        """The set of candidates closer than the minimum distance to ``j``, ``default`` when none."""
+        j = int(j)
+        if not 0 <= j < len(self._indptr) - 1 or self._indptr[j] == self._indptr[j + 1]:
+            return default
+        return set(self._others[self._indptr[j]:self._indptr[j + 1]].tolist())
+
+
+def neighbours(conflicts: np.ndarray) -> Neighbours:
+    """The candidates closer than the minimum distance to each one (:class:`Neighbours`).
+
+    Parameters
+    ----------
+    conflicts : (p, 2) int64
+        Pairs of candidates closer than the minimum distance (original indices).
+    """
+    return Neighbours(conflicts)
 
 
 def spaced_greedy(q: Any, w: np.ndarray, k: int, views: int, min_angle_deg: float, pos: np.ndarray,
-                  pts: np.ndarray, fixed: Sequence[int], free: np.ndarray, nbr: dict[int, set[int]],
+                  pts: np.ndarray, fixed: Sequence[int], free: np.ndarray, nbr: Neighbours,
                   keep: Sequence[int], deadline: Deadline) -> tuple[int, ...] | None:
     """``k`` new cameras in O(m + n) memory: ``keep`` (free, pairwise spaced columns), then one
     camera at a time the best addition with exact angles (:func:`greedy_angle` with k = 1, the
@@ -98,7 +122,7 @@ def spaced_greedy(q: Any, w: np.ndarray, k: int, views: int, min_angle_deg: floa
         Fixed cameras (the free columns are already spaced from them).
     free : (f,) int64
         Columns the new cameras may be chosen from.
-    nbr : dict of int to set of int
+    nbr : Neighbours
         :func:`neighbours` of the conflicting pairs among the free columns.
     keep : sequence of int
         New cameras to start from.
@@ -187,7 +211,7 @@ def solve_spaced_angle(q: Any, w: np.ndarray, k: int, views: int, min_angle_deg:
 
 
 def spaced_swaps(q: Any, w: np.ndarray, views: int, min_angle_deg: float, pos: np.ndarray, pts: np.ndarray,
-                 fixed: Sequence[int], free: np.ndarray, nbr: dict[int, set[int]], new: Sequence[int],
+                 fixed: Sequence[int], free: np.ndarray, nbr: Neighbours, new: Sequence[int],
                  value: Callable[[tuple[int, ...]], float], current: float,
                  deadline: Deadline) -> tuple[tuple[int, ...], float, int]:
     """Spaced 1-swaps: each new camera in turn is replaced by the best spaced addition to the others
