@@ -279,10 +279,8 @@ def set_bits(kept, per_cam, slot, blocked, live_rows, col0, words):  # pragma: n
 
     Parameters
     ----------
-    kept, per_cam, slot, blocked
-        From :func:`cull`, :func:`build_segments` and the casts.
-    live_rows : (l,) int64
-        Global row of each live row.
+    kept, per_cam, slot, blocked, live_rows
+        As :func:`compact` takes them.
     col0 : int
         Global column of the chunk's first camera.
     words : (n, W) uint64
