@@ -14,7 +14,11 @@ can say which of them costs what:
 - ``no-idle``: that work left out (a run would do it after the stage, serially);
 - ``idle-0.5ms``: as a run, with the interpreter's switch interval at 0.5 ms instead of 5 ms (a
   thread that wants the lock back after a kernel waits at most that long);
-- ``chunk-x4``: no waiting work, chunks four times the default (a quarter of the Python steps).
+- ``chunk-x4``: no waiting work, chunks four times the default (a quarter of the Python steps);
+- ``chunk-quarter``: no waiting work, chunks a quarter of the default (each thread's work arrays,
+  about 34 bytes a kept pair, four times smaller: whether 16 threads' arrays outgrow the caches).
+
+``benchmarks/gil_contention.py`` measures the first effect alone on 2 cores.
 
 Prints the cast's seconds (``visibility.cast``, median of ``--repeat``) per variant and thread
 count and the speed-up over the first count; checks that every variant gives the same bits.
@@ -32,7 +36,7 @@ import statistics
 import subprocess
 import sys
 
-VARIANTS = ("idle", "no-idle", "idle-0.5ms", "chunk-x4")
+VARIANTS = ("idle", "no-idle", "idle-0.5ms", "chunk-x4", "chunk-quarter")
 
 _CHILD = """
 import hashlib, sys, time
@@ -52,9 +56,9 @@ idle = P._while_casting(inst, settings, cands, pts, True) if variant.startswith(
 if variant == "idle-0.5ms":
     sys.setswitchinterval(5e-4)
 chunk = None
-if variant == "chunk-x4":
+if variant.startswith("chunk"):
     task, _ = E.make_task(inst, cands, pts, quantised=False)
-    chunk = 4 * E.default_chunk_size(task)
+    chunk = 4 * E.default_chunk_size(task) if variant == "chunk-x4" else max(1, E.default_chunk_size(task) // 4)
 vis = E.compute_visibility(inst, cands, pts, workers=threads, idle=idle, chunk_size=chunk)
 print(vis.timings_s["visibility.cast"], hashlib.sha256(vis.bits.words.tobytes()).hexdigest()[:16])
 """
