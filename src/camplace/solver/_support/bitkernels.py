@@ -1002,8 +1002,22 @@ def extract_rows(indptr, indices, data, rows, col_map):  # pragma: no cover - co
 
 
 @numba.njit(**_JIT)
+def selected_row_stats_block(lo, hi, indptr, indices, data, chosen, count, vmax):  # pragma: no cover - compiled
+    """:func:`selected_row_stats` of rows ``lo:hi``, written into ``count`` and ``vmax``."""
+    for r in range(lo, hi):
+        for p in range(indptr[r], indptr[r + 1]):
+            if chosen[indices[p]]:
+                v = data[p]
+                if v > 0:
+                    count[r] += 1
+                    if v > vmax[r]:
+                        vmax[r] = v
+
+
+@numba.njit(**_JIT)
 def selected_row_stats(indptr, indices, data, chosen):  # pragma: no cover - compiled
-    """Per row: how many chosen columns have a value > 0 there, and the largest such value.
+    """Per row: how many chosen columns have a value > 0 there, and the largest such value (on the
+    pool: :func:`camplace.solver._support.parkernels.selected_row_stats`).
 
     Parameters
     ----------
@@ -1018,14 +1032,7 @@ def selected_row_stats(indptr, indices, data, chosen):  # pragma: no cover - com
     m = indptr.shape[0] - 1
     count = np.zeros(m, dtype=np.int64)
     vmax = np.zeros(m, dtype=np.float64)
-    for r in range(m):
-        for p in range(indptr[r], indptr[r + 1]):
-            if chosen[indices[p]]:
-                v = data[p]
-                if v > 0:
-                    count[r] += 1
-                    if v > vmax[r]:
-                        vmax[r] = v
+    selected_row_stats_block(0, m, indptr, indices, data, chosen, count, vmax)
     return count, vmax
 
 

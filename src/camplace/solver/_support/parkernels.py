@@ -13,7 +13,8 @@ import numpy as np
 from camplace.solver._support import bitkernels as K
 from camplace._blocks import cuts, run_blocks, threads_for
 
-__all__ = ["build_bits", "column_sizes", "dominated_columns", "group_rows", "live_rows", "row_hashes", "shortfall_all"]
+__all__ = ["build_bits", "column_sizes", "dominated_columns", "group_rows", "live_rows", "row_hashes",
+           "selected_row_stats", "shortfall_all"]
 
 _WORD_ROWS = 512  # row blocks of bitsets start on a multiple of 8 words (64 bytes: no shared cache line)
 
@@ -26,6 +27,16 @@ def live_rows(indptr, indices, data, w, threads: int | None = None):
     run_blocks(lambda lo, hi: K.live_rows_block(lo, hi, indptr, data, w, live, cnt), cuts(m),
                threads or threads_for(data.shape[0]))
     return live, cnt
+
+
+def selected_row_stats(indptr, indices, data, chosen, threads: int | None = None):
+    """:func:`camplace.solver._support.bitkernels.selected_row_stats` on row blocks."""
+    m = indptr.shape[0] - 1
+    count = np.zeros(m, dtype=np.int64)
+    vmax = np.zeros(m, dtype=np.float64)
+    run_blocks(lambda lo, hi: K.selected_row_stats_block(lo, hi, indptr, indices, data, chosen, count, vmax), cuts(m),
+               threads or threads_for(indices.shape[0]))
+    return count, vmax
 
 
 def build_bits(indptr, indices, data, rows, col_map, n_cols, threads: int | None = None):

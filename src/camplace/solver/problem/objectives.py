@@ -15,6 +15,7 @@ from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
 from camplace.names import MODES
 from camplace.solver._support import bitkernels as _bk
+from camplace.solver._support import parkernels as _pk
 from camplace.solver.engines.angle._kernels import selected_pattern
 from camplace.solver.problem.checks import coords, values_matrix
 from camplace.solver.problem.presolve import as_pattern, check_weights
@@ -248,4 +249,4 @@ def selected_row_stats(matrix: sp.csr_matrix, selected: Sequence[int]) -> tuple[
     if data.dtype.kind == "b":
         data = data.view(np.uint8)
     with ctrl_c_deferred():
-        return _bk.selected_row_stats(matrix.indptr, matrix.indices, data, chosen)
+        return _pk.selected_row_stats(matrix.indptr, matrix.indices, data, chosen)

@@ -748,25 +748,21 @@ def expand(front, front_bound, lo, hi, left, right, levels, cones, views, campos
 
 
 @numba.njit(**_JIT)
-def row_status(indptr, indices, data, sel, pos, pts, views, theta_deg):  # pragma: no cover - compiled
-    """Per row: how many cameras of ``sel`` observe it, and whether it counts (>= views of them and
-    two making the angle).
-
-    Returns
-    -------
-    count : (m,) int64
-    ok : (m,) bool
-    """
-    cos_t = math.cos(math.radians(theta_deg))
-    m = indptr.shape[0] - 1
-    n = pos.shape[0]
+def selection_index(sel, n):  # pragma: no cover - compiled
+    """(n,) int64: each column's position in ``sel``, -1 for a column not in it."""
     where = np.full(n, -1, dtype=np.int64)
     for t in range(sel.shape[0]):
         where[sel[t]] = t
-    count = np.zeros(m, dtype=np.int64)
-    ok = np.zeros(m, dtype=np.bool_)
-    obs = np.empty(sel.shape[0], dtype=np.int64)
-    for r in range(m):
+    return where
+
+
+@numba.njit(**_JIT)
+def row_status_block(lo, hi, indptr, indices, data, where, n_sel, pos, pts, views, theta_deg, count, ok):  # pragma: no cover
+    """:func:`row_status` of rows ``lo:hi``, written into ``count`` and ``ok`` (``where``:
+    :func:`selection_index` of the cameras, ``n_sel`` of them)."""
+    cos_t = math.cos(math.radians(theta_deg))
+    obs = np.empty(n_sel, dtype=np.int64)
+    for r in range(lo, hi):
         c = 0
         for p in range(indptr[r], indptr[r + 1]):
             if data[p] > 0 and where[indices[p]] >= 0:
@@ -784,6 +780,23 @@ def row_status(indptr, indices, data, sel, pos, pts, views, theta_deg):  # pragm
             if found:
                 break
         ok[r] = found
+
+
+@numba.njit(**_JIT)
+def row_status(indptr, indices, data, sel, pos, pts, views, theta_deg):  # pragma: no cover - compiled
+    """Per row: how many cameras of ``sel`` observe it, and whether it counts (>= views of them and
+    two making the angle). (On the pool: :func:`row_status_block`.)
+
+    Returns
+    -------
+    count : (m,) int64
+    ok : (m,) bool
+    """
+    m = indptr.shape[0] - 1
+    count = np.zeros(m, dtype=np.int64)
+    ok = np.zeros(m, dtype=np.bool_)
+    row_status_block(0, m, indptr, indices, data, selection_index(sel, pos.shape[0]), sel.shape[0], pos, pts, views,
+                     theta_deg, count, ok)
     return count, ok
 
 
@@ -909,15 +922,11 @@ def selected_pattern(indptr, indices, data, rows, cols, n):  # pragma: no cover 
 
 
 @numba.njit(**_JIT)
-def row_status_bits(words, m, sel, pos, pts, views, theta_deg):  # pragma: no cover - compiled
-    """:func:`row_status` of column bitsets: ``sel`` ascending and distinct (the observers of a row
-    are then listed in the order the CSR kernel lists them, so every angle test is the same).
-    Reads ``m x len(sel)`` bits instead of every observed pair."""
+def row_status_bits_block(lo, hi, words, sel, pos, pts, views, theta_deg, count, ok):  # pragma: no cover - compiled
+    """:func:`row_status_bits` of rows ``lo:hi``, written into ``count`` and ``ok``."""
     cos_t = math.cos(math.radians(theta_deg))
-    count = np.zeros(m, dtype=np.int64)
-    ok = np.zeros(m, dtype=np.bool_)
     obs = np.empty(sel.shape[0], dtype=np.int64)
-    for r in range(m):
+    for r in range(lo, hi):
         wd = r >> 6
         bit = np.uint64(1) << np.uint64(r & 63)
         c = 0
@@ -937,6 +946,17 @@ def row_status_bits(words, m, sel, pos, pts, views, theta_deg):  # pragma: no co
             if found:
                 break
         ok[r] = found
+
+
+@numba.njit(**_JIT)
+def row_status_bits(words, m, sel, pos, pts, views, theta_deg):  # pragma: no cover - compiled
+    """:func:`row_status` of column bitsets: ``sel`` ascending and distinct (the observers of a row
+    are then listed in the order the CSR kernel lists them, so every angle test is the same).
+    Reads ``m x len(sel)`` bits instead of every observed pair. (On the pool:
+    :func:`row_status_bits_block`.)"""
+    count = np.zeros(m, dtype=np.int64)
+    ok = np.zeros(m, dtype=np.bool_)
+    row_status_bits_block(0, m, words, sel, pos, pts, views, theta_deg, count, ok)
     return count, ok
 
 

@@ -70,7 +70,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from camplace._signals import ctrl_c_deferred
+from camplace._blocks import cuts, run_blocks, threads_for
 from camplace.solver._support import bitkernels as K
+from camplace.solver._support import parkernels as PK
 from camplace.solver._support.deadline import Deadline, as_deadline, stopwatch
 from camplace.solver._support.frontier import Frontier, best_first
 from camplace.solver._support.memory import OverBudget, note_memory
@@ -314,10 +316,19 @@ class _Rows:
         """:func:`~camplace.solver.engines.angle._kernels.row_status` of the cameras ``sel``."""
         q = self.q
         sel = np.unique(np.asarray(sel, dtype=np.int64))
-        with ctrl_c_deferred():
+        m = q.shape[0]
+        count = np.zeros(m, dtype=np.int64)
+        ok = np.zeros(m, dtype=np.bool_)
+        with ctrl_c_deferred():  # row blocks on the pool: each writes its own rows
             if self.bits:
-                return AK.row_status_bits(q.words, q.shape[0], sel, pos, pts, views, theta_deg)
-            return AK.row_status(q.indptr, q.indices, self.data, sel, pos, pts, views, theta_deg)
+                run_blocks(lambda lo, hi: AK.row_status_bits_block(lo, hi, q.words, sel, pos, pts, views, theta_deg,
+                                                                   count, ok), cuts(m), threads_for(m * len(sel)))
+            else:
+                where = AK.selection_index(sel, pos.shape[0])
+                run_blocks(lambda lo, hi: AK.row_status_block(lo, hi, q.indptr, q.indices, self.data, where, len(sel),
+                                                              pos, pts, views, theta_deg, count, ok), cuts(m),
+                           threads_for(q.indices.shape[0]))
+        return count, ok
 
     def gains(self, wu: np.ndarray, sel: np.ndarray, pos: np.ndarray, pts: np.ndarray, views: int, theta_deg: float,
               count: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -345,7 +356,7 @@ class _Rows:
         if self.bits:
             return row_counts_of(q, np.flatnonzero(allowed))
         with ctrl_c_deferred():
-            return K.selected_row_stats(q.indptr, q.indices, self.data, allowed)[0]
+            return PK.selected_row_stats(q.indptr, q.indices, self.data, allowed)[0]
 
     def build_bits(self, rows: np.ndarray, col_map: np.ndarray, n_cols: int) -> np.ndarray:
         """Column bitsets over ``rows`` (-1: padding) of the mapped columns: ``(n_cols, ceil(len(rows) / 64))``."""
@@ -353,7 +364,7 @@ class _Rows:
         if self.bits:
             return layout_bits(q, rows, col_map, n_cols)
         with ctrl_c_deferred():
-            return K.build_bits(q.indptr, q.indices, self.data, rows, col_map, n_cols)
+            return PK.build_bits(q.indptr, q.indices, self.data, rows, col_map, n_cols)
 
 
     def column_lists(self, row_id: np.ndarray, local: np.ndarray, n_local: int) -> tuple[np.ndarray, np.ndarray]:

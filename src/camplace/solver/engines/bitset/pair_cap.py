@@ -33,6 +33,7 @@ import numpy as np
 
 from camplace._signals import ctrl_c_deferred
 from camplace.solver._support import bitkernels as _bk
+from camplace.solver._support import parkernels as _pk
 from camplace.solver._support.deadline import Deadline
 from camplace.solver._support.memory import memory_budget_bytes, note_memory
 from camplace.solver.problem.checks import kernel_data
@@ -171,7 +172,7 @@ def match_opposite(
     else:
         allowed = np.zeros(n, dtype=bool)
         allowed[cols] = True
-        seen, _ = _bk.selected_row_stats(a.indptr, a.indices, kernel_data(a), allowed)
+        seen, _ = _pk.selected_row_stats(a.indptr, a.indices, kernel_data(a), allowed)
     rows = np.flatnonzero((seen >= views) & (w > 0))
     countable = float(w[rows].sum())
     stats: dict[str, Any] = {"rows": int(rows.size), "checks": 0, "complete": False}
