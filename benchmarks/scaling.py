@@ -219,6 +219,10 @@ def main() -> None:
           + "".join(f"{embree[base] / embree[t]:>8.2f}{karp_flatt(embree[base] / embree[t], t / base):>7.2f}{'':>7}"
                     for t in counts[1:]))
     top = counts[-1]
+    if 2 in counts and top > 2 and base != 2:  # the goal is read from 2 threads
+        print(f"from 2 to {top} threads: " + ", ".join(
+            f"{name.strip()} {rows[2][name] / rows[top][name]:.2f}x" for name in ("whole", "visibility", "solve")
+            if rows[top][name] > 0) + f" (the cores: {machine[2] / machine[top]:.2f}x, Embree: {embree[2] / embree[top]:.2f}x)")
     if base == 1 and top > 1 and args.predict > top:
         s = rows[base]["whole"] / rows[top]["whole"]
         for label, f in (("f", karp_flatt(s, top)), ("fc", karp_flatt(s, ceiling[top]))):
