@@ -223,12 +223,12 @@ def test_unwritable_scratch_folder_is_one_line_exit_2(tmp_path: Path, capsys) ->
 
 
 def test_interrupted_out_of_core_run_removes_its_scratch(tmp_path: Path) -> None:
-    from camplace.visibility.engine import BASE_BYTES, THREAD_BYTES
+    from camplace.visibility.engine import BASE_BYTES, thread_bytes
 
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     words = 2000 * ((20000 + 63) // 64) * 8  # the bitsets: in memory they would pass this budget (1 thread)
-    budget = (BASE_BYTES + THREAD_BYTES + words // 2) / 2**30
+    budget = (BASE_BYTES + thread_bytes("bits", 20000) + words // 2) / 2**30
     proc = cli_proc(["run", "comet-67p-bunker", "-o", str(tmp_path / "out"), "--candidates", "2000", "--points", "20000",
                      "--no-cache", "--memory-budget-gb", repr(budget), "--threads", "1", "--scratch", str(scratch)],
                     tmp_path / "cache")

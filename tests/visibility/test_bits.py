@@ -156,12 +156,12 @@ def test_guard_counts_the_solve_on_bits(problem) -> None:
     arrays and the solve's bytes. A budget between the threads' figure and a larger solve's lets
     the run without that solve cast its rays and stops the one with it before the work."""
     from camplace._cores import thread_count
-    from camplace.visibility.engine import BASE_BYTES, THREAD_BYTES, estimate_matrix_bytes
+    from camplace.visibility.engine import BASE_BYTES, estimate_matrix_bytes, thread_bytes
 
     inst, pts, cands = problem
     m, n = len(pts), len(cands)
     words = n * ((m + 63) // 64) * 8
-    threads = THREAD_BYTES * thread_count()
+    threads = thread_bytes("bits", m) * thread_count()
     assert estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=0) == words + 16 * m + BASE_BYTES + threads
     for solve in (threads // 2, threads + 12345):
         got = estimate_matrix_bytes(m, n, 1.0, "bits", solve_bytes=solve)

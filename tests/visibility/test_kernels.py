@@ -148,8 +148,8 @@ def test_chunk_plan_covers_every_candidate_once_in_order(n: int, size: int, work
 
 
 def test_bits_set_straight_equal_the_pair_lists(flyby) -> None:
-    """A chunk's bits set straight from its pairs (``compute_chunk(..., words)``, the
-    :func:`_kernels.set_bits` pass) equal its pair list scattered (``compact`` then
+    """A chunk's bits set straight (``compute_chunk(..., words)``: camera by camera in one compiled
+    call, :func:`_kernels.cast_chunk`) equal its pair list scattered (``compact`` then
     ``scatter_chunk``) and the CSR assembled from the same chunks, with the same counts, for
     chunks of every width (uint8 and uint16 local columns)."""
     from camplace.visibility.bits import bit_words
@@ -175,3 +175,66 @@ def test_bits_set_straight_equal_the_pair_lists(flyby) -> None:
         dense = np.unpackbits(straight.view(np.uint8), axis=1, bitorder="little")[:, :m].T.astype(bool)
         assert int(dense.sum()) == csr.nnz > 10_000
         assert np.array_equal(dense, csr.toarray() != 0), width
+
+
+def _bunker_inside_and_out():
+    """comet-67p-bunker with candidates sampled in a box twice the room's size, so that some
+    cameras stand inside the occluders' room (:attr:`VisibilityTask.enclosing_rest`) and some
+    outside, chunk by chunk."""
+    inst = builtin("comet-67p-bunker")
+    lo, hi = np.asarray(inst.volume.min_m), np.asarray(inst.volume.max_m)
+    mid, half = (lo + hi) / 2, (hi - lo) / 2
+    pts = make_target_points(inst, 3000, seed=5)
+    cands = make_candidates("chaotic", 120, mid - 2 * half, mid + 2 * half, event_aims(inst, 3), seed=6)
+    return inst, pts, cands
+
+
+@pytest.mark.parametrize("graded", [False, True])
+def test_camera_by_camera_cast_equals_the_chunk_pair_lists(graded: bool) -> None:
+    """The chunk cast camera by camera in one compiled call (:func:`_kernels.cast_chunk`, into bits
+    or quantised bytes) writes exactly the cells of the chunk's pair list (the steps over the whole
+    chunk, then ``scatter_chunk`` / :func:`chunk.scatter_part_bytes`), with the same counts, on
+    chunks where some cameras are inside the occluders' room and some outside: those inside skip
+    their casts against the occluders camera by camera (fewer segments cast, never more) and
+    the answer does not change. A planted wrong cell is seen."""
+    from camplace.visibility.bits import bit_words
+    from camplace.visibility.engine import scatter_part
+
+    inst, pts, cands = _bunker_inside_and_out()
+    if graded:
+        inst = dataclasses.replace(inst, quality=dataclasses.replace(inst.quality, mode="graded"))
+    task, scenes = make_task(inst, cands, pts, quantised=graded)
+    n, m = len(cands), len(pts)
+    inside = chunk._enclosed_cameras(task, task.cam_positions.astype(np.float32).astype(np.float64))[:, 0]
+    assert 10 < inside.sum() < n - 10  # both kinds of camera
+    assert chunk._packet_scenes(task, scenes) is not None  # the compiled path runs (Embree 4's packets)
+    fewer = 0
+    for width in (1, 37, 120):
+        assert any(0 < inside[s:s + width].sum() < len(inside[s:s + width]) for s in range(0, n, width)) or width == 1
+        if graded:
+            straight = np.zeros((n, m), dtype=np.uint8)
+            listed = np.zeros_like(straight)
+        else:
+            straight = np.zeros((n, bit_words(m)), dtype=np.uint64)
+            listed = np.zeros_like(straight)
+        observed = 0
+        for s in range(0, n, width):
+            e = min(s + width, n)
+            a = compute_chunk(task, scenes, s, e, values=straight) if graded else compute_chunk(task, scenes, s, e, straight)
+            observed += a.counts["observed"]
+            b = compute_chunk(task, scenes, s, e)
+            assert len(a.lcols) == 0 and a.counts["observed"] == len(b.lcols)
+            assert {k: v for k, v in a.counts.items() if k != "cast"} == {k: v for k, v in b.counts.items() if k != "cast"}
+            assert a.counts["cast"] <= b.counts["cast"]
+            fewer += b.counts["cast"] - a.counts["cast"]
+            if graded:
+                chunk.scatter_part_bytes(task, listed, b)
+            else:
+                scatter_part(listed, b)
+        cells = np.count_nonzero(straight) if graded else int(np.unpackbits(straight.view(np.uint8)).sum())
+        assert cells == observed > 10_000
+        assert np.array_equal(straight, listed), width
+        planted = straight.copy()
+        planted.flat[np.flatnonzero(planted)[len(np.flatnonzero(planted)) // 2]] ^= 1
+        assert not np.array_equal(planted, listed)
+    assert fewer > 0  # mixed chunks: the pair lists cast the inside cameras' segments, camera by camera does not

@@ -10,7 +10,13 @@ three steps per chunk of candidates:
 2. :func:`build_segments` writes the float32 segments of the kept pairs grouped by scene, so
    each group is one contiguous slice for Embree;
 3. :func:`compact` keeps the pairs whose segment was not blocked, as a row list (the chunk's
-   own small CSR, built in cache, one byte a pair);
+   own small CSR, built in cache, one byte a pair), or :func:`set_bits` sets their bits in the
+   column bitsets;
+
+:func:`cast_chunk` runs the three steps, the Embree casts (:mod:`camplace.visibility._castkernels`)
+and :func:`set_bits` (or, for quantised columns, :func:`set_quality`) camera by camera in one call:
+its work arrays hold one camera's pairs (about 34 bytes a live row) instead of a chunk's, and the
+chunk takes the interpreter's lock once;
 
 and :func:`merge_rows` copies the chunks' row runs into the matrix's CSR arrays, computing each
 pair's observation quality on the way; :func:`supporting` finds the rows whose tangent plane
@@ -26,6 +32,7 @@ import math
 import numba
 import numpy as np
 
+from camplace.visibility._castkernels import occluded_packets
 from camplace.visibility.qbytes import quantise
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False}
@@ -302,6 +309,133 @@ def set_bits(kept, per_cam, slot, blocked, live_rows, col0, words):  # pragma: n
                 n += 1
             j += 1
     return n
+
+
+@numba.njit(**_JIT)
+def set_quality(kept, per_cam, slot, blocked, live_rows, col, values, positions, normals, emitter, cam_pos, fx,
+                required_px_per_m):  # pragma: no cover - compiled
+    """Write the quantised quality (:func:`pair_quality`, then
+    :func:`camplace.visibility.qbytes.quantise`) of one camera's unblocked pairs into its column
+    ``values[col]`` ((n, m) uint8), as :func:`scatter_chunk_quality` does from a row list.
+
+    Parameters
+    ----------
+    kept, per_cam, slot, blocked, live_rows
+        As :func:`set_bits` takes them, for the one camera (``per_cam`` (1,)).
+    col : int
+        Global column of the camera (also its row of ``cam_pos``).
+    values : (n, m) uint8
+    positions, normals : (m, 3) float64
+    emitter : (m,) bool
+    cam_pos : (n, 3) float64
+    fx, required_px_per_m : float
+
+    Returns
+    -------
+    int
+        Unblocked pairs (cells written).
+    """
+    n = 0
+    for j in range(per_cam[0]):
+        if not blocked[slot[j]]:
+            r = live_rows[kept[j]]
+            values[col, r] = quantise(np.float64(pair_quality(r, col, positions, normals, emitter, cam_pos, fx,
+                                                              required_px_per_m)))
+            n += 1
+    return n
+
+
+@numba.njit(**_JIT)
+def cast_chunk(
+    cam_pos, cam_rot, whole, enclosed, frame_start, live_pos, live_nrm, live_ndotp, live_emit, live_support, support_tol,
+    frame_blocks, block_start, block_centre, block_axis, block_spread, block_h_lo, block_h_hi, block_emit,
+    block_reach, fx, fy, cx, cy, width_px, height_px, near_m, far_m, cos_max, live_ends32, fn, width, scenes,
+    live_rows, col0, words, values, positions, normals, emitter, all_cam_pos, required_px_per_m,
+    kept, group, origins, directions, slot, blocked,
+):  # pragma: no cover - compiled
+    """A chunk of candidates cast and written into the matrix, one camera at a time: :func:`cull`,
+    :func:`build_segments`, the Embree casts
+    (:func:`camplace.visibility._castkernels.occluded_packets`), then :func:`set_bits` into the
+    column bitsets ``words`` or, when ``words`` has no rows, :func:`set_quality` into the quantised
+    columns ``values``: the same answer as those steps over the whole chunk (each pair's tests and
+    segment do not depend on the other cameras).
+
+    Parameters
+    ----------
+    cam_pos, cam_rot, whole, frame_start, ..., cos_max
+        As :func:`cull` takes them (``whole``: (c, n_frames) bool).
+    enclosed : (c, n_frames) bool
+        The camera is inside frame f's occluder room (``VisibilityTask.enclosing_rest``): its
+        segments of group ``2 f + 1`` meet nothing and are not cast.
+    live_ends32 : (l, 3) float32
+        As :func:`build_segments` takes it.
+    fn : uint64
+        Address of ``rtcOccluded{width}``.
+    width : int
+        Rays per Embree call.
+    scenes : (2 * n_frames,) uint64
+        The committed Embree scene of each group (frame f's full scene ``2 f``, its occluders
+        alone ``2 f + 1``); 0 for a scene with no triangles (nothing blocks).
+    live_rows : (l,) int64
+        Global row of each live row.
+    col0 : int
+        Global column of the chunk's first camera.
+    words : (n, W) uint64
+        Column bitsets, written in place (only the chunk's columns); (0, 1) for quantised columns.
+    values : (n, m) uint8
+        Quantised columns, written in place (only the chunk's columns) when ``words`` has no rows.
+    positions, normals : (m, 3) float64
+    emitter : (m,) bool
+    all_cam_pos : (n, 3) float64
+        Every candidate's position (the quality of a pair, :func:`pair_quality`).
+    required_px_per_m : float
+        The quality's scale (``fx`` of the chunk's camera model grades it).
+    kept, group, origins, directions, slot, blocked : work arrays of at least l entries
+        int32, int8, (l, 3) float32, (l, 3) float32, int32, bool.
+
+    Returns
+    -------
+    (5,) int64
+        Pairs in range, in the frustum, facing (as :func:`cull` counts them), segments cast,
+        and unblocked pairs (bits set or cells written).
+    """
+    nc = cam_pos.shape[0]
+    n_groups = scenes.shape[0]
+    out = np.zeros(5, dtype=np.int64)
+    sizes = np.zeros(n_groups, dtype=np.int64)
+    pos32 = cam_pos.astype(np.float32)
+    for c in range(nc):
+        sizes[:] = 0
+        q, per_cam, steps = cull(
+            cam_pos[c:c + 1], cam_rot[c:c + 1], whole[c:c + 1], frame_start, live_pos, live_nrm, live_ndotp,
+            live_emit, live_support, support_tol, frame_blocks, block_start, block_centre, block_axis, block_spread,
+            block_h_lo, block_h_hi, block_emit, block_reach, fx, fy, cx, cy, width_px, height_px, near_m, far_m,
+            cos_max, kept, group, sizes,
+        )
+        out[0] += steps[0]
+        out[1] += steps[1]
+        out[2] += steps[2]
+        if q == 0:
+            continue
+        offsets = build_segments(kept, group, sizes, per_cam, pos32[c:c + 1], live_ends32, origins, directions, slot)
+        for g in range(n_groups):
+            lo, hi = offsets[g], offsets[g + 1]
+            if hi == lo:
+                continue
+            if g % 2 == 1 and enclosed[c, g // 2]:
+                blocked[lo:hi] = False
+                continue
+            out[3] += hi - lo
+            if scenes[g] == 0:  # (counted as cast, as RayScene.occluded_dir of no triangles is)
+                blocked[lo:hi] = False
+                continue
+            occluded_packets(fn, scenes[g], width, origins[lo:hi], directions[lo:hi], blocked[lo:hi])
+        if words.shape[0] > 0:
+            out[4] += set_bits(kept, per_cam, slot, blocked, live_rows, col0 + c, words)
+        else:
+            out[4] += set_quality(kept, per_cam, slot, blocked, live_rows, col0 + c, values, positions, normals,
+                                  emitter, all_cam_pos, fx, required_px_per_m)
+    return out
 
 
 @numba.njit(**_JIT)

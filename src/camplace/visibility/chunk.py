@@ -214,6 +214,11 @@ class VisibilityTask:
         return live[np.lexsort((_morton3(cell), self.frame[live]))]
 
     @functools.cached_property
+    def emitters(self) -> np.ndarray:
+        """(m,) bool: rows without a normal (emitters: a plume's particles), graded with cos = 1."""
+        return ~np.any(self.normals != 0.0, axis=1)
+
+    @functools.cached_property
     def ends32(self) -> np.ndarray:
         """(m, 3) float32: segment end of every row, ``p + eps n`` (the point itself for emitters)."""
         return (self.positions + self.eps_m[self.frame][:, None] * self.normals).astype(np.float32)
@@ -371,6 +376,11 @@ class ChunkResult:
     counts: dict
 
 
+#: what :func:`camplace.visibility._kernels.cast_chunk` gets for the matrix it does not write
+_NO_WORDS = np.zeros((0, 1), dtype=np.uint64)
+_NO_VALUES = np.zeros((0, 1), dtype=np.uint8)
+_NO_EMITTERS = np.zeros(0, dtype=np.bool_)
+
 _SCRATCH_POOL: list[dict] = []  # idle per-chunk work-array sets, kept between calls
 _SCRATCH_LOCK = threading.Lock()
 
@@ -391,6 +401,13 @@ def _give_scratch(bufs: dict) -> None:
             _SCRATCH_POOL.append(bufs)
 
 
+def drop_scratch() -> None:
+    """Free the idle work-array sets (the visibility stage calls it when its chunks are done, so that
+    the solve does not share memory with them)."""
+    with _SCRATCH_LOCK:
+        _SCRATCH_POOL.clear()
+
+
 def _scratch(bufs: dict, name: str, shape: int | tuple[int, ...], dtype) -> np.ndarray:
     """A work array of this shape from ``bufs`` (contents undefined), grown when too small."""
     shape = (shape,) if isinstance(shape, int) else tuple(shape)
@@ -403,34 +420,69 @@ def _scratch(bufs: dict, name: str, shape: int | tuple[int, ...], dtype) -> np.n
 
 
 def compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int,
-                  words: np.ndarray | None = None) -> "ChunkResult":
-    """Observed pairs of candidates ``start:stop`` (``words``: column bitsets, (n, W) uint64, whose
-    columns ``start:stop`` get the pairs' bits instead; the result then holds the counts alone).
+                  words: np.ndarray | None = None, values: np.ndarray | None = None) -> "ChunkResult":
+    """Observed pairs of candidates ``start:stop``; with ``words`` (column bitsets, (n, W) uint64)
+    their bits set there, with ``values`` (quantised columns, (n, m) uint8) their quantised quality
+    written there (only columns ``start:stop``), the result then holding the counts alone.
 
     Culling and segment building run in compiled, GIL-free kernels
     (:mod:`camplace.visibility._kernels`); cameras that hold a frame's whole live point set
     inside their frustum and range skip the per-pair frustum test; segments to points on a
     supporting plane of the target (see :class:`VisibilityTask`) are cast against the occluders
-    alone. Each scene gets one contiguous batch of segments.
+    alone. Written into ``words`` or ``values`` through Embree's packets, the chunk runs camera by
+    camera in one compiled call (:func:`camplace.visibility._kernels.cast_chunk`: work arrays of
+    one camera's pairs); otherwise each scene gets one contiguous batch of the chunk's segments.
     """
     bufs = _take_scratch()
     try:
         with ctrl_c_deferred():  # (in the main thread only: the Dask pilot, direct calls)
-            return _compute_chunk(task, scenes, start, stop, bufs, words)
+            return _compute_chunk(task, scenes, start, stop, bufs, words, values)
     finally:
         _give_scratch(bufs)
 
 
-def _cameras_enclosed(cam: np.ndarray, planes: np.ndarray, side: np.ndarray, scale: float) -> bool:
-    """Whether every camera ``cam`` (c, 3) float64 is on the rows' ``side`` of every plane, beyond
-    the margin of :attr:`VisibilityTask.enclosing_rest` (scale grown to the cameras' size)."""
-    tol = ENCLOSING_TOL * max(scale, float(np.abs(cam).max()) if len(cam) else 0.0)
+def _cameras_inside(cam: np.ndarray, planes: np.ndarray, side: np.ndarray, scale: float) -> np.ndarray:
+    """(c,) bool: camera c (``cam`` (c, 3) float64) is on the rows' ``side`` of every plane, beyond
+    the margin of :attr:`VisibilityTask.enclosing_rest` (``scale`` grown to the camera's size)."""
+    tol = ENCLOSING_TOL * np.maximum(scale, np.abs(cam).max(axis=1, initial=0.0))
     dist = cam @ planes[:, :3].T - planes[:, 3]  # (c, t)
-    return bool(np.all(np.abs(dist) > tol) and np.all((dist > 0.0) == side))
+    return np.all(np.abs(dist) > tol[:, None], axis=1) & np.all((dist > 0.0) == side, axis=1)
+
+
+def _cameras_enclosed(cam: np.ndarray, planes: np.ndarray, side: np.ndarray, scale: float) -> bool:
+    """Whether every camera ``cam`` (c, 3) float64 is inside the room (:func:`_cameras_inside`)."""
+    return bool(np.all(_cameras_inside(cam, planes, side, scale)))
+
+
+def _packet_scenes(task: VisibilityTask, scenes: dict[int, "FrameScenes"]) -> tuple[int, int, np.ndarray] | None:
+    """What :func:`camplace.visibility._kernels.cast_chunk` casts through: the address of Embree's
+    ``rtcOccluded{width}``, the width, and each scene group's scene handle ((2 * n_frames,)
+    uint64, 0 where the scene has no triangles); None where a scene has no packet path (embreex)."""
+    handles = np.zeros(2 * len(task.eps_m), dtype=np.uint64)
+    api = None
+    for f in task.scene_triangles:
+        for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
+            if len(scene) == 0:
+                continue
+            packets = scene._packets
+            if packets is None:
+                return None
+            api = packets.api
+            handles[g] = packets.handle
+    return (0, 1, handles) if api is None else (int(api.occluded), int(api.width), handles)
+
+
+def _enclosed_cameras(task: VisibilityTask, cam32: np.ndarray) -> np.ndarray:
+    """(c, n_frames) bool: camera c (its float32 position, ``cam32`` (c, 3) float64) is inside frame
+    f's occluder room (:attr:`VisibilityTask.enclosing_rest`, :func:`_cameras_inside`)."""
+    out = np.zeros((len(cam32), len(task.eps_m)), dtype=bool)
+    for f, room in task.enclosing_rest.items():
+        out[:, f] = _cameras_inside(cam32, *room)
+    return out
 
 
 def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start: int, stop: int, bufs: dict,
-                   words: np.ndarray | None = None) -> "ChunkResult":
+                   words: np.ndarray | None = None, values: np.ndarray | None = None) -> "ChunkResult":
     """:func:`compute_chunk` with the work arrays ``bufs``."""
     from camplace.visibility import _kernels
 
@@ -448,6 +500,32 @@ def _compute_chunk(task: VisibilityTask, scenes: dict[int, "FrameScenes"], start
     whole = np.zeros((nc, n_frames), dtype=bool)
     for f, (centre, radius) in task.frame_spheres.items():
         whole[:, f] = sphere_inside_view(centre, radius, pos, rot, K, width_px, height_px, near_m, far_m)
+    packets = _packet_scenes(task, scenes) if words is not None or values is not None else None
+    if packets is None and values is not None:  # (embreex) the pair list, then its cells
+        return scatter_part_bytes(task, values, _compute_chunk(task, scenes, start, stop, bufs))
+    if packets is not None:  # through Embree's packets: camera by camera, in one call
+        nl = len(live)
+        cam32 = pos.astype(np.float32).astype(np.float64)  # the segments' origins, exactly
+        if words is None:
+            words = _NO_WORDS
+            emitter = task.emitters
+        else:
+            values, emitter = _NO_VALUES, _NO_EMITTERS
+        steps = _kernels.cast_chunk(
+            np.ascontiguousarray(pos), np.ascontiguousarray(rot), whole, _enclosed_cameras(task, cam32),
+            lv["frame_start"], lv["pos"], lv["nrm"], lv["ndotp"], lv["emit"], lv["support"], task.support_tol,
+            lv["frame_blocks"], lv["block_start"], lv["block_centre"], lv["block_axis"], lv["block_spread"],
+            lv["block_h_lo"], lv["block_h_hi"], lv["block_emit"], lv["block_reach"], float(K[0, 0]), float(K[1, 1]),
+            float(K[0, 2]), float(K[1, 2]), width_px, height_px, near_m, far_m, task.cos_max_incidence,
+            lv["ends32"], np.uint64(packets[0]), packets[1], packets[2], live, start, words, values,
+            task.positions, task.normals, emitter, task.cam_positions, task.required_px_per_m,
+            _scratch(bufs, "kept", nl, np.int32), _scratch(bufs, "group", nl, np.int8),
+            _scratch(bufs, "origins", (nl, 3), np.float32), _scratch(bufs, "directions", (nl, 3), np.float32),
+            _scratch(bufs, "slot", nl, np.int32), _scratch(bufs, "blocked", nl, np.bool_),
+        )
+        for key, v in zip(("in_range", "in_frustum", "facing", "cast", "observed"), steps, strict=True):
+            counts[key] = int(v)
+        return ChunkResult(start, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8), counts)
     kept = _scratch(bufs, "kept", nc * len(live), np.int32)
     group = _scratch(bufs, "group", nc * len(live), np.int8)
     sizes = np.zeros(2 * n_frames, dtype=np.int64)
@@ -544,9 +622,8 @@ def scatter_part_bytes(task: VisibilityTask, values: np.ndarray, part: ChunkResu
     from camplace.visibility._kernels import scatter_chunk_quality
 
     if len(part.rowids):
-        emitter = ~np.any(task.normals != 0.0, axis=1)
         scatter_chunk_quality(part.rowids, part.offsets, part.lcols, int(part.col0) - origin, values, task.positions,
-                              task.normals, emitter, task.cam_positions[origin:], chunk_fx(task, int(part.col0)),
+                              task.normals, task.emitters, task.cam_positions[origin:], chunk_fx(task, int(part.col0)),
                               task.required_px_per_m)
     return ChunkResult(part.col0, np.empty(0, np.int32), np.zeros(1, np.int64), np.empty(0, np.uint8),
                        {**part.counts})

@@ -52,7 +52,7 @@ from camplace.visibility.points import TargetPoints
 from camplace.visibility.raycast import RayScene
 from camplace.visibility import cache
 from camplace.visibility.chunk import (COUNT_KEYS, ChunkResult, FrameScenes, VisibilityTask, chunk_fx, compute_chunk,
-                                       scatter_part_bytes)
+                                       drop_scratch, scatter_part_bytes)
 from camplace.visibility.distributed import compute_chunks_dask
 from camplace.visibility.store import first_touch_empty, populate
 
@@ -347,7 +347,7 @@ def compute_chunk_bytes(task: VisibilityTask, scenes, start: int, stop: int, val
     """:func:`compute_chunk` of candidates ``start:stop`` written, quantised, straight into
     ``values`` (only these columns). Returns the counts. When ``values`` is a scratch file's
     mapping, the chunk's pages are then dropped from memory."""
-    out = scatter_part_bytes(task, values, compute_chunk(task, scenes, start, stop))
+    out = compute_chunk(task, scenes, start, stop, values=values)
     release_columns(values, start, stop)
     return out
 
@@ -538,11 +538,30 @@ def available_memory_bytes() -> int:
 #: (calibrated with benchmarks/scale.py on comet-67p-bunker, 2 threads: 380-410 MiB in all at
 #: 2,000 x 10,000 and 10,000 x 50,000 besides the bitsets)
 BASE_BYTES = 280 * 2**20
-#: per-thread chunk work arrays and result slabs (culling, segments, Embree batches; kept for reuse
-#: while the matrix is cast: freed with the visibility stage, before the solve: comet-67p-bunker,
+#: per-thread chunk work arrays and result slabs of a chunk cast as a whole (a float32 CSR, or no
+#: Embree 4 packet path): culling, segments, Embree batches for the chunk's pairs (comet-67p-bunker,
 #: 2 threads, the run's resident bytes fell by 63 MiB at 2,000 x 10,000 and 120-125 MiB at
 #: 10,000 x 50,000 from the cast's peak to the solve's start, /proc sampled every 20 ms)
 THREAD_BYTES = 60 * 2**20
+#: a thread's work arrays when chunks are cast camera by camera into bits or bytes
+#: (:func:`camplace.visibility._kernels.cast_chunk`): kept, group, origins, directions, slot and
+#: blocked for one camera's pairs, 34 bytes a live row ...
+CAMERA_PAIR_BYTES = 34
+#: ... besides the thread's own (its stack, Embree's per-thread state): comet-67p-bunker
+#: 10,000 x 50,000, bits, peak 364 MiB at 1 thread and 367 MiB at 2 (1.7 MiB of work arrays a thread)
+CAMERA_THREAD_BYTES = 4 * 2**20
+
+
+def thread_bytes(layout: str, n_rows: int) -> int:
+    """Resident bytes of one casting thread's work arrays for a matrix of ``n_rows`` rows in
+    ``layout`` (see :func:`estimate_matrix_bytes`): :data:`CAMERA_THREAD_BYTES` plus
+    :data:`CAMERA_PAIR_BYTES` a row when the chunks are cast camera by camera (bits and bytes,
+    with Embree 4's packets), else :data:`THREAD_BYTES`."""
+    from camplace.visibility._embree import packet_api
+
+    if layout == "csr" or packet_api() is None:
+        return THREAD_BYTES
+    return CAMERA_THREAD_BYTES + CAMERA_PAIR_BYTES * int(n_rows)
 
 
 #: the quality tree's table when the full one is over the budget, as a share of the matrix bytes
@@ -572,8 +591,8 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     core): the bytes are in a scratch file (only the chunks in flight resident while they are cast;
     afterwards the solver's reads keep pages in the page cache, which the kernel reclaims under
     memory pressure): ``tree C + B``. All add the per-thread work arrays
-    (:data:`THREAD_BYTES`; ``bits``: or the solve's bytes, the larger) and the process's base
-    (:data:`BASE_BYTES`).
+    (:func:`thread_bytes` a thread; ``bits``: or the solve's bytes, the larger) and the process's
+    base (:data:`BASE_BYTES`).
 
     ``solve_bytes`` (``bits`` only): the working bytes of the solve the run makes next, besides the
     bitsets, as far as they are known before the cast, from the stage that knows the solver (the
@@ -585,7 +604,8 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
     layout counts the larger of the two, ``B + max(threads' arrays, solve_bytes)`` besides the
     base. None: ``B`` for the solve (max coverage's presolve, as counted before the solve was known).
     """
-    fixed = BASE_BYTES + THREAD_BYTES * thread_count()
+    threads = thread_bytes(layout, n_rows) * thread_count()
+    fixed = BASE_BYTES + threads
     words = 8 * n_cols * ((n_rows + 63) // 64)
     if layout == "bytes":
         cells = n_rows * n_cols
@@ -596,7 +616,7 @@ def estimate_matrix_bytes(n_rows: int, n_cols: int, density: float, layout: str 
         return int(float(tree) * n_rows * n_cols + words + 16 * n_rows + 64 * n_cols + fixed)
     if layout == "bits":  # the cast's threads' arrays, then (freed) the solve's working bytes
         solve = words if solve_bytes is None else solve_bytes(density) if callable(solve_bytes) else solve_bytes
-        return int(words + 16 * n_rows + BASE_BYTES + max(THREAD_BYTES * thread_count(), int(solve)))
+        return int(words + 16 * n_rows + BASE_BYTES + max(threads, int(solve)))
     nnz = density * n_rows * n_cols
     return int(10 * nnz + 16 * (n_rows + 1) + fixed)
 
@@ -729,7 +749,7 @@ def compute_visibility(
     def check_pilot(first: ChunkResult, pilot_cols: int) -> None:
         if pilot_layout in ("bytes", "bytes-disk"):  # one byte a cell: checked before the work
             return
-        density = len(first.lcols) / max(1, len(points) * pilot_cols)
+        density = first.counts["observed"] / max(1, len(points) * pilot_cols)
         need = estimate_matrix_bytes(len(points), n_cand, density, pilot_layout, **solve_kw)
         if need > budget:
             raise CamplaceError(
@@ -822,30 +842,23 @@ def compute_visibility(
         plan = chunk_plan(n_cand, chunk_size, workers) if task.cam_model is None else team_chunk_plan(task, chunk_size, workers)
         pool = ThreadPoolExecutor(max_workers=workers)
         try:
-            if values is not None:  # the pilot keeps its pairs for the check; the others are written on their threads
-                futures = [pool.submit(compute_chunk, task, scenes, *plan[0])] if plan else []
-                futures += [pool.submit(compute_chunk_bytes, task, scenes, a, b, values) for a, b in plan[1:]]
+            if values is not None:  # every chunk writes its cells on its thread (checked before the work)
+                futures = [pool.submit(compute_chunk_bytes, task, scenes, a, b, values) for a, b in plan]
             elif words is None:
                 futures = [pool.submit(compute_chunk, task, scenes, a, b) for a, b in plan]
-            else:  # the pilot keeps its pairs for the check; the others are scattered on their threads
-                futures = [pool.submit(compute_chunk, task, scenes, *plan[0])] if plan else []
-                futures += [pool.submit(compute_chunk_bits, task, scenes, a, b, words) for a, b in plan[1:]]
-            for i, ((a, b), fut) in enumerate(zip(plan, futures)):
+            else:  # every chunk sets its bits on its thread; the pilot's count is checked
+                futures = [pool.submit(compute_chunk_bits, task, scenes, a, b, words) for a, b in plan]
+            for i, ((a, b), fut) in enumerate(zip(plan, futures, strict=True)):
                 parts.append(fut.result())
                 if i == 0:
                     check_pilot(parts[0], b - a)
-                    if words is not None:
-                        parts[0] = scatter_part(words, parts[0])
-                        release_columns(words, a, b)
-                    if values is not None:
-                        parts[0] = scatter_part_bytes(task, values, parts[0])
-                        release_columns(values, a, b)
                 if progress is not None:
                     progress(b - a)
                 if i == 0 and idle is not None and len(plan) > 1:
                     _while_waiting(idle)
         finally:  # on an error or Ctrl-C, chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
+            drop_scratch()
     t_finish = time.perf_counter()
     timings["visibility.cast"] = t_finish - t_cast
     bits = qbytes = None
