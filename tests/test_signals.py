@@ -75,3 +75,33 @@ def test_a_ctrl_c_outside_a_command_leaves_no_note() -> None:
     check_ctrl_c()
     with Reporter().stage("next") as advance:
         advance(1)
+
+
+def test_a_ctrl_c_dropped_in_a_ctypes_callback_prints_no_traceback(monkeypatch) -> None:
+    """A Ctrl-C that lands inside a ctypes callback (numba loading machine code) is dropped by
+    ctypes through ``sys.unraisablehook``: within a command it never reaches the hook that prints
+    (no traceback), stays noted and is raised at the next check; any other error in a callback
+    still reaches it; the hook is restored afterwards."""
+    import ctypes
+    import sys
+
+    seen: list[type] = []
+    printer = lambda unraisable: seen.append(type(unraisable.exc_value))  # noqa: E731 - stands for the default hook
+    monkeypatch.setattr(sys, "unraisablehook", printer)
+
+    def interrupted() -> None:
+        os.kill(os.getpid(), signal.SIGINT)  # the handler raises KeyboardInterrupt in the callback
+        for _ in range(1000):
+            pass
+
+    def failing() -> None:
+        raise ValueError("a real error in a callback")
+
+    callback = ctypes.CFUNCTYPE(None)
+    with ctrl_c_noted():
+        callback(interrupted)()  # ctypes drops the KeyboardInterrupt: the run goes on
+        with pytest.raises(KeyboardInterrupt):
+            check_ctrl_c()
+        callback(failing)()
+    assert seen == [ValueError]
+    assert sys.unraisablehook is printer

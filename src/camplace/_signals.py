@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
 from typing import Iterator
 
@@ -21,19 +22,30 @@ def ctrl_c_noted() -> Iterator[None]:
     """For a whole command: every Ctrl-C (SIGINT) is noted before KeyboardInterrupt is raised.
 
     A KeyboardInterrupt raised while numba loads cached machine code outside
-    :func:`ctrl_c_deferred` (a ctypes callback) is printed and dropped by ctypes; the note
-    stays, and :func:`check_ctrl_c` (at every progress stage's start and step) raises it again,
-    so Ctrl-C is never lost, at worst a little late. Outside the main thread it does nothing.
+    :func:`ctrl_c_deferred` (a ctypes callback) is dropped by ctypes, which hands it to
+    ``sys.unraisablehook``; here that hook drops it without a traceback (other unraisable errors
+    go to the previous hook), the note stays, and :func:`check_ctrl_c` (at every progress stage's
+    start and step) raises it again, so Ctrl-C is never lost, at worst a little late. Outside the
+    main thread it does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     _NOTED.clear()
     previous = signal.signal(signal.SIGINT, _note_and_raise)
+    previous_hook = sys.unraisablehook
+
+    def hook(unraisable) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt) and _NOTED.is_set():
+            return  # noted: check_ctrl_c raises it again
+        previous_hook(unraisable)
+
+    sys.unraisablehook = hook
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
         _NOTED.clear()
 
 
