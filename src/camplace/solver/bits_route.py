@@ -569,6 +569,9 @@ def load_kernels(o: SolveOptions) -> bool:
             or isinstance(k, bool)
             or not isinstance(k, numbers.Integral) or not 1 <= int(k) <= 4):
         return False
+    from camplace.solver.engines.bitset.search import bind_search_kernel
+
+    bind_search_kernel()  # first: the search calls its own copies of the helpers
     rng = np.random.default_rng(0)
     m, n = _LOAD_SHAPE
     cells = np.zeros((n, bit_words(m) * 64), dtype=bool)  # column bitsets, rows past m empty

@@ -249,6 +249,30 @@ def _dfs_roots_block(f0, f1, roots, lo, hi, left, right, levels, views, w, plane
             found[f] = b
 
 
+def bind_search_kernel() -> None:
+    """Load :func:`_dfs_roots_block`'s machine code before any other kernel that calls the same
+    compiled helpers (the incumbent's, the presolve's), so that the search calls its own copies of
+    them.
+
+    Each cached kernel carries its own copy of the kernels it calls, under the same symbol name
+    when they were compiled in one process (as a fresh install compiles them), and the loader binds
+    a call to the first copy loaded anywhere. The search spends about 70 % of its time in
+    ``bitkernels.shortfall``; bound to the incumbent's copy it evaluated a bound in 0.78-0.84 us,
+    bound to its own in 0.58-0.59 us (comet-67p-bunker 10,000 x 50,000, 2 threads, fresh
+    compiles; docs/performance.md). The call does no work (``f0 = f1``); its argument types are
+    those of :func:`_dfs_roots` (``tests/solver/test_bitset_bind.py`` checks that a solve adds no
+    second signature).
+    """
+    if _dfs_roots_block.signatures:
+        return
+    i1 = np.zeros(1, dtype=np.int64)
+    with ctrl_c_deferred():
+        _dfs_roots_block(0, 0, np.zeros((1, 1), dtype=np.int64), i1, i1, i1, i1, np.zeros((1, 1, 1), dtype=np.uint64),
+                         1, np.zeros(1), np.zeros((0, 1), dtype=np.uint64), np.uint64(0), 0.0, 0.0, 0.0, np.zeros(0),
+                         0, 1, np.zeros(0), np.zeros((1, 1, 1), dtype=np.int64), np.zeros((1, 1)), np.zeros(1),
+                         np.zeros((1, 1), dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.bool_))
+
+
 def _dfs_roots(roots, lo, hi, left, right, levels, views, w, planes, mask, total, best, margin, colmax, pw, budget,
                cap, score, threads: int | None = None):
     """Depth-first search from every tuple of ``roots`` (F, k), one root per task on a thread pool
@@ -478,6 +502,7 @@ def solve_bitset(pre: Presolved, *, views: int = 1, deadline: Deadline | None = 
     EngineOutcome
         Reduced column indices, status, bound (original weight units) and stats.
     """
+    bind_search_kernel()  # before the incumbent's kernels load their copies of the helpers
     deadline = as_deadline(deadline)
     since = stopwatch(deadline)
     k = pre.k
