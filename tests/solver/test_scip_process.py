@@ -93,8 +93,11 @@ def test_a_failing_child_is_an_error_not_an_answer(monkeypatch) -> None:
 
 
 def test_ctrl_c_in_the_child_stops_the_run(monkeypatch) -> None:
-    """Ctrl-C reaches the whole process group: a child ended by it ends the solve as Ctrl-C does."""
-    monkeypatch.setattr(scip_process, "CHILD_ARGS", ("-c", "import os, signal, time; os.kill(os.getpid(), signal.SIGINT); time.sleep(30)"))
+    """Ctrl-C reaches the whole process group: a child ended by it ends the solve as Ctrl-C does.
+    (The child restores SIGINT's default action first: a test run started in the background of a
+    non-interactive shell inherits SIGINT ignored, and the child would then outlive the signal.)"""
+    monkeypatch.setattr(scip_process, "CHILD_ARGS", ("-c", "import os, signal, time; signal.signal(signal.SIGINT, "
+                                                           "signal.SIG_DFL); os.kill(os.getpid(), signal.SIGINT); time.sleep(30)"))
     with pytest.raises(KeyboardInterrupt):
         scip_process.solve_in_child(b"", time.time() + 5.0, [], [], 1e-9, 0.0)
 
