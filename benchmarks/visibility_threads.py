@@ -1,22 +1,25 @@
-"""The visibility stage alone at T threads, with and without what shares the process with its rays.
-
-At 16 threads the visibility stage of ``camplace run comet-67p-bunker --candidates 10000 --points
-50000`` ran 4.8x faster than at 2 on a lent 16-core machine, while Embree alone, on the same
-machine and the same packet path, ran 7.7x faster (``benchmarks/scaling.py``'s ``embree`` row;
+"""The visibility stage alone at T threads, with and without what shares the process with its rays. At
+16 threads the visibility stage of ``camplace run comet-67p-bunker --candidates 10000 --points
+50000`` ran 4.8x faster than at 2 on a lent 16-core machine, while Embree alone, on the same machine
+and the same packet path, ran 7.7x faster (``benchmarks/scaling.py``'s ``embree`` row;
 docs/performance.md). Two things share the interpreter's lock with the casting threads there: the
 waiting thread's work beside the rays (the solver's kernels loaded, the CSV text formatted:
 ``camplace.pipeline._while_casting``, about 0.4 s of Python on this machine) and each chunk's own
-Python between its compiled kernels (about 1 ms of a 47 ms chunk). This script times the stage in
-one process per (T, variant), pinned to the first T allowed cores, so that a machine with the cores
-can say which of them costs what:
+Python around its compiled call (0.4 ms of a 47-49 ms chunk, 0.6 ms before the camera-by-camera
+cast). This script times the stage in one process per (T, variant), pinned to the first T allowed
+cores, so that a machine with the cores can say which of them costs what:
 
 - ``idle``: as a run does it (the waiting thread's work beside the rays);
 - ``no-idle``: that work left out (a run would do it after the stage, serially);
 - ``idle-0.5ms``: as a run, with the interpreter's switch interval at 0.5 ms instead of 5 ms (a
   thread that wants the lock back after a kernel waits at most that long);
 - ``chunk-x4``: no waiting work, chunks four times the default (a quarter of the Python steps);
-- ``chunk-quarter``: no waiting work, chunks a quarter of the default (each thread's work arrays,
-  about 34 bytes a kept pair, four times smaller: whether 16 threads' arrays outgrow the caches).
+- ``chunk-quarter``: no waiting work, chunks a quarter of the default (a quarter of the cameras
+  a chunk's compiled call walks);
+- ``whole-chunk``: no waiting work, each chunk cast as a whole as before (culling, segments, Embree
+  and the bits in four compiled calls over all its pairs, work arrays of about 34 bytes a kept pair
+  of the chunk) instead of camera by camera in one call (``_kernels.cast_chunk``, work arrays of one
+  camera's pairs): whether the camera-by-camera cast closes part of the gap at 16 threads.
 
 ``benchmarks/gil_contention.py`` measures the first effect alone on 2 cores.
 
@@ -36,7 +39,7 @@ import statistics
 import subprocess
 import sys
 
-VARIANTS = ("idle", "no-idle", "idle-0.5ms", "chunk-x4", "chunk-quarter")
+VARIANTS = ("idle", "no-idle", "idle-0.5ms", "chunk-x4", "chunk-quarter", "whole-chunk")
 
 _CHILD = """
 import hashlib, sys, time
@@ -55,6 +58,9 @@ E.compute_visibility(inst, few, pts, workers=threads)  # the kernels loaded, as 
 idle = P._while_casting(inst, settings, cands, pts, True) if variant.startswith("idle") else None
 if variant == "idle-0.5ms":
     sys.setswitchinterval(5e-4)
+if variant == "whole-chunk":
+    from camplace.visibility import chunk as C
+    C._packet_scenes = lambda *a: None  # the chunk's steps over all its pairs, then set_bits
 chunk = None
 if variant.startswith("chunk"):
     task, _ = E.make_task(inst, cands, pts, quantised=False)
