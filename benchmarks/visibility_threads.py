@@ -1,5 +1,6 @@
-"""The visibility stage alone at T threads, with and without what shares the process with its rays. At
-16 threads the visibility stage of ``camplace run comet-67p-bunker --candidates 10000 --points
+"""The visibility stage alone at T threads, with and without what shares the process with its rays.
+
+At 16 threads the visibility stage of ``camplace run comet-67p-bunker --candidates 10000 --points
 50000`` ran 4.8x faster than at 2 on a lent 16-core machine, while Embree alone, on the same machine
 and the same packet path, ran 7.7x faster (``benchmarks/scaling.py``'s ``embree`` row;
 docs/performance.md). Two things share the interpreter's lock with the casting threads there: the
