@@ -464,7 +464,7 @@ def _packet_scenes(task: VisibilityTask, scenes: dict[int, "FrameScenes"]) -> tu
         for g, scene in ((2 * f, scenes[f].full), (2 * f + 1, scenes[f].rest)):
             if len(scene) == 0:
                 continue
-            packets = scene._packets
+            packets = scene.packet_scene()
             if packets is None:
                 return None
             api = packets.api

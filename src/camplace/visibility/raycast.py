@@ -70,6 +70,12 @@ class RayScene:
         self._packet = _UNBUILT  # the packet casts' scene (occluded_dir), None where there is none
         self._lock = threading.Lock()
 
+    def packet_scene(self):
+        """The Embree 4 scene that :meth:`occluded_dir` casts packets against
+        (:class:`camplace.visibility._embree.PacketScene`: its ``api`` and ``handle`` let compiled
+        code cast on it), built on first use; None where there is none (embreex casts)."""
+        return self._packets
+
     @property
     def _packets(self):
         """The scene :meth:`occluded_dir` casts packets against, built on first use; None: embreex."""
