@@ -250,16 +250,16 @@ def _dfs_roots_block(f0, f1, roots, lo, hi, left, right, levels, views, w, plane
 
 
 def bind_search_kernel() -> None:
-    """Load :func:`_dfs_roots_block`'s machine code before any other kernel that calls the same
-    compiled helpers (the incumbent's, the presolve's), so that the search calls its own copies of
-    them.
+    """Load :func:`_dfs_roots_block`'s machine code before any other kernel that holds the same
+    compiled helpers (``bitkernels.shortfall`` itself, called from Python by the incumbent; the
+    incumbent's kernels), so that the search calls its own copies of them.
 
     Each cached kernel carries its own copy of the kernels it calls, under the same symbol name
-    when they were compiled in one process (as a fresh install compiles them), and the loader binds
-    a call to the first copy loaded anywhere. The search spends about 70 % of its time in
-    ``bitkernels.shortfall``; bound to the incumbent's copy it evaluated a bound in 0.78-0.84 us,
-    bound to its own in 0.58-0.59 us (comet-67p-bunker 10,000 x 50,000, 2 threads, fresh
-    compiles; docs/performance.md). The call does no work (``f0 = f1``); its argument types are
+    when they were compiled in one process (as a fresh install compiles them), and when it is
+    loaded, a call to a name already loaded goes to that earlier copy. The search spends about
+    70 % of its time in ``bitkernels.shortfall``; calling the copy loaded first by the incumbent it
+    evaluated a bound in 0.78-0.84 us, calling its own in 0.58-0.59 us (comet-67p-bunker
+    10,000 x 50,000, 2 threads, fresh compiles; docs/performance.md). The call does no work (``f0 = f1``); its argument types are
     those of :func:`_dfs_roots` (``tests/solver/test_bitset_bind.py`` checks that a solve adds no
     second signature).
     """
