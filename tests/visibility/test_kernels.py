@@ -18,6 +18,7 @@ from camplace.event import event_aims
 from camplace.sampling import make_candidates
 from camplace.visibility import chunk, compute_visibility, engine, make_target_points
 from camplace.visibility.engine import assemble, compute_chunk, make_task
+from camplace.visibility._embree import packet_api
 from camplace.visibility.raycast import RayScene, _ones32
 
 
@@ -189,6 +190,7 @@ def _bunker_inside_and_out():
     return inst, pts, cands
 
 
+@pytest.mark.skipif(packet_api() is None, reason="no Embree 4 library beside embreex (chunks are cast whole)")
 @pytest.mark.parametrize("graded", [False, True])
 def test_camera_by_camera_cast_equals_the_chunk_pair_lists(graded: bool) -> None:
     """The chunk cast camera by camera in one compiled call (:func:`_kernels.cast_chunk`, into bits
@@ -210,7 +212,8 @@ def test_camera_by_camera_cast_equals_the_chunk_pair_lists(graded: bool) -> None
     assert chunk._packet_scenes(task, scenes) is not None  # the compiled path runs (Embree 4's packets)
     fewer = 0
     for width in (1, 37, 120):
-        assert any(0 < inside[s:s + width].sum() < len(inside[s:s + width]) for s in range(0, n, width)) or width == 1
+        if width > 1:  # some chunk holds cameras inside and outside the room
+            assert any(0 < inside[s:s + width].sum() < len(inside[s:s + width]) for s in range(0, n, width))
         if graded:
             straight = np.zeros((n, m), dtype=np.uint8)
             listed = np.zeros_like(straight)
