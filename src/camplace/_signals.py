@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import signal
 import sys
 import threading
 from typing import Iterator
 
 
+_log = logging.getLogger(__name__)
 _NOTED = threading.Event()  # a Ctrl-C arrived during the current command (ctrl_c_noted)
 
 
@@ -23,10 +25,13 @@ def ctrl_c_noted() -> Iterator[None]:
 
     A KeyboardInterrupt raised while numba loads cached machine code outside
     :func:`ctrl_c_deferred` (a ctypes callback) is dropped by ctypes, which hands it to
-    ``sys.unraisablehook``; here that hook drops it without a traceback (other unraisable errors
-    go to the previous hook), the note stays, and :func:`check_ctrl_c` (at every progress stage's
-    start and step) raises it again, so Ctrl-C is never lost, at worst a little late. Outside the
-    main thread it does nothing.
+    ``sys.unraisablehook``; here that hook drops it without a traceback, the note stays, and
+    :func:`check_ctrl_c` (at every progress stage's start and step) raises it again, so Ctrl-C is
+    never lost, at worst a little late. Once a Ctrl-C is noted the command is ending, and an
+    object whose construction the interrupt cut short may fail in its ``__del__`` (llvmlite's
+    wrappers raise AttributeError there): every unraisable error after the note goes to the
+    log at debug level instead of printing a traceback (before the note, to the previous hook).
+    Outside the main thread it does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -36,9 +41,10 @@ def ctrl_c_noted() -> Iterator[None]:
     previous_hook = sys.unraisablehook
 
     def hook(unraisable) -> None:
-        if isinstance(unraisable.exc_value, KeyboardInterrupt) and _NOTED.is_set():
-            return  # noted: check_ctrl_c raises it again
-        previous_hook(unraisable)
+        if not _NOTED.is_set():
+            previous_hook(unraisable)
+        elif not isinstance(unraisable.exc_value, KeyboardInterrupt):  # noted: check_ctrl_c raises it again
+            _log.debug("after Ctrl-C, ignored in %r: %r", unraisable.object, unraisable.exc_value)
 
     sys.unraisablehook = hook
     try:
