@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,16 +13,15 @@ import trimesh
 
 from camplace.cli import main
 from camplace.visibility.store import load_visibility
+from tests._package import subprocess_env
 
 SMALL = ["--candidates", "150", "--points", "1500"]
 
 
 def run_cli(*args: str) -> tuple[int, str, str]:
     """Run the CLI in a fresh interpreter (as a user would), returning (code, stdout, stderr)."""
-    env = dict(os.environ)
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    p = subprocess.run([sys.executable, "-m", "camplace", *args], capture_output=True, text=True, env=env, timeout=600)
+    p = subprocess.run([sys.executable, "-m", "camplace", *args], capture_output=True, text=True, env=subprocess_env(),
+                       timeout=600)
     return p.returncode, p.stdout, p.stderr
 
 

@@ -20,15 +20,14 @@ import numpy as np
 import pytest
 
 from camplace.cli import main
+from tests._package import subprocess_env
 
-SRC = str(Path(__file__).resolve().parents[1] / "src")
 TINY = ["--candidates", "40", "--points", "300"]
 
 
 def camplace(*args: str, cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
-    """``python -m camplace ARGS`` in ``cwd`` (this checkout's package first on the path)."""
-    env = dict(env or os.environ)
-    env["PYTHONPATH"] = SRC + os.pathsep + env.get("PYTHONPATH", "")
+    """``python -m camplace ARGS`` in ``cwd`` (the camplace these tests imported first on the path)."""
+    env = subprocess_env(env)
     return subprocess.run([sys.executable, "-m", "camplace", *args], cwd=cwd, capture_output=True, text=True, env=env,
                           timeout=600)
 
@@ -159,7 +158,7 @@ def test_interrupted_validate_leaves_no_photographs_then_defaults_into_the_run_f
     """Found: Ctrl-C during ``validate`` said "no partial output was written" and left its photographs."""
     run = tmp_path / "run"
     subprocess.run(["cp", "-r", str(run_dir), str(run)], check=True)
-    env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = subprocess_env()
     argv = [sys.executable, "-m", "camplace", "validate", str(run), "--random-systems", "3", "--installations", "16"]
     with open(tmp_path / "stderr.txt", "w+") as err:
         proc = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=err, env=env)

@@ -10,10 +10,8 @@ import copy
 import itertools
 import json
 import math
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,6 +29,7 @@ from camplace.sampling.perturb import IN_SAMPLE_STREAM, OUT_OF_SAMPLE_STREAM, pe
 from camplace.solver.api import mode_value, solve
 from camplace.solver.options import SolveOptions
 from camplace.visibility import compute_visibility
+from tests._package import subprocess_env
 
 SIGMA = (0.1, 5.0)
 
@@ -326,10 +325,8 @@ def test_make_spec_errors(kw, text) -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ)
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run([sys.executable, "-m", "camplace", *args], capture_output=True, text=True, env=env, timeout=600)
+    return subprocess.run([sys.executable, "-m", "camplace", *args], capture_output=True, text=True, env=subprocess_env(),
+                          timeout=600)
 
 
 def test_cli_bad_pose_error_is_one_line_exit_2(tmp_path) -> None:

@@ -189,6 +189,18 @@ RECORD_RUNS: tuple[tuple[str, ...], ...] = (
      "--candidates", "200", "--points", "2000"),
     ("run", "comet-67p-bunker", "-o", "{tmp}/sc", "--mode", "setcover", "--candidates", "200", "--points", "2000"),
     ("run", "comet-67p-bunker", "-o", "{tmp}/q", "--mode", "quality", "--candidates", "200", "--points", "2000"),
+    # small runs with a report take other routes (the report's campaigns and comparisons score on
+    # a float64 CSR: the dense quality tree, the angle engine's small-model kernels)
+    ("run", "comet-67p-bunker", "-o", "{tmp}/r60", "--candidates", "60", "--points", "600", "--report",
+     "--report-systems", "3"),
+    ("run", "comet-67p-bunker", "-o", "{tmp}/q60", "--mode", "quality", "--candidates", "60", "--points", "600",
+     "--report", "--report-systems", "3"),
+    ("run", "comet-67p-bunker", "-o", "{tmp}/mv60", "--mode", "multiview", "--candidates", "60", "--points", "600",
+     "--report", "--report-systems", "3"),
+    ("run", "comet-67p-bunker", "-o", "{tmp}/ang60", "--mode", "multiview", "--min-angle", "20",
+     "--candidates", "60", "--points", "600", "--report", "--report-systems", "3"),
+    ("run", "comet-67p-bunker", "-o", "{tmp}/sc60", "--mode", "setcover", "--candidates", "60", "--points", "600",
+     "--report", "--report-systems", "3"),
     ("run", "comet-67p-bunker", "-o", "{tmp}/k6", "--k", "6", "--candidates", "200", "--points", "2000"),
     # a binary run with a plan: the planner reads the bitsets (visibility.bits.column_sums)
     ("run", "comet-flyby", "-o", "{tmp}/fly", "--candidates", "200", "--points", "2000", "--phases", "3", "--speed", "5"),

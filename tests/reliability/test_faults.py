@@ -22,13 +22,13 @@ from camplace.visibility.store import load_visibility
 
 from .counts import COUNTS
 from .verify import verify_outputs
+from tests._package import subprocess_env
 
-SRC = str(Path(__file__).resolve().parents[2] / "src")
 ARGS = ["--candidates", "120", "--points", "1500", "--seed", "2"]
 
 
 def cli_proc(args: list[str], cache: Path) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get("PYTHONPATH", ""), CAMPLACE_CACHE_DIR=str(cache))
+    env = subprocess_env(CAMPLACE_CACHE_DIR=str(cache))
     return subprocess.Popen([sys.executable, "-m", "camplace", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
 

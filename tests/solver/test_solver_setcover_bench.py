@@ -79,6 +79,9 @@ def test_orlib_scpnre1_reaches_optimum_within_limit(capsys) -> None:
 
 @pytest.mark.slow
 def test_gecco_ac01_size_seven(capsys) -> None:
+    """AC_01 proven at its best known size, 7, and that cover found within ten seconds (the
+    ten-second target as the time-limited runs of ``test_best_known_within_ten_seconds`` check it on
+    the OR-Library instances: here the search alone finds it in about 1.5 s of a 20 s proof)."""
     lines = (CAMERA / "AC_01_best_known_solution.txt").read_text().split("\n")
     best_size = int(lines[0])
     res = _run_cli(["setcover", str(CAMERA / "AC_01_cover.txt"), "--format", "gecco", "--json"], capsys)
@@ -88,22 +91,18 @@ def test_gecco_ac01_size_seven(capsys) -> None:
     assert res["cost"] == best_size == len(res["selected"])
     assert res["bound"] == best_size
     assert _covers(inst.matrix, res["selected"])
+    assert res["time_to_best_s"] <= 10.0
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name,fmt", [("scp41.txt", "orlib"), ("scp61.txt", "orlib"), ("AC_01", "gecco")])
+@pytest.mark.parametrize("name,fmt", [("scp41.txt", "orlib"), ("scp61.txt", "orlib")])  # AC_01: its proof, above
 def test_best_known_within_ten_seconds(name: str, fmt: str, capsys) -> None:
     """The issue's target as the user runs it, ``camplace setcover FILE --time-limit 10``, on a fast
-    subset: the best known value (weighted OR-Library optimum; AC_01's best known size), a valid
-    cover, a bound not above it, and the answer inside the time limit."""
-    if fmt == "gecco":
-        path, best = CAMERA / "AC_01_cover.txt", float((CAMERA / "AC_01_best_known_solution.txt").read_text().split()[0])
-        inst = read_gecco(path)
-        costs = np.ones(inst.matrix.shape[1])
-    else:
-        path, best = SETCOVER / name, {n: v for n, v, _ in _known()}[name]
-        inst = read_orlib(path)
-        costs = inst.costs
+    subset: the weighted OR-Library optimum, a valid cover, a bound not above it, and the answer
+    inside the time limit."""
+    path, best = SETCOVER / name, {n: v for n, v, _ in _known()}[name]
+    inst = read_orlib(path)
+    costs = inst.costs
     res = _run_cli(["setcover", str(path), "--format", fmt, "--time-limit", "10", "--json"], capsys)
     assert _covers(inst.matrix, res["selected"])
     assert float(costs[res["selected"]].sum()) == res["cost"] == best

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -23,8 +22,8 @@ from camplace.validation.cameras import CameraView
 from camplace.validation.installed import camera_keys, installation_draws, photo_value, seen_in_photo
 from camplace.validation.physical import PhysicalCamera, install_camera, perturb_camera
 from camplace.sampling.perturb import OUT_OF_SAMPLE_STREAM
+from tests._package import subprocess_env
 
-SRC = str(Path(__file__).resolve().parents[2] / "src")
 #: a bunker run where the nominal multiview optimum is fragile (measured: robust minus nominal over
 #: 16 installations +0.011, +0.006, +0.007, +0.007, +0.005 for validation seeds 0..4, standard errors
 #: about 0.002; docs/robust.md)
@@ -33,8 +32,7 @@ N_INSTALL = 16
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    return subprocess.run([sys.executable, "-m", "camplace", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, "-m", "camplace", *args], cwd=cwd, env=subprocess_env(), capture_output=True, text=True, timeout=600)
 
 
 @pytest.fixture(scope="module")

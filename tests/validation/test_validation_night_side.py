@@ -12,7 +12,6 @@ own shading (a target pixel is lit when it is brighter than the ambient term).
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -26,8 +25,8 @@ from camplace.validation.cameras import CameraView
 from camplace.validation.detect import DetectionSettings, detect_target
 from camplace.validation.physical import PhysicalCamera, emulate_shots, unlit_level
 from camplace.validation.render import RenderSettings, quantise, render_view, scene_for_frame
+from tests._package import subprocess_env
 
-SRC = str(Path(__file__).resolve().parents[2] / "src")
 
 INSTANCE = """schema_version = 1
 name = "{name}"
@@ -74,8 +73,7 @@ def _instance(name: str, light_x: float):
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    proc = subprocess.run([sys.executable, "-m", "camplace", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-m", "camplace", *args], cwd=cwd, env=subprocess_env(), capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
     return proc
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -24,15 +23,14 @@ from camplace.instance.schema import CameraModel, Emitters, Frame, Instance, Lig
 from camplace.sampling import make_candidates
 from camplace.visibility import compute_visibility, make_target_points
 from camplace.visibility.footprint import SMALL_TARGET_PX, hull_footprint_px, small_target_warnings, target_footprint_px
+from tests._package import subprocess_env
 
 ROOT = Path(__file__).resolve().parents[2]
-SRC = str(ROOT / "src")
 K = np.array([[200.0, 0.0, 79.5], [0.0, 200.0, 59.5], [0.0, 0.0, 1.0]])
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    proc = subprocess.run([sys.executable, "-m", "camplace", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-m", "camplace", *args], cwd=cwd, env=subprocess_env(), capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
     return proc
 
