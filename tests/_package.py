@@ -9,16 +9,22 @@ user installs and compile every kernel it meets again (about 64 kernels in a CI 
 from __future__ import annotations
 
 import os
+import site
 from pathlib import Path
 
 import camplace
 
 #: the folder that holds the imported ``camplace`` package
 PACKAGE_PARENT = str(Path(camplace.__file__).resolve().parents[1])
+_SITE_DIRS = {str(Path(p).resolve()) for p in [*site.getsitepackages(), site.getusersitepackages()]}
 
 
 def subprocess_env(base: dict[str, str] | None = None, **extra: str) -> dict[str, str]:
-    """``base`` (default: this process's environment) with the imported camplace first on PYTHONPATH.
+    """``base`` (default: this process's environment) where ``python -m camplace`` runs the imported camplace.
+
+    An installed camplace (in a site-packages folder) is found by the interpreter itself, after any
+    folder on ``base``'s PYTHONPATH (a test may put a stand-in module there); otherwise (``src/``)
+    its folder goes first on PYTHONPATH.
 
     Parameters
     ----------
@@ -33,6 +39,7 @@ def subprocess_env(base: dict[str, str] | None = None, **extra: str) -> dict[str
         A new environment for ``subprocess``.
     """
     env = dict(os.environ if base is None else base)
-    env["PYTHONPATH"] = PACKAGE_PARENT + os.pathsep + env.get("PYTHONPATH", "")
+    if PACKAGE_PARENT not in _SITE_DIRS:  # installed: the interpreter finds it there, after PYTHONPATH
+        env["PYTHONPATH"] = PACKAGE_PARENT + os.pathsep + env.get("PYTHONPATH", "")
     env.update(extra)
     return env

@@ -73,3 +73,74 @@ def test_supporting_rows_oracle() -> None:
     reach = np.array([np.max((v - p) @ n) for p, n in zip(pts.positions, pts.normals)])
     assert np.all(reach[task.support] <= task.support_tol[0])
     assert np.all(reach[~task.support] > task.support_tol[0])
+
+
+def _surface_points(mesh, n: int, seed: int):
+    """``n`` points on ``mesh``'s faces with their faces' outward normals, as the matrix's rows."""
+    import trimesh
+
+    from camplace.visibility.points import TargetPoints
+
+    pos, face = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    nrm = np.asarray(mesh.face_normals[face], dtype=np.float64)
+    return TargetPoints(np.asarray(pos, dtype=np.float64), nrm, np.zeros(n, dtype=np.int32), np.full(n, 1.0 / n))
+
+
+def _shapes():
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.from_euler("xyz", [20, 35, 50], degrees=True).as_matrix()
+    ellipsoid = trimesh.creation.icosphere(subdivisions=4)
+    ellipsoid.vertices = (ellipsoid.vertices * [3.0, 1.0, 0.5]) @ rot.T
+    dented = trimesh.creation.icosphere(subdivisions=4)
+    dented.vertices = dented.vertices * (1.0 - 0.3 * np.exp(-20 * (dented.vertices[:, :1] - 1.0) ** 2))  # a bowl on +x
+    rng = np.random.default_rng(4)
+    blob = trimesh.convex.convex_hull(rng.normal(size=(400, 3)))
+    inst = builtin("comet-67p-bunker")
+    comet = trimesh.Trimesh(*inst.target_world(0), process=False)
+    return {
+        "sphere": trimesh.creation.icosphere(subdivisions=5),  # every row supporting: no early exit
+        "ellipsoid": ellipsoid,
+        "dented": dented,
+        "box": trimesh.creation.box(extents=(2.0, 1.0, 0.5)),  # coplanar facets: ties along the ascent
+        "blob": blob,
+        "comet": comet,
+    }
+
+
+@pytest.mark.parametrize("shape", ["sphere", "ellipsoid", "dented", "box", "blob", "comet"])
+def test_supporting_rows_by_ascent_equal_every_vertex(shape: str) -> None:
+    """The ascent along the hull's edges flags exactly the rows that trying every vertex (the
+    same products, in numpy) flags, at every thread count."""
+    from camplace._cores import using_threads
+    from camplace.visibility.engine import supporting_rows
+
+    mesh = _shapes()[shape]
+    pts = _surface_points(mesh, 4000, seed=7)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    tol = 1e-9 * float(np.linalg.norm(np.ptp(v, axis=0)))
+    n, p = pts.normals, pts.positions
+    lim = n[:, 0] * p[:, 0] + n[:, 1] * p[:, 1] + n[:, 2] * p[:, 2] + tol
+    dots = n[:, :1] * v[:, 0] + n[:, 1:2] * v[:, 1] + n[:, 2:] * v[:, 2]  # (rows, vertices)
+    expected = ~np.any(dots > lim[:, None], axis=1)
+    assert 0 < expected.sum()
+    for threads in (1, 2):
+        with using_threads(threads):
+            got = supporting_rows(pts, 0, v, tol)
+        assert np.array_equal(got, expected), (shape, threads, int((got != expected).sum()))
+    if shape in ("dented", "comet"):
+        assert not expected.all()  # rows in a hollow see the target above their plane
+
+
+def test_supporting_rows_of_a_flat_target_try_every_vertex() -> None:
+    """A flat target has no 3D hull: every vertex is tried (the rows facing up support it)."""
+    from camplace.visibility.engine import hull_graph, supporting_rows
+    from camplace.visibility.points import TargetPoints
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
+    assert hull_graph(v) is None
+    pos = np.array([[0.5, 0.5, 0.0], [0.2, 0.7, 0.0]])
+    nrm = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    pts = TargetPoints(pos, nrm, np.zeros(2, dtype=np.int32), np.full(2, 0.5))
+    assert supporting_rows(pts, 0, v, 1e-9).tolist() == [True, False]

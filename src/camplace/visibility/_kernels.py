@@ -499,18 +499,20 @@ def scatter_chunk_quality(rowids, offsets, lcols, col0, values, positions, norma
 
 
 @numba.njit(**_JIT)
-def supporting(verts, positions, normals, tol, out):  # pragma: no cover - compiled
-    """``out[i] = max_v n_i . (v - p_i) <= tol`` over the vertices ``verts`` (early exit at the
-    first vertex above the plane).
+def supporting(lo, hi, verts, positions, normals, tol, out):  # pragma: no cover - compiled
+    """``out[i] = max_v n_i . (v - p_i) <= tol`` over all the vertices ``verts``, rows ``lo:hi``
+    (early exit at the first vertex above the plane; for a target with no 3D hull).
 
     Parameters
     ----------
+    lo, hi : int
+        The block of rows.
     verts : (t, 3) float64
     positions, normals : (r, 3) float64
     tol : float
     out : (r,) bool
     """
-    for i in range(positions.shape[0]):
+    for i in range(lo, hi):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         lim = nx * positions[i, 0] + ny * positions[i, 1] + nz * positions[i, 2] + tol
         ok = True
@@ -519,3 +521,53 @@ def supporting(verts, positions, normals, tol, out):  # pragma: no cover - compi
                 ok = False
                 break
         out[i] = ok
+
+
+@numba.njit(**_JIT)
+def supporting_hull(lo, hi, verts, indptr, neighbours, seeds, positions, normals, tol, out):  # pragma: no cover - compiled
+    """``out[i] = max_v n_i . (v - p_i) <= tol`` over a convex hull's vertices, rows ``lo:hi``,
+    by ascent along the hull's edges.
+
+    A linear function on a convex polytope has no local maximum at a vertex that is not a global
+    one, so from the best of ``seeds`` the ascent moves to the best neighbour while one is strictly
+    higher and stops at the maximum (or as soon as a vertex is above the plane): about a hundred
+    products a row where the plain test makes one per hull vertex (40,000 on a fine sphere).
+
+    Parameters
+    ----------
+    lo, hi : int
+        The block of rows.
+    verts : (h, 3) float64
+        The hull's vertices.
+    indptr : (h + 1,) int64
+    neighbours : (e,) int64
+        Vertex ``v``'s neighbours along the hull's edges: ``neighbours[indptr[v]:indptr[v + 1]]``.
+    seeds : (s,) int64
+        Starting vertices (spread over the hull).
+    positions, normals : (r, 3) float64
+    tol : float
+    out : (r,) bool
+    """
+    for i in range(lo, hi):
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        lim = nx * positions[i, 0] + ny * positions[i, 1] + nz * positions[i, 2] + tol
+        v = seeds[0]
+        best = nx * verts[v, 0] + ny * verts[v, 1] + nz * verts[v, 2]
+        for s in range(1, seeds.shape[0]):
+            q = seeds[s]
+            val = nx * verts[q, 0] + ny * verts[q, 1] + nz * verts[q, 2]
+            if val > best:
+                best = val
+                v = q
+        while best <= lim:
+            nxt = v
+            for e in range(indptr[v], indptr[v + 1]):
+                q = neighbours[e]
+                val = nx * verts[q, 0] + ny * verts[q, 1] + nz * verts[q, 2]
+                if val > best:
+                    best = val
+                    nxt = q
+            if nxt == v:
+                break
+            v = nxt
+        out[i] = best <= lim

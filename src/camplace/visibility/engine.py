@@ -45,6 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import ConvexHull, QhullError
 
+from camplace._blocks import cuts, run_blocks, threads_for
 from camplace._cores import thread_count
 from camplace._signals import ctrl_c_deferred
 from camplace.errors import CamplaceError
@@ -186,26 +187,72 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     A row p with normal n qualifies when ``max_v n . (v - p) <= tol`` over the frame's target
     vertices ``v``: the whole (closed, piecewise planar) target lies in the half-space
     ``n . (x - p) <= tol``. A linear function's maximum over the vertices is reached on their
-    convex hull, so only the hull vertices are tried (all of them when the hull is degenerate),
-    in a compiled loop that stops at the first vertex above the plane.
+    convex hull, and found there by ascent along the hull's edges (:func:`hull_graph`); where the
+    hull is degenerate (a flat target) every vertex is tried, stopping at the first above the
+    plane. Rows are cut into fixed blocks on every allowed core (the same flags at every count).
     """
-    out = np.zeros(len(points), dtype=bool)
-    rows = np.nonzero((points.frame == frame) & ~points.is_emitter)[0]
-    verts = np.asarray(target_vertices, dtype=np.float64)
-    try:
-        verts = verts[ConvexHull(verts).vertices]
-    except (QhullError, ValueError):  # flat or too few vertices: try them all
-        pass
     from camplace.visibility import _kernels
 
+    out = np.zeros(len(points), dtype=bool)
+    rows = np.nonzero((points.frame == frame) & ~points.is_emitter)[0]
+    verts = np.ascontiguousarray(target_vertices, dtype=np.float64)
+    pos = np.ascontiguousarray(points.positions[rows], dtype=np.float64)
+    nrm = np.ascontiguousarray(points.normals[rows], dtype=np.float64)
     ok = np.zeros(len(rows), dtype=bool)
+    graph = hull_graph(verts)
+    if graph is None:
+        def block(lo: int, hi: int) -> None:
+            _kernels.supporting(lo, hi, verts, pos, nrm, float(tol), ok)
+        work = len(rows) * len(verts)
+    else:
+        hverts, indptr, neighbours, seeds = graph
+
+        def block(lo: int, hi: int) -> None:
+            _kernels.supporting_hull(lo, hi, hverts, indptr, neighbours, seeds, pos, nrm, float(tol), ok)
+        work = len(rows) * 64
     with ctrl_c_deferred():
-        _kernels.supporting(
-            np.ascontiguousarray(verts), np.ascontiguousarray(points.positions[rows], dtype=np.float64),
-            np.ascontiguousarray(points.normals[rows], dtype=np.float64), float(tol), ok,
-        )
+        run_blocks(block, cuts(len(rows)), threads_for(work))
     out[rows] = ok
     return out
+
+
+#: directions whose extreme hull vertices seed the ascent: the 26 of a cube's faces, edges, corners
+_SEED_DIRECTIONS = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
+                             if (x, y, z) != (0, 0, 0)], dtype=np.float64)
+
+
+def hull_graph(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The convex hull of ``verts`` as a graph for :func:`_kernels.supporting_hull`, or None.
+
+    Parameters
+    ----------
+    verts : (t, 3) float64
+        Vertices, metres.
+
+    Returns
+    -------
+    tuple or None
+        ``(hull_verts (h, 3) float64, indptr (h + 1,) int64, neighbours (e,) int64, seeds (s,)
+        int64)``: the hull's vertices, each one's neighbours along the edges of Qhull's
+        triangulated facets, and the vertices extreme in 26 directions; None when the hull is
+        degenerate (fewer than four vertices, or all of them on a plane).
+    """
+    try:
+        hull = ConvexHull(verts)
+    except (QhullError, ValueError):
+        return None
+    index = np.full(len(verts), -1, dtype=np.int64)
+    index[hull.vertices] = np.arange(len(hull.vertices))
+    hverts = np.ascontiguousarray(verts[hull.vertices])
+    tri = index[hull.simplices]
+    h = len(hverts)
+    a, b = tri.ravel(), np.roll(tri, -1, axis=1).ravel()  # each facet's three edges
+    keys = np.unique(np.concatenate([a * h + b, b * h + a]))  # both ways, sorted by first vertex
+    edges = np.stack([keys // h, keys % h], axis=1)
+    indptr = np.zeros(h + 1, dtype=np.int64)
+    np.cumsum(np.bincount(edges[:, 0], minlength=h), out=indptr[1:])
+    seeds = np.unique(np.argmax(hverts @ _SEED_DIRECTIONS.T, axis=0)).astype(np.int64)
+    return hverts, indptr, np.ascontiguousarray(edges[:, 1]), seeds
 
 
 def make_task(instance, candidates, points: TargetPoints,
