@@ -181,7 +181,8 @@ def lit_points(instance, points: TargetPoints) -> np.ndarray:
     return lit_mask(instance, points, {f: frame_scene(instance, f) for f in frames}, eps)
 
 
-def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarray, tol: float) -> np.ndarray:
+def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarray, tol: float,
+                    topology: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(m,) bool: surface rows of ``frame`` whose tangent plane has every target vertex behind it.
 
     A row p with normal n qualifies when ``max_v n . (v - p) <= tol`` over the frame's target
@@ -190,6 +191,18 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     convex hull, and found there by ascent along the hull's edges (:func:`hull_graph`); where the
     hull is degenerate (a flat target) every vertex is tried, stopping at the first above the
     plane. Rows are cut into fixed blocks on every allowed core (the same flags at every count).
+
+    Parameters
+    ----------
+    points : TargetPoints
+    frame : int
+    target_vertices : (t, 3) float64
+        The target's vertices in ``frame``, metres.
+    tol : float
+        Metres.
+    topology : tuple, optional
+        :func:`hull_topology` of the same vertices in any rigid placement (the target's own
+        frame: one hull for every event frame); default: computed from ``target_vertices``.
     """
     from camplace.visibility import _kernels
 
@@ -199,7 +212,7 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     pos = np.ascontiguousarray(points.positions[rows], dtype=np.float64)
     nrm = np.ascontiguousarray(points.normals[rows], dtype=np.float64)
     ok = np.zeros(len(rows), dtype=bool)
-    graph = hull_graph(verts)
+    graph = hull_graph(verts, topology)
     if graph is None:
         def block(lo: int, hi: int) -> None:
             _kernels.supporting(lo, hi, verts, pos, nrm, float(tol), ok)
@@ -221,8 +234,10 @@ _SEED_DIRECTIONS = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) f
                              if (x, y, z) != (0, 0, 0)], dtype=np.float64)
 
 
-def hull_graph(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """The convex hull of ``verts`` as a graph for :func:`_kernels.supporting_hull`, or None.
+def hull_topology(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The convex hull of ``verts`` as a graph: which vertices, and their neighbours along its edges.
+
+    The same for the vertices in any rigid placement, so one hull serves every event frame.
 
     Parameters
     ----------
@@ -232,27 +247,52 @@ def hull_graph(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     Returns
     -------
     tuple or None
-        ``(hull_verts (h, 3) float64, indptr (h + 1,) int64, neighbours (e,) int64, seeds (s,)
-        int64)``: the hull's vertices, each one's neighbours along the edges of Qhull's
-        triangulated facets, and the vertices extreme in 26 directions; None when the hull is
-        degenerate (fewer than four vertices, or all of them on a plane).
+        ``(ids (h,) int64, indptr (h + 1,) int64, neighbours (e,) int64)``: the hull's vertices
+        (indices into ``verts``) and hull vertex ``i``'s neighbours along the edges of Qhull's
+        triangulated facets, ``neighbours[indptr[i]:indptr[i + 1]]`` (hull vertex numbers); None
+        when the hull is degenerate (fewer than four vertices, or all of them on a plane).
     """
     try:
-        hull = ConvexHull(verts)
+        hull = ConvexHull(np.asarray(verts, dtype=np.float64))
     except (QhullError, ValueError):
         return None
+    ids = np.asarray(hull.vertices, dtype=np.int64)
     index = np.full(len(verts), -1, dtype=np.int64)
-    index[hull.vertices] = np.arange(len(hull.vertices))
-    hverts = np.ascontiguousarray(verts[hull.vertices])
+    index[ids] = np.arange(len(ids))
     tri = index[hull.simplices]
-    h = len(hverts)
+    h = len(ids)
     a, b = tri.ravel(), np.roll(tri, -1, axis=1).ravel()  # each facet's three edges
     keys = np.unique(np.concatenate([a * h + b, b * h + a]))  # both ways, sorted by first vertex
-    edges = np.stack([keys // h, keys % h], axis=1)
     indptr = np.zeros(h + 1, dtype=np.int64)
-    np.cumsum(np.bincount(edges[:, 0], minlength=h), out=indptr[1:])
+    np.cumsum(np.bincount(keys // h, minlength=h), out=indptr[1:])
+    return ids, indptr, np.ascontiguousarray(keys % h)
+
+
+def hull_graph(verts: np.ndarray, topology: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The convex hull of ``verts`` for :func:`_kernels.supporting_hull`, or None.
+
+    Parameters
+    ----------
+    verts : (t, 3) float64
+        Vertices, metres.
+    topology : tuple, optional
+        :func:`hull_topology` of these vertices in any rigid placement; default: computed here.
+
+    Returns
+    -------
+    tuple or None
+        ``(hull_verts (h, 3) float64, indptr (h + 1,) int64, neighbours (e,) int64, seeds (s,)
+        int64)``: the hull's vertices, their neighbours along its edges (:func:`hull_topology`)
+        and the vertices extreme in 26 directions; None when the hull is degenerate.
+    """
+    topo = hull_topology(verts) if topology is None else topology
+    if topo is None:
+        return None
+    ids, indptr, neighbours = topo
+    hverts = np.ascontiguousarray(np.asarray(verts, dtype=np.float64)[ids])
     seeds = np.unique(np.argmax(hverts @ _SEED_DIRECTIONS.T, axis=0)).astype(np.int64)
-    return hverts, indptr, np.ascontiguousarray(edges[:, 1]), seeds
+    return hverts, indptr, neighbours, seeds
 
 
 def make_task(instance, candidates, points: TargetPoints,
@@ -269,11 +309,12 @@ def make_task(instance, candidates, points: TargetPoints,
     eps = np.zeros(len(instance.frames))
     tol = np.zeros(len(instance.frames))
     support = np.zeros(len(points), dtype=bool)
+    topology = hull_topology(instance.target.vertices)  # a rigid pose per frame: one hull for all
     for f in frames:
         tv = instance.target_world(f)[0]
         eps[f] = frame_eps(instance, f)
         tol[f] = 1e-9 * float(np.linalg.norm(np.ptp(tv, axis=0)))
-        support |= supporting_rows(points, f, tv, tol[f])
+        support |= supporting_rows(points, f, tv, tol[f], topology)
     active = lit_mask(instance, points, full, eps) if q.require_light else np.ones(len(points), dtype=bool)
     cos_max = math.cos(math.radians(q.max_incidence_deg)) if q.max_incidence_deg < 90.0 else 0.0
     task = VisibilityTask(
