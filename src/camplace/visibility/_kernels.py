@@ -499,31 +499,6 @@ def scatter_chunk_quality(rowids, offsets, lcols, col0, values, positions, norma
 
 
 @numba.njit(**_JIT)
-def supporting(lo, hi, verts, positions, normals, tol, out):  # pragma: no cover - compiled
-    """``out[i] = max_v n_i . (v - p_i) <= tol`` over all the vertices ``verts``, rows ``lo:hi``
-    (early exit at the first vertex above the plane; for a target with no 3D hull).
-
-    Parameters
-    ----------
-    lo, hi : int
-        The block of rows.
-    verts : (t, 3) float64
-    positions, normals : (r, 3) float64
-    tol : float
-    out : (r,) bool
-    """
-    for i in range(lo, hi):
-        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-        lim = nx * positions[i, 0] + ny * positions[i, 1] + nz * positions[i, 2] + tol
-        ok = True
-        for t in range(verts.shape[0]):
-            if nx * verts[t, 0] + ny * verts[t, 1] + nz * verts[t, 2] > lim:
-                ok = False
-                break
-        out[i] = ok
-
-
-@numba.njit(**_JIT)
 def supporting_hull(lo, hi, verts, indptr, neighbours, seeds, positions, normals, tol, out):  # pragma: no cover - compiled
     """``out[i] = max_v n_i . (v - p_i) <= tol`` over a convex hull's vertices, rows ``lo:hi``,
     by ascent along the hull's edges.
@@ -531,7 +506,8 @@ def supporting_hull(lo, hi, verts, indptr, neighbours, seeds, positions, normals
     A linear function on a convex polytope has no local maximum at a vertex that is not a global
     one, so from the best of ``seeds`` the ascent moves to the best neighbour while one is strictly
     higher and stops at the maximum (or as soon as a vertex is above the plane): about a hundred
-    products a row where the plain test makes one per hull vertex (40,000 on a fine sphere).
+    products a row where the plain test makes one per hull vertex (40,000 on a fine sphere). With
+    every vertex a seed and no edges it is the plain test (a target with no 3D hull).
 
     Parameters
     ----------

@@ -213,16 +213,15 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     nrm = np.ascontiguousarray(points.normals[rows], dtype=np.float64)
     ok = np.zeros(len(rows), dtype=bool)
     graph = hull_graph(verts, topology)
-    if graph is None:
-        def block(lo: int, hi: int) -> None:
-            _kernels.supporting(lo, hi, verts, pos, nrm, float(tol), ok)
-        work = len(rows) * len(verts)
-    else:
-        hverts, indptr, neighbours, seeds = graph
+    if graph is None:  # every vertex a seed, no edges: the plain maximum
+        graph = (verts, np.zeros(len(verts) + 1, dtype=np.int64), np.zeros(0, dtype=np.int64),
+                 np.arange(len(verts), dtype=np.int64))
+    hverts, indptr, neighbours, seeds = graph
+    work = len(rows) * (len(seeds) + 64)
 
-        def block(lo: int, hi: int) -> None:
-            _kernels.supporting_hull(lo, hi, hverts, indptr, neighbours, seeds, pos, nrm, float(tol), ok)
-        work = len(rows) * 64
+    def block(lo: int, hi: int) -> None:
+        _kernels.supporting_hull(lo, hi, hverts, indptr, neighbours, seeds, pos, nrm, float(tol), ok)
+
     with ctrl_c_deferred():
         run_blocks(block, cuts(len(rows)), threads_for(work))
     out[rows] = ok
