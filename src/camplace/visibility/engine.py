@@ -189,8 +189,8 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
     vertices ``v``: the whole (closed, piecewise planar) target lies in the half-space
     ``n . (x - p) <= tol``. A linear function's maximum over the vertices is reached on their
     convex hull, and found there by ascent along the hull's edges (:func:`hull_graph`); where the
-    hull is degenerate (a flat target) every vertex is tried, stopping at the first above the
-    plane. Rows are cut into fixed blocks on every allowed core (the same flags at every count).
+    hull is degenerate (a flat target) it is the largest over every vertex. Rows are cut into
+    fixed blocks on every allowed core (the same flags at every count).
 
     Parameters
     ----------
@@ -208,6 +208,8 @@ def supporting_rows(points: TargetPoints, frame: int, target_vertices: np.ndarra
 
     out = np.zeros(len(points), dtype=bool)
     rows = np.nonzero((points.frame == frame) & ~points.is_emitter)[0]
+    if len(rows) == 0:
+        return out
     verts = np.ascontiguousarray(target_vertices, dtype=np.float64)
     pos = np.ascontiguousarray(points.positions[rows], dtype=np.float64)
     nrm = np.ascontiguousarray(points.normals[rows], dtype=np.float64)
