@@ -423,6 +423,13 @@ def _integral(values: np.ndarray) -> bool:
     return bool(np.all(values == np.rint(values)))
 
 
+def _rounded_bound(lst: np.ndarray, integral: bool) -> float:
+    """The best Lagrangian value of ``lst`` (:mod:`._kernels`' state) less a floating-point margin,
+    rounded up when the costs are integers, and not below 0."""
+    bound = float(lst[K.LBEST]) - 1e-9 * (float(lst[K.LMAG]) + 1.0)
+    return max(float(math.ceil(bound)) if integral else bound, 0.0)
+
+
 def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int = _LAG_MAX_ITERS,
                      deadline: Deadline | None = None) -> tuple[float, dict[str, Any]]:
     """Lower bound on the reduced instance's optimum (forced columns excluded).
@@ -439,13 +446,23 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
     Returns
     -------
     bound : float
-        ``L(u)`` minus a floating-point margin, rounded up when the costs are integers.
+        ``L(u)`` minus a floating-point margin, rounded up when the costs are integers, and at
+        least the cheapest column's cost (rows left to cover take a column). When ``upper`` is
+        that cost already, that at once (no steps); with integer costs the steps stop once the
+        rounded bound reaches ``upper``.
     stats : dict
     """
     t0 = time.perf_counter()
     m, n = red.shape
     if m == 0:
         return 0.0, {"iterations": 0, "time_s": 0.0}
+    integral = _integral(red.cost)
+    cheapest = float(red.cost.min()) if n else 0.0  # a row (or weight) left to cover takes a column
+    if upper <= cheapest + 1e-9 * max(1.0, abs(cheapest)):
+        # the cover at hand is one cheapest column: nothing to prove beyond that (a partial cover that
+        # one camera reaches took 6 s of subgradient steps to bound at 1 before)
+        return cheapest, {"lagrangian": None, "bound": cheapest, "iterations": 0, "converged": True,
+                          "time_s": time.perf_counter() - t0, "by": "one column: the cheapest column's cost"}
     # start: every row gets its cheapest cost per covered row
     col_of = np.repeat(np.arange(n), np.diff(red.cptr))
     per = (red.cost / np.maximum(np.diff(red.cptr), 1))[col_of]
@@ -470,13 +487,10 @@ def lagrangian_bound(red: CoverReduction, upper: float, *, max_iterations: int =
         done += r
         if time.perf_counter() - c0 < _CHUNK_S:
             chunk *= 2
-        if lst[K.LBEST] >= upper - 1e-9 * abs(upper):
-            break
+        if _rounded_bound(lst, integral) >= upper - 1e-9 * abs(upper):
+            break  # integer costs: a bound that rounds up to the cover's cost proves it
     value = float(lst[K.LBEST])
-    bound = value - 1e-9 * (float(lst[K.LMAG]) + 1.0)
-    if _integral(red.cost):
-        bound = float(math.ceil(bound))
-    bound = max(bound, 0.0)
+    bound = max(_rounded_bound(lst, integral), cheapest)
     return bound, {"lagrangian": value, "bound": bound, "iterations": int(done), "converged": converged,
                    "time_s": time.perf_counter() - t0}
 
