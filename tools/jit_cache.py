@@ -12,7 +12,7 @@ Two sub-commands:
 
 ``build BUILD_LIB``
     Compile every kernel signature listed in ``tools/jit_signatures.txt`` inside the package copy
-    at ``BUILD_LIB`` (one worker process per allowed core, each taking whole kernels). Needs only
+    at ``BUILD_LIB`` (one worker process per allowed core, each taking the next whole kernel of one list as it frees up). Needs only
     numba, numpy and scipy (the build requirements); a module that cannot be imported there is
     skipped with a note. Never fails the build: it prints what it compiled and exits 0.
 ``record``
@@ -30,12 +30,14 @@ from __future__ import annotations
 
 import importlib
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
 import types as pytypes
 from pathlib import Path
+from typing import Callable
 
 HERE = Path(__file__).resolve().parent
 SIGNATURES = HERE / "jit_signatures.txt"
@@ -84,7 +86,8 @@ def _stub_packages(build_lib: Path, modules: list[str]) -> None:
             sys.modules[name] = stub
 
 
-def compile_kernels(build_lib: Path, kernels: list[tuple[str, str, list[str]]]) -> tuple[int, list[str]]:
+def compile_kernels(build_lib: Path, kernels: list[tuple[str, str, list[str]]],
+                    take: Callable[[int], bool] | None = None) -> tuple[int, list[str]]:
     """Compile the given kernels of the package copy at ``build_lib`` into its ``__pycache__``.
 
     Parameters
@@ -92,6 +95,9 @@ def compile_kernels(build_lib: Path, kernels: list[tuple[str, str, list[str]]]) 
     build_lib : Path
         The folder that holds the ``camplace`` package copy.
     kernels : list of (module, qualname, signature reprs)
+    take : callable, optional
+        ``take(i)``: whether to compile kernel ``i`` (default: every one); :func:`_claim`'s, so
+        that parallel workers share one list.
 
     Returns
     -------
@@ -104,7 +110,9 @@ def compile_kernels(build_lib: Path, kernels: list[tuple[str, str, list[str]]]) 
     sys.path.insert(0, str(build_lib))
     _stub_packages(build_lib, sorted({m for m, _, _ in kernels}))
     compiled, skipped = 0, []
-    for module, qualname, sigs in kernels:
+    for i, (module, qualname, sigs) in enumerate(kernels):
+        if take is not None and not take(i):
+            continue
         try:
             obj = importlib.import_module(module)
             for part in qualname.split("."):
@@ -139,22 +147,19 @@ def build(build_lib: Path, workers: int | None = None) -> int:
         print("camplace: numba is not in the build environment; kernels compile on first use")
         return 0
     table = read_signatures()
-    kernels = [(m, q, s) for (m, q), s in table.items()]
+    # most signatures first: the longest compiles start first, the short ones fill in at the end
+    kernels = sorted(((m, q, s) for (m, q), s in table.items()), key=lambda t: -len(t[2]))
     workers = max(1, min(workers or _allowed_cores(), len(kernels)))
     t0 = time.perf_counter()
-    procs = []
-    for w in range(workers):
-        share = kernels[w::workers]
-        fh = tempfile.NamedTemporaryFile("w", suffix=".txt", delete=False, encoding="utf-8")
-        fh.write("\n".join(f"{m}:{q}\t{s}" for m, q, sigs in share for s in sigs))
-        fh.close()
-        procs.append((fh.name, subprocess.Popen(
-            [sys.executable, __file__, "_worker", str(build_lib), fh.name],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)))
+    fh = tempfile.NamedTemporaryFile("w", suffix=".txt", delete=False, encoding="utf-8")
+    fh.write("\n".join(f"{m}:{q}\t{s}" for m, q, sigs in kernels for s in sigs))
+    fh.close()
+    claims = tempfile.mkdtemp(prefix="camplace-jit-")
+    procs = [subprocess.Popen([sys.executable, __file__, "_worker", str(build_lib), fh.name, claims],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(workers)]
     compiled, notes = 0, []
-    for name, proc in procs:
+    for proc in procs:
         out, _ = proc.communicate()
-        os.unlink(name)
         lines = out.strip().splitlines()
         for line in lines:
             if line.startswith("compiled "):
@@ -163,14 +168,30 @@ def build(build_lib: Path, workers: int | None = None) -> int:
                 notes.append(line[len("skipped "):])
         if proc.returncode != 0:
             notes.append(f"worker exited {proc.returncode}: {lines[-1] if lines else ''}")
+    os.unlink(fh.name)
+    shutil.rmtree(claims, ignore_errors=True)
     print(f"camplace: compiled {compiled} kernel signatures in {time.perf_counter() - t0:.1f} s "
           f"({workers} processes){'; skipped: ' + '; '.join(notes) if notes else ''}")
     return 0
 
 
-def _worker(build_lib: Path, listing: Path) -> int:
+def _claim(claims: Path) -> Callable[[int], bool]:
+    """``take(i)``: whether this worker compiles kernel ``i`` of the list, decided as it comes to
+    it: the first worker to make the kernel's claim folder does (no fixed shares, so a worker that
+    drew long compiles does not keep the others waiting at the end)."""
+    def take(i: int) -> bool:
+        try:
+            os.mkdir(claims / str(i))
+        except FileExistsError:
+            return False
+        return True
+
+    return take
+
+
+def _worker(build_lib: Path, listing: Path, claims: Path) -> int:
     table = read_signatures(listing)
-    compiled, skipped = compile_kernels(build_lib, [(m, q, s) for (m, q), s in table.items()])
+    compiled, skipped = compile_kernels(build_lib, [(m, q, s) for (m, q), s in table.items()], _claim(claims))
     print(f"compiled {compiled}")
     for note in skipped:
         print(f"skipped {note}")
@@ -212,6 +233,40 @@ RECORD_RUNS: tuple[tuple[str, ...], ...] = (
 )
 
 
+# What a Python caller passes the solver (docs/api.md): the run folder's float32 matrix, its bool
+# pattern, and the float64 CSR that scipy makes by default (a user's own matrix), in every mode and
+# with the side options; each tuple is solve()'s keywords. A float64 matrix took a fresh install
+# 10.6 s of compiling in four calls that then take 0.8 s.
+RECORD_API: tuple[dict, ...] = (
+    {"mode": "maxcover", "k": 3},
+    {"mode": "quality", "k": 3},
+    {"mode": "multiview", "k": 3},
+    {"mode": "multiview", "k": 3, "min_angle_deg": 20.0},
+    {"mode": "setcover"},
+    {"mode": "setcover", "required_fraction": 0.9},
+    {"mode": "maxcover", "k": 3, "fixed": (1,), "forbidden": (2,)},
+    {"mode": "quality", "k": 3, "fixed": (1,)},
+    {"mode": "maxcover", "k": 3, "min_distance_m": 2.0},
+)
+
+
+def _api_all(folder: Path) -> None:
+    """:data:`RECORD_API` on the run folder's matrix as a caller of ``camplace.solver.solve`` has it."""
+    import numpy as np
+
+    from camplace.runfolder import RunFolder
+    from camplace.solver import solve
+
+    run = RunFolder(folder)
+    w = run.weights()
+    geometry = {"positions": run.candidates.positions, "points": run.points.positions}
+    graded = run.matrix.copy()
+    graded.data = np.linspace(0.2, 1.0, graded.nnz, dtype=np.float32)  # qualities, not only ones
+    for matrix in (run.matrix, run.pattern, run.matrix.astype(np.float64), graded, graded.astype(np.float64)):
+        for kw in RECORD_API:
+            solve(matrix, w, **kw, **geometry)
+
+
 def _run_all() -> None:
     from camplace.cli import main
 
@@ -220,6 +275,7 @@ def _run_all() -> None:
             code = main([a.format(tmp=tmp) for a in argv] + ["--no-cache"])
             if code != 0:
                 raise SystemExit(f"camplace {' '.join(argv)} exited {code}")
+        _api_all(Path(tmp) / "q60")
 
 
 def record(out: Path = SIGNATURES) -> int:
@@ -256,8 +312,8 @@ def record(out: Path = SIGNATURES) -> int:
 if __name__ == "__main__":
     if len(sys.argv) >= 2 and sys.argv[1] == "build" and len(sys.argv) == 3:
         raise SystemExit(build(Path(sys.argv[2]).resolve()))
-    if len(sys.argv) == 4 and sys.argv[1] == "_worker":
-        raise SystemExit(_worker(Path(sys.argv[2]), Path(sys.argv[3])))
+    if len(sys.argv) == 5 and sys.argv[1] == "_worker":
+        raise SystemExit(_worker(Path(sys.argv[2]), Path(sys.argv[3]), Path(sys.argv[4])))
     if sys.argv[1:] == ["record"]:
         raise SystemExit(record())
     if sys.argv[1:] == ["_warm"]:

@@ -379,3 +379,21 @@ def test_integer_costs_stop_the_bound_once_it_rounds_up_to_the_cover(seed: int) 
     lb, st_ = S.lagrangian_bound(red, best - red.forced_cost)
     assert lb + red.forced_cost == best  # proves the optimum (integer costs: exact)
     assert 0 < st_["iterations"] <= 60
+
+
+def test_auto_tries_scip_briefly_on_a_tiny_instance_with_a_wide_gap() -> None:
+    """Equal costs and a gap of 3 columns after the search and the Lagrangian bound: auto used to
+    skip SCIP (it closes no such gap on a large instance) and answer 'feasible'; on a reduced
+    instance this small SCIP gets a short trial and proves the optimum, the same cost SCIP finds
+    when asked for (engine='mip', the oracle)."""
+    M = sp.random(400, 60, density=0.1, format="csr", random_state=1)
+    M = M[np.diff(M.indptr) > 0]
+    w = np.ones(M.shape[0])
+    auto = solve(M, w, mode="setcover")
+    mip = solve(M, w, mode="setcover", engine="mip")
+    assert mip.status == "optimal"
+    st_ = auto.stats["setcover"]
+    assert st_["reduction"]["nnz_after"] <= S.AUTO_TRIAL_NNZ
+    assert st_["local_search"]["greedy_cost"] - st_["lagrangian"]["bound"] > S.AUTO_MODEL_GAP_COLUMNS
+    assert st_["model_trial_s"] == S.AUTO_TRIAL_S
+    assert auto.status == "optimal" and auto.objective == mip.objective == auto.bound

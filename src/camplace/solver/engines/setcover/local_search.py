@@ -48,8 +48,10 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    cheaper; CP-SAT also gets the row ``cost <= its cost``). The cheaper cover and the larger bound
    are kept; without a proof, the search resumes. ``auto`` runs SCIP only when the reduced
    instance is small (:data:`AUTO_MODEL_NNZ`) and, with equal costs, the gap is at most two columns
-   (the LP bound of a unicost cover is flat: SCIP closes no wider gap); otherwise the search answer
-   comes back with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
+   (the LP bound of a unicost cover is flat: SCIP closes no wider gap on a large instance), or for
+   a trial of at most :data:`AUTO_TRIAL_S` seconds whatever the gap when the reduced instance is
+   tiny (:data:`AUTO_TRIAL_NNZ`: its branching is cheap); otherwise the search answer comes back
+   with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
    Its memory is estimated first (:func:`cover_model_bytes`); a model that would not fit is skipped
    with a warning (``stats["memory_fallback"]``).
 """
@@ -86,6 +88,10 @@ log = logging.getLogger(__name__)
 
 AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros ...
 AUTO_MODEL_GAP_COLUMNS = 2  # ... and, with equal costs, a gap to the Lagrangian bound of this many columns
+# a wider gap on a small reduced instance: SCIP for a short trial all the same (a 173 x 54 instance
+# with a gap of 3 columns: proven in 0.25 s, where the search alone ends at its patience unproven)
+AUTO_TRIAL_NNZ = 20_000
+AUTO_TRIAL_S = 2.0
 # exact test of a unicost cover (small_cover_test): covers of at most this many columns plus one are
 # tested for one column fewer, within this many word operations (and, with a time limit, what this
 # many words a second allow in a quarter of the time left)
@@ -664,23 +670,28 @@ def _is_cover(red: CoverReduction, sel: np.ndarray) -> bool:
 # ----------------------------------------------------------------------------------------------
 
 
-def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float) -> tuple[str | None, str]:
-    """The model to run after the first search (or None) and, if none, why.
+def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float
+                  ) -> tuple[str | None, str, float | None]:
+    """The model to run after the first search (or None), if none why, and the most seconds it
+    may take beyond its share of the time (None: its share).
 
     ``mip`` / ``cpsat``: always. ``auto``: SCIP when the reduced instance has at most
     :data:`AUTO_MODEL_NNZ` nonzeros and, with equal costs, the gap to the Lagrangian bound is at
     most :data:`AUTO_MODEL_GAP_COLUMNS` columns: the LP bound of a unicost cover is flat (the
-    Lagrangian one a little below it), so SCIP closes no wider gap, and the time is better spent
-    searching.
+    Lagrangian one a little below it), so SCIP closes no wider gap on a large instance, and the
+    time is better spent searching. A wider gap on a reduced instance of at most
+    :data:`AUTO_TRIAL_NNZ` nonzeros: SCIP all the same, for at most :data:`AUTO_TRIAL_S` seconds.
     """
     if engine in ("mip", "cpsat"):
-        return engine, ""
+        return engine, "", None
     if red.nnz > AUTO_MODEL_NNZ:
-        return None, f"reduced instance has {red.nnz} nonzeros (auto runs SCIP up to {AUTO_MODEL_NNZ})"
+        return None, f"reduced instance has {red.nnz} nonzeros (auto runs SCIP up to {AUTO_MODEL_NNZ})", None
     gap = upper - lower
     if red.cost.size and np.all(red.cost == red.cost[0]) and gap > AUTO_MODEL_GAP_COLUMNS * red.cost[0] * (1 + 1e-9):
-        return None, f"equal costs and a gap of {gap / red.cost[0]:g} columns (SCIP would not close it)"
-    return "mip", ""
+        if red.nnz <= AUTO_TRIAL_NNZ:
+            return "mip", "", AUTO_TRIAL_S
+        return None, f"equal costs and a gap of {gap / red.cost[0]:g} columns (SCIP would not close it)", None
+    return "mip", "", None
 
 
 def solve_cover(pattern: sp.csr_matrix | RowBits, costs: np.ndarray, weights: np.ndarray | None = None,
@@ -775,7 +786,7 @@ def solve_cover(pattern: sp.csr_matrix | RowBits, costs: np.ndarray, weights: np
             found_s = time.perf_counter() - t0
         bound_r = max(bound_r, min(bound_x, cost_r))
         proven = cost_r <= bound_r + 1e-9 * max(1.0, abs(cost_r))
-    backend, why_not = _model_choice(engine, red, cost_r, lb)
+    backend, why_not, trial_s = _model_choice(engine, red, cost_r, lb)
     if not proven and backend is not None and cover_model_bytes(red, backend) > memory_budget_bytes():
         # the search's cover answers whichever engine was asked for: no error here
         memory_fallback(OverBudget(cover_model_bytes(red, backend), memory_budget_bytes(),
@@ -788,7 +799,11 @@ def solve_cover(pattern: sp.csr_matrix | RowBits, costs: np.ndarray, weights: np
     if not proven and backend is not None:
         name = backend
         stats["model_bytes"] = int(cover_model_bytes(red, backend))  # its estimate, for the run's memory figures
-        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, deadline.share(_MODEL_SHARE))
+        model_deadline = deadline.share(_MODEL_SHARE)
+        if trial_s is not None:  # a wide gap on a tiny instance: a short try
+            model_deadline = model_deadline.within(trial_s)
+            stats["model_trial_s"] = trial_s
+        msel, mstatus, mbound, mstats = _model_cover(red, sel_r, cost_r, backend, model_deadline)
         stats["model"] = mstats
         if msel is not None and _is_cover(red, msel):
             mcost = float(red.cost[msel].sum())
