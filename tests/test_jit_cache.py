@@ -66,8 +66,9 @@ def test_build_compiles_a_package_copy_so_a_fresh_process_loads_instead_of_compi
     assert one, "the list has no visibility kernel"
     listing = tmp_path / "one.txt"
     listing.write_text("\n".join(f"{m}:{q}\t{s}" for (m, q), sigs in one.items() for s in sigs), encoding="utf-8")
-    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "jit_cache.py"), "_worker", str(tmp_path), str(listing)],
-                          capture_output=True, text=True, timeout=600)
+    (tmp_path / "claims").mkdir()
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "jit_cache.py"), "_worker", str(tmp_path), str(listing),
+                           str(tmp_path / "claims")], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and f"compiled {sum(map(len, one.values()))}" in proc.stdout, proc.stdout + proc.stderr
     cached = list((tmp_path / "camplace" / "visibility" / "__pycache__").glob("_kernels.*.nbc"))
     assert len(cached) >= len(one), cached
@@ -89,3 +90,20 @@ def test_build_compiles_a_package_copy_so_a_fresh_process_loads_instead_of_compi
                                                        if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH")})
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert str(tmp_path) in proc.stdout
+
+
+def test_workers_share_one_list_and_each_kernel_is_compiled_once(tmp_path):
+    """The build's workers take kernels from one list as each frees up: whichever comes to a kernel
+    first claims it, so every kernel is taken exactly once, whatever the interleaving."""
+    claims = tmp_path / "claims"
+    claims.mkdir()
+    takers = [jit_cache._claim(claims) for _ in range(3)]
+    taken: dict[int, int] = {}
+    rng = __import__("random").Random(4)
+    for i in range(40):
+        for w in rng.sample(range(3), 3):  # each worker comes to kernel i, in a random order
+            if takers[w](i):
+                assert i not in taken
+                taken[i] = w
+    assert sorted(taken) == list(range(40))
+    assert len(set(taken.values())) > 1
