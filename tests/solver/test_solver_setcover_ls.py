@@ -397,3 +397,9 @@ def test_auto_tries_scip_briefly_on_a_tiny_instance_with_a_wide_gap() -> None:
     assert st_["local_search"]["greedy_cost"] - st_["lagrangian"]["bound"] > S.AUTO_MODEL_GAP_COLUMNS
     assert st_["model_trial_s"] == S.AUTO_TRIAL_S
     assert auto.status == "optimal" and auto.objective == mip.objective == auto.bound
+    # a gap of 5 columns (200 x 320 reduced): SCIP does not close such gaps in a trial, none is made
+    from tests.solver.test_setcover_reduce_bits import _dense_instance
+
+    wide = S.solve_cover(_dense_instance(), np.ones(320), seed=3, max_iterations=3000)
+    assert wide.stats["local_search"]["cost"] - wide.stats["lagrangian"]["bound"] > S.AUTO_TRIAL_GAP_COLUMNS
+    assert "model_trial_s" not in wide.stats and "model" not in wide.stats

@@ -49,8 +49,8 @@ row weight reaches ``need``), on a 0/1 matrix. Four steps:
    are kept; without a proof, the search resumes. ``auto`` runs SCIP only when the reduced
    instance is small (:data:`AUTO_MODEL_NNZ`) and, with equal costs, the gap is at most two columns
    (the LP bound of a unicost cover is flat: SCIP closes no wider gap on a large instance), or for
-   a trial of at most :data:`AUTO_TRIAL_S` seconds whatever the gap when the reduced instance is
-   tiny (:data:`AUTO_TRIAL_NNZ`: its branching is cheap); otherwise the search answer comes back
+   a trial of at most :data:`AUTO_TRIAL_S` seconds when the gap is at most
+   :data:`AUTO_TRIAL_GAP_COLUMNS` columns and the reduced instance tiny (:data:`AUTO_TRIAL_NNZ`); otherwise the search answer comes back
    with the Lagrangian bound (status ``feasible`` and its gap unless the two meet).
    Its memory is estimated first (:func:`cover_model_bytes`); a model that would not fit is skipped
    with a warning (``stats["memory_fallback"]``).
@@ -88,9 +88,12 @@ log = logging.getLogger(__name__)
 
 AUTO_MODEL_NNZ = 1_500_000  # auto hands the reduced instance to SCIP up to this many nonzeros ...
 AUTO_MODEL_GAP_COLUMNS = 2  # ... and, with equal costs, a gap to the Lagrangian bound of this many columns
-# a wider gap on a small reduced instance: SCIP for a short trial all the same (a 173 x 54 instance
-# with a gap of 3 columns: proven in 0.25 s, where the search alone ends at its patience unproven)
+# a gap of a few columns more on a small reduced instance: SCIP for a short trial all the same (a
+# 173 x 54 instance with a gap of 3 columns: proven in 0.25 s, where the search alone ends at its
+# patience unproven; 14 random instances of 94-205 columns with gaps of 5-18 columns: none closed
+# within 3 s, so wider gaps get no trial)
 AUTO_TRIAL_NNZ = 20_000
+AUTO_TRIAL_GAP_COLUMNS = 4
 AUTO_TRIAL_S = 2.0
 # exact test of a unicost cover (small_cover_test): covers of at most this many columns plus one are
 # tested for one column fewer, within this many word operations (and, with a time limit, what this
@@ -679,8 +682,9 @@ def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float
     :data:`AUTO_MODEL_NNZ` nonzeros and, with equal costs, the gap to the Lagrangian bound is at
     most :data:`AUTO_MODEL_GAP_COLUMNS` columns: the LP bound of a unicost cover is flat (the
     Lagrangian one a little below it), so SCIP closes no wider gap on a large instance, and the
-    time is better spent searching. A wider gap on a reduced instance of at most
-    :data:`AUTO_TRIAL_NNZ` nonzeros: SCIP all the same, for at most :data:`AUTO_TRIAL_S` seconds.
+    time is better spent searching. A gap of at most :data:`AUTO_TRIAL_GAP_COLUMNS` columns on a
+    reduced instance of at most :data:`AUTO_TRIAL_NNZ` nonzeros: SCIP all the same, for at most
+    :data:`AUTO_TRIAL_S` seconds.
     """
     if engine in ("mip", "cpsat"):
         return engine, "", None
@@ -688,7 +692,7 @@ def _model_choice(engine: str, red: CoverReduction, upper: float, lower: float
         return None, f"reduced instance has {red.nnz} nonzeros (auto runs SCIP up to {AUTO_MODEL_NNZ})", None
     gap = upper - lower
     if red.cost.size and np.all(red.cost == red.cost[0]) and gap > AUTO_MODEL_GAP_COLUMNS * red.cost[0] * (1 + 1e-9):
-        if red.nnz <= AUTO_TRIAL_NNZ:
+        if red.nnz <= AUTO_TRIAL_NNZ and gap <= AUTO_TRIAL_GAP_COLUMNS * red.cost[0] * (1 + 1e-9):
             return "mip", "", AUTO_TRIAL_S
         return None, f"equal costs and a gap of {gap / red.cost[0]:g} columns (SCIP would not close it)", None
     return "mip", "", None
