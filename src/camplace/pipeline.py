@@ -503,7 +503,7 @@ def solve_stage(instance, cands: CandidateSet, pts, matrix, settings: RunSetting
     timings = {} if timings is None else timings
     s = settings
     weights = event_weights(pts, instance, s.event_mode)
-    geometric = s.min_angle_deg is not None or s.min_distance_m is not None
+    geometric = s.solve_options.reads_geometry
     t0 = time.perf_counter()
     from camplace.solver.problem.team import team_options
 

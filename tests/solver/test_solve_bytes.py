@@ -73,7 +73,11 @@ def _expected(name: str, m: int, n: int, nnz: int, conflicts: int) -> int:
         return setcover_bits_bytes(m, n)
     if name == "team":  # the branch and bound's row lists, or the CSR another team engine reads
         return max(row_lists_bytes(nnz) + 8 * m, 5 * nnz + 8 * (m + 1))
-    if name in ("mindist", "multiview-fixed"):  # the merged rows' CSR and model: noted by the solve
+    if name == "multiview-fixed":  # the angle engine at 0 degrees on the allowed columns (2 fixed)
+        return n * _col(m) + 8 * m + angle_bytes(m, n - 1, 1, 3, 2, layout_rows=m)
+    if name == "multiview-fixed-mip":  # asked for the model: the merged rows' CSR and model, noted by the solve
+        return pre
+    if name == "mindist":  # the merged rows' CSR and model: noted by the solve
         return max(pre, _PAIR_BYTES * conflicts)
     raise AssertionError(name)
 
@@ -95,7 +99,9 @@ _CASES = {
                 ("matrix", "column bitsets, rows presolved to")),
     "mip": (SolveOptions(mode="maxcover", k=3, engine="mip", time_limit_s=1.0), ("route", "maxcover")),
     "multiview-fixed": (SolveOptions(mode="multiview", k=3, views=2, fixed=(2,), time_limit_s=1.0),
-                        ("matrix", "column bitsets, rows presolved to")),
+                        ("route", "angle")),
+    "multiview-fixed-mip": (SolveOptions(mode="multiview", k=3, views=2, fixed=(2,), engine="mip", time_limit_s=1.0),
+                            ("matrix", "column bitsets, rows presolved to")),
 }
 
 

@@ -95,9 +95,9 @@ def cmd_solve_robust(args: argparse.Namespace) -> int:
     options = {**opts.record(), "event_mode": event_mode, "source": str(args.source)}
     check_request(spec, opts.mode, opts.min_angle_deg, opts.engine)
     options["robust"] = spec_record(spec)
-    geometric = opts.min_distance_m is not None or opts.min_angle_deg is not None
+    geometric = opts.reads_geometry
     nominal = solve(matrix, weights, positions=cands.positions if geometric else None,
-                    points=pts.positions if opts.min_angle_deg is not None else None, options=opts)
+                    points=pts.positions if geometric else None, options=opts)
     res, record = robust_stage(instance, cands, pts, matrix, np.asarray(weights, dtype=np.float64), nominal, spec, opts,
                                seed=seed)
     out = res.to_dict()

@@ -196,10 +196,48 @@ def solve(
 
     with memory_budget(options.memory_budget_bytes), using_threads(options.threads), memory_notes() as notes, \
             holding(matrix_bytes(matrix)):
-        res = _relaxed_first(matrix, weights, positions, points, options)
+        every_pair = _fixed_views_as_angle(options, positions, points)
+        res = _relaxed_first(matrix, weights, positions, points, every_pair or options)
+    if every_pair is not None:
+        _note_every_pair(res)
     if notes:
         res.stats["memory_estimates"] = {stage: dict(v) for stage, v in notes.items()}
     return res
+
+
+def _fixed_views_as_angle(o: SolveOptions, positions: Any, points: Any) -> SolveOptions | None:
+    """Multiview with fixed cameras and no angle, as the angle engine's problem with a minimum
+    angle of 0 degrees (None where that does not apply).
+
+    A row's threshold is ``views`` less its fixed views, which the multiview bitset engine does not
+    model (the general model did it: at 10,000 x 50,000 its SCIP model needed 52 GiB and the run
+    got the greedy answer, 0.510 with a bound of 1.000). The angle engine takes fixed cameras, and
+    at 0 degrees every pair of views passes its angle test (the cosine of two rays never exceeds
+    1: :func:`~camplace.solver.engines.angle._kernels.angle_ok`), so its problem is this one, the
+    same objective for every camera set; it needs the geometry only to run (auto, k <= 4,
+    ``views >= 2``, no minimum distance or team, ``positions`` and ``points`` given)."""
+    if positions is not None and points is not None and _fixed_views_applies(o):
+        return replace(o, min_angle_deg=0.0)
+    return None
+
+
+def _fixed_views_applies(o: SolveOptions) -> bool:
+    """The options of :func:`_fixed_views_as_angle`'s route (given the geometry)."""
+    from camplace.solver.choose import EXACT_MAX_K
+
+    return (o.mode == "multiview" and o.min_angle_deg is None and bool(o.fixed) and o.min_distance_m is None
+            and o.team is None and o.engine == "auto" and o.k is not None and o.k <= EXACT_MAX_K
+            and int(o.views) >= 2)
+
+
+def _note_every_pair(res: SolverResult) -> None:
+    """Say in ``res.stats`` that :func:`_fixed_views_as_angle` chose the route (the objective is the
+    plain multiview one: no angle was asked for)."""
+    res.stats["fixed_views"] = "the angle engine at 0 degrees (every pair of views allowed)"
+    choice = res.stats.get("engine_choice")
+    if isinstance(choice, dict) and choice.get("route") == "angle":
+        choice["reason"] = ("auto: multiview with fixed cameras, k <= 4: the angle engine with every pair of views "
+                            "allowed (a row needs views less its fixed views)")
 
 
 _DEFAULTS = SolveOptions()
@@ -486,7 +524,9 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
       (:func:`camplace.solver.engines.team.bnb.row_lists_bytes`) or, where another team engine
       runs, the whole matrix as a bool CSR (5 bytes a pair): the larger (the team engines' own
       working memory is checked by them and not counted);
-    * a minimum distance, engine mip / cpsat, multiview with fixed cameras and no angle
+    * multiview with fixed cameras and no angle (k <= 4, engine auto): as with a minimum angle of
+      0 degrees (:func:`_fixed_views_as_angle`), the allowed columns' copy and the angle engine;
+    * a minimum distance, engine mip / cpsat, multiview with fixed cameras and no angle otherwise
       (:func:`_rows_presolved`): the bit presolve, or the ``conflicts`` pairs
       (:data:`CONFLICT_PAIR_BYTES` each, counted from the candidates' positions): the larger; under
       ``auto`` with a minimum distance (:func:`_relaxed_first`), the larger of that and the route
@@ -526,6 +566,8 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
     int
         Bytes.
     """
+    if _fixed_views_applies(o):  # the angle engine at 0 degrees (the run passes the geometry: o.reads_geometry)
+        o = replace(o, min_angle_deg=0.0)
     if _relaxation_applies(o):  # the problem without the distance first (_relaxed_first), then the spaced route
         return max(_route_bytes(m, n, replace(o, min_distance_m=None), nnz, 0), _route_bytes(m, n, o, nnz, conflicts))
     return _route_bytes(m, n, o, nnz, conflicts)

@@ -194,8 +194,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
         weights = _peak_weights(args.source, weights, run.get("peak_frame"))
     opts = options_from_args(args)
     opts = _with_team(args.source, opts)
-    res = solve(matrix, weights, positions=positions, points=points if opts.min_angle_deg is not None else None,
-                options=opts)
+    res = solve(matrix, weights, positions=positions, points=points if opts.reads_geometry else None, options=opts)
     out = res.to_dict()
     out["timings_s"] = {**(out.get("timings_s") or {}), "load": load_s, "solve": res.time_s}
     # how the answer was asked for (the same record as solution.json's "options")

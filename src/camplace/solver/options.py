@@ -95,6 +95,14 @@ class SolveOptions:
         """A copy with ``changes`` (checked again)."""
         return replace(self, **changes)
 
+    @property
+    def reads_geometry(self) -> bool:
+        """Whether :func:`camplace.solver.solve` reads the camera and point positions: a minimum
+        angle or distance, or multiview with fixed cameras (solved as the angle engine's problem
+        at 0 degrees: :func:`camplace.solver.api._fixed_views_as_angle`)."""
+        return (self.min_angle_deg is not None or self.min_distance_m is not None
+                or (self.mode == "multiview" and bool(self.fixed)))
+
     def record(self) -> dict[str, Any]:
         """The ``options`` record of ``solution.json`` (the solver's part): JSON-ready, ``views`` and
         ``min_angle_deg`` None outside multiview, ``required_fraction`` and ``search_seed`` None
