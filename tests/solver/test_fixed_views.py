@@ -68,6 +68,15 @@ def test_fixed_multiview_is_the_angle_engine_at_zero_degrees_and_the_enumerated_
         assert float(w[seen >= views].sum()) == pytest.approx(best, rel=1e-9, abs=1e-12)
 
 
+def test_engine_exact_takes_the_same_route() -> None:
+    """Asked for the exact engine by name (it refused multiview with fixed cameras before)."""
+    dense, w, positions, points = _case(12)
+    res = solve(sp.csr_matrix(dense), w, 2, mode="multiview", views=2, fixed=(3,), engine="exact",
+                positions=positions, points=points)
+    assert res.status == "optimal" and res.stats["engine_choice"]["reason"] == "requested: engine exact"
+    assert res.objective == pytest.approx(_enumerated(dense, w, 2, 2, (3,)), rel=1e-9, abs=1e-12)
+
+
 def test_without_the_geometry_the_general_model_answers_the_same() -> None:
     """No positions: the route needs them to run, so the general model answers (the same optimum)."""
     dense, w, positions, points = _case(11)

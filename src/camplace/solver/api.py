@@ -199,7 +199,7 @@ def solve(
         every_pair = _fixed_views_as_angle(options, positions, points)
         res = _relaxed_first(matrix, weights, positions, points, every_pair or options)
     if every_pair is not None:
-        _note_every_pair(res)
+        _note_every_pair(res, options.engine)
     if notes:
         res.stats["memory_estimates"] = {stage: dict(v) for stage, v in notes.items()}
     return res
@@ -214,7 +214,7 @@ def _fixed_views_as_angle(o: SolveOptions, positions: Any, points: Any) -> Solve
     got the greedy answer, 0.510 with a bound of 1.000). The angle engine takes fixed cameras, and
     at 0 degrees every pair of views passes its angle test (the cosine of two rays never exceeds
     1: :func:`~camplace.solver.engines.angle._kernels.angle_ok`), so its problem is this one, the
-    same objective for every camera set; it needs the geometry only to run (auto, k <= 4,
+    same objective for every camera set; it needs the geometry only to run (auto or exact, k <= 4,
     ``views >= 2``, no minimum distance or team, ``positions`` and ``points`` given)."""
     if positions is not None and points is not None and _fixed_views_applies(o):
         return replace(o, min_angle_deg=0.0)
@@ -226,16 +226,16 @@ def _fixed_views_applies(o: SolveOptions) -> bool:
     from camplace.solver.choose import EXACT_MAX_K
 
     return (o.mode == "multiview" and o.min_angle_deg is None and bool(o.fixed) and o.min_distance_m is None
-            and o.team is None and o.engine == "auto" and o.k is not None and o.k <= EXACT_MAX_K
+            and o.team is None and o.engine in ("auto", "exact") and o.k is not None and o.k <= EXACT_MAX_K
             and int(o.views) >= 2)
 
 
-def _note_every_pair(res: SolverResult) -> None:
+def _note_every_pair(res: SolverResult, engine: str) -> None:
     """Say in ``res.stats`` that :func:`_fixed_views_as_angle` chose the route (the objective is the
     plain multiview one: no angle was asked for)."""
     res.stats["fixed_views"] = "the angle engine at 0 degrees (every pair of views allowed)"
     choice = res.stats.get("engine_choice")
-    if isinstance(choice, dict) and choice.get("route") == "angle":
+    if engine == "auto" and isinstance(choice, dict) and choice.get("route") == "angle":
         choice["reason"] = ("auto: multiview with fixed cameras, k <= 4: the angle engine with every pair of views "
                             "allowed (a row needs views less its fixed views)")
 
@@ -524,7 +524,7 @@ def bits_solve_bytes(m: int, n: int, o: SolveOptions, nnz: int = 0, conflicts: i
       (:func:`camplace.solver.engines.team.bnb.row_lists_bytes`) or, where another team engine
       runs, the whole matrix as a bool CSR (5 bytes a pair): the larger (the team engines' own
       working memory is checked by them and not counted);
-    * multiview with fixed cameras and no angle (k <= 4, engine auto): as with a minimum angle of
+    * multiview with fixed cameras and no angle (k <= 4, engine auto or exact): as with a minimum angle of
       0 degrees (:func:`_fixed_views_as_angle`), the allowed columns' copy and the angle engine;
     * a minimum distance, engine mip / cpsat, multiview with fixed cameras and no angle otherwise
       (:func:`_rows_presolved`): the bit presolve, or the ``conflicts`` pairs
