@@ -223,6 +223,9 @@ RECORD_RUNS: tuple[tuple[str, ...], ...] = (
     ("run", "comet-67p-bunker", "-o", "{tmp}/sc60", "--mode", "setcover", "--candidates", "60", "--points", "600",
      "--report", "--report-systems", "3"),
     ("run", "comet-67p-bunker", "-o", "{tmp}/k6", "--k", "6", "--candidates", "200", "--points", "2000"),
+    # multiview with a fixed camera: the angle engine at 0 degrees with its fixed-camera kernels
+    ("run", "comet-67p-bunker", "-o", "{tmp}/mvf", "--mode", "multiview", "--fixed", "3", "--candidates", "200",
+     "--points", "2000"),
     # a binary run with a plan: the planner reads the bitsets (visibility.bits.column_sums)
     ("run", "comet-flyby", "-o", "{tmp}/fly", "--candidates", "200", "--points", "2000", "--phases", "3", "--speed", "5"),
     ("run", "volcanic-eruption", "-o", "{tmp}/vol", "--candidates", "200", "--points", "2000"),
@@ -242,6 +245,7 @@ RECORD_API: tuple[dict, ...] = (
     {"mode": "quality", "k": 3},
     {"mode": "multiview", "k": 3},
     {"mode": "multiview", "k": 3, "min_angle_deg": 20.0},
+    {"mode": "multiview", "k": 3, "fixed": (1,)},
     {"mode": "setcover"},
     {"mode": "setcover", "required_fraction": 0.9},
     {"mode": "maxcover", "k": 3, "fixed": (1,), "forbidden": (2,)},
