@@ -132,9 +132,11 @@ def solve(
     min_angle_deg : float, optional
         multiview: minimum angle at the point between two of its views (needs positions, points).
     positions : (n, 3) array_like, optional
-        Camera positions (for ``min_distance_m`` and ``min_angle_deg``).
+        Camera positions (for ``min_distance_m`` and ``min_angle_deg``; with ``points``, multiview
+        with fixed cameras and k <= 4 runs the exact angle engine at 0 degrees instead of the
+        general model: :func:`_fixed_views_as_angle`).
     points : (m, 3) array_like, optional
-        Point positions (for ``min_angle_deg``).
+        Point positions (for ``min_angle_deg``, and that route).
     costs : (n,) array_like, optional
         setcover: non-negative camera costs (default 1).
     required_fraction : float
