@@ -292,7 +292,7 @@ def scenario_matrix(
 
 def solve_robust(
     stacked: sp.csr_matrix, weights: np.ndarray, spec: RobustSpec, options: SolveOptions, *,
-    positions: np.ndarray | None = None, incumbents: Sequence[Sequence[int]] = (),
+    positions: np.ndarray | None = None, points: np.ndarray | None = None, incumbents: Sequence[Sequence[int]] = (),
 ):
     """Solve the robust objective on a stacked scenario matrix.
 
@@ -310,7 +310,10 @@ def solve_robust(
         min_distance_m, engine, time_limit_s and the memory budget, which every solve and model
         here keeps to).
     positions : (n, 3) float64 or None
-        Nominal camera positions (for ``min_distance_m``).
+        Nominal camera positions (for ``min_distance_m``, and with ``points`` for multiview with
+        fixed cameras: the angle engine at 0 degrees, :func:`camplace.solver.api._fixed_views_as_angle`).
+    points : (m, 3) float64 or None
+        The target points (one scenario's rows), for that route.
     incumbents : sequence of systems
         Starting systems for ``p10`` (e.g. the nominal optimum).
 
@@ -326,7 +329,10 @@ def solve_robust(
     s_count = spec.scenarios
     min_d = options.min_distance_m
     w_stacked = np.tile(np.asarray(weights, dtype=np.float64), s_count) / s_count
-    mean = solve(stacked, w_stacked, positions=positions if min_d is not None else None, options=options)
+    geometry = options.reads_geometry and positions is not None and points is not None
+    mean = solve(stacked, w_stacked, positions=positions if min_d is not None or geometry else None,
+                 points=np.tile(np.asarray(points, dtype=np.float64), (s_count, 1)) if geometry else None,
+                 options=options)
     mean = _at_least_the_incumbents(mean, stacked, weights, s_count, options, incumbents)
     if spec.objective == "mean":
         return mean
@@ -458,7 +464,8 @@ def robust_stage(
     t0 = time.perf_counter()
     ctx = reporter.stage("robust solve") if reporter is not None else _null()
     with ctx:
-        res = solve_robust(stacked, weights, spec, options, positions=cands.positions, incumbents=[nominal.selected])
+        res = solve_robust(stacked, weights, spec, options, positions=cands.positions, points=pts.positions,
+                           incumbents=[nominal.selected])
     timings["robust.solve"] = time.perf_counter() - t0
     in_sample = {}
     for name, sel in (("robust", res.selected), ("nominal", nominal.selected)):
