@@ -17,6 +17,7 @@ from camplace.solver import SolveOptions, presolve, solve
 from camplace.solver._support import bitkernels as K
 from camplace import _blocks as blocks
 from camplace.solver._support import parkernels as P
+from camplace.solver._support.deadline import Deadline
 from camplace.solver.engines.bitset import search as bitset_mod
 from camplace.solver.engines.bitset.search import solve_bitset
 from camplace.solver.engines.setcover.local_search import search_threads
@@ -74,6 +75,44 @@ def test_same_presolve_and_answer_at_one_and_two_threads(pool_always, monkeypatc
     sel = list(one[1][2])
     assert one[1][0] == "optimal"
     assert abs(float(w[dense[:, sel].sum(axis=1) >= views].sum()) - best) <= tolerance(w)
+
+
+class _Clock:
+    """A clock for the search's rate: each reading ``step`` seconds after the last."""
+
+    def __init__(self, step: float) -> None:
+        self.now, self.step = 0.0, step
+
+    def perf_counter(self) -> float:
+        self.now += self.step
+        return self.now
+
+
+@two_cores
+@settings(max_examples=40, **_SETTINGS)
+@given(inst=small_instances(max_n=40, max_k=4), views=st.sampled_from([1, 1, 2]))
+def test_with_a_time_limit_the_rounds_do_not_depend_on_the_speed_or_the_thread_count(pool_always, monkeypatch, inst,
+                                                                                      views: int) -> None:
+    """With a time limit (the verbs' default 60 s) a round of the roots search still takes twice the
+    roots of the last, up to its cap, whatever the bounds-per-second: the same rounds, bounds and
+    answer at 1 and 2 threads and on a machine where each round reads as 0.5 s,
+    so that a tie between optima is broken the same way (the rate once sized every round)."""
+    matrix, w, k = inst
+    monkeypatch.setattr(bitset_mod, "_SLICE", 2)
+    monkeypatch.setattr(bitset_mod, "_ROOT_BUDGET", 2)
+    monkeypatch.setattr(bitset_mod, "_ROUND_EVALS", 64)  # at most 32 roots a round
+
+    def run(threads: int, step: float):
+        monkeypatch.setattr(bitset_mod, "time", _Clock(step))
+        with using_threads(threads):
+            pre = presolve(matrix, w, k, dominance=views == 1)
+            start = tuple(range(k)) if pre.shape[1] > k else None  # a poor start: the search improves it
+            out = solve_bitset(pre, views=views, deadline=Deadline(60.0), start=start)
+        return (out.status, out.bound, pre.original_columns(out.selected), out.stats.get("bound_evaluations"),
+                out.stats.get("rounds"))
+
+    fast = run(1, 1e-6)
+    assert fast == run(2, 1e-6) == run(1, 0.5) == run(2, 0.5)
 
 
 @settings(max_examples=60, **_SETTINGS)

@@ -50,7 +50,8 @@ set of columns is scored with a few word operations per 64 rows.
   ``1e-9 * total weight``.
 * **Time limit.** The compiled search runs in rounds of roots, each root for a slice of bound
   evaluations (``_SLICE`` for views = 1, ``_ROOT_BUDGET`` beyond); between rounds the deadline is
-  checked (with a time limit a round is sized to take about ``_BATCH_S`` seconds). On expiry the incumbent is returned with status ``feasible`` and the bound
+  checked (a round doubles the roots of the last, up to ``_ROUND_EVALS`` bound evaluations; with a
+  time limit it is cut to about ``_ROUND_S`` seconds and a quarter of the time left). On expiry the incumbent is returned with status ``feasible`` and the bound
   ``max(incumbent, bounds of the tuples still on the stack / frontier)``.
 * **Memory.** ``n' * m' / 8`` bytes of column bitsets and ``2 min(views, k)`` times that for the
   tree levels, plus the open tuples (at most ``_FRONTIER_MAX``, and the parallel stacks) in
@@ -89,7 +90,7 @@ log = logging.getLogger(__name__)
 
 BITSET_MAX_K = 4  # auto uses this engine up to this k (it is exact for any k, but slow for large k)
 _FLOAT_MARGIN = 1e-9
-_SLICE = 20_000  # bound evaluations of the depth-first search from each root for views = 1 (_ROOT_BUDGET beyond)
+_SLICE = 2_000  # bound evaluations of the depth-first search from each root for views = 1 (_ROOT_BUDGET beyond)
 _STACK = 1 << 14
 _STARTS = 2  # greedy starts (the best columns), besides the plain greedy
 _SWAP_ROUNDS = 50
@@ -103,9 +104,12 @@ _BATCH = 1 << 16  # tuples expanded per parallel call there at most ...
 _BATCH_MIN = 256  # ... and at least
 _ROOT_CHUNK = 16  # tuples per frontier entry of the search for views > 1 on the plain layout ...
 _ROOT_BUDGET = 20_000  # ... bound evaluations of the depth-first search from each root there ...
-_ROOTS_MIN, _ROOTS_MAX = 4, 512  # ... roots per parallel call (with a time limit; without: doubling from
-_ROOTS_NO_LIMIT = 64  # _ROOTS_MIN up to this many, whatever the timing) ...
-_BATCH_S = 0.5  # ... which should take this long (the deadline is checked between calls)
+_ROOTS_MIN, _ROOTS_MAX = 4, 1024  # ... roots per parallel call: doubling from _ROOTS_MIN while a
+_ROUND_EVALS = 512_000  # round spends at most this many bound evaluations (roots x budget), a
+# schedule that depends neither on the timing nor on the thread count, so every count and every run
+# gives the same answer; with a time limit a round is cut to what the rate just seen does in
+_ROUND_S = 4.0  # ... this many seconds and in a quarter of the time left (the deadline is checked between calls)
+_BATCH_S = 0.5  # seconds a batch of the opposite-pairs search should take
 _FRONTIER_MAX = 5_000_000  # open tuples at most in either search (8 k + 8 bytes each); the roots search goes ...
 _DEPTH_FIRST_OPEN = 1_000_000  # ... depth-first (newest chunks) while more than this many are open
 _PJIT = {"nogil": True, "cache": True, "error_model": "numpy", "boundscheck": False, "parallel": True}
@@ -117,7 +121,7 @@ def bitset_bytes(m: int, n: int, levels: int, k: int = BITSET_MAX_K, tuples: boo
     their ordered copy and ``levels`` level bitsets per tree node (2 n - 1 nodes), and (``tuples``)
     the open tuples of ``k`` nodes at most (the search stack, or the frontier and the parallel
     stacks for views > 1; they grow with the search, up to 160 MiB at k = 3)."""
-    open_b = (_STACK + _FRONTIER_MAX + max((k + 1) * _BATCH, _ROOTS_MAX * _dfs_stack(k, n))) * (8 * k + 8)
+    open_b = (_STACK + _FRONTIER_MAX + max((k + 1) * _BATCH, _roots_cap(_SLICE) * _dfs_stack(k, n))) * (8 * k + 8)
     return n * ((m + 63) // 64) * 8 * (2 + 2 * max(1, levels)) + (open_b if tuples else 0)
 
 
@@ -395,17 +399,25 @@ def _pairs_search(st: _State, perm: np.ndarray, layout, root: float, colmax: np.
 
 def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray, deadline: Deadline,
                   stats: dict[str, Any], since) -> tuple[str, float]:
-    """Best-first over the open tuples, depth-first below them, in parallel (views > 1 on the
-    plain layout).
+    """Best-first over the open tuples, depth-first below them, in parallel (max coverage, and
+    views > 1 on the plain layout).
 
     The open tuples are kept in small chunks of similar bounds
     (:class:`camplace.solver._support.frontier.Frontier`). Each round pops the best ones (the roots) and runs
-    a depth-first search from each root in parallel (``_ROOT_BUDGET`` bound evaluations each, the
-    cache-friendly order of the serial search); what is left on their stacks goes back to the
-    frontier. The reported bound (the frontier's largest) falls as the search goes; while more
-    than ``_DEPTH_FIRST_OPEN`` tuples are open the newest chunks are taken first (memory). A round
-    takes at most about ``_BATCH_S`` seconds (and a quarter of the time left) at the rate of the
-    previous one; the deadline is checked between rounds.
+    a depth-first search from each root in parallel (``_SLICE`` bound evaluations each for views =
+    1, ``_ROOT_BUDGET`` beyond; the cache-friendly order of the serial search); what is left on
+    their stacks goes back to the frontier. The reported bound (the frontier's largest) falls as
+    the search goes; while more than ``_DEPTH_FIRST_OPEN`` tuples are open the newest chunks are
+    taken first (memory). Each round takes twice the roots of the last, up to ``_ROUND_EVALS``
+    bound evaluations (:func:`_roots_cap`): a schedule that does not depend on the thread count or
+    the timing, so the answer does not either (a tie between two optima is broken by the search
+    order). With a time limit a round is cut to about ``_ROUND_S`` seconds and a quarter of the time
+    left at the rate of the previous one; the deadline is checked between rounds.
+
+    Small roots keep many cores busy: a round ends with its slowest root, and at 16 threads the
+    comet-67p-bunker 10,000 x 50,000 search replayed from its roots' measured times (``_SLICE``
+    20,000: 5.6x from 2 to 16 threads, as a lent 16-core machine measured 5.9x) reaches 7.5x with
+    2,000 (docs/performance.md).
 
     Returns the status and the bound (in ``st`` units); improvements go to ``st.offer``.
     """
@@ -414,6 +426,7 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
         lo, hi, left, right, levels = K.build_tree(np.ascontiguousarray(st.bits[perm]), min(views, k))
     cap = _dfs_stack(k, perm.size)
     budget = _ROOT_BUDGET if views > 1 else _SLICE
+    cap_roots = _roots_cap(budget)
     if views > 1:
         # split the node whose union most exceeds its heaviest column: where the bound is loosest
         # (on comet-67p-bunker, every surface point, 3 views, k = 6: 4.2 times fewer bounds than the largest node)
@@ -443,16 +456,14 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
                 0, budget, cap, score)
         if overflow:
             raise RuntimeError("bitset search stack overflow")  # cannot happen: depth <= k * log2(n) levels
-        # next round: without a time limit twice as many roots, up to _ROOTS_NO_LIMIT (a schedule
-        # that does not depend on timing or the thread count: the same answer at every count);
-        # with one, at the bounds-per-second just seen, even roots that use their whole budget
-        # take about _BATCH_S seconds (at most a quarter of the time left)
+        # next round: twice as many roots, up to the cap (the same schedule at every thread count);
+        # with a time limit at most what the bounds-per-second just seen do in _ROUND_S seconds
+        # and in a quarter of the time left, if that is fewer (near the deadline only, as a rule)
+        n_roots = min(cap_roots, 2 * n_roots)
         left_s = deadline.remaining()
-        if left_s is None:
-            n_roots = min(_ROOTS_NO_LIMIT, 2 * n_roots)
-        else:
+        if left_s is not None:
             rate = int(n_made) / max(time.perf_counter() - t_round, 1e-9)
-            n_roots = int(min(_ROOTS_MAX, max(_ROOTS_MIN, min(_BATCH_S, 0.25 * left_s) * rate / budget)))
+            n_roots = max(_ROOTS_MIN, min(n_roots, int(min(_ROUND_S, 0.25 * left_s) * rate / budget)))
         evaluated += int(n_made)
         f = int(np.argmax(found))
         if found[f] > st.best:
@@ -462,6 +473,12 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
                   "bound_evaluations": evaluated, "rounds": rounds, "peak_open": int(front.peak),
                   "depth_first_rounds": front.lifo_batches, "words": int(levels.shape[2])})
     return status, max(st.best, open_bound)
+
+
+def _roots_cap(budget: int) -> int:
+    """Roots of one round at most for a per-root ``budget`` of bound evaluations: ``_ROUND_EVALS``
+    evaluations, between ``_ROOTS_MIN`` and ``_ROOTS_MAX`` roots."""
+    return min(_ROOTS_MAX, max(_ROOTS_MIN, _ROUND_EVALS // max(1, budget)))
 
 
 def _dfs_stack(k: int, n: int) -> int:
