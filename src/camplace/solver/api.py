@@ -258,6 +258,9 @@ def _is_default(name: str, value: Any) -> bool:
 #: The share of the time limit that :func:`_relaxed_first` gives the problem without its minimum
 #: distance; the spaced route takes what is left.
 RELAXED_SPACING_SHARE = 0.3
+SPACING_BRANCH_SHARE = 0.3  # of the time left after it: branching on its conflicting pairs (maximisation) ...
+SPACING_BRANCH_SOLVES = 400  # ... with at most this many relaxed solves, stopping when this many in a row
+SPACING_BRANCH_STALL = 12  # ... have not lowered the bound
 
 
 def _relaxation_applies(o: SolveOptions) -> bool:
@@ -304,11 +307,46 @@ def _relaxed_first(matrix: Any, weights: Any, positions: Any, points: Any, o: So
         relaxed.stats["spacing_relaxed"] = info
         relaxed.stats["min_distance_m"] = d
         return replace(relaxed, time_s=deadline.elapsed())
-    res = _solve(matrix, weights, positions, points, o, deadline)
     if o.mode == "setcover":
+        res = _solve(matrix, weights, positions, points, o, deadline)
         return _spaced_best(res, relaxed, spaced, info, 1.0, deadline.elapsed(), minimize=True)
     scale = float(check_weights(weights, matrix.shape[0]).sum())
+    if relaxed.status in ("optimal", "feasible") and not spaced:
+        relaxed, spaced = _spacing_branched(matrix, weights, positions, points, relaxed_o, relaxed, pos, d,
+                                            len(fixed), deadline, scale, info)
+        if spaced and info["branching"]["closed"]:
+            best = replace(relaxed, status="optimal", bound=relaxed.objective, gap=0.0, time_s=deadline.elapsed())
+            best.stats.update({"spacing_relaxed": info, "min_distance_m": d})
+            return best
+    res = _solve(matrix, weights, positions, points, o, deadline)
     return _spaced_best(res, relaxed, spaced, info, scale, deadline.elapsed())
+
+
+def _spacing_branched(matrix: Any, weights: Any, positions: Any, points: Any, relaxed_o: SolveOptions,
+                      relaxed: SolverResult, pos: np.ndarray, d: float, n_fixed: int, deadline: Deadline,
+                      scale: float, info: dict) -> tuple[SolverResult, bool]:
+    """Branching on the relaxed optimum's conflicting pairs (:mod:`camplace.solver.spacing_branch`)
+    within :data:`SPACING_BRANCH_SHARE` of the time left: each part the same relaxed problem with
+    one more column forbidden, on its exact route. Returns the answer to hand to
+    :func:`_spaced_best` as the relaxed one (the best spaced answer found with the branching's
+    bound, or the relaxed answer with that bound when none was found) and whether it is spaced;
+    ``info["branching"]`` gives the solves, the nodes left, whether the branching closed (then
+    that answer is the spaced optimum) and its time."""
+    from camplace.solver.spacing_branch import branch_on_conflicts
+
+    t = time.perf_counter()
+    share = deadline.share(SPACING_BRANCH_SHARE)
+    n = matrix.shape[1]
+    out = branch_on_conflicts(
+        relaxed, lambda forb: _solve(matrix, weights, positions, points, replace(relaxed_o, forbidden=forb), share),
+        pos, d, tuple(relaxed_o.forbidden), n - len(set(relaxed_o.forbidden)) - n_fixed, int(relaxed_o.k),
+        share.expired, _OPT_TOL * max(abs(relaxed.bound), scale), SPACING_BRANCH_SOLVES, SPACING_BRANCH_STALL)
+    info["branching"] = {**out.stats, "closed": out.closed, "bound": out.bound, "time_s": time.perf_counter() - t}
+    if out.best is not None:
+        out.best.stats["forbidden"] = relaxed.stats.get("forbidden", [])  # the caller's, not the branching's
+    if out.best is None:
+        return replace(relaxed, bound=min(relaxed.bound, out.bound) if math.isfinite(out.bound) else relaxed.bound), False
+    return replace(out.best, bound=max(out.best.objective, min(relaxed.bound, out.bound))), True
 
 
 def _spaced_best(res: SolverResult, relaxed: SolverResult, spaced: bool, info: dict, scale: float,
