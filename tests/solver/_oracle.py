@@ -366,3 +366,14 @@ class CountingDeadline(Deadline):
         return self  # a step's slice expires with it
 
     within = shortened = share
+
+
+def random_observations(rng: np.random.Generator, m: int, n: int, density: float,
+                        graded: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(dense (m, n) float32, weights (m,)): each pair observed with probability ``density``
+    (qualities 0.25 / 0.5 / 1 when ``graded``), a tenth of the rows weightless."""
+    dense = (rng.random((m, n)) < density).astype(np.float32)
+    if graded:
+        dense *= rng.choice([0.25, 0.5, 1.0], size=dense.shape).astype(np.float32)
+    w = np.where(rng.random(m) < 0.1, 0.0, rng.random(m) + 0.1)
+    return dense, w

@@ -19,7 +19,7 @@ from camplace.solver.options import SolveOptions
 from camplace.solver.result import SolverResult
 from camplace.solver.spacing_branch import branch_on_conflicts, conflict
 from camplace.visibility.bits import bits_from_csr
-from tests.solver._oracle import brute_force_mode, spaced
+from tests.solver._oracle import brute_force_mode, random_observations, spaced
 
 
 def _case(seed: int, m: int = 40, n: int = 14, graded: bool = False):
@@ -28,10 +28,7 @@ def _case(seed: int, m: int = 40, n: int = 14, graded: bool = False):
     rng = np.random.default_rng(seed)
     centres = rng.normal(size=(5, 3)) * 4.0
     pos = centres[rng.integers(0, 5, size=n)] + rng.normal(size=(n, 3)) * 0.3
-    dense = (rng.random((m, n)) < 0.3).astype(np.float32)
-    if graded:
-        dense *= rng.choice([0.25, 0.5, 1.0], size=dense.shape).astype(np.float32)
-    w = np.where(rng.random(m) < 0.1, 0.0, rng.random(m) + 0.1)
+    dense, w = random_observations(rng, m, n, 0.3, graded)
     return dense, w, pos
 
 

@@ -17,7 +17,7 @@ from camplace.solver.api import bits_solve_bytes, solve
 from camplace.solver.options import SolveOptions
 from camplace.solver.result import SolverResult
 from camplace.visibility.bits import bits_from_csr
-from tests.solver._oracle import brute_force_mode, spaced
+from tests.solver._oracle import brute_force_mode, random_observations, spaced
 
 
 def _case(seed: int, graded: bool = False):
@@ -27,10 +27,7 @@ def _case(seed: int, graded: bool = False):
     m, n = 36, 10
     base = rng.normal(size=(n // 2, 3)) * 4.0
     pos = np.concatenate([base, base + rng.normal(size=base.shape) * 0.4])
-    dense = (rng.random((m, n)) < 0.35).astype(np.float32)
-    if graded:
-        dense *= rng.choice([0.25, 0.5, 1.0], size=dense.shape).astype(np.float32)
-    w = np.where(rng.random(m) < 0.1, 0.0, rng.random(m) + 0.1)
+    dense, w = random_observations(rng, m, n, 0.35, graded)
     return dense, w, pos
 
 
