@@ -142,3 +142,18 @@ def test_no_part_is_solved_after_the_time() -> None:
                               1e-12, 50, 50)
     assert calls == [(0,)] and not out.closed and out.bound == 0.9 and out.stats["stopped"] == "time limit"
     assert out.best.selected == (1, 2)
+
+
+def test_a_part_not_proven_stops_the_branching() -> None:
+    """A part's solve that stops before its proof (its time ran out): its answer and bound are
+    kept, and no further part is started (the rest would be no easier)."""
+    pos = np.array([[0.0, 0, 0], [0.5, 0, 0], [5.0, 0, 0]])
+    calls = []
+
+    def solve_forbidding(forb):
+        calls.append(forb)
+        return _res(0.7, 0.85, (1, 2), status="feasible")
+
+    out = branch_on_conflicts(_res(0.9, 0.9, (0, 1)), solve_forbidding, pos, 1.0, (), 3, 2, lambda: False, 1e-12, 50, 50)
+    assert calls == [(0,)] and not out.closed and out.stats["stopped"] == "a part not proven"
+    assert out.best.selected == (1, 2) and out.bound == 0.9  # the pair's node, its second part unsolved

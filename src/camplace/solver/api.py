@@ -311,7 +311,7 @@ def _relaxed_first(matrix: Any, weights: Any, positions: Any, points: Any, o: So
         res = _solve(matrix, weights, positions, points, o, deadline)
         return _spaced_best(res, relaxed, spaced, info, 1.0, deadline.elapsed(), minimize=True)
     scale = float(check_weights(weights, matrix.shape[0]).sum())
-    if relaxed.status in ("optimal", "feasible") and not spaced:
+    if relaxed.status == "optimal" and not spaced:  # (a relaxed problem not proven in its share: parts no easier)
         relaxed, spaced = _spacing_branched(matrix, weights, positions, points, relaxed_o, relaxed, pos, d,
                                             len(fixed), deadline, scale, info)
         if spaced and info["branching"]["closed"]:

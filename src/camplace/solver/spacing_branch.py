@@ -7,7 +7,8 @@ them forbidden, and with the second forbidden. Each is solved on the same exact 
 no general model), and its optimum or bound bounds the spaced answers it holds. The nodes are
 taken best bound first; a node whose relaxed optimum is spaced gives a spaced answer; a node whose
 bound cannot beat the best spaced answer is dropped. When no node is left the best spaced answer is
-the spaced optimum; when the time share or the solve budget ends first, the largest bound of the
+the spaced optimum; when the time share or the solve budget ends first, or a part's solve stops
+before its proof (the parts are then too hard for the time left), the largest bound of the
 nodes left (and of the best answer) is a valid bound, which the spaced route's answer keeps.
 
 The route reads the same bits for every node, so a solve takes the relaxed route's time and
@@ -165,6 +166,11 @@ def branch_on_conflicts(first: Any, solve_forbidding: Callable[[tuple[int, ...]]
             solves += 1
             since_low += 1
             consider(res, child, -neg_bound)
+            if res.status != "optimal":  # a part not proven in the time left: the rest would not be either
+                if col != pair[-1]:
+                    heapq.heappush(heap, (neg_bound, 0, forb, pair))  # the pair's other part stays open
+                stopped = "a part not proven"
+                break
         if stopped:
             break
     bound = max([best_value, *unresolved, *(-b for b, *_ in heap)])
