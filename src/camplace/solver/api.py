@@ -82,6 +82,7 @@ from camplace.solver.problem.objectives import cheap_bound, mode_value
 from camplace.solver.problem.presolve import check_weights
 from camplace.solver.result import EngineOutcome, SolverResult, jsonable, relative_gap
 from camplace.solver.routes import CoverProblem, fixed_base, run_cover, run_team
+from camplace.solver.spacing_branch import branch_on_conflicts, conflict
 
 __all__ = ["MODES", "solve", "mode_value", "conflict_pairs", "conflict_count", "bits_solve_bytes"]
 
@@ -298,9 +299,7 @@ def _relaxed_first(matrix: Any, weights: Any, positions: Any, points: Any, o: So
     except CamplaceError:  # (e.g. too few candidates once spaced from the fixed ones): the route says it
         return _solve(matrix, weights, positions, points, o, deadline)
     relaxed.stats["forbidden"] = list(index_set(o.forbidden, n, "forbidden"))  # the caller's (not those near fixed)
-    sel = np.asarray(relaxed.selected, dtype=np.int64)
-    gaps = np.linalg.norm(pos[sel][:, None, :] - pos[sel][None, :, :], axis=2)[np.triu_indices(sel.size, 1)]
-    spaced = relaxed.status in ("optimal", "feasible") and bool(np.all(gaps >= d))
+    spaced = relaxed.status in ("optimal", "feasible") and conflict(relaxed.selected, pos, d) is None
     info = {"status": relaxed.status, "objective": relaxed.objective, "bound": relaxed.bound, "spaced": spaced,
             "time_s": time.perf_counter() - t}
     if spaced and relaxed.status == "optimal":
@@ -332,8 +331,6 @@ def _spacing_branched(matrix: Any, weights: Any, positions: Any, points: Any, re
     bound, or the relaxed answer with that bound when none was found) and whether it is spaced;
     ``info["branching"]`` gives the solves, the nodes left, whether the branching closed (then
     that answer is the spaced optimum) and its time."""
-    from camplace.solver.spacing_branch import branch_on_conflicts
-
     t = time.perf_counter()
     share = deadline.share(SPACING_BRANCH_SHARE)
     n = matrix.shape[1]
@@ -342,11 +339,10 @@ def _spacing_branched(matrix: Any, weights: Any, positions: Any, points: Any, re
         pos, d, tuple(relaxed_o.forbidden), n - len(set(relaxed_o.forbidden)) - n_fixed, int(relaxed_o.k),
         share.expired, _OPT_TOL * max(abs(relaxed.bound), scale), SPACING_BRANCH_SOLVES, SPACING_BRANCH_STALL)
     info["branching"] = {**out.stats, "closed": out.closed, "bound": out.bound, "time_s": time.perf_counter() - t}
-    if out.best is not None:
-        out.best.stats["forbidden"] = relaxed.stats.get("forbidden", [])  # the caller's, not the branching's
-    if out.best is None:
-        return replace(relaxed, bound=min(relaxed.bound, out.bound) if math.isfinite(out.bound) else relaxed.bound), False
-    return replace(out.best, bound=max(out.best.objective, min(relaxed.bound, out.bound))), True
+    if out.best is None:  # (no part gave a spaced answer; none exists at all where the bound is -inf)
+        return replace(relaxed, bound=out.bound if math.isfinite(out.bound) else relaxed.bound), False
+    out.best.stats["forbidden"] = relaxed.stats.get("forbidden", [])  # the caller's, not the branching's
+    return replace(out.best, bound=out.bound), True
 
 
 def _spaced_best(res: SolverResult, relaxed: SolverResult, spaced: bool, info: dict, scale: float,

@@ -416,8 +416,8 @@ def _roots_search(st: _State, perm: np.ndarray, root: float, colmax: np.ndarray,
 
     Small roots keep many cores busy: a round ends with its slowest root, and at 16 threads the
     comet-67p-bunker 10,000 x 50,000 search replayed from its roots' measured times (``_SLICE``
-    20,000: 5.6x from 2 to 16 threads, as a lent 16-core machine measured 5.9x) reaches 7.5x with
-    2,000 (docs/performance.md).
+    20,000 with rounds sized by the rate: 5.6x from 2 to 16 threads, where a lent 16-core machine
+    measured 5.9x) reaches 6.9x with 2,000 and this schedule (docs/performance.md).
 
     Returns the status and the bound (in ``st`` units); improvements go to ``st.offer``.
     """
