@@ -31,6 +31,27 @@ def test_csv_text_equals_per_value_repr() -> None:
         csv_text("h", [np.zeros(2), np.zeros(3)])
 
 
+def test_csv_text_of_repeated_values_equals_per_value_repr() -> None:
+    """Long columns of few distinct values (formatted through their distinct values) give the same
+    text as formatting every value: -0.0 and 0.0 apart, NaN and infinities, float32, integers,
+    and a column just over and one just under the share of distinct values that takes that path."""
+    from camplace import _io
+
+    rng = np.random.default_rng(4)
+    n = 2 * _io._REPEAT_MIN
+    pool = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 0.1, 1e-300, -5e300, 1 / 3])
+    a = pool[rng.integers(0, pool.size, size=n)]
+    b = rng.normal(size=n // 4).astype(np.float32)[rng.integers(0, n // 4, size=n)]
+    i = rng.integers(-3, 3, size=n)
+    few = rng.normal(size=n)
+    few[: n // 4] = few[n // 4: n // 2]  # 75 % distinct: formatted through the distinct values
+    most = rng.normal(size=n)
+    most[: n // 8] = most[n // 8: n // 4]  # 87.5 % distinct: value by value
+    got = csv_text("a,b,i,f,m", [a, b, i, few, most])
+    assert got == _oracle("a,b,i,f,m", [list(r) for r in zip(a, b, i, few, most, strict=True)])
+    assert "-0.0," in got and "\n0.0," in got and "nan," in got and "-inf," in got
+
+
 def test_points_and_candidates_read_back(tmp_path) -> None:
     rng = np.random.default_rng(5)
     m = 40

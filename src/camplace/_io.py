@@ -134,17 +134,40 @@ def csv_text(header: str, columns: "list[np.ndarray]") -> str:
     -------
     str
         Every line ends with a newline. Formatted column by column with ``map`` and joined with
-        ``zip`` (no Python loop per value: 50,000 rows of 9 values in about 0.1 s).
+        ``zip`` (no Python loop per value); a column of few distinct values (a frame's weight,
+        a face's normal, a fixed aim) formats each distinct value once (:func:`_column_text`).
     """
     import numpy as np
 
-    arrays = [np.asarray(c) for c in columns]
-    texts = [list(map(repr if a.dtype.kind == "f" else str, a.tolist())) for a in arrays]
+    texts = [_column_text(np.asarray(c)) for c in columns]
     sizes = {len(t) for t in texts}
     if len(sizes) > 1:
         raise ValueError(f"csv_text: columns of different lengths {sorted(sizes)}")
     body = "\n".join(map(",".join, zip(*texts)))
     return header + "\n" + (body + "\n" if body else "")
+
+
+#: a column of at least this many values is checked for repeats (below, formatting it is cheap)
+_REPEAT_MIN = 4096
+
+
+def _column_text(a: "np.ndarray") -> list[str]:
+    """Each value of ``a`` (n,) as text: floats as ``repr``, integers as ``str``.
+
+    A long column of at most 80 % distinct values (counted on a sorted copy, about 1 % of the cost
+    of formatting) is formatted through its distinct values, compared bit for bit (so ``-0.0``
+    keeps its sign): the same text as formatting every value, each distinct value formatted once."""
+    import numpy as np
+
+    fmt = repr if a.dtype.kind == "f" else str
+    if a.size >= _REPEAT_MIN:
+        key = a.view(np.dtype(f"u{a.dtype.itemsize}")) if a.dtype.kind == "f" else a
+        ranked = np.sort(key)
+        if 5 * (1 + np.count_nonzero(ranked[1:] != ranked[:-1])) <= 4 * a.size:
+            _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+            distinct = list(map(fmt, a[first].tolist()))
+            return list(map(distinct.__getitem__, inverse.ravel().tolist()))
+    return list(map(fmt, a.tolist()))
 
 
 def read_json(path: str | os.PathLike[str], default_name: str, what: str) -> Any:

@@ -141,7 +141,9 @@ def test_rarest_row_with_tiers_equals_numpy() -> None:
     tiers = pb._rarity_tiers(np.flatnonzero(live_mask).astype(np.int64), row_nnz, nw)
     assert tiers.shape[0] == 3
     got = np.zeros(n, dtype=np.int64)
-    pb._rarest(bits.words, live, tiers, row_nnz, 0, n, got)
+    size = np.full(n, -1, dtype=np.int64)
+    pb._rarest(bits.words, live, tiers, row_nnz, 0, n, got, size)
+    np.testing.assert_array_equal(size, (a & live_mask[:, None]).sum(axis=0))
     want = np.full(n, -1, dtype=np.int64)
     for j in range(n):
         rows = np.flatnonzero(a[:, j] & live_mask)

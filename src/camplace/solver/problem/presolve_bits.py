@@ -6,10 +6,12 @@ results (the reduced instance is unique: the live rows, the dominated columns an
 rows into identical patterns do not depend on how they are found; groups are numbered by first
 occurrence):
 
-1. live rows: weight > 0 and some column observes them (an OR of all columns, in column blocks);
+1. live rows: weight > 0 and some column observes them (read from the rows' column counts, which
+   the dominance needs anyway; without the dominance, an OR of all columns, in column blocks);
 2. dominated columns: the candidate dominators of column ``a`` are the columns observing ``a``'s
    rarest live row (found by one scan of that row's bit over all columns, shared by the columns
-   with the same rarest row), each tested word by word against the live-row mask;
+   with the same rarest row), each tested word by word against the live-row mask (each column's
+   live rows are counted in the pass that finds its rarest row);
 3. identical rows over the kept columns are merged: each live row's bitset over the kept columns is
    built (a transposition, 64 x 64 bits at a time, ``m_live * ceil(n' / 64) * 8`` bytes), hashed,
    and grouped with exact word comparison.
@@ -62,18 +64,9 @@ def _or_columns(words, lo, hi, out):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _live_sizes(words, live, lo, hi, size):  # pragma: no cover - compiled
-    """Live rows of columns ``lo:hi``."""
-    for j in range(lo, hi):
-        s = np.int64(0)
-        for w in range(words.shape[1]):
-            s += np.int64(_popc(words[j, w] & live[w]))
-        size[j] = s
-
-
-@numba.njit(**_JIT)
-def _rarest(words, live, tiers, row_nnz, lo, hi, out):  # pragma: no cover - compiled
-    """Each column's live row observed by the fewest columns (the first on ties; -1: none).
+def _rarest(words, live, tiers, row_nnz, lo, hi, out, size):  # pragma: no cover - compiled
+    """Each column's live row observed by the fewest columns (the first on ties; -1: none), and
+    ``size[j]``, its live rows (in the same pass: the column's words are in the cache).
 
     ``tiers`` (t, nw) uint64 are nested masks of the live rows observed by at most a threshold of
     columns (rising thresholds); a column's rarest row lies in the first tier it meets (every row
@@ -83,6 +76,10 @@ def _rarest(words, live, tiers, row_nnz, lo, hi, out):  # pragma: no cover - com
     nw = words.shape[1]
     n_tiers = tiers.shape[0]
     for j in range(lo, hi):
+        s = np.int64(0)
+        for w in range(nw):
+            s += np.int64(_popc(words[j, w] & live[w]))
+        size[j] = s
         t_hit = n_tiers
         for t in range(n_tiers):
             acc = np.uint64(0)
@@ -780,11 +777,17 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
     # out of core (a scratch file's mapping): each block's pages are dropped after it is read
     release = getattr(bits, "release_columns", None) or (lambda lo, hi: None)
 
-    # 1. live rows
-    partial = np.zeros((_BLOCKS, nw), dtype=np.uint64)
+    # 1. live rows: from the rows' column counts where the dominance reads them anyway (one pass
+    # over the matrix, not two), else from the OR of the columns
     cb = cuts(n, _BLOCKS)
-    _run(lambda lo, hi: (_or_columns(words, lo, hi, partial[cb.index(lo)]), release(lo, hi)), cb, workers)
-    any_obs = np.bitwise_or.reduce(partial, axis=0) if n else np.zeros(nw, dtype=np.uint64)
+    with_dominance = dominance and n > k
+    if with_dominance:
+        row_nnz = bits.row_counts(workers)  # over all columns, as the CSR presolve counts
+        any_obs = _pack(row_nnz > 0, nw)
+    else:
+        partial = np.zeros((_BLOCKS, nw), dtype=np.uint64)
+        _run(lambda lo, hi: (_or_columns(words, lo, hi, partial[cb.index(lo)]), release(lo, hi)), cb, workers)
+        any_obs = np.bitwise_or.reduce(partial, axis=0) if n else np.zeros(nw, dtype=np.uint64)
     live = any_obs & _pack(w > 0, nw)
     live_mask = np.unpackbits(live.view(np.uint8), bitorder="little", count=m).astype(bool)
     live_rows = np.flatnonzero(live_mask).astype(np.int64)
@@ -794,14 +797,13 @@ def presolve_bits(bits, weights: Any, k: int, *, dominance: bool = True, workers
 
     # 2. dominance
     t1 = time.perf_counter()
-    size = np.zeros(n, dtype=np.int64)
-    _run(lambda lo, hi: (_live_sizes(words, live, lo, hi, size), release(lo, hi)), cb, workers)
     dominated = np.zeros(n, dtype=bool)
-    if dominance and n > k and live_rows.size > 0:
-        row_nnz = bits.row_counts(workers)  # over all columns, as the CSR presolve counts
+    if with_dominance and live_rows.size > 0:
         rarest = np.zeros(n, dtype=np.int64)
+        size = np.zeros(n, dtype=np.int64)  # each column's live rows
         tiers = _rarity_tiers(live_rows, row_nnz, nw)
-        _run(lambda lo, hi: (_rarest(words, live, tiers, row_nnz, lo, hi, rarest), release(lo, hi)), cb, workers)
+        _run(lambda lo, hi: (_rarest(words, live, tiers, row_nnz, lo, hi, rarest, size), release(lo, hi)), cb,
+             workers)
         empty = rarest < 0
         if empty.any():  # an empty column: dominated unless it is the first one and no column observes
             first_empty = int(np.flatnonzero(empty)[0])
