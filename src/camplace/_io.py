@@ -163,10 +163,11 @@ def _column_text(a: "np.ndarray") -> list[str]:
     if a.size >= _REPEAT_MIN:
         key = a.view(np.dtype(f"u{a.dtype.itemsize}")) if a.dtype.kind == "f" else a
         ranked = np.sort(key)
-        if 5 * (1 + np.count_nonzero(ranked[1:] != ranked[:-1])) <= 4 * a.size:
-            _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-            distinct = list(map(fmt, a[first].tolist()))
-            return list(map(distinct.__getitem__, inverse.ravel().tolist()))
+        new = np.concatenate(([True], ranked[1:] != ranked[:-1]))
+        if 5 * np.count_nonzero(new) <= 4 * a.size:
+            distinct = ranked[new]
+            texts = list(map(fmt, distinct.view(a.dtype).tolist()))
+            return list(map(texts.__getitem__, np.searchsorted(distinct, key).tolist()))
     return list(map(fmt, a.tolist()))
 
 
